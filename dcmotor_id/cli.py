@@ -1,0 +1,168 @@
+"""The ``dcmotor-id`` command line: offline identification and simulation.
+
+Exit codes: 0 success, 2 bad input or data that cannot identify the motor (with a message
+saying what is wrong and what to do), 1 an unexpected failure.
+"""
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+from dcmotor_id.errors import DcMotorIdError, InputDataError
+from dcmotor_id.excitation import EXCITATION_KINDS, add_sensor_noise, make_excitation, quantise
+from dcmotor_id.identify import METHODS, identify, prepare_records
+from dcmotor_id.io import Record, read_csv, write_csv
+from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.simulation import simulate_motor
+
+
+def load_records(paths):
+    """Read every input path (CSV files) into records."""
+    records = []
+    for path in paths:
+        if os.path.isdir(path) or path.endswith(('.mcap', '.db3')):
+            raise InputDataError(f'{path}: reading bags is not supported in this version; '
+                                 'export the topics to CSV (t, voltage, current, speed)')
+        else:
+            records.append(read_csv(path))
+    return records
+
+
+def format_result(result):
+    """Render a result dict as a readable table."""
+    lines = [f"method: {result['method']}   mode: {result['mode']}   records: "
+             f"{len(result['records'])}   samples: {result['n_samples']}   "
+             f"dt: {result['sample_period_s']:.6g} s"]
+    lines.append(f"{'parameter':<10}{'value':>16}{'stderr':>14}{'rel.':>10}  unit")
+    for name, value in result['parameters'].items():
+        err = result['stderr'].get(name, float('nan'))
+        rel = abs(err / value) * 100 if value else float('nan')
+        lines.append(f'{name:<10}{value:>16.6g}{err:>14.3g}{rel:>9.3g}%  '
+                     f"{result['units'].get(name, '')}")
+    for effect in result.get('effects', []):
+        parameters = ', '.join(f'{key} = {value:.4g}' for key, value in
+                               effect['parameters'].items())
+        lines.append(f"effect {effect['name']}: {parameters}")
+
+    def fmt(errors):
+        return ', '.join(f"{key.split('_')[0]} {value:.3g} %" for key, value in errors.items()
+                         if value is not None)
+    lines.append(f"simulation error before: {fmt(result['error_before'])}")
+    lines.append(f"simulation error after:  {fmt(result['error_after'])}")
+    if result.get('unexplained'):
+        lines.append('structure remains in the residual that no candidate effect explains')
+    return '\n'.join(lines)
+
+
+def _cmd_identify(args):
+    records = prepare_records(load_records(args.files), args.torque_constant, args.resample,
+                              args.speed_cutoff)
+    result = identify(records, method=args.method, torque_constant=args.torque_constant,
+                      discover=not args.no_discover)
+    if args.json:
+        directory = os.path.dirname(os.path.abspath(args.json))
+        os.makedirs(directory, exist_ok=True)
+        with open(args.json, 'w', encoding='utf-8') as stream:
+            json.dump(result, stream, indent=2)
+    print(format_result(result))
+    return 0
+
+
+def _cmd_simulate(args):
+    params = PAPER_MOTORS[args.motor]
+    t, voltage = make_excitation(args.excitation, args.duration, args.sample_period,
+                                 amplitude_v=args.amplitude, frequency_hz=args.frequency,
+                                 seed=args.seed)
+    current, speed = simulate_motor(params, voltage, args.sample_period)
+    rng = np.random.default_rng(args.seed)
+    current = quantise(add_sensor_noise(current, args.noise, rng), args.current_lsb)
+    speed = quantise(add_sensor_noise(speed, args.noise, rng), args.speed_lsb)
+    write_csv(args.out, Record(t, current=current, voltage=voltage, speed=speed))
+    print(f'wrote {len(t)} samples of motor {args.motor} ({args.excitation}, '
+          f'dt {args.sample_period:g} s, noise {args.noise:g} of std) to {args.out}')
+    return 0
+
+
+def _cmd_demo(args):
+    from dcmotor_id.demo import run_demo
+    return run_demo()
+
+
+def _positive(text):
+    value = float(text)
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f'must be a positive number, got {text}')
+    return value
+
+
+def _non_negative(text):
+    value = float(text)
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f'must be zero or a positive number, got {text}')
+    return value
+
+
+def build_parser():
+    """Build the argument parser (the CLI contract)."""
+    parser = argparse.ArgumentParser(
+        prog='dcmotor-id', description='Identify DC motor parameters (Ra, La, CPhi, J, b, Mc).')
+    commands = parser.add_subparsers(dest='command', required=True)
+
+    ident = commands.add_parser('identify', help='identify the motor from CSV files or bags')
+    ident.add_argument('files', nargs='+', metavar='FILE',
+                       help='CSV with columns t, voltage, current, speed (position optional)')
+    ident.add_argument('--json', metavar='OUT', help='write the result as JSON here')
+    ident.add_argument('--method', choices=sorted(METHODS), default='refined',
+                       help='refined (default: exact output error) or paper (the baseline)')
+    ident.add_argument('--torque-constant', type=_positive, metavar='K',
+                       help='mechanical-only mode: identify J, b, Mc with torque K*current '
+                            '[N m/A]')
+    ident.add_argument('--no-discover', action='store_true',
+                       help='skip the residual analysis and effect discovery')
+    ident.add_argument('--resample', action='store_true',
+                       help='interpolate irregularly sampled data onto a uniform grid')
+    ident.add_argument('--speed-cutoff', type=_positive, metavar='HZ',
+                       help='cut-off of the filter deriving speed from position [Hz]')
+    ident.set_defaults(handler=_cmd_identify)
+
+    sim = commands.add_parser('simulate', help='simulate a motor of the paper to CSV')
+    sim.add_argument('--motor', choices=sorted(PAPER_MOTORS), default='paper2')
+    sim.add_argument('--excitation', choices=EXCITATION_KINDS, default='paper')
+    sim.add_argument('--duration', type=_positive, default=8.0, metavar='S')
+    sim.add_argument('--sample-period', type=_positive, default=1e-4, metavar='S')
+    sim.add_argument('--noise', type=_non_negative, default=0.0, metavar='REL',
+                     help='white noise on current and speed, relative to their std')
+    sim.add_argument('--amplitude', type=_positive, metavar='V')
+    sim.add_argument('--frequency', type=_positive, metavar='HZ')
+    sim.add_argument('--current-lsb', type=_non_negative, default=0.0, metavar='A',
+                     help='quantisation step of the current sensor')
+    sim.add_argument('--speed-lsb', type=_non_negative, default=0.0, metavar='RAD_S',
+                     help='quantisation step of the speed sensor')
+    sim.add_argument('--seed', type=int, default=0)
+    sim.add_argument('--out', required=True, metavar='FILE.csv')
+    sim.set_defaults(handler=_cmd_simulate)
+
+    demo = commands.add_parser('demo', help='simulate motor 2 and identify it with both methods')
+    demo.set_defaults(handler=_cmd_demo)
+    return parser
+
+
+def main(argv=None):
+    """Run the command line; return the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.handler(args)
+    except DcMotorIdError as error:
+        print(f'dcmotor-id: error: {error}', file=sys.stderr)
+        return 2
+    except OSError as error:
+        print(f'dcmotor-id: error: {error}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())

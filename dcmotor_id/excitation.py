@@ -1,0 +1,144 @@
+"""Excitation signals (armature voltage) and sensor models.
+
+Every generator returns the voltage at the sample instants ``t_k = k dt``; the simulator holds
+each value over its sample (ZOH).  Units: V, s, Hz.
+"""
+
+import numpy as np
+from scipy import signal
+
+#: Names accepted by :func:`make_excitation` (and the CLI's ``--excitation``).
+EXCITATION_KINDS = ('sine', 'sawtooth', 'prbs', 'chirp', 'multisine', 'paper')
+
+#: The paper's training excitations: N1 with a 0.5 Hz 110 V sine, N2 with a 1 Hz 43 V sawtooth.
+PAPER_SINE = {'kind': 'sine', 'amplitude_v': 110.0, 'frequency_hz': 0.5}
+PAPER_SAWTOOTH = {'kind': 'sawtooth', 'amplitude_v': 43.0, 'frequency_hz': 1.0}
+
+
+def sample_times(duration_s, sample_period_s):
+    """Return ``t_k = k dt`` for ``0 <= t_k < duration_s``."""
+    if sample_period_s <= 0 or duration_s <= 0:
+        raise ValueError('duration and sample period must be positive')
+    n_samples = int(round(duration_s / sample_period_s))
+    return np.arange(n_samples) * sample_period_s
+
+
+def make_excitation(kind, duration_s, sample_period_s, amplitude_v=None, frequency_hz=None,
+                    offset_v=0.0, seed=0, max_frequency_hz=None):
+    """Generate an armature-voltage excitation.
+
+    Parameters
+    ----------
+    kind : str
+        ``sine``, ``sawtooth`` (rising ramp from ``-A`` to ``+A`` each period), ``prbs``
+        (maximum-length binary sequence, +/-A, clocked at ``frequency_hz``), ``chirp`` (linear
+        sweep from ``frequency_hz`` to ``max_frequency_hz``), ``multisine`` (Schroeder-phased
+        sum of 12 log-spaced sines between those two frequencies, peak ``A``) or ``paper``
+        (the sine of the paper's N1 training set followed by the sawtooth of N2's).
+    duration_s, sample_period_s : float
+        Record length and sample period [s].
+    amplitude_v : float, optional
+        Amplitude [V]; default 110 V for ``sine`` and ``paper``, 43 V otherwise.
+    frequency_hz : float, optional
+        Fundamental / clock / start frequency [Hz].  Defaults: sine 0.5, sawtooth 1, prbs 20,
+        chirp and multisine 0.2.
+    offset_v : float
+        Constant added to the signal [V].
+    seed : int
+        Seed of the random generator (PRBS start state).
+    max_frequency_hz : float, optional
+        Upper frequency of ``chirp`` and ``multisine`` [Hz]; default 20.
+
+    Returns
+    -------
+    t, voltage : numpy.ndarray
+        Sample times [s] and voltage [V].
+
+    """
+    t = sample_times(duration_s, sample_period_s)
+    if kind not in EXCITATION_KINDS:
+        raise ValueError(f'unknown excitation {kind!r}; choose one of {", ".join(EXCITATION_KINDS)}')
+    default_amplitude = 110.0 if kind in ('sine', 'paper') else 43.0
+    amplitude = default_amplitude if amplitude_v is None else float(amplitude_v)
+    upper = 20.0 if max_frequency_hz is None else float(max_frequency_hz)
+    if kind == 'sine':
+        f = 0.5 if frequency_hz is None else frequency_hz
+        u = amplitude * np.sin(2 * np.pi * f * t)
+    elif kind == 'sawtooth':
+        f = 1.0 if frequency_hz is None else frequency_hz
+        u = amplitude * signal.sawtooth(2 * np.pi * f * t)
+    elif kind == 'prbs':
+        f = 20.0 if frequency_hz is None else frequency_hz
+        hold = max(1, int(round(1.0 / (f * sample_period_s))))
+        n_bits = int(np.ceil(len(t) / hold)) + 1
+        nbits = max(4, int(np.ceil(np.log2(n_bits + 1))))
+        rng = np.random.default_rng(seed)
+        state = rng.integers(0, 2, size=nbits)
+        state[0] = 1
+        sequence = signal.max_len_seq(nbits, state=state, length=n_bits)[0]
+        u = amplitude * (2.0 * np.repeat(sequence, hold)[:len(t)] - 1.0)
+    elif kind == 'chirp':
+        f = 0.2 if frequency_hz is None else frequency_hz
+        u = amplitude * signal.chirp(t, f0=f, t1=max(t[-1], sample_period_s), f1=upper)
+    elif kind == 'multisine':
+        f = 0.2 if frequency_hz is None else frequency_hz
+        freqs = np.geomspace(f, upper, 12)
+        phases = -np.pi * np.arange(1, 13) * np.arange(12) / 12.0
+        u = np.sum(np.sin(2 * np.pi * freqs[:, None] * t[None, :] + phases[:, None]), axis=0)
+        u = amplitude * u / np.max(np.abs(u))
+    else:  # paper
+        half = len(t) // 2
+        u = np.concatenate([
+            amplitude * np.sin(2 * np.pi * 0.5 * t[:half]),
+            43.0 * signal.sawtooth(2 * np.pi * 1.0 * t[:len(t) - half]),
+        ])
+    return t, u + offset_v
+
+
+def add_sensor_noise(values, relative, rng):
+    """Add white Gaussian noise of standard deviation ``relative * std(values)``."""
+    values = np.asarray(values, dtype=float)
+    if relative <= 0:
+        return values.copy()
+    return values + rng.normal(0.0, relative * np.std(values), size=values.shape)
+
+
+def quantise(values, step):
+    """Round to a multiple of ``step`` (an ADC or encoder resolution); ``step <= 0``: no-op."""
+    values = np.asarray(values, dtype=float)
+    if step is None or step <= 0:
+        return values.copy()
+    return np.round(values / step) * step
+
+
+def speed_from_position(position, sample_period_s, cutoff_hz=None, order=4):
+    """Derive speed from an encoder position with a differentiating filter.
+
+    A Butterworth low-pass of the given order, applied forward and backward (no phase lag),
+    followed by central differences: the processing of the EMPS reference (IDIM-LS).
+
+    Parameters
+    ----------
+    position : array_like
+        Position [rad] (or [m] for a linear axis).
+    sample_period_s : float
+        Sample period [s].
+    cutoff_hz : float, optional
+        Low-pass cut-off [Hz]; default a tenth of the sample rate, at most 100 Hz.
+    order : int
+        Filter order.
+
+    Returns
+    -------
+    numpy.ndarray
+        Speed [rad/s] (or [m/s]).
+
+    """
+    position = np.asarray(position, dtype=float)
+    fs = 1.0 / sample_period_s
+    cutoff = min(0.1 * fs, 100.0) if cutoff_hz is None else float(cutoff_hz)
+    if not 0 < cutoff < 0.5 * fs:
+        raise ValueError(f'cut-off {cutoff} Hz must lie between 0 and the Nyquist {0.5 * fs} Hz')
+    sos = signal.butter(order, cutoff, fs=fs, output='sos')
+    smooth = signal.sosfiltfilt(sos, position)
+    return np.gradient(smooth, sample_period_s)

@@ -1,0 +1,31 @@
+"""Setup for the dcmotor_id ament_python package (pip and colcon)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'dcmotor_id'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*', 'bench']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/launch', glob('launch/*.py')),
+    ],
+    python_requires='>=3.10',
+    install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap', 'mcap-ros2-support'],
+    extras_require={'test': ['pytest']},
+    zip_safe=True,
+    maintainer='dcmotor_id developers',
+    maintainer_email='dev@dcmotor-id.invalid',
+    description='DC motor parameter identification: paper baseline, exact output error, ROS 2.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'dcmotor-id = dcmotor_id.cli:main',
+        ],
+    },
+)
