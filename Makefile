@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test bench clean
+.PHONY: demo demo-offline test bench clean
 
 $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -13,7 +13,12 @@ $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	$(PY) -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
 
+# The real node graph: sim_motor and identifier as processes, recording, then ~/identify.
 demo: $(STAMP)
+	$(PY) -m dcmotor_id.ros_demo
+
+# The offline comparison of the paper's method and the default one (no ROS).
+demo-offline: $(STAMP)
 	$(VENV)/bin/dcmotor-id demo
 
 test: $(STAMP)

@@ -16,7 +16,8 @@ setup(
         ('share/' + PACKAGE + '/launch', glob('launch/*.py')),
     ],
     python_requires='>=3.10',
-    install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap', 'mcap-ros2-support'],
+    install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap',
+                      'mcap-ros2-support'],
     extras_require={'test': ['pytest']},
     zip_safe=True,
     maintainer='dcmotor_id developers',
@@ -26,6 +27,9 @@ setup(
     entry_points={
         'console_scripts': [
             'dcmotor-id = dcmotor_id.cli:main',
+            'identifier = dcmotor_id.nodes.identifier:main',
+            'sim_motor = dcmotor_id.nodes.sim_motor:main',
+            'replay = dcmotor_id.nodes.replay:main',
         ],
     },
 )

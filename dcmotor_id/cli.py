@@ -1,4 +1,5 @@
-"""The ``dcmotor-id`` command line: offline identification and simulation.
+"""
+The ``dcmotor-id`` command line: offline identification and simulation.
 
 Exit codes: 0 success, 2 bad input or data that cannot identify the motor (with a message
 saying what is wrong and what to do), 1 an unexpected failure.
@@ -11,21 +12,21 @@ import sys
 
 import numpy as np
 
+from dcmotor_id.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.errors import DcMotorIdError, InputDataError
-from dcmotor_id.excitation import EXCITATION_KINDS, add_sensor_noise, make_excitation, quantise
-from dcmotor_id.identify import METHODS, identify, prepare_records
-from dcmotor_id.io import Record, read_csv, write_csv
+from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excitation, quantise
+from dcmotor_id.identify import identify, METHODS, prepare_records
+from dcmotor_id.io import BAG_TOPICS, read_bag, read_csv, Record, write_csv
 from dcmotor_id.model import PAPER_MOTORS
-from dcmotor_id.simulation import simulate_motor
+from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 
 
-def load_records(paths):
-    """Read every input path (CSV files) into records."""
+def load_records(paths, topics=None):
+    """Read every input path (CSV files, rosbag2 directories, .mcap or .db3 files)."""
     records = []
     for path in paths:
         if os.path.isdir(path) or path.endswith(('.mcap', '.db3')):
-            raise InputDataError(f'{path}: reading bags is not supported in this version; '
-                                 'export the topics to CSV (t, voltage, current, speed)')
+            records.append(read_bag(path, topics=topics))
         else:
             records.append(read_csv(path))
     return records
@@ -43,7 +44,8 @@ def format_result(result):
         lines.append(f'{name:<10}{value:>16.6g}{err:>14.3g}{rel:>9.3g}%  '
                      f"{result['units'].get(name, '')}")
     for effect in result.get('effects', []):
-        parameters = ', '.join(f'{key} = {value:.4g}' for key, value in
+        parameters = ', '.join(f'{key} = {value:.4g}' if isinstance(value, float) else
+                               f'{key} = {value}' for key, value in
                                effect['parameters'].items())
         lines.append(f"effect {effect['name']}: {parameters}")
 
@@ -58,10 +60,18 @@ def format_result(result):
 
 
 def _cmd_identify(args):
-    records = prepare_records(load_records(args.files), args.torque_constant, args.resample,
-                              args.speed_cutoff)
-    result = identify(records, method=args.method, torque_constant=args.torque_constant,
-                      discover=not args.no_discover)
+    topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
+              'speed': args.speed_topic, 'samples': args.samples_topic}
+    records = prepare_records(load_records(args.files, topics), args.torque_constant,
+                              args.resample, args.speed_cutoff)
+    vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
+    result, found = identify(records, method=args.method, torque_constant=args.torque_constant,
+                             discover=not args.no_discover, details=True,
+                             vocabulary=vocabulary)
+    if args.report:
+        from dcmotor_id.report import write_report
+        page = write_report(args.report, result, found, records)
+        print(f'report: {page}')
     if args.json:
         directory = os.path.dirname(os.path.abspath(args.json))
         os.makedirs(directory, exist_ok=True)
@@ -76,13 +86,25 @@ def _cmd_simulate(args):
     t, voltage = make_excitation(args.excitation, args.duration, args.sample_period,
                                  amplitude_v=args.amplitude, frequency_hz=args.frequency,
                                  seed=args.seed)
-    current, speed = simulate_motor(params, voltage, args.sample_period)
+    position = None
+    if args.effect:
+        try:
+            effects = [parse_effect(text) for text in args.effect]
+        except ValueError as error:
+            raise InputDataError(f'--effect: {error}') from None
+        current, speed, position = simulate_motor_effects(params, voltage, args.sample_period,
+                                                          effects)
+    else:
+        current, speed = simulate_motor(params, voltage, args.sample_period)
     rng = np.random.default_rng(args.seed)
     current = quantise(add_sensor_noise(current, args.noise, rng), args.current_lsb)
     speed = quantise(add_sensor_noise(speed, args.noise, rng), args.speed_lsb)
-    write_csv(args.out, Record(t, current=current, voltage=voltage, speed=speed))
+    write_csv(args.out, Record(t, current=current, voltage=voltage, speed=speed,
+                               position=position))
+    with_effects = f", effects {', '.join(args.effect)}" if args.effect else ''
     print(f'wrote {len(t)} samples of motor {args.motor} ({args.excitation}, '
-          f'dt {args.sample_period:g} s, noise {args.noise:g} of std) to {args.out}')
+          f'dt {args.sample_period:g} s, noise {args.noise:g} of std{with_effects}) to '
+          f'{args.out}')
     return 0
 
 
@@ -113,7 +135,8 @@ def build_parser():
 
     ident = commands.add_parser('identify', help='identify the motor from CSV files or bags')
     ident.add_argument('files', nargs='+', metavar='FILE',
-                       help='CSV with columns t, voltage, current, speed (position optional)')
+                       help='CSV with columns t, voltage, current, speed (position optional), '
+                            'rosbag2 directory (MCAP or sqlite3), or .mcap file')
     ident.add_argument('--json', metavar='OUT', help='write the result as JSON here')
     ident.add_argument('--method', choices=sorted(METHODS), default='refined',
                        help='refined (default: exact output error) or paper (the baseline)')
@@ -122,10 +145,21 @@ def build_parser():
                             '[N m/A]')
     ident.add_argument('--no-discover', action='store_true',
                        help='skip the residual analysis and effect discovery')
+    ident.add_argument('--report', metavar='DIR',
+                       help='write an HTML report with plots (measured vs model before and '
+                            'after, residual whiteness, parameters, effects) to DIR')
+    ident.add_argument('--extended-vocabulary', action='store_true',
+                       help='let the discovery loop also try the effects beyond the standard '
+                            'vocabulary (viscous_asymmetry)')
     ident.add_argument('--resample', action='store_true',
                        help='interpolate irregularly sampled data onto a uniform grid')
     ident.add_argument('--speed-cutoff', type=_positive, metavar='HZ',
                        help='cut-off of the filter deriving speed from position [Hz]')
+    for channel, kind in (('voltage', 'Float64'), ('current', 'Float64'),
+                          ('speed', 'Float64'), ('samples', 'batched Float64MultiArray')):
+        ident.add_argument(f'--{channel}-topic', default=BAG_TOPICS[channel], metavar='TOPIC',
+                           help=f'bags: {kind} topic of the {channel} (default '
+                                f'{BAG_TOPICS[channel]!r}, any namespace)')
     ident.set_defaults(handler=_cmd_identify)
 
     sim = commands.add_parser('simulate', help='simulate a motor of the paper to CSV')
@@ -142,6 +176,10 @@ def build_parser():
     sim.add_argument('--speed-lsb', type=_non_negative, default=0.0, metavar='RAD_S',
                      help='quantisation step of the speed sensor')
     sim.add_argument('--seed', type=int, default=0)
+    sim.add_argument('--effect', action='append', metavar='NAME[:param=value,...]',
+                     help='simulate with a true effect, e.g. load_torque:torque_Nm=0.5 or '
+                          'sensor_delay:channel=speed,samples=3 (repeatable; names: '
+                          + ', '.join(EFFECTS) + '); adds the shaft angle as position')
     sim.add_argument('--out', required=True, metavar='FILE.csv')
     sim.set_defaults(handler=_cmd_simulate)
 

@@ -5,7 +5,7 @@ import time
 import numpy as np
 
 from dcmotor_id.estimators.paper import PaperEstimator
-from dcmotor_id.excitation import PAPER_SAWTOOTH, PAPER_SINE, add_sensor_noise, make_excitation
+from dcmotor_id.excitation import add_sensor_noise, make_excitation, PAPER_SAWTOOTH, PAPER_SINE
 from dcmotor_id.identify import identify
 from dcmotor_id.io import Record
 from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS

@@ -1,4 +1,5 @@
-"""Excitation signals (armature voltage) and sensor models.
+"""
+Excitation signals (armature voltage) and sensor models.
 
 Every generator returns the voltage at the sample instants ``t_k = k dt``; the simulator holds
 each value over its sample (ZOH).  Units: V, s, Hz.
@@ -25,7 +26,8 @@ def sample_times(duration_s, sample_period_s):
 
 def make_excitation(kind, duration_s, sample_period_s, amplitude_v=None, frequency_hz=None,
                     offset_v=0.0, seed=0, max_frequency_hz=None):
-    """Generate an armature-voltage excitation.
+    """
+    Generate an armature-voltage excitation.
 
     Parameters
     ----------
@@ -57,7 +59,8 @@ def make_excitation(kind, duration_s, sample_period_s, amplitude_v=None, frequen
     """
     t = sample_times(duration_s, sample_period_s)
     if kind not in EXCITATION_KINDS:
-        raise ValueError(f'unknown excitation {kind!r}; choose one of {", ".join(EXCITATION_KINDS)}')
+        raise ValueError(f'unknown excitation {kind!r}; choose one of '
+                         f'{", ".join(EXCITATION_KINDS)}')
     default_amplitude = 110.0 if kind in ('sine', 'paper') else 43.0
     amplitude = default_amplitude if amplitude_v is None else float(amplitude_v)
     upper = 20.0 if max_frequency_hz is None else float(max_frequency_hz)
@@ -112,7 +115,8 @@ def quantise(values, step):
 
 
 def speed_from_position(position, sample_period_s, cutoff_hz=None, order=4):
-    """Derive speed from an encoder position with a differentiating filter.
+    """
+    Derive speed from an encoder position with a differentiating filter.
 
     A Butterworth low-pass of the given order, applied forward and backward (no phase lag),
     followed by central differences: the processing of the EMPS reference (IDIM-LS).

@@ -1,4 +1,5 @@
-"""From checked records to the identification result (the CLI's and the node's common path).
+"""
+From checked records to the identification result (the CLI's and the node's common path).
 
 :func:`prepare_records` checks what was read and derives speed from position where needed;
 :func:`check_excitation` refuses data that cannot identify the motor, naming the parameters;
@@ -9,7 +10,9 @@ contract.
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from dcmotor_id.errors import FitError, InputDataError, NotIdentifiableError
+from dcmotor_id.discovery import DiscoveryLoop
+from dcmotor_id.effects import VOCABULARY
+from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
 from dcmotor_id.estimators.base import nrmse_pct
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
@@ -23,10 +26,13 @@ METHODS = {'refined': RefinedEstimator, 'paper': PaperEstimator}
 IDENTIFIABLE_REL_STDERR = 0.5
 #: Simulation error (percent of std) above which the model is said not to fit at all.
 NO_FIT_NRMSE_PCT = 60.0
+#: Simulation error of the base model above which effect discovery is not tried (percent).
+HOPELESS_NRMSE_PCT = 100.0
 
 
 def prepare_records(records, torque_constant=None, resample=False, speed_cutoff_hz=None):
-    """Check records and give each a speed; return the list ready for an estimator.
+    """
+    Check records and give each a speed; return the list ready for an estimator.
 
     Parameters
     ----------
@@ -55,6 +61,12 @@ def prepare_records(records, torque_constant=None, resample=False, speed_cutoff_
                 'only (J, b, Mc) by giving the torque constant: --torque-constant K [N m/A]')
         record = check_record(record, need_voltage=torque_constant is None, resample=resample)
         if record.speed is None:
+            nyquist_hz = 0.5 / record.sample_period_s
+            if speed_cutoff_hz is not None and not 0 < speed_cutoff_hz < nyquist_hz:
+                raise InputDataError(
+                    f'{record.source or "record"}: --speed-cutoff {speed_cutoff_hz:g} Hz is not '
+                    f'below the Nyquist frequency {nyquist_hz:.6g} Hz of the record; give a '
+                    'lower cut-off (the default is a tenth of the sample rate, at most 100 Hz)')
             record = record.replace(speed=speed_from_position(
                 record.position, record.sample_period_s, speed_cutoff_hz))
         prepared.append(record)
@@ -80,7 +92,8 @@ def _smooth(values, sample_period_s):
 
 
 def check_excitation(records, mechanical_only):
-    """Refuse data that do not excite the motor, naming what cannot be identified.
+    """
+    Refuse data that do not excite the motor, naming what cannot be identified.
 
     Raises
     ------
@@ -119,7 +132,10 @@ def check_excitation(records, mechanical_only):
 
 
 def simulation_errors(estimate, records, torque_constant=None, terms=()):
-    """Simulation error of an estimate: ``{current_nrmse_pct, speed_nrmse_pct}`` over records.
+    """
+    Return the simulation error of an estimate over the records.
+
+    The result is ``{current_nrmse_pct, speed_nrmse_pct}``.
 
     The current error is ``None`` in mechanical-only mode (current is the input there).
     """
@@ -147,7 +163,9 @@ def _check_result(estimate):
                value > 0 if name in ('Ra', 'La', 'CPhi', 'J') else value >= 0))}
     if bad:
         listing = ', '.join(f'{name} = {value:.4g} {UNITS[name]}' for name, value in bad.items())
-        hint = (' The paper method is not robust to sensor noise: use --method refined.'
+        hint = (' Check the signs and units of the columns (current and speed must be positive '
+                'for a positive voltage); the paper method is also not robust to sensor noise: '
+                'use --method refined.'
                 if estimate.method == 'paper' else
                 ' Check the signs and units of the columns (current and speed must be positive '
                 'for a positive voltage).')
@@ -165,8 +183,10 @@ def _check_result(estimate):
             'a longer record.')
 
 
-def identify(records, method='refined', torque_constant=None, discover=True, estimator=None):
-    """Identify the motor from prepared records; return the result as a JSON-ready dict.
+def identify(records, method='refined', torque_constant=None, discover=True, estimator=None,
+             details=False, vocabulary=None):
+    """
+    Identify the motor from prepared records; return the result as a JSON-ready dict.
 
     Parameters
     ----------
@@ -177,17 +197,26 @@ def identify(records, method='refined', torque_constant=None, discover=True, est
     torque_constant : float, optional
         Mechanical-only mode with this torque constant [N m/A].
     discover : bool
-        Run the residual analysis and effect discovery (not available yet: accepted and
-        reported as ``effects: []``).
+        Run the residual analysis and effect discovery (:mod:`dcmotor_id.discovery`; the
+        refined method only).
     estimator : object, optional
         An estimator instance to use instead of the one named by ``method``.
+    details : bool
+        Also return the :class:`~dcmotor_id.discovery.DiscoveryResult` (None when the loop
+        did not run), for the report.
+    vocabulary : sequence of Effect classes, optional
+        Candidates of the loop (default :data:`dcmotor_id.effects.VOCABULARY`).
 
     Returns
     -------
     dict
-        ``parameters``, ``stderr``, ``method``, ``effects``, ``error_before``,
-        ``error_after``, ``unexplained``, plus ``mode``, ``initial_states``, ``noise_std``,
-        ``sample_period_s``, ``n_samples``, ``records``, ``units``.
+        ``parameters`` (final values), ``stderr``, ``method``, ``effects`` (in the order
+        added, each ``{"name", "parameters"}``), ``error_before`` / ``error_after``
+        (simulation error on the held-out data of the base and the final model; in-sample
+        when the loop did not run), ``unexplained``, ``discovery`` (the loop's steps and
+        evidence, or why it did not run), plus ``mode``, ``initial_states``, ``noise_std``,
+        ``sample_period_s``, ``n_samples``, ``records``, ``units``.  With ``details`` a
+        tuple ``(dict, DiscoveryResult or None)``.
 
     """
     if method not in METHODS:
@@ -198,29 +227,59 @@ def identify(records, method='refined', torque_constant=None, discover=True, est
     estimate = estimator.fit(records, torque_constant=torque_constant)
     _check_result(estimate)
     errors = simulation_errors(estimate, records, torque_constant)
-    worst = max(value for value in errors.values() if value is not None) \
-        if any(value is not None for value in errors.values()) else float('inf')
+    found, discovery_info = None, None
+    base_worst = max([value for value in errors.values() if value is not None] or [np.inf])
+    if discover and not base_worst <= HOPELESS_NRMSE_PCT:
+        # Worse than the signals' mean: a sign or unit error, which no effect explains (and
+        # every candidate fit would diverge slowly); refuse below without the loop.
+        discovery_info = {'skipped': f'the base model does not fit ({base_worst:.3g} % '
+                                     'simulation error)'}
+    elif discover:
+        found, discovery_info = _run_discovery(records, torque_constant, estimator, vocabulary)
+    final, terms, fitted_records = estimate, (), records
+    if found is not None:
+        final, terms, fitted_records = found.estimate, found.terms, found.records
+    in_sample = simulation_errors(final, fitted_records, torque_constant, terms)
+    worst = max(value for value in in_sample.values() if value is not None) \
+        if any(value is not None for value in in_sample.values()) else float('inf')
     if not np.isfinite(worst) or worst > NO_FIT_NRMSE_PCT:
         raise FitError(
             f'the identified model does not reproduce the data (simulation error {worst:.3g} % '
             'of the signal spread). Check that the columns are what their names say (units, '
             'signs) and that the data come from a DC motor drive.')
     names = ('J', 'b', 'Mc') if mechanical_only else PARAMETER_NAMES + DERIVED_NAMES
-    return {
-        'parameters': {name: estimate.parameters[name] for name in names},
-        'stderr': {name: estimate.stderr[name] for name in names},
-        'method': estimate.method,
-        'effects': [],
-        'error_before': errors,
-        'error_after': dict(errors),
-        'unexplained': False,
+    result = {
+        'parameters': {name: final.parameters[name] for name in names},
+        'stderr': {name: final.stderr[name] for name in names},
+        'method': final.method,
+        'effects': found.effects_json() if found is not None else [],
+        'error_before': found.error_before if found is not None else errors,
+        'error_after': found.error_after if found is not None else dict(errors),
+        'unexplained': bool(found.unexplained) if found is not None else False,
         'mode': 'mechanical' if mechanical_only else 'full',
         'torque_constant': torque_constant,
-        'initial_states': [list(state) for state in estimate.initial_states],
-        'noise_std': estimate.info.get('noise_std', {}),
+        'initial_states': [list(state) for state in final.initial_states],
+        'noise_std': final.info.get('noise_std', {}),
         'sample_period_s': records[0].sample_period_s,
         'n_samples': int(sum(len(rec) for rec in records)),
         'records': [rec.source for rec in records],
         'units': {name: UNITS[name] for name in names},
         'discover': bool(discover),
+        'discovery': discovery_info,
     }
+    return (result, found) if details else result
+
+
+def _run_discovery(records, torque_constant, estimator, vocabulary):
+    """Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``."""
+    if not isinstance(estimator, RefinedEstimator):
+        return None, {'skipped': f'effect discovery needs the refined method (the '
+                                 f'{getattr(estimator, "name", "given")} method has no effect '
+                                 'terms)'}
+    try:
+        found = DiscoveryLoop(records, torque_constant,
+                              vocabulary=vocabulary or VOCABULARY).run()
+        _check_result(found.estimate)
+    except (DcMotorIdError, np.linalg.LinAlgError) as error:
+        return None, {'skipped': f'effect discovery could not run on these data: {error}'}
+    return found, found.summary()

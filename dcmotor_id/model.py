@@ -1,4 +1,5 @@
-"""The separately excited DC motor with constant flux, in SI units.
+"""
+The separately excited DC motor with constant flux, in SI units.
 
 The model (shared/paper/ERRATA.md, the paper's eqs. 1-5 with the sign slips corrected)::
 
@@ -33,7 +34,8 @@ UNITS = {
 
 @dataclass(frozen=True)
 class MotorParameters:
-    """Physical parameters of a separately excited DC motor (SI units).
+    """
+    Physical parameters of a separately excited DC motor (SI units).
 
     Attributes
     ----------
@@ -102,7 +104,8 @@ PAPER_MOTORS = {
 
 
 def state_matrix(params):
-    """Continuous-time state matrix of the motor for the state ``[i, w]``.
+    """
+    Continuous-time state matrix of the motor for the state ``[i, w]``.
 
     Parameters
     ----------

@@ -1,4 +1,5 @@
-"""What every estimator takes and returns, and the data layout they share.
+"""
+What every estimator takes and returns, and the data layout they share.
 
 An estimator is an object with a ``name`` and ``fit(records, torque_constant=None, terms=())``
 returning an :class:`Estimate`.  ``records`` are checked, uniformly sampled
@@ -16,7 +17,8 @@ from dcmotor_id.model import MECHANICAL_NAMES, PARAMETER_NAMES
 
 @dataclass(frozen=True)
 class ExogenousTerm:
-    """A linear-in-its-coefficient term added to the model, for effects.
+    """
+    A linear-in-its-coefficient term added to the model, for effects.
 
     The model gains ``coefficient * regressor[k]`` on one channel: ``voltage`` (added to the
     armature voltage, V), ``torque`` (added to the shaft torque, N m), ``current`` or ``speed``
@@ -46,7 +48,8 @@ class ExogenousTerm:
 
 @dataclass(frozen=True)
 class Estimate:
-    """Result of one estimator on a set of records.
+    """
+    Result of one estimator on a set of records.
 
     Attributes
     ----------
@@ -77,12 +80,12 @@ class Estimate:
 
 
 def parameter_names(mechanical_only):
-    """Base parameter names identified in a mode."""
+    """Return the base parameter names identified in a mode."""
     return MECHANICAL_NAMES if mechanical_only else PARAMETER_NAMES
 
 
 def derived_stderr(values, covariance, names):
-    """Standard errors of Ka = 1/Ra and Ta = La/Ra from a covariance of (Ra, La, ...)."""
+    """Return the standard errors of Ka = 1/Ra and Ta = La/Ra from a covariance."""
     index = {name: position for position, name in enumerate(names)}
     ra, la = values['Ra'], values['La']
     grad_ka = np.zeros(len(names))
@@ -97,7 +100,7 @@ def derived_stderr(values, covariance, names):
 
 
 def nrmse_pct(simulated, measured):
-    """Simulation error in percent of the measured signal's standard deviation."""
+    """Return the simulation error in percent of the measured signal's standard deviation."""
     spread = np.std(measured)
     if spread == 0:
         return float('nan')

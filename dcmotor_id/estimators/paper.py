@@ -1,4 +1,5 @@
-"""The paper's structural neural identifier (the documented baseline).
+"""
+The paper's structural neural identifier (the documented baseline).
 
 Two linear neurons on the Euler-discretised motor equations (the paper's eqs. 6, 9, 17, 18 with
 the corrections of shared/paper/ERRATA.md; weights named by the input they multiply)::
@@ -22,7 +23,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from dcmotor_id.errors import FitError
-from dcmotor_id.estimators.base import Estimate, derived_stderr
+from dcmotor_id.estimators.base import derived_stderr, Estimate
 
 
 def _train_neuron(inputs, target):
@@ -63,7 +64,8 @@ def _propagate(function, weights, covariance):
 
 
 class PaperEstimator:
-    """Faithful replication of the paper's two-neuron identifier.
+    """
+    Faithful replication of the paper's two-neuron identifier.
 
     Parameters
     ----------

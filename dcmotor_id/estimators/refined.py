@@ -1,4 +1,5 @@
-"""The default estimator: exact output error, initialised by continuous-time least squares.
+"""
+The default estimator: exact output error, initialised by continuous-time least squares.
 
 Why this design (bench/README.md has the numbers):
 
@@ -20,22 +21,58 @@ Why this design (bench/README.md has the numbers):
   signals (a state-variable-filter method, at three cut-offs) and the paper's neurons.
 """
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import butter, sosfiltfilt
 
 from dcmotor_id.errors import FitError
-from dcmotor_id.estimators.base import Estimate, derived_stderr, parameter_names
+from dcmotor_id.estimators.base import (derived_stderr, Estimate, ExogenousTerm,
+                                        parameter_names)
 from dcmotor_id.estimators.paper import PaperEstimator
-from dcmotor_id.model import MotorParameters
-from dcmotor_id.simulation import HybridSystem, motor_forcing, motor_system
+from dcmotor_id.model import MotorParameters, state_matrix
+from dcmotor_id.simulation import (HybridSystem, motor_forcing, MotorEffects,
+                                   simulate_mechanical_effects, simulate_motor_effects)
 
 _POSITIVE = ('Ra', 'La', 'CPhi', 'J')
-_CHANNELS = ('voltage', 'torque', 'current', 'speed')
+_MISFIT = ('the motor model does not reproduce the data. Check that the columns are what their '
+           'names say (units, signs: current and speed positive for a positive voltage)')
+#: Channels of exogenous terms: the linear ones of :class:`ExogenousTerm` and ``state``
+#: (:class:`StateTerm`, an effect simulated exactly inside the model).
+_CHANNELS = ('voltage', 'torque', 'current', 'speed', 'state')
+#: Sub-steps per sample when state-dependent effects are simulated.
+STATE_OVERSAMPLE = 2
+
+
+@dataclass(frozen=True)
+class StateTerm(ExogenousTerm):
+    """
+    An effect whose coefficient sets a field of :class:`~dcmotor_id.simulation.MotorEffects`.
+
+    Used where a regressor of measured signals cannot express the effect: friction that
+    depends on the simulated speed and changes the break-away level (Stribeck, asymmetric
+    Coulomb friction), or a brush drop that blocks the current.  The model is then simulated
+    with :func:`~dcmotor_id.simulation.simulate_motor_effects` (state-dependent terms held
+    over half-samples); a Coulomb asymmetry alone keeps the exact fast path.  ``channel`` is
+    ``state`` and the regressors only serve the residual correlations.
+
+    Attributes
+    ----------
+    field : str
+        The :class:`~dcmotor_id.simulation.MotorEffects` field the coefficient sets.
+    fixed : tuple of (str, float)
+        Other fields held at given values (e.g. the Stribeck velocity).
+
+    """
+
+    field: str = ''
+    fixed: tuple = ()
 
 
 class OutputErrorModel:
-    """The motor (or the shaft alone) with exogenous terms, simulated for a parameter dict.
+    """
+    The motor (or the shaft alone) with exogenous terms, simulated for a parameter dict.
 
     Parameters
     ----------
@@ -60,6 +97,23 @@ class OutputErrorModel:
                 raise ValueError(f'term {term.name}: one regressor per record is needed')
         self.base_names = parameter_names(self.mechanical_only)
         self.outputs = ('speed',) if self.mechanical_only else ('current', 'speed')
+        # The period is a median over the record: computed once, not at every simulation.
+        self.sample_periods_s = [rec.sample_period_s for rec in self.records]
+        # Mechanical-only mode: the sampled current is the input.  It varies within a sample,
+        # so the torque held over [t_k, t_k+1) is its trapezoidal mean (i[k] + i[k+1]) / 2;
+        # holding i[k] instead biases J by O(dT) (0.5 % at 1 kHz for motor 2, bench/README.md).
+        self.held_currents = [np.append(0.5 * (rec.current[:-1] + rec.current[1:]),
+                                        rec.current[-1]) if self.mechanical_only else None
+                              for rec in self.records]
+
+    def _state_fields(self, values):
+        """Return the MotorEffects fields the state terms set (empty without them)."""
+        fields = {}
+        for term in self.terms:
+            if term.channel == 'state':
+                fields[term.field] = fields.get(term.field, 0.0) + values[term.name]
+                fields.update(dict(term.fixed))
+        return fields
 
     def _channel(self, values, channel, index):
         total = None
@@ -72,22 +126,40 @@ class OutputErrorModel:
     def simulate(self, values, index, initial_state):
         """Simulate record ``index``; return a dict of output arrays (current, speed)."""
         rec = self.records[index]
-        dt = rec.sample_period_s
+        dt = self.sample_periods_s[index]
         extra_torque = self._channel(values, 'torque', index)
+        fields = self._state_fields(values)
+        delta = fields.pop('coulomb_delta_Nm', 0.0)
+        friction_pos = max(values['Mc'] + delta, 0.0) / values['J']
+        friction_neg = max(values['Mc'] - delta, 0.0) / values['J']
+        effects = MotorEffects(coulomb_delta_Nm=delta, **fields) if fields else None
         if self.mechanical_only:
-            torque = self.torque_constant * rec.current
+            torque = self.torque_constant * self.held_currents[index]
             if extra_torque is not None:
                 torque = torque + extra_torque
-            system = HybridSystem(np.array([[-values['b'] / values['J']]]),
-                                  values['Mc'] / values['J'], values['Mc'] / values['J'])
-            states = system.simulate((torque / values['J'])[:, None], initial_state, dt)
-            out = {'speed': states[:-1, 0]}
+            if effects is not None:
+                speed, _ = simulate_mechanical_effects(
+                    values['J'], values['b'], values['Mc'], torque, dt, effects,
+                    initial_state[0], oversample=STATE_OVERSAMPLE)
+                out = {'speed': speed}
+            else:
+                system = HybridSystem(np.array([[-values['b'] / values['J']]]), friction_pos,
+                                      friction_neg)
+                states = system.simulate((torque / values['J'])[:, None], initial_state, dt)
+                out = {'speed': states[:-1, 0]}
         else:
             params = MotorParameters(**{name: values[name] for name in self.base_names})
-            forcing = motor_forcing(params, rec.voltage, self._channel(values, 'voltage', index),
-                                    extra_torque)
-            states = motor_system(params).simulate(forcing, initial_state, dt)
-            out = {'current': states[:-1, 0], 'speed': states[:-1, 1]}
+            extra_voltage = self._channel(values, 'voltage', index)
+            if effects is not None:
+                current, speed, _ = simulate_motor_effects(
+                    params, rec.voltage, dt, effects, initial_state, extra_voltage,
+                    extra_torque, oversample=STATE_OVERSAMPLE)
+                out = {'current': current, 'speed': speed}
+            else:
+                forcing = motor_forcing(params, rec.voltage, extra_voltage, extra_torque)
+                system = HybridSystem(state_matrix(params), friction_pos, friction_neg)
+                states = system.simulate(forcing, initial_state, dt)
+                out = {'current': states[:-1, 0], 'speed': states[:-1, 1]}
         for channel in self.outputs:
             offset = self._channel(values, channel, index)
             if offset is not None:
@@ -178,7 +250,8 @@ def _physical(values):
 
 
 class RefinedEstimator:
-    """Exact output-error estimator with noise-weighted channels and standard errors.
+    """
+    Exact output-error estimator with noise-weighted channels and standard errors.
 
     Parameters
     ----------
@@ -219,8 +292,13 @@ class RefinedEstimator:
                 z0.append(float(values[0]) / scale)
         scales = np.array(scales)
         z0 = np.array(z0)
-        noise = {channel: 0.01 * max(np.std(np.concatenate(
-            [getattr(rec, channel) for rec in records])), 1e-12) for channel in model.outputs}
+        # Noise level per record and channel (records may come from different sensors or
+        # ranges); the first pass weights by 1 % of the pooled spread, later passes by the
+        # residual level, which makes the fit the Gaussian maximum-likelihood estimate.
+        pooled = {channel: max(float(np.std(np.concatenate(
+            [getattr(rec, channel) for rec in records]))), 1e-12) for channel in model.outputs}
+        noise = [{channel: 0.01 * pooled[channel] for channel in model.outputs}
+                 for _ in records]
 
         def unpack(z):
             theta = z * scales
@@ -235,32 +313,43 @@ class RefinedEstimator:
             for index in range(len(records)):
                 out = model.simulate(values, index, states[index])
                 for channel in model.outputs:
-                    parts.append((out[channel] - model.measured(index, channel)) / noise[channel])
+                    parts.append((out[channel] - model.measured(index, channel))
+                                 / noise[index][channel])
             return np.concatenate(parts)
 
+        # Tolerances of 1e-8 leave the parameters within 1e-3 of a standard error of the
+        # converged optimum (noise-free: round-off); tighter ones only add iterations spent in
+        # the weakly determined initial-state directions of a record that starts at rest.
         z = z0
         total_nfev = 0
         for _ in range(max(1, self.reweight_passes)):
-            with np.errstate(all='ignore'):
-                result = least_squares(residual, z, method='lm', xtol=1e-10, ftol=1e-10,
-                                       gtol=1e-10, max_nfev=self.max_nfev * (z.shape[0] + 1))
+            try:
+                with np.errstate(all='ignore'):
+                    result = least_squares(residual, z, method='lm', xtol=1e-8, ftol=1e-8,
+                                           gtol=1e-8, max_nfev=self.max_nfev * (z.shape[0] + 1))
+            except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
+                # A parameter ran to zero or infinity on the way (the simulation kernels raise
+                # on a division by zero): the data do not fit this model.
+                raise FitError(f'the output-error fit diverged ({error}): ' + _MISFIT) from None
             total_nfev += result.nfev
             if not np.all(np.isfinite(result.x)):
-                raise FitError('the output-error fit diverged (non-finite parameters)')
+                raise FitError('the output-error fit diverged (non-finite parameters): ' + _MISFIT)
             z = result.x
             values, states, _ = unpack(z)
-            new_noise = {}
-            for channel in model.outputs:
-                errors = np.concatenate([
-                    model.simulate(values, index, states[index])[channel]
-                    - model.measured(index, channel) for index in range(len(records))])
-                spread = max(np.std(np.concatenate(
-                    [model.measured(i, channel) for i in range(len(records))])), 1e-300)
-                new_noise[channel] = max(float(np.sqrt(np.mean(errors ** 2))), 1e-13 * spread)
-            noise = new_noise
+            noise = []
+            for index in range(len(records)):
+                out = model.simulate(values, index, states[index])
+                noise.append({channel: max(float(np.sqrt(np.mean(
+                    (out[channel] - model.measured(index, channel)) ** 2))),
+                    1e-13 * pooled[channel]) for channel in model.outputs})
         if result.status <= 0:
             raise FitError(f'the output-error fit did not converge ({result.message})')
         values, states, theta = unpack(z)
+        degenerate = [name for name in model.base_names if not np.isfinite(values[name])
+                      or (name in _POSITIVE and not 1e-200 < values[name] < 1e200)]
+        if degenerate:
+            raise FitError(f'the output-error fit diverged ({", ".join(degenerate)} went to zero '
+                           'or infinity): ' + _MISFIT)
         final = residual(z)
         jac = _central_jacobian(residual, z, final)
         dof = max(final.shape[0] - z.shape[0], 1)
@@ -279,7 +368,10 @@ class RefinedEstimator:
                                          list(model.base_names)))
         info = {
             'nfev': int(total_nfev),
-            'noise_std': {channel: float(value) for channel, value in noise.items()},
+            'noise_std': {channel: float(np.sqrt(
+                sum(len(rec) * level[channel] ** 2 for rec, level in zip(records, noise))
+                / sum(len(rec) for rec in records))) for channel in model.outputs},
+            'noise_std_per_record': noise,
             'start': {name: float(start_base[name]) for name in model.base_names},
             'residual_rms_weighted': float(np.sqrt(s2)),
             'covariance': covariance[:len(names), :len(names)].tolist(),

@@ -1,0 +1,326 @@
+"""
+The EMPS measured data: loading, the published IDIM-LS cross-check, the discovery study.
+
+EMPS (Electro-Mechanical Positioning System) is a real DC-motor drive turning a ball screw
+that moves a carriage, published with reference models by A. Janot, M. Gautier and
+M. Brunot, "Data Set and Reference Models of EMPS", Nonlinear System Identification
+Benchmarks workshop, Eindhoven, 2019 (shared/data/emps/README.md).  The drive is
+current-controlled and the motor force is ``gtau * vir``, so only the mechanical part is
+identifiable: this module maps it onto the mechanical-only mode of the package (``current``
+= ``vir``, torque constant ``gtau``, position ``qm``, speed from the differentiating filter)
+with M, Fv, Fc of the benchmark in the roles of J, b, Mc (units N, m, kg for the linear axis).
+
+Run ``python -m dcmotor_id.emps [DATA_DIR]`` for the study the README reports.
+"""
+
+import os
+import sys
+
+import numpy as np
+from scipy import signal
+from scipy.io import loadmat
+
+from dcmotor_id.effects import EXTENDED_VOCABULARY, LoadTorque, VOCABULARY
+from dcmotor_id.errors import InputDataError
+from dcmotor_id.estimators.refined import RefinedEstimator
+from dcmotor_id.excitation import speed_from_position
+from dcmotor_id.io import Record
+from dcmotor_id.simulation import MotorEffects, simulate_mechanical_effects
+
+#: Files of the benchmark.
+ESTIMATION_FILE = 'DATA_EMPS.mat'
+VALIDATION_FILE = 'DATA_EMPS_PULSES.mat'
+#: Published IDIM-LS estimates on the estimation record (the data README).
+PUBLISHED_IDIM_LS = {'M': 95.1089, 'Fv': 203.5034, 'Fc': 20.3935, 'offset': -3.1648}
+#: Published relative error of the IDIM-LS force fit [%].
+PUBLISHED_RELATIVE_ERROR_PCT = 4.08
+#: Processing of the reference: 4th-order Butterworth at 100 Hz, forward and backward.
+FILTER_ORDER = 4
+FILTER_CUTOFF_HZ = 100.0
+#: Decimation of the reference: round(0.8 * Nyquist / (2 * 20 Hz)) = 10 at 1 kHz.
+DECIMATION = 10
+#: Samples dropped at the start for the differentiation's edge effect (the reference's 50).
+BORDER_SAMPLES = 49
+#: Where the repository keeps the data, relative to this package.
+DEFAULT_DATA_DIR = os.path.join(os.path.dirname(__file__), '..', '..', 'shared', 'data', 'emps')
+
+
+def find_data_dir(data_dir=None):
+    """Return the EMPS data directory (argument, ``EMPS_DATA_DIR``, or the shared tree)."""
+    candidates = [data_dir, os.environ.get('EMPS_DATA_DIR'), DEFAULT_DATA_DIR,
+                  '/work/shared/data/emps']
+    for candidate in candidates:
+        if candidate and os.path.isfile(os.path.join(candidate, ESTIMATION_FILE)):
+            return os.path.abspath(candidate)
+    raise InputDataError(f'EMPS data not found: put {ESTIMATION_FILE} and {VALIDATION_FILE} '
+                         'in a directory and pass it (or set EMPS_DATA_DIR)')
+
+
+def load_emps(path):
+    """
+    Load one EMPS ``.mat`` file as a record for the mechanical-only mode.
+
+    Parameters
+    ----------
+    path : str
+        ``DATA_EMPS.mat`` or ``DATA_EMPS_PULSES.mat``.
+
+    Returns
+    -------
+    record : Record
+        ``time_s`` = t [s], ``current`` = vir (the drive command [V], the force is
+        ``gtau * vir``), ``position`` = qm [m], ``speed`` derived from qm with the reference's
+        zero-phase 4th-order 100 Hz Butterworth and central differences [m/s].
+    gtau : float
+        Drive gain [N/V], the torque (force) constant of the mechanical-only mode.
+
+    """
+    if not os.path.isfile(path):
+        raise InputDataError(f'{path}: no such file')
+    data = loadmat(path)
+    missing = [name for name in ('t', 'qm', 'vir', 'gtau') if name not in data]
+    if missing:
+        raise InputDataError(f'{path}: not an EMPS file (missing {", ".join(missing)})')
+    time_s = np.ravel(data['t']).astype(float)
+    position = np.ravel(data['qm']).astype(float)
+    record = Record(time_s=time_s, current=np.ravel(data['vir']).astype(float),
+                    position=position, source=os.path.basename(path))
+    speed = speed_from_position(position, record.sample_period_s, FILTER_CUTOFF_HZ,
+                                FILTER_ORDER)
+    return record.replace(speed=speed), float(np.ravel(data['gtau'])[0])
+
+
+def _central_differences(values, step):
+    out = np.empty_like(values)
+    out[1:-1] = (values[2:] - values[:-2]) / (2.0 * step)
+    out[0] = (values[1] - values[0]) / step
+    out[-1] = (values[-1] - values[-2]) / step
+    return out
+
+
+def _decimate(values, factor):
+    """
+    Decimate as MATLAB's ``decimate`` does.
+
+    Order-8 Chebyshev I low-pass at 0.8 of the new Nyquist frequency, zero phase; the samples
+    are taken so that the last one is kept.
+    """
+    b, a = signal.cheby1(8, 0.05, 0.8 / factor)
+    filtered = signal.filtfilt(b, a, values)
+    n = values.shape[0]
+    first = factor - (factor * int(np.ceil(n / factor)) - n) - 1
+    return filtered[first::factor]
+
+
+def idim_ls(record, gtau, decimation=DECIMATION):
+    """
+    Estimate by the benchmark's IDIM-LS: ``gtau vir = M qdd + Fv qd + Fc sgn(qd) + offset``.
+
+    The processing documented with the data: 4th-order Butterworth at 100 Hz forward and
+    backward on the position, central differences for speed and acceleration, the first 49
+    samples dropped, every column decimated by 10 (Chebyshev anti-alias, zero phase), ordinary
+    least squares.
+
+    Returns
+    -------
+    dict
+        ``M`` [kg], ``Fv`` [N s/m], ``Fc`` [N], ``offset`` [N], their ``stderr`` (dict) and
+        the ``relative_error_pct`` of the force fit.
+
+    """
+    dt = record.sample_period_s
+    b, a = signal.butter(FILTER_ORDER, FILTER_CUTOFF_HZ / (0.5 / dt))
+    position = signal.filtfilt(b, a, record.position)
+    speed = _central_differences(position, dt)
+    acceleration = _central_differences(speed, dt)
+    keep = slice(BORDER_SAMPLES, None)
+    columns = np.column_stack([acceleration, speed, np.sign(speed),
+                               np.ones_like(speed)])[keep]
+    force = (gtau * record.current)[keep]
+    matrix = np.column_stack([_decimate(columns[:, j], decimation) for j in range(4)])
+    target = _decimate(force, decimation)
+    theta, *_ = np.linalg.lstsq(matrix, target, rcond=None)
+    error = target - matrix @ theta
+    stderr = np.std(error) * np.sqrt(np.diag(np.linalg.inv(matrix.T @ matrix)))
+    names = ('M', 'Fv', 'Fc', 'offset')
+    out = {name: float(value) for name, value in zip(names, theta)}
+    out['stderr'] = {name: float(value) for name, value in zip(names, stderr)}
+    out['relative_error_pct'] = float(100.0 * np.linalg.norm(error) / np.linalg.norm(target))
+    return out
+
+
+def idim_force_error_pct(parameters, record, gtau, decimation=DECIMATION):
+    """Relative error [%] of the IDIM force fit for given (M, Fv, Fc, offset)."""
+    dt = record.sample_period_s
+    b, a = signal.butter(FILTER_ORDER, FILTER_CUTOFF_HZ / (0.5 / dt))
+    position = signal.filtfilt(b, a, record.position)
+    speed = _central_differences(position, dt)
+    acceleration = _central_differences(speed, dt)
+    keep = slice(BORDER_SAMPLES, None)
+    model = (parameters['M'] * acceleration + parameters['Fv'] * speed
+             + parameters['Fc'] * np.sign(speed) + parameters['offset'])[keep]
+    force = (gtau * record.current)[keep]
+    model, force = _decimate(model, decimation), _decimate(force, decimation)
+    return float(100.0 * np.linalg.norm(force - model) / np.linalg.norm(force))
+
+
+def as_idim(parameters):
+    """Map a mechanical-only result (J, b, Mc, load torque) onto the names M, Fv, Fc, offset."""
+    return {'M': float(parameters['J']), 'Fv': float(parameters['b']),
+            'Fc': float(parameters['Mc']),
+            'offset': float(parameters.get('load_torque.torque_Nm', 0.0))}
+
+
+def simulation_error_pct(parameters, record, gtau):
+    """
+    Speed simulation error [% of std] of (M, Fv, Fc, offset) on a record, from its start.
+
+    The carriage is simulated exactly (stick-slip included) from the force ``gtau * vir``
+    (held as the trapezoidal mean over each sample, as the fit does) and the measured initial
+    speed.
+    """
+    force = gtau * np.append(0.5 * (record.current[:-1] + record.current[1:]),
+                             record.current[-1])
+    effects = MotorEffects(load_torque_Nm=parameters['offset'])
+    speed, _ = simulate_mechanical_effects(parameters['M'], parameters['Fv'], parameters['Fc'],
+                                           force, record.sample_period_s, effects,
+                                           float(record.speed[0]), oversample=1)
+    return float(np.sqrt(np.mean((speed - record.speed) ** 2)) / np.std(record.speed) * 100.0)
+
+
+def output_error_idim_structure(record, gtau):
+    """Output-error fit of the IDIM-LS structure (base model + load_torque) on all the data."""
+    terms = LoadTorque.terms([record], {}, {'Mc': 20.0}, gtau)
+    estimate = RefinedEstimator().fit([record], torque_constant=gtau, terms=terms)
+    return estimate
+
+
+def emps_study(data_dir=None):
+    """
+    Identify EMPS with the discovery loop and compare with IDIM-LS; return a dict.
+
+    Returns
+    -------
+    dict
+        ``published`` and ``idim_ls`` (this package's replication of the reference
+        processing); ``oe_idim_structure``: the output-error estimate of the same structure
+        (base + load_torque) with, for both parameter sets, the force-equation error and the
+        speed simulation error on the estimation and validation records (each method wins on
+        its own criterion); ``loop`` and ``loop_extended``: the identify results with the
+        issue's vocabulary and with the extended one, each with ``estimation`` and
+        ``validation`` simulation errors of the base and the final model.
+
+    """
+    from dcmotor_id.identify import identify
+    directory = find_data_dir(data_dir)
+    estimation, gtau = load_emps(os.path.join(directory, ESTIMATION_FILE))
+    validation, _ = load_emps(os.path.join(directory, VALIDATION_FILE))
+    replication = idim_ls(estimation, gtau)
+    estimate = output_error_idim_structure(estimation, gtau)
+    oe = as_idim(estimate.parameters)
+    idim = {name: replication[name] for name in ('M', 'Fv', 'Fc', 'offset')}
+    comparison = {}
+    for label, values in (('idim_ls', idim), ('output_error', oe)):
+        comparison[label] = {
+            'parameters': values,
+            'force_error_pct': idim_force_error_pct(values, estimation, gtau),
+            'speed_error_estimation_pct': simulation_error_pct(values, estimation, gtau),
+            'speed_error_validation_pct': simulation_error_pct(values, validation, gtau),
+        }
+    comparison['output_error']['stderr'] = as_idim(estimate.stderr)
+    out = {'published': dict(PUBLISHED_IDIM_LS), 'idim_ls': replication,
+           'criteria': comparison, 'gtau': gtau}
+    for key, vocabulary in (('loop', VOCABULARY), ('loop_extended', EXTENDED_VOCABULARY)):
+        result, found = identify([estimation], torque_constant=gtau, details=True,
+                                 vocabulary=vocabulary)
+        out[key] = {'result': result, 'found': found,
+                    'estimation': found.errors_on([estimation]),
+                    'validation': found.errors_on([validation]),
+                    'validation_by_step': found.errors_by_step([validation])}
+    return out
+
+
+def format_study(study):
+    """Markdown tables of the study (the README's EMPS section)."""
+    published, replication = study['published'], study['idim_ls']
+    oe = study['criteria']['output_error']
+    lines = ['| parameter | published IDIM-LS | this IDIM-LS | diff | output error (base + '
+             'load_torque) | diff |', '|---|---|---|---|---|---|']
+    for name, unit in (('M', 'kg'), ('Fv', 'N s/m'), ('Fc', 'N'), ('offset', 'N')):
+        ref = published[name]
+        mine = replication[name]
+        value = oe['parameters'][name]
+        lines.append(f'| {name} [{unit}] | {ref:.4f} | {mine:.4f} | '
+                     f'{(mine - ref) / abs(ref) * 100:+.2f} % | {value:.4f} +/- '
+                     f'{oe["stderr"][name]:.2g} | {(value - ref) / abs(ref) * 100:+.2f} % |')
+    lines += ['', '| parameters | force-equation error (IDIM criterion) | speed simulation error, '
+              'estimation | speed simulation error, PULSES validation |', '|---|---|---|---|']
+    for label in ('idim_ls', 'output_error'):
+        item = study['criteria'][label]
+        lines.append(f'| {label.replace("_", " ")} | {item["force_error_pct"]:.2f} % | '
+                     f'{item["speed_error_estimation_pct"]:.2f} % | '
+                     f'{item["speed_error_validation_pct"]:.2f} % |')
+    lines += ['', '| vocabulary | effects found (in order) | held-out error before -> after | '
+              'estimation record before -> after | PULSES before -> after | unexplained |',
+              '|---|---|---|---|---|---|']
+    for key, label in (('loop', "the issue's nine"), ('loop_extended', 'extended')):
+        item = study[key]
+        result = item['result']
+        found = ', '.join(_effect_text(effect) for effect in result['effects']) or 'none'
+
+        def pair(errors):
+            return (f"{errors['before']['speed_nrmse_pct']:.2f} % -> "
+                    f"{errors['after']['speed_nrmse_pct']:.2f} %")
+        held = {'before': result['error_before'], 'after': result['error_after']}
+        lines.append(f'| {label} | {found} | {pair(held)} | {pair(item["estimation"])} | '
+                     f'{pair(item["validation"])} | {str(result["unexplained"]).lower()} |')
+    lines += ['', '| vocabulary | PULSES speed error, effect by effect (all-data refits) |',
+              '|---|---|']
+    for key, label in (('loop', "the issue's nine"), ('loop_extended', 'extended')):
+        steps = study[key]['validation_by_step']
+        text = ' -> '.join(f"{'+'.join(step['effects']) or 'base'} "
+                           f"{step['speed_nrmse_pct']:.2f} %" for step in steps)
+        lines.append(f'| {label} | {text} |')
+    lines += ['', '| vocabulary | round | candidates (held-out gain) |', '|---|---|---|']
+    for key, label in (('loop', "the issue's nine"), ('loop_extended', 'extended')):
+        for number, step in enumerate(study[key]['result']['discovery']['steps'], start=1):
+            text = ', '.join(f"{c['name']} {c['heldout_gain_pct']:.1f} %"
+                             + (' (rejected)' if c.get('rejected') else '')
+                             for c in step['candidates'] if c['heldout_gain_pct'] is not None)
+            added = step['added']['name'] if step.get('added') else 'none added'
+            lines.append(f'| {label} | {number}: {added} | {text} |')
+    return '\n'.join(lines)
+
+
+def _effect_text(effect):
+    values = ', '.join(f'{key} {value:.4g}' if isinstance(value, float) else f'{key} {value}'
+                       for key, value in effect['parameters'].items())
+    return f'{effect["name"]} ({values})'
+
+
+def main(argv=None):
+    """Print the EMPS study; ``--report DIR`` also writes the loop's report."""
+    import argparse
+    parser = argparse.ArgumentParser(prog='python -m dcmotor_id.emps',
+                                     description='EMPS: IDIM-LS cross-check and the discovery '
+                                                 'loop on measured data')
+    parser.add_argument('data_dir', nargs='?', help='directory with the EMPS .mat files')
+    parser.add_argument('--report', metavar='DIR', help='write the HTML report here')
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    study = emps_study(args.data_dir)
+    print(format_study(study))
+    if args.report:
+        from dcmotor_id.report import write_report
+        for key, name in (('loop', 'standard'), ('loop_extended', 'extended')):
+            item = study[key]
+            result = dict(item['result'])
+            result['units'] = {'J': 'kg (M)', 'b': 'N s/m (Fv)', 'Mc': 'N (Fc)'}
+            page = write_report(os.path.join(args.report, name), result, item['found'],
+                                channel_units={'speed': 'm/s', 'current': 'V (vir)'},
+                                title=f'EMPS ({name} vocabulary): before / after')
+            print(f'report ({key}): {page}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

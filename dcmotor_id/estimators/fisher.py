@@ -1,0 +1,200 @@
+"""
+The Cramer-Rao bound of the output-error model (what no unbiased estimator can beat).
+
+With white Gaussian noise of known standard deviation ``sigma[r, c]`` on output channel ``c``
+(current, speed) of record ``r``, the Fisher information of the parameters ``theta`` is::
+
+    F = sum_r sum_c S[r, c]^T S[r, c] / sigma[r, c]^2,    S[r, c] = d y[r, c] / d theta
+
+where ``y[r, c]`` is the noise-free simulated output of the model at the true parameters.  The
+bound on the covariance of any unbiased estimate is ``F^-1``; its diagonal square roots are the
+smallest standard errors achievable.  ``theta`` holds the physical parameters of the mode
+(Ra, La, CPhi, J, b, Mc; or J, b, Mc), the coefficients of any exogenous terms, and, by
+default, the initial state of every record (the refined estimator estimates it too, so the
+bound that applies to it treats the initial states as nuisance parameters).
+
+The sensitivities ``S`` are central differences of :class:`OutputErrorModel` simulations (the
+exact hybrid ZOH solution): the outputs are smooth in the parameters between speed reversals
+and continuous through them, so a relative step of ``1e-6`` gives the derivatives to about
+six digits, far more than a bound needs.  In mechanical-only mode the measured current is the
+model's input and is taken as noise-free.
+"""
+
+import numpy as np
+
+from dcmotor_id.estimators.base import derived_stderr
+from dcmotor_id.estimators.refined import OutputErrorModel
+from dcmotor_id.model import MotorParameters
+
+
+def _noise_table(noise_std, n_records, outputs):
+    """Return ``sigma[record][channel]`` from a scalar-per-channel or per-record mapping."""
+    table = []
+    for index in range(n_records):
+        row = {}
+        for channel in outputs:
+            if channel not in noise_std:
+                raise ValueError(f'noise_std needs the channel {channel!r}')
+            value = noise_std[channel]
+            value = float(value[index]) if np.ndim(value) else float(value)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f'noise_std[{channel!r}] must be positive, got {value}')
+            row[channel] = value
+        table.append(row)
+    return table
+
+
+def output_sensitivities(model, values, initial_states, include_initial_states=True,
+                         relative_step=1e-6):
+    """
+    Differentiate every simulated output with respect to the parameters.
+
+    Parameters
+    ----------
+    model : OutputErrorModel
+        The model and its records (only the inputs of the records are used).
+    values : dict
+        Parameter values by name (the base parameters and every term coefficient).
+    initial_states : sequence of array_like
+        Initial state of every record (``(i0, w0)``, or ``(w0,)`` mechanical-only).
+    include_initial_states : bool
+        Also differentiate with respect to the initial states.
+    relative_step : float
+        Central-difference step relative to each parameter's magnitude.
+
+    Returns
+    -------
+    names : list of str
+        Names of the columns (initial states as ``x0[record].channel``).
+    sensitivities : list of dict
+        Per record, channel -> array ``(n_samples, n_parameters)``.
+
+    """
+    names = list(model.base_names) + [term.name for term in model.terms]
+    states = [np.array(state, dtype=float) for state in initial_states]
+    if len(states) != len(model.records):
+        raise ValueError('one initial state per record is needed')
+    n_params = len(names)
+    n_out = len(model.outputs)
+    labels = list(names)
+    if include_initial_states:
+        labels += [f'x0[{index}].{channel}' for index in range(len(states))
+                   for channel in model.outputs]
+    result = [{channel: np.zeros((len(rec), len(labels))) for channel in model.outputs}
+              for rec in model.records]
+
+    def difference(column, index, up, down, width):
+        out_up = model.simulate(up[0], index, up[1])
+        out_down = model.simulate(down[0], index, down[1])
+        for channel in model.outputs:
+            result[index][channel][:, column] = (out_up[channel] - out_down[channel]) / width
+
+    typical = {term.name: term.scale for term in model.terms}
+    for column, name in enumerate(names):
+        value = float(values[name])
+        step = relative_step * max(abs(value), typical.get(name, 0.0), 1e-12)
+        up = {**values, name: value + step}
+        # b and Mc may be zero: a one-sided difference keeps the friction non-negative.
+        lower = value if name in ('b', 'Mc') and value - step < 0 else value - step
+        down = {**values, name: lower}
+        for index, state in enumerate(states):
+            difference(column, index, (up, state), (down, state), value + step - lower)
+    if include_initial_states:
+        for index, state in enumerate(states):
+            for position, channel in enumerate(model.outputs):
+                magnitude = max(abs(state[position]),
+                                float(np.std(getattr(model.records[index], channel))), 1e-12)
+                step = relative_step * magnitude
+                shift = np.zeros_like(state)
+                shift[position] = step
+                column = n_params + index * n_out + position
+                difference(column, index, (values, state + shift), (values, state - shift),
+                           2.0 * step)
+    return labels, result
+
+
+def fisher_information(model, values, initial_states, noise_std, include_initial_states=True):
+    """
+    Fisher information of the output-error model with known white noise per channel.
+
+    Parameters
+    ----------
+    model : OutputErrorModel
+        The model and its records.
+    values : dict
+        True parameter values by name.
+    initial_states : sequence of array_like
+        True initial state of every record.
+    noise_std : dict
+        Channel (``current``, ``speed``) -> noise standard deviation, a scalar for every
+        record or a sequence with one value per record [A, rad/s].
+    include_initial_states : bool
+        Treat the initial states as unknown (nuisance) parameters.
+
+    Returns
+    -------
+    names : list of str
+        Parameter names of the rows and columns.
+    information : numpy.ndarray
+        The Fisher information matrix.
+
+    """
+    sigma = _noise_table(noise_std, len(model.records), model.outputs)
+    names, sensitivities = output_sensitivities(model, values, initial_states,
+                                                include_initial_states)
+    information = np.zeros((len(names), len(names)))
+    for index, per_channel in enumerate(sensitivities):
+        for channel, matrix in per_channel.items():
+            information += matrix.T @ matrix / sigma[index][channel] ** 2
+    return names, information
+
+
+def cramer_rao_bound(records, truth, noise_std, torque_constant=None, terms=(),
+                     initial_states=None, include_initial_states=True):
+    """
+    Smallest standard error of every parameter that an unbiased estimator can reach.
+
+    Parameters
+    ----------
+    records : list of Record
+        The experiments (their voltage, or current in mechanical-only mode, drives the model).
+    truth : MotorParameters or dict
+        True parameters (and term coefficients, by name).
+    noise_std : dict
+        Channel -> white-noise standard deviation, scalar or one per record.
+    torque_constant : float, optional
+        Mechanical-only mode (J, b, Mc) with this torque constant [N m/A].
+    terms : sequence of ExogenousTerm
+        Exogenous terms of the model.
+    initial_states : sequence of array_like, optional
+        True initial states; default zero (a motor at rest).
+    include_initial_states : bool
+        Treat the initial states as unknown, as the refined estimator does.
+
+    Returns
+    -------
+    dict
+        Parameter name -> standard-deviation bound, in SI units (Ka and Ta by the delta method
+        in the full mode).
+
+    """
+    model = OutputErrorModel(records, torque_constant, terms)
+    values = truth.as_dict(derived=False) if isinstance(truth, MotorParameters) else dict(truth)
+    for term in model.terms:
+        values.setdefault(term.name, term.initial)
+    if initial_states is None:
+        initial_states = [np.zeros(len(model.outputs)) for _ in model.records]
+    names, information = fisher_information(model, values, initial_states, noise_std,
+                                            include_initial_states)
+    diagonal = np.sqrt(np.diag(information))
+    if np.any(diagonal == 0) or not np.all(np.isfinite(diagonal)):
+        raise ValueError('the Fisher information is singular: a parameter does not affect '
+                         'the outputs of these records')
+    scaled = information / np.outer(diagonal, diagonal)
+    covariance = np.linalg.inv(scaled) / np.outer(diagonal, diagonal)
+    bound = {name: float(np.sqrt(max(covariance[position, position], 0.0)))
+             for position, name in enumerate(names)}
+    if not model.mechanical_only:
+        base = list(model.base_names)
+        bound.update(derived_stderr(values, covariance[:len(base), :len(base)], base))
+    return bound

@@ -1,0 +1,220 @@
+"""
+``sim_motor``: a DC motor drive simulated in real time (exact ZOH hybrid model).
+
+Publishes the measured ``voltage`` [V], ``current`` [A] and ``speed`` [rad/s] of every sample
+at ``sample_rate_hz``, either as three ``std_msgs/msg/Float64`` topics (``transport:
+float64``: the n-th message of each topic is sample n, published voltage, current, speed in
+that order) or as batches on ``samples`` (``transport: batch``: ``std_msgs/msg/
+Float64MultiArray`` laid out as :data:`dcmotor_id.io.BATCH_LABEL`, ``t`` in seconds since the
+simulation started), which is what makes 10 kHz and more practical. The voltage comes from
+the node's excitation generator, or from the ``voltage_command`` topic when
+``use_voltage_command`` is true (the last command is held). Defaults: the paper's motor 2.
+The ``effects`` parameter switches on effects of the vocabulary of :mod:`dcmotor_id.effects`
+(e.g. ``load_torque:torque_Nm=0.3;current_offset:offset_A=0.05``), simulated sample by sample.
+"""
+
+from array import array
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
+from rclpy.node import Node
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+
+from dcmotor_id.effects import parse_effect
+from dcmotor_id.excitation import EXCITATION_KINDS, make_excitation
+from dcmotor_id.io import BATCH_CHANNELS, BATCH_LABEL, encode_batch
+from dcmotor_id.model import MotorParameters, PAPER_MOTORS, UNITS
+from dcmotor_id.nodes.common import declare, run, sample_qos
+from dcmotor_id.simulation import motor_forcing, motor_system, MotorStepper
+
+TRANSPORTS = ('float64', 'batch')
+
+
+class SimMotor(Node):
+    """Real-time simulated drive publishing voltage, current and speed."""
+
+    def __init__(self, **kwargs):
+        super().__init__('sim_motor', **kwargs)
+        truth = PAPER_MOTORS['paper2']
+        values = {name: declare(self, name, float(getattr(truth, name)),
+                                f'true {name} of the simulated motor [{UNITS[name]}]',
+                                low=0.0)
+                  for name in ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')}
+        self.params = MotorParameters(**values)
+        if min(self.params.Ra, self.params.La, self.params.CPhi, self.params.J) <= 0:
+            raise ValueError('Ra, La, CPhi and J must be positive')
+        self.sample_rate_hz = declare(self, 'sample_rate_hz', 1000.0,
+                                      'samples per second published', low=1.0, high=1e6)
+        self.publish_rate_hz = declare(
+            self, 'publish_rate_hz', 100.0, 'timer rate; each tick publishes every sample '
+            'due since the last one', low=1.0, high=1e4)
+        signal = declare(self, 'signal', 'paper', 'excitation voltage generator',
+                         choices=EXCITATION_KINDS)
+        amplitude = declare(self, 'amplitude_v', 0.0,
+                            'excitation amplitude [V]; 0 = the signal default', low=0.0)
+        frequency = declare(self, 'frequency_hz', 0.0,
+                            'excitation frequency [Hz]; 0 = the signal default', low=0.0)
+        period = declare(self, 'excitation_period_s', 8.0,
+                         'length of the generated excitation pattern, repeated [s]',
+                         low=1e-3)
+        offset = declare(self, 'offset_v', 0.0, 'constant added to the excitation [V]')
+        seed = declare(self, 'seed', 0, 'seed of the PRBS and of the sensor noise')
+        self.use_command = declare(self, 'use_voltage_command', False,
+                                   'drive with the last voltage_command instead of the '
+                                   'generator')
+        self.noise_current = declare(self, 'noise_current_a', 0.01,
+                                     'std of white noise on the published current [A]',
+                                     low=0.0)
+        self.noise_speed = declare(self, 'noise_speed_rad_s', 0.02,
+                                   'std of white noise on the published speed [rad/s]',
+                                   low=0.0)
+        self.transport = declare(self, 'transport', 'float64',
+                                 'float64: three Float64 topics; batch: Float64MultiArray '
+                                 'on samples', choices=TRANSPORTS)
+        self.batch_samples = declare(self, 'batch_samples', 0,
+                                     'samples per batch message; 0 = all due at a tick',
+                                     low=0)
+        effects_text = declare(self, 'effects', '',
+                               "effects to simulate: 'NAME:param=value,...' joined by ';'")
+        depth = declare(self, 'qos_depth', 5000, 'history depth of the sample topics',
+                        low=1)
+        reliability = declare(self, 'qos_reliability', 'reliable',
+                              'reliable or best_effort', choices=('reliable', 'best_effort'))
+
+        self.sample_period_s = 1.0 / self.sample_rate_hz
+        _, pattern = make_excitation(signal, period, self.sample_period_s,
+                                     amplitude_v=amplitude or None,
+                                     frequency_hz=frequency or None, offset_v=offset,
+                                     seed=seed)
+        self._pattern = pattern
+        self._system = motor_system(self.params)
+        self._state = np.zeros(2)
+        self.effects = parse_effects(effects_text)
+        self._stepper = None
+        if self.effects:
+            self._stepper = MotorStepper(self.params, self.sample_period_s, effects=self.effects)
+            self._measured = (self._stepper.effects.current_offset_A, 0.0)
+        self._command = 0.0
+        self._rng = np.random.default_rng(seed)
+        self.published = 0
+        qos = sample_qos(depth, reliability)
+        if self.transport == 'float64':
+            self._sample_publishers = [self.create_publisher(Float64, topic, qos)
+                                       for topic in ('voltage', 'current', 'speed')]
+        else:
+            self._batch_publisher = self.create_publisher(Float64MultiArray, 'samples', qos)
+        self.create_subscription(Float64, 'voltage_command', self._on_command, 10)
+        self._start_ns = None
+        self._timer = self.create_timer(1.0 / self.publish_rate_hz, self._tick)
+        self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_timer(1.0, self._report)
+        self.get_logger().info(
+            f'simulating {self.params} at {self.sample_rate_hz:g} Hz, {signal} excitation, '
+            f'transport {self.transport}')
+
+    def _on_command(self, message):
+        if np.isfinite(message.data):
+            self._command = float(message.data)
+        else:
+            self.get_logger().warning('voltage_command is not finite; ignored',
+                                      throttle_duration_sec=5.0)
+
+    def _tick(self):
+        now = self.get_clock().now().nanoseconds
+        if self._start_ns is None:
+            self._start_ns = now
+        due = int((now - self._start_ns) * 1e-9 * self.sample_rate_hz) + 1 - self.published
+        if due <= 0:
+            return
+        # after a stall, catch up in bursts of at most a quarter second of samples
+        self.publish_samples(min(due, int(0.25 * self.sample_rate_hz) + 1))
+
+    def _report(self):
+        """Publish how many samples went out and how far behind real time the drive is."""
+        behind_s = 0.0
+        if self._start_ns is not None:
+            elapsed_s = (self.get_clock().now().nanoseconds - self._start_ns) * 1e-9
+            behind_s = max(0.0, elapsed_s - self.published * self.sample_period_s)
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.OK if behind_s < 0.5 else DiagnosticStatus.WARN,
+            name=f'{self.get_name()}: drive', hardware_id=self.get_fully_qualified_name(),
+            message='real time' if behind_s < 0.5 else f'{behind_s:.1f} s behind real time')
+        status.values = [KeyValue(key='published', value=str(self.published)),
+                         KeyValue(key='behind_s', value=f'{behind_s:.3f}'),
+                         KeyValue(key='sample_rate_hz', value=repr(self.sample_rate_hz))]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(array)
+
+    def publish_samples(self, count):
+        """Simulate and publish the next ``count`` samples."""
+        index = self.published + np.arange(count)
+        if self.use_command:
+            voltage = np.full(count, self._command)
+        else:
+            voltage = self._pattern[index % self._pattern.size]
+        if self._stepper is None:
+            forcing = motor_forcing(self.params, voltage)
+            states = self._system.simulate(forcing, self._state, self.sample_period_s)
+            self._state = states[-1].copy()
+            measured = states[:-1]
+        else:
+            # Effects: what the sensors read at t_k, then one step of the effects model.
+            measured = np.empty((count, 2))
+            for k, u in enumerate(voltage.tolist()):
+                measured[k] = self._measured
+                self._measured = self._stepper.step(u)
+        current = measured[:, 0] + self._rng.normal(0.0, self.noise_current, count) \
+            if self.noise_current > 0 else measured[:, 0].copy()
+        speed = measured[:, 1] + self._rng.normal(0.0, self.noise_speed, count) \
+            if self.noise_speed > 0 else measured[:, 1].copy()
+        if self.transport == 'float64':
+            volt_pub, curr_pub, speed_pub = self._sample_publishers
+            for u, i, w in zip(voltage.tolist(), current.tolist(), speed.tolist()):
+                volt_pub.publish(Float64(data=u))
+                curr_pub.publish(Float64(data=i))
+                speed_pub.publish(Float64(data=w))
+        else:
+            size = self.batch_samples or count
+            for start in range(0, count, size):
+                part = slice(start, min(start + size, count))
+                self._batch_publisher.publish(batch_message(
+                    index[part] * self.sample_period_s, voltage[part], current[part],
+                    speed[part]))
+        self.published += count
+
+
+def parse_effects(text):
+    """
+    Parse the ``effects`` parameter into vocabulary effects (empty text: none).
+
+    Raises ``ValueError`` naming the bad entry and the vocabulary.
+    """
+    effects = []
+    for entry in filter(None, (part.strip() for part in text.split(';'))):
+        try:
+            effects.append(parse_effect(entry))
+        except (TypeError, ValueError) as error:
+            raise ValueError(f'parameter effects: {entry!r}: {error}') from None
+    return effects
+
+
+def batch_message(time_s, voltage, current, speed):
+    """Pack samples into a Float64MultiArray in the documented batch layout."""
+    count = len(time_s)
+    message = Float64MultiArray()
+    message.layout.dim = [
+        MultiArrayDimension(label=BATCH_LABEL, size=len(BATCH_CHANNELS),
+                            stride=len(BATCH_CHANNELS) * count),
+        MultiArrayDimension(label='sample', size=count, stride=count)]
+    message.data = array('d', encode_batch(time_s, voltage, current, speed).tobytes())
+    return message
+
+
+def main(args=None):
+    """Run the ``sim_motor`` node."""
+    return run(SimMotor, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,163 @@
+"""
+``make demo``: the real node graph: sim_motor and identifier as processes, then ~/identify.
+
+Starts the two executables with the package's parameter files, lets the identifier record
+for ``--record-s`` seconds (printing the online estimate as it converges), calls
+``/identifier/identify`` and prints the identified parameters against the simulated motor's,
+the paper method's for comparison, the online estimate and where the window bags are.
+"""
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from std_srvs.srv import Trigger
+
+from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
+from dcmotor_id.nodes.identifier import LATCHED
+
+KEYS = PARAMETER_NAMES + DERIVED_NAMES
+
+
+def _config(name):
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    path = os.path.join(here, 'config', f'{name}.yaml')
+    return ['--params-file', path] if os.path.isfile(path) else []
+
+
+def _executable(name):
+    path = os.path.join(os.path.dirname(sys.executable), name)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f'{path} not found: install the package (pip install -e .)')
+    return path
+
+
+def _values(status):
+    return {kv.key: kv.value for kv in status.values}
+
+
+def _spin_until(executor, condition, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.1)
+        if condition():
+            return True
+    return False
+
+
+def run_demo(record_s=12.0, record_dir=None):
+    """Run the demo; return the exit code."""
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+    record_dir = record_dir or os.path.join(tempfile.gettempdir(), 'dcmotor_id_demo',
+                                            time.strftime('%Y%m%d-%H%M%S'))
+    truth = PAPER_MOTORS['paper2'].as_dict()
+    print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}; starting sim_motor (motor 2 of the '
+          "paper's Table 1, 1 kHz, Float64 topics) and identifier (windows to "
+          f'{record_dir})', flush=True)
+    logs = open(os.path.join(tempfile.gettempdir(), 'dcmotor_id_demo_nodes.log'), 'w')
+    processes = [
+        subprocess.Popen([_executable('sim_motor'), '--ros-args', *_config('sim_motor')],
+                         stdout=logs, stderr=subprocess.STDOUT),
+        subprocess.Popen([_executable('identifier'), '--ros-args', *_config('identifier'),
+                          '-p', f'record_dir:={record_dir}'],
+                         stdout=logs, stderr=subprocess.STDOUT)]
+    rclpy.init()
+    node = rclpy.create_node('dcmotor_id_demo')
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    online, latched, diagnostics = [], [], []
+    node.create_subscription(DiagnosticStatus, '/identifier/online_parameters', online.append,
+                             10)
+    node.create_subscription(DiagnosticStatus, '/identifier/parameters', latched.append,
+                             LATCHED)
+    node.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, 50)
+    try:
+        client = node.create_client(Trigger, '/identifier/identify')
+        if not client.wait_for_service(timeout_sec=60.0):
+            print(f'the identifier did not come up; see {logs.name}')
+            return 1
+        print(f'recording {record_s:g} s ...', flush=True)
+        start = time.monotonic()
+        while time.monotonic() - start < record_s:
+            _spin_until(executor, lambda: False, 2.0)
+            if online:
+                values = _values(online[-1])
+                print(f'  {time.monotonic() - start:4.0f} s  online: Ra={float(values["Ra"]):.4g}'
+                      f' La={float(values["La"]):.4g} CPhi={float(values["CPhi"]):.4g} '
+                      f'J={float(values["J"]):.4g}  converged={values["converged"]}',
+                      flush=True)
+        print('calling /identifier/identify ...', flush=True)
+        future = client.call_async(Trigger.Request())
+        if not _spin_until(executor, future.done, 300.0):
+            print('no answer from /identifier/identify within 300 s')
+            return 1
+        response = future.result()
+        if not response.success:
+            print(f'identification failed: {response.message}')
+            return 1
+        _spin_until(executor, lambda: latched, 10.0)
+        identified = _values(latched[-1])
+        paper = {}
+        for array in diagnostics:
+            for status in array.status:
+                if status.name.endswith('paper method') and status.values:
+                    paper = _values(status)
+        estimate = _values(online[-1]) if online else {}
+        print()
+        print(f'{"":<6}{"truth":>12}' + ''.join(
+            f'{name:>13}{"err %":>9}' for name in ('identified', 'paper', 'online')))
+        for key in KEYS:
+            row = f'{key:<6}{truth[key]:>12.5g}'
+            for source in (identified, paper, estimate):
+                if key in source:
+                    value = float(source[key])
+                    row += f'{value:>13.5g}{abs(value / truth[key] - 1) * 100:>9.2g}'
+                else:
+                    row += f'{"-":>13}{"":>9}'
+            print(row + f'  {UNITS[key]}')
+        if estimate:
+            print(f'online estimate: converged={estimate["converged"]}, innovation RMS '
+                  f'current {float(estimate["innovation_rms_current_A"]):.3g} A, speed '
+                  f'{float(estimate["innovation_rms_speed_rad_s"]):.3g} rad/s, '
+                  f'{estimate["n_updates"]} sample pairs')
+        bags = response.message.split('; bags: ')[-1].split('; ')[0].split(', ') \
+            if '; bags: ' in response.message else []
+        print('window bags identified (rosbag2, MCAP; dcmotor-id identify BAG reads them):')
+        for bag in bags:
+            print(f'  {bag}')
+        print(f'all windows: {record_dir}   node logs: {logs.name}')
+        return 0
+    finally:
+        for process in processes:
+            process.send_signal(signal.SIGINT)
+        for process in processes:
+            try:
+                process.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                process.kill()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+        logs.close()
+
+
+def main(argv=None):
+    """Parse the options and run the demo."""
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[1])
+    parser.add_argument('--record-s', type=float, default=12.0,
+                        help='seconds to record before identifying (default 12)')
+    parser.add_argument('--record-dir', help='where the identifier writes its window bags')
+    args = parser.parse_args(argv)
+    return run_demo(args.record_s, args.record_dir)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

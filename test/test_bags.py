@@ -1,0 +1,180 @@
+"""Bags: MCAP/sqlite3 reading with the bag's timestamps, atomic window writing, the CLI."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import get_typestore, Stores
+
+from dcmotor_id.cli import main as cli_main
+from dcmotor_id.errors import InputDataError
+from dcmotor_id.excitation import make_excitation
+from dcmotor_id.identify import identify, prepare_records
+from dcmotor_id.io import read_bag, WindowBagWriter, write_bag
+from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.simulation import simulate_motor
+
+START_NS = 1_700_000_000_000_000_000
+
+
+def motor_samples(duration_s=10.0, sample_period_s=1e-3, noise=(0.01, 0.02), seed=0):
+    _, voltage = make_excitation('paper', duration_s, sample_period_s)
+    current, speed = simulate_motor(PAPER_MOTORS['paper2'], voltage, sample_period_s)
+    rng = np.random.default_rng(seed)
+    current = current + rng.normal(0, noise[0], current.size)
+    speed = speed + rng.normal(0, noise[1], speed.size)
+    stamps = START_NS + np.arange(voltage.size) * int(round(sample_period_s * 1e9))
+    return stamps, {'voltage': voltage, 'current': current, 'speed': speed}
+
+
+@pytest.mark.parametrize('batch_samples', [0, 250])
+def test_written_bag_reads_back_exactly(tmp_path, batch_samples):
+    stamps, channels = motor_samples(2.0)
+    path = tmp_path / 'bag'
+    write_bag(path, stamps, channels, batch_samples=batch_samples)
+    names = sorted(os.listdir(path))
+    assert names == ['bag.mcap', 'metadata.yaml']
+    metadata = (path / 'metadata.yaml').read_text()
+    assert 'version: 9' in metadata and 'storage_identifier: mcap' in metadata
+    for source in (path, path / 'bag.mcap'):
+        record = read_bag(str(source))
+        np.testing.assert_array_equal(record.time_s, (stamps - stamps[0]) * 1e-9)
+        for name, values in channels.items():
+            np.testing.assert_array_equal(getattr(record, name), values)
+
+
+def test_sqlite3_bag_with_arrival_stamps_is_aligned(tmp_path):
+    """A bag as ``ros2 bag record`` writes it: sqlite3, stamped on arrival with jitter."""
+    stamps, channels = motor_samples(1.0)
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    float64 = typestore.types['std_msgs/msg/Float64']
+    rng = np.random.default_rng(5)
+    path = tmp_path / 'recorded'
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3)
+    writer.open()
+    rows = []
+    for name in ('voltage', 'current', 'speed'):
+        connection = writer.add_connection(f'/drive/{name}', 'std_msgs/msg/Float64',
+                                           typestore=typestore)
+        jitter = rng.integers(0, 300_000, stamps.size)  # up to 0.3 ms late
+        rows += [(int(stamp), connection, value) for stamp, value in
+                 zip(stamps + jitter, channels[name])]
+    for stamp, connection, value in sorted(rows, key=lambda row: row[0]):
+        writer.write(connection, stamp,
+                     typestore.serialize_cdr(float64(data=float(value)), 'std_msgs/msg/Float64'))
+    writer.close()
+    record = read_bag(str(path))  # relative topic names match the /drive namespace
+    assert len(record) == stamps.size
+    np.testing.assert_allclose(np.diff(record.time_s), 1e-3, rtol=1e-4)
+    for name, values in channels.items():
+        np.testing.assert_array_equal(getattr(record, name), values)
+
+
+def test_missing_topics_are_named(tmp_path):
+    stamps, channels = motor_samples(0.5)
+    write_bag(tmp_path / 'bag', stamps, channels,
+              topics={'voltage': '/u', 'current': '/i', 'speed': '/w'})
+    with pytest.raises(InputDataError, match=r'current \(current\).*it has: /i'):
+        read_bag(str(tmp_path / 'bag'))
+    record = read_bag(str(tmp_path / 'bag'),
+                      topics={'voltage': 'u', 'current': 'i', 'speed': 'w'})
+    np.testing.assert_array_equal(record.speed, channels['speed'])
+
+
+def test_unfinished_bag_directory_is_refused_clearly(tmp_path):
+    (tmp_path / 'half').mkdir()
+    (tmp_path / 'half' / 'half.mcap').write_bytes(b'\x89MCAP0\r\n')
+    with pytest.raises(InputDataError, match='without metadata.yaml'):
+        read_bag(str(tmp_path / 'half'))
+
+
+def test_cli_identifies_a_bag_like_the_library(tmp_path, capsys):
+    stamps, channels = motor_samples(8.0)
+    write_bag(tmp_path / 'bag', stamps, channels, topics={'voltage': '/m/voltage',
+                                                          'current': '/m/current',
+                                                          'speed': '/m/speed'})
+    out = tmp_path / 'result.json'
+    code = cli_main(['identify', str(tmp_path / 'bag'), '--json', str(out), '--no-discover',
+                     '--current-topic', '/m/current'])
+    assert code == 0, capsys.readouterr().err
+    from_cli = json.loads(out.read_text())
+    records = prepare_records([read_bag(str(tmp_path / 'bag'))])
+    direct = identify(records, discover=False)
+    assert from_cli['parameters'] == pytest.approx(direct['parameters'], rel=1e-12)
+    truth = PAPER_MOTORS['paper2'].as_dict()
+    assert from_cli['parameters'] == pytest.approx(truth, rel=0.02)
+    code = cli_main(['identify', str(tmp_path / 'bag'), '--speed-topic', 'nope'])
+    assert code == 2
+    assert 'speed (nope) not in the bag' in capsys.readouterr().err
+
+
+def test_window_writer_rotates_within_the_budget(tmp_path):
+    stamps, channels = motor_samples(1.0)
+    one = write_bag(tmp_path / 'probe', stamps, channels)
+    writer = WindowBagWriter(tmp_path / 'windows', budget_bytes=int(2.5 * one))
+    paths = [writer.write(stamps + k * 10 ** 9, channels) for k in range(5)]
+    remaining = writer.windows()
+    assert remaining == paths[-2:]
+    assert writer.deleted == paths[:3]
+    for path in remaining:
+        assert len(read_bag(path)) == stamps.size
+    again = WindowBagWriter(tmp_path / 'windows', budget_bytes=int(2.5 * one))
+    assert os.path.basename(again.write(stamps, channels)).startswith('window_000006_')
+
+
+def test_window_writer_reports_full_and_unwritable_directories(tmp_path):
+    stamps, channels = motor_samples(0.5)
+    writer = WindowBagWriter(tmp_path / 'w', budget_bytes=10 ** 9, min_free_bytes=2 ** 62)
+    with pytest.raises(OSError, match='free') as caught:
+        writer.write(stamps, channels)
+    assert caught.value.errno == 28  # ENOSPC
+    assert os.listdir(tmp_path / 'w') == []
+    blocker = tmp_path / 'file'
+    blocker.write_text('not a directory')
+    with pytest.raises(OSError):
+        WindowBagWriter(blocker / 'windows', budget_bytes=10 ** 9)
+
+
+WRITER_SCRIPT = """
+import sys, numpy as np
+from dcmotor_id.io import WindowBagWriter
+writer = WindowBagWriter(sys.argv[1], budget_bytes=10 ** 9)
+stamps = 10 ** 18 + np.arange(20000) * 10 ** 6
+channels = {name: np.random.default_rng(0).normal(size=20000)
+            for name in ('voltage', 'current', 'speed')}
+print('ready', flush=True)
+for k in range(10 ** 6):
+    writer.write(stamps + k * 20 * 10 ** 9, channels)
+"""
+
+
+def test_sigkill_while_writing_leaves_only_readable_bags(tmp_path):
+    directory = tmp_path / 'windows'
+    process = subprocess.Popen([sys.executable, '-c', WRITER_SCRIPT, str(directory)],
+                               stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline().strip() == 'ready'
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # kill in the middle of the third window
+            names = os.listdir(directory)
+            if sum(name.startswith('window_') for name in names) >= 2 and \
+                    any(name.startswith('.partial_') for name in names):
+                break
+            time.sleep(0.005)
+        process.send_signal(signal.SIGKILL)
+    finally:
+        process.wait(timeout=30)
+    assert process.returncode == -signal.SIGKILL
+    finished = sorted(name for name in os.listdir(directory) if name.startswith('window_'))
+    assert len(finished) >= 2
+    for name in finished:
+        assert len(read_bag(str(directory / name))) == 20000
+    writer = WindowBagWriter(directory, budget_bytes=10 ** 9)  # cleans up the leftover
+    assert not [name for name in os.listdir(directory) if name.startswith('.partial_')]
+    assert writer.windows() == [str(directory / name) for name in finished]
