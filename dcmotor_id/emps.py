@@ -128,12 +128,7 @@ def idim_ls(record, gtau, decimation=DECIMATION):
         the ``relative_error_pct`` of the force fit.
 
     """
-    dt = record.sample_period_s
-    b, a = signal.butter(FILTER_ORDER, FILTER_CUTOFF_HZ / (0.5 / dt))
-    position = signal.filtfilt(b, a, record.position)
-    speed = _central_differences(position, dt)
-    acceleration = _central_differences(speed, dt)
-    keep = slice(BORDER_SAMPLES, None)
+    speed, acceleration, keep = _idim_kinematics(record)
     columns = np.column_stack([acceleration, speed, np.sign(speed),
                                np.ones_like(speed)])[keep]
     force = (gtau * record.current)[keep]
@@ -149,14 +144,24 @@ def idim_ls(record, gtau, decimation=DECIMATION):
     return out
 
 
-def idim_force_error_pct(parameters, record, gtau, decimation=DECIMATION):
-    """Relative error [%] of the IDIM force fit for given (M, Fv, Fc, offset)."""
+def _idim_kinematics(record):
+    """
+    Return the IDIM speed and acceleration of the carriage and the samples kept.
+
+    The reference processing: Butterworth low-pass applied forward and backward to the
+    position, then central differences twice; the first samples are dropped.
+    """
     dt = record.sample_period_s
     b, a = signal.butter(FILTER_ORDER, FILTER_CUTOFF_HZ / (0.5 / dt))
     position = signal.filtfilt(b, a, record.position)
     speed = _central_differences(position, dt)
     acceleration = _central_differences(speed, dt)
-    keep = slice(BORDER_SAMPLES, None)
+    return speed, acceleration, slice(BORDER_SAMPLES, None)
+
+
+def idim_force_error_pct(parameters, record, gtau, decimation=DECIMATION):
+    """Relative error [%] of the IDIM force fit for given (M, Fv, Fc, offset)."""
+    speed, acceleration, keep = _idim_kinematics(record)
     model = (parameters['M'] * acceleration + parameters['Fv'] * speed
              + parameters['Fc'] * np.sign(speed) + parameters['offset'])[keep]
     force = (gtau * record.current)[keep]
