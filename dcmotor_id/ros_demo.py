@@ -21,6 +21,7 @@ from rclpy.executors import SingleThreadedExecutor
 from std_srvs.srv import Trigger
 
 from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
+from dcmotor_id.nodes.common import spin_until
 from dcmotor_id.nodes.identifier import LATCHED
 
 KEYS = PARAMETER_NAMES + DERIVED_NAMES
@@ -41,15 +42,6 @@ def _executable(name):
 
 def _values(status):
     return {kv.key: kv.value for kv in status.values}
-
-
-def _spin_until(executor, condition, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.1)
-        if condition():
-            return True
-    return False
 
 
 def run_demo(record_s=12.0, record_dir=None):
@@ -87,7 +79,7 @@ def run_demo(record_s=12.0, record_dir=None):
         print(f'recording {record_s:g} s ...', flush=True)
         start = time.monotonic()
         while time.monotonic() - start < record_s:
-            _spin_until(executor, lambda: False, 2.0)
+            spin_until(executor, lambda: False, 2.0)
             if online:
                 values = _values(online[-1])
                 print(f'  {time.monotonic() - start:4.0f} s  online: Ra={float(values["Ra"]):.4g}'
@@ -96,14 +88,14 @@ def run_demo(record_s=12.0, record_dir=None):
                       flush=True)
         print('calling /identifier/identify ...', flush=True)
         future = client.call_async(Trigger.Request())
-        if not _spin_until(executor, future.done, 300.0):
+        if not spin_until(executor, future.done, 300.0):
             print('no answer from /identifier/identify within 300 s')
             return 1
         response = future.result()
         if not response.success:
             print(f'identification failed: {response.message}')
             return 1
-        _spin_until(executor, lambda: latched, 10.0)
+        spin_until(executor, lambda: latched, 10.0)
         identified = _values(latched[-1])
         paper = {}
         for array in diagnostics:

@@ -15,6 +15,7 @@ from std_srvs.srv import Trigger
 
 from dcmotor_id.io import read_bag
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.nodes.common import spin_until
 from dcmotor_id.nodes.identifier import LATCHED, RESULT_KEYS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -109,15 +110,6 @@ def client(ros_env):
     executor.shutdown()
     node.destroy_node()
     rclpy.try_shutdown()
-
-
-def spin_until(executor, condition, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-        if condition():
-            return True
-    return False
 
 
 def test_installed_nodes_identify_across_processes_and_survive_sigkill(

@@ -1,6 +1,7 @@
-"""What the nodes share: parameter declaration, the sample QoS, and ``main`` boilerplate."""
+"""What the nodes share: parameter declaration, the sample QoS, spinning and ``main``."""
 
 import sys
+import time
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
@@ -53,11 +54,22 @@ def sample_qos(depth, reliability):
                       reliability=RELIABILITY[reliability])
 
 
-def run(node_class, args=None):
+def spin_until(executor, condition, timeout_s):
+    """Spin ``executor`` until ``condition()`` holds; return whether it did within the time."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+        if condition():
+            return True
+    return False
+
+
+def run(node_class, args=None, until=None):
     """
     Create the node, spin it, shut down cleanly.
 
-    One thread is enough: long work (fits, bag writing) runs in workers of the node.
+    One thread is enough: long work (fits, bag writing) runs in workers of the node.  With
+    ``until`` (a predicate of the node), spinning also stops once it returns true.
     """
     rclpy.init(args=args)
     node = None
@@ -66,7 +78,11 @@ def run(node_class, args=None):
         node = node_class()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        if until is None:
+            executor.spin()
+        else:
+            while rclpy.ok() and not until(node):
+                executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ValueError as error:  # a bad parameter: say which and stop

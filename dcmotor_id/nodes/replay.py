@@ -18,7 +18,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 
-from dcmotor_id.nodes.common import declare
+from dcmotor_id.nodes.common import declare, run
 
 
 def message_class(msgtype):
@@ -110,29 +110,7 @@ class Replay(Node):
 
 def main(args=None):
     """Run the ``replay`` node until the bag is played."""
-    import sys
-
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = Replay()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while rclpy.ok() and not node.done.is_set():
-            executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ValueError as error:
-        print(f'replay: {error}', file=sys.stderr)
-        code = 2
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run(Replay, args, until=lambda node: node.done.is_set())
 
 
 if __name__ == '__main__':
