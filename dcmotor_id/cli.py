@@ -59,6 +59,27 @@ def format_result(result):
     return '\n'.join(lines)
 
 
+def _json_safe(value):
+    """Replace non-finite floats by None (JSON has no NaN), recursively."""
+    if isinstance(value, dict):
+        return {key: _json_safe(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(item) for item in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def write_json(path, result):
+    """Write the result as strict JSON, atomically (a temporary file renamed into place)."""
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    temporary = f'{path}.partial'
+    with open(temporary, 'w', encoding='utf-8') as stream:
+        json.dump(_json_safe(result), stream, indent=2, allow_nan=False)
+    os.replace(temporary, path)
+
+
 def _cmd_identify(args):
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
@@ -73,10 +94,7 @@ def _cmd_identify(args):
         page = write_report(args.report, result, found, records)
         print(f'report: {page}')
     if args.json:
-        directory = os.path.dirname(os.path.abspath(args.json))
-        os.makedirs(directory, exist_ok=True)
-        with open(args.json, 'w', encoding='utf-8') as stream:
-            json.dump(result, stream, indent=2)
+        write_json(args.json, result)
     print(format_result(result))
     return 0
 

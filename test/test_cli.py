@@ -134,3 +134,13 @@ def test_module_entry_point_and_usage_errors():
     with pytest.raises(SystemExit) as exit_info:
         main(['identify', 'x.csv', '--method', 'magic'])
     assert exit_info.value.code == 2
+
+
+def test_json_is_strict_and_has_no_nan(tmp_path):
+    from dcmotor_id.cli import write_json
+    out = tmp_path / 'sub' / 'r.json'
+    write_json(str(out), {'stderr': {'Ra': float('nan'), 'La': 1.0}, 'x': [float('inf')]})
+    text = out.read_text()
+    assert 'NaN' not in text and 'Infinity' not in text
+    assert json.loads(text) == {'stderr': {'Ra': None, 'La': 1.0}, 'x': [None]}
+    assert not (tmp_path / 'sub' / 'r.json.partial').exists()
