@@ -164,11 +164,9 @@ def _check_result(estimate):
     if bad:
         listing = ', '.join(f'{name} = {value:.4g} {UNITS[name]}' for name, value in bad.items())
         hint = (' Check the signs and units of the columns (current and speed must be positive '
-                'for a positive voltage); the paper method is also not robust to sensor noise: '
-                'use --method refined.'
-                if estimate.method == 'paper' else
-                ' Check the signs and units of the columns (current and speed must be positive '
                 'for a positive voltage).')
+        if estimate.method == 'paper':
+            hint += ' The paper method is also not robust to sensor noise: use --method refined.'
         raise FitError(f'the {estimate.method} method gave non-physical values: {listing}.'
                        + hint)
     loose = [name for name in ('Ra', 'La', 'CPhi', 'J')
