@@ -27,36 +27,17 @@ effect in :data:`VOCABULARY` wins and the other is listed as equivalent).
 """
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
 from dcmotor_id.estimators.base import ExogenousTerm
 from dcmotor_id.estimators.refined import StateTerm
-from dcmotor_id.residuals import noise_std_estimate
-
-
-def smooth(values, sample_period_s):
-    """Zero-phase low-pass at a tenth of the sample rate, for regressors of measured signals."""
-    values = np.asarray(values, dtype=float)
-    if values.shape[0] < 30:
-        return values.copy()
-    sos = butter(4, 0.2, output='sos')  # cut-off 0.1 fs
-    return sosfiltfilt(sos, values)
-
-
-def dead_sign(values, sample_period_s):
-    """Sign of a smoothed measured signal, zero within twice its noise level of zero."""
-    smoothed = smooth(values, sample_period_s)
-    deadband = 2.0 * noise_std_estimate(values)
-    return np.where(np.abs(smoothed) > deadband, np.sign(smoothed), 0.0)
+from dcmotor_id.signals import dead_sign, integrate_trapezoid, smooth
 
 
 def shaft_angle(record):
     """Shaft angle [rad]: the measured position, else the integral of the measured speed."""
     if record.position is not None:
         return np.asarray(record.position, dtype=float)
-    dt = record.sample_period_s
-    speed = np.asarray(record.speed, dtype=float)
-    return np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * dt)])
+    return integrate_trapezoid(record.speed, record.sample_period_s)
 
 
 def torque_spread(records, base, torque_constant=None):

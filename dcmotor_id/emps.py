@@ -23,8 +23,8 @@ from scipy.io import loadmat
 from dcmotor_id.effects import EXTENDED_VOCABULARY, LoadTorque, VOCABULARY
 from dcmotor_id.errors import InputDataError
 from dcmotor_id.estimators.refined import RefinedEstimator
-from dcmotor_id.excitation import speed_from_position
 from dcmotor_id.io import Record
+from dcmotor_id.signals import central_differences, speed_from_position
 from dcmotor_id.simulation import MotorEffects, simulate_mechanical_effects
 
 #: Files of the benchmark.
@@ -90,14 +90,6 @@ def load_emps(path):
     return record.replace(speed=speed), float(np.ravel(data['gtau'])[0])
 
 
-def _central_differences(values, step):
-    out = np.empty_like(values)
-    out[1:-1] = (values[2:] - values[:-2]) / (2.0 * step)
-    out[0] = (values[1] - values[0]) / step
-    out[-1] = (values[-1] - values[-2]) / step
-    return out
-
-
 def _decimate(values, factor):
     """
     Decimate as MATLAB's ``decimate`` does.
@@ -154,8 +146,8 @@ def _idim_kinematics(record):
     dt = record.sample_period_s
     b, a = signal.butter(FILTER_ORDER, FILTER_CUTOFF_HZ / (0.5 / dt))
     position = signal.filtfilt(b, a, record.position)
-    speed = _central_differences(position, dt)
-    acceleration = _central_differences(speed, dt)
+    speed = central_differences(position, dt)
+    acceleration = central_differences(speed, dt)
     return speed, acceleration, slice(BORDER_SAMPLES, None)
 
 

@@ -112,37 +112,3 @@ def quantise(values, step):
     if step is None or step <= 0:
         return values.copy()
     return np.round(values / step) * step
-
-
-def speed_from_position(position, sample_period_s, cutoff_hz=None, order=4):
-    """
-    Derive speed from an encoder position with a differentiating filter.
-
-    A Butterworth low-pass of the given order, applied forward and backward (no phase lag),
-    followed by central differences: the processing of the EMPS reference (IDIM-LS).
-
-    Parameters
-    ----------
-    position : array_like
-        Position [rad] (or [m] for a linear axis).
-    sample_period_s : float
-        Sample period [s].
-    cutoff_hz : float, optional
-        Low-pass cut-off [Hz]; default a tenth of the sample rate, at most 100 Hz.
-    order : int
-        Filter order.
-
-    Returns
-    -------
-    numpy.ndarray
-        Speed [rad/s] (or [m/s]).
-
-    """
-    position = np.asarray(position, dtype=float)
-    fs = 1.0 / sample_period_s
-    cutoff = min(0.1 * fs, 100.0) if cutoff_hz is None else float(cutoff_hz)
-    if not 0 < cutoff < 0.5 * fs:
-        raise ValueError(f'cut-off {cutoff} Hz must lie between 0 and the Nyquist {0.5 * fs} Hz')
-    sos = signal.butter(order, cutoff, fs=fs, output='sos')
-    smooth = signal.sosfiltfilt(sos, position)
-    return np.gradient(smooth, sample_period_s)

@@ -8,7 +8,6 @@ contract.
 """
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
 from dcmotor_id.discovery import DiscoveryLoop
 from dcmotor_id.effects import VOCABULARY
@@ -16,9 +15,9 @@ from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdent
 from dcmotor_id.estimators.base import nrmse_pct
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.excitation import speed_from_position
 from dcmotor_id.io import check_record
 from dcmotor_id.model import DERIVED_NAMES, PARAMETER_NAMES, UNITS
+from dcmotor_id.signals import low_pass, noise_std, speed_from_position
 
 #: Estimators by the name the CLI's ``--method`` takes.
 METHODS = {'refined': RefinedEstimator, 'paper': PaperEstimator}
@@ -79,18 +78,6 @@ def prepare_records(records, torque_constant=None, resample=False, speed_cutoff_
     return prepared
 
 
-def _noise_level(values):
-    """Robust estimate of white measurement noise from first differences."""
-    diffs = np.diff(values)
-    return float(np.median(np.abs(diffs - np.median(diffs))) / 0.6745 / np.sqrt(2.0))
-
-
-def _smooth(values, sample_period_s):
-    cutoff = min(0.05, 25.0 * sample_period_s)  # fraction of the sample rate
-    sos = butter(2, 2.0 * cutoff, output='sos')
-    return sosfiltfilt(sos, values) if values.shape[0] > 15 else values
-
-
 def check_excitation(records, mechanical_only):
     """
     Refuse data that do not excite the motor, naming what cannot be identified.
@@ -103,8 +90,10 @@ def check_excitation(records, mechanical_only):
 
     """
     speeds = np.concatenate([rec.speed for rec in records])
-    smooth = np.concatenate([_smooth(rec.speed, rec.sample_period_s) for rec in records])
-    noise = max(_noise_level(speeds), 1e-12 * max(np.max(np.abs(speeds)), 1e-300))
+    smooth = np.concatenate([low_pass(rec.speed, min(0.05, 25.0 * rec.sample_period_s), order=2)
+                             for rec in records])
+    noise = max(max(noise_std(rec.speed) for rec in records),
+                1e-12 * max(np.max(np.abs(speeds)), 1e-300))
     if np.max(np.abs(smooth)) <= 10.0 * noise:
         raise NotIdentifiableError(
             'the motor never moves (speed stays within its noise): CPhi, J, b and Mc are not '
@@ -121,8 +110,10 @@ def check_excitation(records, mechanical_only):
                 'steady-state balance u = Ra i + CPhi w is seen, so La, J, b and Mc are not '
                 'identifiable and Ra cannot be separated from CPhi. Excite the motor with a '
                 'changing voltage (sine, sawtooth, PRBS, chirp; see dcmotor-id simulate).')
-    positive = np.any(smooth > 10.0 * noise)
-    negative = np.any(smooth < -10.0 * noise)
+    # A reversal must be a visible part of the motion, not filter ringing around a start at rest.
+    level = max(10.0 * noise, 0.02 * float(np.max(np.abs(smooth))))
+    positive = np.any(smooth > level)
+    negative = np.any(smooth < -level)
     if not (positive and negative):
         raise NotIdentifiableError(
             'the speed never reverses: the Coulomb friction Mc acts as a constant torque and '

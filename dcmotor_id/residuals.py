@@ -24,28 +24,14 @@ import numpy as np
 from scipy.linalg import expm
 from scipy.stats import chi2, norm
 
+from dcmotor_id.signals import noise_std
+
 #: Default number of lags of the whiteness test and the correlation plots.
 DEFAULT_LAGS = 25
 #: Significance level of the whiteness and correlation tests (99 % bands).
 ALPHA = 0.01
 #: Order of the autoregressive predictor behind :func:`predictable_fraction`.
 AR_ORDER = 10
-
-
-def noise_std_estimate(values):
-    """
-    Robust standard deviation of white noise on a smooth signal.
-
-    Second differences remove a smooth signal up to its curvature; for white noise of variance
-    ``s^2`` they have variance ``6 s^2``.  The median absolute deviation makes the estimate
-    insensitive to jumps (switching inputs, speed reversals).
-    """
-    values = np.asarray(values, dtype=float)
-    if values.shape[0] < 5:
-        return 0.0
-    second = np.diff(values, 2)
-    mad = np.median(np.abs(second - np.median(second)))
-    return float(mad / 0.6745 / np.sqrt(6.0))
 
 
 def confidence_band(n_samples, level=1.0 - ALPHA):
@@ -197,7 +183,7 @@ def analyse_channel(residual, measured, inputs=None, regressors=None, max_lag=DE
     return {
         'rms': rms,
         'nrmse_pct': rms / spread * 100.0 if spread > 0 else None,
-        'noise_std': noise_std_estimate(measured),
+        'noise_std': noise_std(measured),
         'ljung_box': ljung_box(residual, max_lag, alpha),
         'predictable_fraction': predictable_fraction(residual),
         'acf_outside_band': float(np.mean(np.abs(acf[1:]) > band)),

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from dcmotor_id.excitation import (add_sensor_noise, EXCITATION_KINDS, make_excitation,
-                                   PAPER_SAWTOOTH, PAPER_SINE, quantise, sample_times,
-                                   speed_from_position)
+                                   PAPER_SAWTOOTH, PAPER_SINE, quantise, sample_times)
+from dcmotor_id.signals import speed_from_position
 
 
 def dominant_frequency(signal, dt):

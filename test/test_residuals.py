@@ -9,7 +9,8 @@ from dcmotor_id.io import Record
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.residuals import (analyse_channel, autocorrelation, confidence_band,
                                   correlation_summary, cross_correlation, ljung_box,
-                                  noise_std_estimate, one_step_error, predictable_fraction)
+                                  one_step_error, predictable_fraction)
+from dcmotor_id.signals import noise_std as noise_std_estimate
 from dcmotor_id.simulation import simulate_mechanical, simulate_motor
 
 RNG = np.random.default_rng(12)

@@ -25,13 +25,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.signal import butter, sosfiltfilt
 
 from dcmotor_id.errors import FitError
 from dcmotor_id.estimators.base import (derived_stderr, Estimate, ExogenousTerm,
                                         parameter_names)
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.model import MotorParameters, state_matrix
+from dcmotor_id.signals import low_pass
 from dcmotor_id.simulation import (HybridSystem, motor_forcing, MotorEffects,
                                    simulate_mechanical_effects, simulate_motor_effects)
 
@@ -183,10 +183,9 @@ def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004
             trim = min(int(3.0 / (fraction * 2 * np.pi)) + 2, n // 4)
             if n - 2 * trim < 20:
                 continue
-            sos = butter(4, fraction * 2.0, output='sos')  # cut-off = fraction * fs
 
-            def lowpass(values, sos=sos):
-                return sosfiltfilt(sos, values)
+            def lowpass(values, fraction=fraction):
+                return low_pass(values, fraction, order=4)
             current = lowpass(rec.current)
             speed = lowpass(rec.speed)
             sign = lowpass(np.sign(rec.speed))
