@@ -86,12 +86,12 @@ def _cmd_identify(args):
     records = prepare_records(load_records(args.files, topics), args.torque_constant,
                               args.resample, args.speed_cutoff)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
-    result, found = identify(records, method=args.method, torque_constant=args.torque_constant,
-                             discover=not args.no_discover, details=True,
-                             vocabulary=vocabulary)
+    identified = identify(records, method=args.method, torque_constant=args.torque_constant,
+                          discover=not args.no_discover, vocabulary=vocabulary)
+    result = identified.as_dict()
     if args.report:
         from dcmotor_id.report import write_report
-        page = write_report(args.report, result, found, records)
+        page = write_report(args.report, result, identified.discovery_result, records)
         print(f'report: {page}')
     if args.json:
         write_json(args.json, result)

@@ -60,7 +60,7 @@ def run_demo():
                               ('refined', {'method': 'refined'})):
             start = time.perf_counter()
             try:
-                results[label] = identify(records, **kwargs)
+                results[label] = identify(records, **kwargs).as_dict()
             except Exception as error:  # noqa: BLE001  (the demo shows the failure)
                 print(f'{label}: {error}')
                 results[label] = None
