@@ -38,6 +38,7 @@ from scipy.linalg import qr
 from dcmotor_id.effects import SensorDelay, torque_spread, VOCABULARY
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
+from dcmotor_id.model import MECHANICAL_NAMES, PARAMETER_NAMES
 from dcmotor_id.residuals import (ALPHA, analyse_channel, channel_errors, ChannelErrors,
                                   DEFAULT_LAGS, model_errors, one_step_error, output_channels,
                                   residual_nrmse_pct, simulate_records)
@@ -196,7 +197,7 @@ class Candidate:
 
     """
 
-    effect: type
+    effect: type[Effect]
     inner: dict
     start: dict
     screen_explained: float
@@ -210,9 +211,17 @@ class Candidate:
         """Vocabulary name of the effect."""
         return self.effect.name
 
-    def fitted_effect(self) -> Effect:
-        """Return the refitted effect instance (only when :attr:`fit` is set)."""
-        return self.fit.structure.effects(self.fit.values)[-1]
+    @property
+    def fitted(self) -> Fit:
+        """The refit (for a candidate that was refitted: :attr:`fit` is set)."""
+        if self.fit is None:
+            raise ValueError(f'{self.name} was not refitted')
+        return self.fit
+
+    def describe(self) -> dict:
+        """Return the refitted effect's ``{"name", "parameters"}``."""
+        values = self.fitted.values
+        return self.fitted.structure.effects(values)[-1].describe(values)
 
 
 @dataclass
@@ -362,9 +371,9 @@ class DiscoveryLoop:
         if any(term.channel not in ONE_STEP_TERMS for term in fitted.terms):
             return {}
         values = fitted.values
-        errors = {channel: [] for channel in self.outputs}
+        errors: dict[str, list[np.ndarray]] = {channel: [] for channel in self.outputs}
         for index, rec in enumerate(fitted.records):
-            extras: dict[str, np.ndarray] = {}
+            extras: dict[str, Any] = {}
             for term in fitted.terms:
                 key = ONE_STEP_TERMS[term.channel]
                 contribution = values[term.name] * term.regressors[index]
@@ -475,7 +484,8 @@ class DiscoveryLoop:
         fitted = columns @ coefficients
         return float(fitted @ fitted), coefficients
 
-    def screen(self, fitted, cls, residual, q, nominal):
+    def screen(self, fitted: Fit, cls: type[Effect], residual: np.ndarray,
+               q: np.ndarray | None, nominal: list) -> tuple[float, dict, dict] | None:
         """Best inner parameters of a candidate by the linearised fit; with start values."""
         best = None
         for inner in cls.inner_grid(fitted.records, fitted.values, self.torque_constant):
@@ -621,7 +631,7 @@ class DiscoveryLoop:
             if step.chosen is None:
                 reason = 'no candidate lowers the held-out error enough'
                 break
-            current = step.chosen.fit
+            current = step.chosen.fitted
             analysis = self.analyse(current)
         records, terms, estimate = self.refit_all(current)
         base_estimate = self.refit_all(base)[2] if len(current.structure) else estimate
@@ -656,33 +666,33 @@ class DiscoveryLoop:
                   for rank, candidate in enumerate(screened)]
         order = {cls.name: position for position, cls in enumerate(self.candidates)}
         refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
-                          key=lambda candidate: candidate.fit.heldout_cost)
+                          key=lambda candidate: candidate.fitted.heldout_cost)
         screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
                               key=lambda candidate: -candidate.screen_explained)
         chosen = None
         equivalent = []
         admissible = [candidate for candidate in refitted if not candidate.problem]
-        drop = current.heldout_cost - admissible[0].fit.heldout_cost if admissible else 0.0
+        drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
         if drop > 0:
             ties = [candidate for candidate in admissible
-                    if current.heldout_cost - candidate.fit.heldout_cost >= TIE_SHARE * drop]
+                    if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
             winner = min(ties, key=lambda candidate: order[candidate.name])
-            if winner.gain >= self.min_gain and winner.bic_delta < 0:
+            # Refitted candidates are scored: gain and bic_delta are set.
+            if winner.gain >= self.min_gain and winner.bic_delta < 0:  # type: ignore[operator]
                 chosen = winner
                 equivalent = [candidate for candidate in ties if candidate is not winner]
         results = refitted + screened_out
-        report = {
+        report: dict[str, Any] = {
             'error_before': current.errors(self.outputs),
             'candidates': [self._candidate_report(candidate, analysis)
                            for candidate in results],
             'added': None,
         }
         if chosen is not None:
-            report['added'] = chosen.fitted_effect().describe(chosen.fit.values)
-            report['error_after'] = chosen.fit.errors(self.outputs)
-            report['gain_pct'] = chosen.gain * 100.0
-            report['equivalent'] = [candidate.fitted_effect().describe(candidate.fit.values)
-                                    for candidate in equivalent]
+            report['added'] = chosen.describe()
+            report['error_after'] = chosen.fitted.errors(self.outputs)
+            report['gain_pct'] = chosen.gain * 100.0  # type: ignore[operator]
+            report['equivalent'] = [candidate.describe() for candidate in equivalent]
         return Round(results, chosen, report)
 
     @staticmethod
@@ -714,8 +724,7 @@ def refit_start(values: dict, records: Sequence[Record],
     The fit works on logarithms, so a friction that a missing effect drove to zero would
     stay there; a floor of 2 % of the driving torque's spread lets it come back.
     """
-    names = ('J', 'b', 'Mc') if torque_constant is not None else \
-        ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
+    names = MECHANICAL_NAMES if torque_constant is not None else PARAMETER_NAMES
     start = {name: float(values[name]) for name in names}
     spread = torque_spread(records, start, torque_constant)
     speed = max(float(np.std(np.concatenate([rec.speed for rec in records]))), 1e-12)

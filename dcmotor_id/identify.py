@@ -21,7 +21,7 @@ from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdent
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.io import check_record
-from dcmotor_id.model import DERIVED_NAMES, PARAMETER_NAMES, UNITS
+from dcmotor_id.model import DERIVED_NAMES, MECHANICAL_NAMES, PARAMETER_NAMES, UNITS
 from dcmotor_id.residuals import ChannelErrors, model_errors
 from dcmotor_id.signals import low_pass, noise_std, speed_from_position
 
@@ -38,6 +38,9 @@ IDENTIFIABLE_REL_STDERR = 0.5
 NO_FIT_NRMSE_PCT = 60.0
 #: Simulation error of the base model above which effect discovery is not tried (percent).
 HOPELESS_NRMSE_PCT = 100.0
+#: Parameters that must be positive (the others non-negative).
+# TODO(merge): model.py's admissibility check replaces this and the test in _check_result.
+POSITIVE_NAMES = ('Ra', 'La', 'CPhi', 'J')
 
 
 def prepare_records(records: Sequence[Record], torque_constant: float | None = None,
@@ -152,7 +155,7 @@ def _check_result(estimate):
     """Refuse non-physical or non-identified results instead of reporting made-up numbers."""
     bad = {name: value for name, value in estimate.parameters.items()
            if name in PARAMETER_NAMES and not (np.isfinite(value) and (
-               value > 0 if name in ('Ra', 'La', 'CPhi', 'J') else value >= 0))}
+               value > 0 if name in POSITIVE_NAMES else value >= 0))}
     if bad:
         listing = ', '.join(f'{name} = {value:.4g} {UNITS[name]}' for name, value in bad.items())
         hint = (' Check the signs and units of the columns (current and speed must be positive '
@@ -161,7 +164,7 @@ def _check_result(estimate):
             hint += ' The paper method is also not robust to sensor noise: use --method refined.'
         raise FitError(f'the {estimate.method} method gave non-physical values: {listing}.'
                        + hint)
-    loose = [name for name in ('Ra', 'La', 'CPhi', 'J')
+    loose = [name for name in POSITIVE_NAMES
              if name in estimate.parameters and np.isfinite(estimate.stderr.get(name, np.nan))
              and estimate.stderr[name] > IDENTIFIABLE_REL_STDERR * estimate.parameters[name]]
     if loose:
@@ -343,7 +346,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
             f'the identified model does not reproduce the data (simulation error {worst:.3g} % '
             'of the signal spread). Check that the columns are what their names say (units, '
             'signs) and that the data come from a DC motor drive.')
-    names = ('J', 'b', 'Mc') if mechanical_only else PARAMETER_NAMES + DERIVED_NAMES
+    names = MECHANICAL_NAMES if mechanical_only else PARAMETER_NAMES + DERIVED_NAMES
     return IdentificationResult(
         parameters={name: final.parameters[name] for name in names},
         stderr={name: final.stderr[name] for name in names},

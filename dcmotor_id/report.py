@@ -275,7 +275,9 @@ def _evidence_rows(found):
         for channel, item in analysis.items():
             inputs = ', '.join(f'{name} {value["max_abs"]:.3f} (band {value["band"]:.3f})'
                                for name, value in item['inputs'].items())
+            one_step = item.get('one_step_nrmse_pct')
             rows.append([label, channel, _number(item['nrmse_pct'], 4) + ' %',
+                         'n/a' if one_step is None else _number(one_step, 4) + ' %',
                          _number(item['ljung_box']['statistic'], 4),
                          _number(item['ljung_box']['p_value'], 3),
                          _number(item['predictable_fraction'], 3),
@@ -407,12 +409,15 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
     parts.append('<h2>Residual analysis (held-out part)</h2>')
     parts.append(f'<img src="{images[1]}" alt="residuals and whiteness">')
     if found is not None:
-        parts.append(_table(['model', 'channel', 'NRMSE', 'Ljung-Box Q', 'p-value',
-                             'AR-predictable share', 'lags outside 99 % band',
+        parts.append(_table(['model', 'channel', 'NRMSE', 'one-step NRMSE', 'Ljung-Box Q',
+                             'p-value', 'AR-predictable share', 'lags outside 99 % band',
                              'max |corr| with input'], _evidence_rows(found)))
         parts.append('<p>White residual: Ljung-Box p-value above 0.01 (per channel, '
                      'Bonferroni). Structure that matters: not white and at least 5 % of the '
-                     'residual predictable from its own past.</p>')
+                     'residual predictable from its own past. The one-step error (the '
+                     'measured state propagated over one sample by the model) localises '
+                     'errors in time and ignores slow drifts of the simulation; n/a where the '
+                     'model has an effect it does not represent.</p>')
         if found.steps:
             parts.append('<h2>Search rounds</h2>')
             parts.append(f'<img src="{images[2]}" alt="error per step">')

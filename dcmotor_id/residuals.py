@@ -192,15 +192,17 @@ def cross_correlation(x: ArrayLike, y: ArrayLike,
         means ``x`` follows ``y``.
 
     """
-    x = np.asarray(x, dtype=float) - np.mean(x)
-    y = np.asarray(y, dtype=float) - np.mean(y)
-    n = x.shape[0]
-    scale = np.sqrt(np.sum(x * x) * np.sum(y * y))
+    x_array = np.asarray(x, dtype=float)
+    y_array = np.asarray(y, dtype=float)
+    x_array = x_array - np.mean(x_array)
+    y_array = y_array - np.mean(y_array)
+    n = x_array.shape[0]
+    scale = np.sqrt(np.sum(x_array * x_array) * np.sum(y_array * y_array))
     lags = np.arange(-max_lag, max_lag + 1)
     if scale <= 0:
         return lags, np.zeros(lags.shape[0])
     size = 1 << int(np.ceil(np.log2(2 * n)))
-    full = np.fft.irfft(np.fft.rfft(x, size) * np.conj(np.fft.rfft(y, size)), size)
+    full = np.fft.irfft(np.fft.rfft(x_array, size) * np.conj(np.fft.rfft(y_array, size)), size)
     rho = np.concatenate([full[size - max_lag:], full[:max_lag + 1]]) / scale
     return lags, rho
 
@@ -372,14 +374,14 @@ def one_step_error(values: Mapping[str, float], record: Any,
     n = len(record)
     dt = record.sample_period_s
     zeros = np.zeros(n)
-    torque_extra = zeros if torque_extra is None else torque_extra
+    torque = zeros if torque_extra is None else np.asarray(torque_extra, dtype=float)
     speed_meas = record.speed - (zeros if speed_offset is None else speed_offset)
     sign = np.sign(speed_meas)
     friction = np.where(sign > 0, values['Mc'] + coulomb_delta,
                         values['Mc'] - coulomb_delta) * sign
     if torque_constant is not None:
         ad, gamma = zoh_matrices([[-values['b'] / values['J']]], dt)
-        drive = (torque_constant * record.current + torque_extra - friction) / values['J']
+        drive = (torque_constant * record.current + torque - friction) / values['J']
         predicted = ad[0, 0] * speed_meas[:-1] + gamma[0, 0] * drive[:-1]
         return {'speed': predicted - speed_meas[1:]}
     current_meas = record.current - (zeros if current_offset is None else current_offset)
@@ -389,6 +391,6 @@ def one_step_error(values: Mapping[str, float], record: Any,
     ad, gamma = zoh_matrices(a_matrix, dt)
     state = np.vstack([current_meas[:-1], speed_meas[:-1]])
     forcing = np.vstack([voltage[:-1] / values['La'],
-                         (torque_extra[:-1] - friction[:-1]) / values['J']])
+                         (torque[:-1] - friction[:-1]) / values['J']])
     predicted = ad @ state + gamma @ forcing
     return {'current': predicted[0] - current_meas[1:], 'speed': predicted[1] - speed_meas[1:]}
