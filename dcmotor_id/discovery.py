@@ -213,7 +213,7 @@ class Candidate:
 
     @property
     def fitted(self) -> Fit:
-        """The refit (for a candidate that was refitted: :attr:`fit` is set)."""
+        """Return the refit (of a candidate that was refitted: :attr:`fit` is set)."""
         if self.fit is None:
             raise ValueError(f'{self.name} was not refitted')
         return self.fit
