@@ -155,7 +155,7 @@ def run(repeats, skip_plain):
     warm = []
     for _ in range(repeats):
         begin = time.perf_counter()
-        result = identify(records, discover=False)
+        result = identify(records, discover=False).as_dict()
         warm.append(time.perf_counter() - begin)
     warm_s = float(np.median(warm))
     with_discovery = []

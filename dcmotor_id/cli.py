@@ -5,10 +5,13 @@ Exit codes: 0 success, 2 bad input or data that cannot identify the motor (with 
 saying what is wrong and what to do), 1 an unexpected failure.
 """
 
+from __future__ import annotations
+
 import argparse
 import json
 import os
 import sys
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -21,7 +24,8 @@ from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 
 
-def load_records(paths, topics=None):
+def load_records(paths: Sequence[str],
+                 topics: Mapping[str, str] | None = None) -> list[Record]:
     """Read every input path (CSV files, rosbag2 directories, .mcap or .db3 files)."""
     records = []
     for path in paths:
@@ -70,7 +74,7 @@ def _json_safe(value):
     return value
 
 
-def write_json(path, result):
+def write_json(path: str, result: Mapping[str, Any]) -> None:
     """Write the result as strict JSON, atomically (a temporary file renamed into place)."""
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
@@ -86,12 +90,12 @@ def _cmd_identify(args):
     records = prepare_records(load_records(args.files, topics), args.torque_constant,
                               args.resample, args.speed_cutoff)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
-    result, found = identify(records, method=args.method, torque_constant=args.torque_constant,
-                             discover=not args.no_discover, details=True,
-                             vocabulary=vocabulary)
+    identified = identify(records, method=args.method, torque_constant=args.torque_constant,
+                          discover=not args.no_discover, vocabulary=vocabulary)
+    result = identified.as_dict()
     if args.report:
         from dcmotor_id.report import write_report
-        page = write_report(args.report, result, found, records)
+        page = write_report(args.report, result, identified.discovery_result, records)
         print(f'report: {page}')
     if args.json:
         write_json(args.json, result)
@@ -145,7 +149,7 @@ def _non_negative(text):
     return value
 
 
-def build_parser():
+def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser (the CLI contract)."""
     parser = argparse.ArgumentParser(
         prog='dcmotor-id', description='Identify DC motor parameters (Ra, La, CPhi, J, b, Mc).')
@@ -206,7 +210,7 @@ def build_parser():
     return parser
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)

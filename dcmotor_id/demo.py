@@ -1,6 +1,9 @@
-"""``make demo``: the paper's motor 2 identified by the paper's method and the default one."""
+"""The offline demo (``make demo``): the paper's motor 2 identified by both methods."""
+
+from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
@@ -8,15 +11,17 @@ from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.excitation import add_sensor_noise, make_excitation, PAPER_SAWTOOTH, PAPER_SINE
 from dcmotor_id.identify import identify
 from dcmotor_id.io import Record
-from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
+from dcmotor_id.model import (DERIVED_NAMES, MotorParameters, PAPER_MOTORS, PARAMETER_NAMES,
+                              UNITS)
 from dcmotor_id.simulation import simulate_motor
 
 SAMPLE_PERIOD_S = 1e-4
 DURATION_S = 4.0
 
 
-def paper_records(params, noise, seed=0, sample_period_s=SAMPLE_PERIOD_S,
-                  duration_s=DURATION_S):
+def paper_records(params: MotorParameters, noise: float, seed: int = 0,
+                  sample_period_s: float = SAMPLE_PERIOD_S,
+                  duration_s: float = DURATION_S) -> list[Record]:
     """Simulate the paper's two training sets (sine for N1, sawtooth for N2) with noise."""
     rng = np.random.default_rng(seed)
     records = []
@@ -46,7 +51,7 @@ def _table(truth, results):
     return '\n'.join(lines)
 
 
-def run_demo():
+def run_demo() -> int:
     """Print truth, paper method and default method side by side, without and with noise."""
     params = PAPER_MOTORS['paper2']
     truth = params.as_dict()
@@ -54,13 +59,13 @@ def run_demo():
           f'N2: 1 Hz 43 V sawtooth), {DURATION_S:g} s each at dT = {SAMPLE_PERIOD_S:g} s.')
     for noise in (0.0, 0.01):
         records = paper_records(params, noise)
-        results = {}
+        results: dict[str, dict[str, Any] | None] = {}
         for label, kwargs in (('paper', {'method': 'paper',
                                          'estimator': PaperEstimator([0], [1])}),
                               ('refined', {'method': 'refined'})):
             start = time.perf_counter()
             try:
-                results[label] = identify(records, **kwargs)
+                results[label] = identify(records, **kwargs).as_dict()
             except Exception as error:  # noqa: BLE001  (the demo shows the failure)
                 print(f'{label}: {error}')
                 results[label] = None

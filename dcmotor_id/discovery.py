@@ -1,5 +1,5 @@
 """
-The discovery loop: trace the residual to an effect the model lacks, add it, repeat.
+The effect discovery loop: trace the residual to an effect the model lacks, add it, repeat.
 
 1. Split every record in time: the first part (70 % by default) trains, the rest is held out.
 2. Fit the base model on the training part; simulate the whole record (the held-out part
@@ -21,18 +21,32 @@ The discovery loop: trace the residual to an effect the model lacks, add it, rep
 ``unexplained`` is true when the final held-out residual is still not white *and* an
 autoregressive predictor explains at least 5 % of it from its own past (structure of a size
 that matters) while no candidate helps: the evidence says how much and where.
+
+:class:`DiscoveryLoop` does all the fitting; what it found is plain data
+(:class:`DiscoveryResult`, its search rounds :class:`Round` of screened and refitted
+:class:`Candidate` effects).
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field, replace
+from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 from scipy.linalg import qr
 
 from dcmotor_id.effects import SensorDelay, torque_spread, VOCABULARY
 from dcmotor_id.errors import DcMotorIdError
-from dcmotor_id.estimators.base import nrmse_pct
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.residuals import ALPHA, analyse_channel, DEFAULT_LAGS
+from dcmotor_id.model import MECHANICAL_NAMES, PARAMETER_NAMES
+from dcmotor_id.residuals import (ALPHA, analyse_channel, channel_errors, ChannelErrors,
+                                  DEFAULT_LAGS, model_errors, one_step_error, output_channels,
+                                  residual_nrmse_pct, simulate_records)
+
+if TYPE_CHECKING:
+    from dcmotor_id.effects import Effect
+    from dcmotor_id.estimators.base import Estimate, ExogenousTerm
+    from dcmotor_id.io import Record
 
 #: Share of each record held out for selection.
 HOLDOUT_FRACTION = 0.3
@@ -50,6 +64,10 @@ MAX_EFFECTS = 4
 SCREEN_SHARE = 0.5
 #: Candidates refitted whatever their screen, best screen first.
 SCREEN_TOP = 2
+#: Term channels the one-step error represents, and its argument for each (a ``state`` term,
+#: an effect simulated inside the model, has no one-step form there).
+ONE_STEP_TERMS = {'voltage': 'voltage_extra', 'torque': 'torque_extra',
+                  'current': 'current_offset', 'speed': 'speed_offset'}
 #: Bound on the Jacobian evaluations of a candidate's refit (per parameter, as in
 #: :class:`~dcmotor_id.estimators.refined.RefinedEstimator`).
 CANDIDATE_MAX_NFEV = 30
@@ -58,22 +76,22 @@ CANDIDATE_MAX_NFEV = 30
 class Structure:
     """An ordered list of effects with their inner parameters: ``[(effect class, inner)]``."""
 
-    def __init__(self, items=()):
+    def __init__(self, items: Sequence[tuple[type[Effect], dict]] = ()) -> None:
         self.items = list(items)
 
-    def __len__(self):
+    def __len__(self) -> int:
         """Return the number of effects."""
         return len(self.items)
 
-    def names(self):
+    def names(self) -> list[str]:
         """Vocabulary names in the order added."""
         return [cls.name for cls, _ in self.items]
 
-    def plus(self, cls, inner):
+    def plus(self, cls: type[Effect], inner: dict) -> Structure:
         """Return a new structure with one more effect."""
         return Structure(self.items + [(cls, dict(inner))])
 
-    def transformed(self, records):
+    def transformed(self, records: Sequence[Record]) -> list[Record]:
         """Apply the data effects (sensor delays) to the records."""
         out = list(records)
         for cls, inner in self.items:
@@ -81,14 +99,15 @@ class Structure:
                 out = cls.transform(out, inner)
         return out
 
-    def terms(self, records, base, torque_constant=None, initial=None):
+    def terms(self, records: Sequence[Record], base: dict, torque_constant: float | None = None,
+              initial: dict | None = None) -> tuple[ExogenousTerm, ...]:
         """All exogenous terms of the structure on (transformed) records."""
-        terms = []
+        terms: list[ExogenousTerm] = []
         for cls, inner in self.items:
             terms.extend(cls.terms(records, inner, base, torque_constant, initial))
         return tuple(terms)
 
-    def effects(self, values):
+    def effects(self, values: dict) -> list[Effect]:
         """Return the fitted effect instances for a parameter dict."""
         return [cls.from_fit(values, inner) for cls, inner in self.items]
 
@@ -104,12 +123,18 @@ def _with_initial(terms, values):
                  for term in terms)
 
 
+def _part(arrays, stops, part):
+    """Concatenate the training (``train``) or held-out (``heldout``) part of per-record arrays."""
+    return np.concatenate([values[:stop] if part == 'train' else values[stop:]
+                           for values, stop in zip(arrays, stops)])
+
+
 @dataclass
 class Fit:
     """A structure fitted on the training parts and simulated over the whole records."""
 
     structure: Structure
-    estimate: object
+    estimate: Estimate
     records: list
     stops: list
     simulated: list
@@ -120,35 +145,92 @@ class Fit:
     info: dict = field(default_factory=dict)
 
     @property
-    def values(self):
+    def values(self) -> dict:
         """Fitted parameters (base and term coefficients)."""
         return self.estimate.parameters
 
-    def channel_residual(self, channel, part):
-        """Model minus measurement of one channel, ``part`` train or heldout, concatenated."""
-        pieces = []
-        for rec, sim, stop in zip(self.records, self.simulated, self.stops):
-            error = sim[channel] - getattr(rec, channel)
-            pieces.append(error[:stop] if part == 'train' else error[stop:])
-        return np.concatenate(pieces)
+    def channel_simulated(self, channel: str, part: str) -> np.ndarray:
+        """Return the simulation of one channel on a part (train or heldout), concatenated."""
+        return _part([sim[channel] for sim in self.simulated], self.stops, part)
 
-    def channel_measured(self, channel, part):
+    def channel_measured(self, channel: str, part: str) -> np.ndarray:
         """Measurement of one channel on a part, concatenated."""
-        pieces = []
-        for rec, stop in zip(self.records, self.stops):
-            values = getattr(rec, channel)
-            pieces.append(values[:stop] if part == 'train' else values[stop:])
-        return np.concatenate(pieces)
+        return _part([getattr(rec, channel) for rec in self.records], self.stops, part)
 
-    def errors(self, outputs, part='heldout'):
+    def channel_residual(self, channel: str, part: str) -> np.ndarray:
+        """Model minus measurement of one channel on a part, concatenated."""
+        return _part([sim[channel] - getattr(rec, channel)
+                      for rec, sim in zip(self.records, self.simulated)], self.stops, part)
+
+    def errors(self, outputs: Sequence[str], part: str = 'heldout') -> ChannelErrors:
         """``{current_nrmse_pct, speed_nrmse_pct}`` on a part (current None if no output)."""
-        out = {'current_nrmse_pct': None, 'speed_nrmse_pct': None}
-        for channel in outputs:
-            value = nrmse_pct(self.channel_residual(channel, part) +
-                              self.channel_measured(channel, part),
-                              self.channel_measured(channel, part))
-            out[f'{channel}_nrmse_pct'] = value if np.isfinite(value) else None
-        return out
+        return channel_errors({channel: self.channel_simulated(channel, part)
+                               for channel in outputs},
+                              {channel: self.channel_measured(channel, part)
+                               for channel in outputs}, outputs)
+
+
+@dataclass(frozen=True, eq=False)
+class Candidate:
+    """
+    One effect tried in a search round: its screen, then (maybe) its refit and score.
+
+    Attributes
+    ----------
+    effect : type
+        The effect class (of the vocabulary).
+    inner : dict
+        Its inner parameters (from the screen's grid; after a refit, the refitted ones).
+    start : dict
+        Start values of its coefficients (from the linearised screen).
+    screen_explained : float
+        Share of the residual's sum of squares the linearised screen explains.
+    fit : Fit or None
+        The structure with the candidate refitted on the training parts (None: not refitted,
+        or the refit failed).
+    problem : str or None
+        Why the refitted candidate is not admissible (physics, collapse), or None.
+    gain : float or None
+        Relative drop of the held-out cost against the current structure.
+    bic_delta : float or None
+        Change of the training BIC.
+
+    """
+
+    effect: type[Effect]
+    inner: dict
+    start: dict
+    screen_explained: float
+    fit: Fit | None = None
+    problem: str | None = None
+    gain: float | None = None
+    bic_delta: float | None = None
+
+    @property
+    def name(self) -> str:
+        """Vocabulary name of the effect."""
+        return self.effect.name
+
+    @property
+    def fitted(self) -> Fit:
+        """Return the refit (of a candidate that was refitted: :attr:`fit` is set)."""
+        if self.fit is None:
+            raise ValueError(f'{self.name} was not refitted')
+        return self.fit
+
+    def describe(self) -> dict:
+        """Return the refitted effect's ``{"name", "parameters"}``."""
+        values = self.fitted.values
+        return self.fitted.structure.effects(values)[-1].describe(values)
+
+
+@dataclass
+class Round:
+    """One search round: the candidates scored, the one chosen and its JSON report."""
+
+    candidates: list[Candidate]
+    chosen: Candidate | None
+    report: dict
 
 
 class DiscoveryLoop:
@@ -176,26 +258,29 @@ class DiscoveryLoop:
 
     """
 
-    def __init__(self, records, torque_constant=None, vocabulary=VOCABULARY,
-                 holdout_fraction=HOLDOUT_FRACTION, min_gain=MIN_GAIN, max_effects=MAX_EFFECTS,
-                 max_lag=DEFAULT_LAGS, alpha=ALPHA):
+    def __init__(self, records: Sequence[Record], torque_constant: float | None = None,
+                 vocabulary: Sequence[type[Effect]] = VOCABULARY,
+                 holdout_fraction: float = HOLDOUT_FRACTION, min_gain: float = MIN_GAIN,
+                 max_effects: int = MAX_EFFECTS, max_lag: int = DEFAULT_LAGS,
+                 alpha: float = ALPHA) -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
-        self.outputs = ('speed',) if self.mechanical_only else ('current', 'speed')
+        self.outputs = output_channels(self.mechanical_only)
         self.candidates = [cls for cls in vocabulary if cls.applies(self.mechanical_only)]
         self.holdout_fraction = float(holdout_fraction)
         self.min_gain = float(min_gain)
         self.max_effects = int(max_effects)
         self.max_lag = int(max_lag)
         self.alpha = float(alpha)
-        self.weights = None
+        self.weights: dict[str, float] | None = None
 
     # ------------------------------------------------------------------ fitting
     def _stops(self, records):
         return [max(int(round(len(rec) * (1.0 - self.holdout_fraction))), 1) for rec in records]
 
-    def fit(self, structure, start=None, initial=None, max_nfev=100):
+    def fit(self, structure: Structure, start: dict | None = None, initial: dict | None = None,
+            max_nfev: int = 100) -> Fit:
         """Fit a structure on the training parts and simulate the whole records."""
         records = structure.transformed(self.records)
         stops = self._stops(records)
@@ -209,11 +294,7 @@ class DiscoveryLoop:
         estimate = estimator.fit(train, torque_constant=self.torque_constant,
                                  terms=_slice_terms(terms, stops))
         model = OutputErrorModel(records, self.torque_constant, terms)
-        simulated = []
-        with np.errstate(all='ignore'):
-            for index, state in enumerate(estimate.initial_states):
-                simulated.append(model.simulate(estimate.parameters, index,
-                                                np.array(state, dtype=float)))
+        simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
         fitted = Fit(structure, estimate, records, stops, simulated, terms)
         if self.weights is None:
             self.weights = {channel: max(estimate.info['noise_std'][channel], 1e-300)
@@ -239,11 +320,7 @@ class DiscoveryLoop:
     # ------------------------------------------------------------------ analysis
     def _inputs(self, fitted, part):
         name = 'current' if self.mechanical_only else 'voltage'
-        pieces = []
-        for rec, stop in zip(fitted.records, fitted.stops):
-            values = getattr(rec, name)
-            pieces.append(values[:stop] if part == 'train' else values[stop:])
-        return {name: np.concatenate(pieces)}
+        return {name: _part([getattr(rec, name) for rec in fitted.records], fitted.stops, part)}
 
     def _candidate_regressors(self, fitted, part):
         regressors = {}
@@ -258,34 +335,72 @@ class DiscoveryLoop:
             terms = cls.terms(fitted.records, inner, base, self.torque_constant)
             if not terms:
                 continue
-            pieces = [reg[:stop] if part == 'train' else reg[stop:]
-                      for reg, stop in zip(terms[0].regressors, fitted.stops)]
-            joined = np.concatenate(pieces)
+            joined = _part(terms[0].regressors, fitted.stops, part)
             if np.std(joined) > 0:
                 regressors[cls.name] = joined
         return regressors
 
-    def analyse(self, fitted, part='heldout'):
-        """Residual analysis of a fit on a part: per output channel (JSON-ready)."""
+    def analyse(self, fitted: Fit, part: str = 'heldout') -> dict[str, dict[str, Any]]:
+        """
+        Residual analysis of a fit on a part: per output channel (JSON-ready).
+
+        Each channel's :func:`~dcmotor_id.residuals.analyse_channel` of the output error, plus
+        ``one_step_nrmse_pct``, the one-step prediction error on the same part (None when the
+        structure has an effect the one-step model does not represent).  The loop decides on
+        the output error alone; the one-step error is reported beside it.
+        """
         inputs = self._inputs(fitted, part)
         regressors = self._candidate_regressors(fitted, part)
-        return {channel: analyse_channel(fitted.channel_residual(channel, part),
-                                         fitted.channel_measured(channel, part), inputs,
-                                         regressors, self.max_lag, self.alpha)
-                for channel in self.outputs}
+        one_step = self.one_step_errors(fitted, part)
+        analysis = {}
+        for channel in self.outputs:
+            analysis[channel] = analyse_channel(
+                fitted.channel_residual(channel, part), fitted.channel_measured(channel, part),
+                inputs, regressors, self.max_lag, self.alpha)
+            analysis[channel]['one_step_nrmse_pct'] = one_step.get(channel)
+        return analysis
+
+    def one_step_errors(self, fitted: Fit, part: str = 'heldout') -> dict[str, float | None]:
+        """
+        One-step prediction error of a fit on a part, percent of the signal spread, by channel.
+
+        :func:`~dcmotor_id.residuals.one_step_error` on every record with the fit's linear
+        effect terms; a prediction belongs to the part of the sample it predicts.  Empty when
+        the structure has a term the one-step model does not represent.
+        """
+        if any(term.channel not in ONE_STEP_TERMS for term in fitted.terms):
+            return {}
+        values = fitted.values
+        errors: dict[str, list[np.ndarray]] = {channel: [] for channel in self.outputs}
+        for index, rec in enumerate(fitted.records):
+            extras: dict[str, Any] = {}
+            for term in fitted.terms:
+                key = ONE_STEP_TERMS[term.channel]
+                contribution = values[term.name] * term.regressors[index]
+                extras[key] = extras[key] + contribution if key in extras else contribution
+            with np.errstate(all='ignore'):
+                predicted = one_step_error(values, rec, self.torque_constant, **extras)
+            for channel in self.outputs:
+                errors[channel].append(predicted[channel])
+        # Prediction k is of sample k + 1: the parts start one sample earlier.
+        stops = [max(stop - 1, 0) for stop in fitted.stops]
+        return {channel: residual_nrmse_pct(
+            _part(errors[channel], stops, part),
+            _part([getattr(rec, channel)[1:] for rec in fitted.records], stops, part))
+            for channel in self.outputs}
 
     def _negligible(self, analysis):
         return all(item['nrmse_pct'] is not None and item['nrmse_pct'] < NEGLIGIBLE_NRMSE_PCT
                    for item in analysis.values())
 
-    def explained(self, analysis):
+    def explained(self, analysis: dict) -> bool:
         """White residual on every channel (Bonferroni over channels), or an exact model."""
         if self._negligible(analysis):
             return True
         level = self.alpha / len(analysis)
         return all(item['ljung_box']['p_value'] >= level for item in analysis.values())
 
-    def material(self, analysis):
+    def material(self, analysis: dict) -> bool:
         """Structure that matters: not white and at least 5 % predictable from its past."""
         if self.explained(analysis):
             return False
@@ -312,11 +427,7 @@ class DiscoveryLoop:
         train, model = self._train_model(fitted, fitted.terms)
         values = dict(fitted.values)
         states = fitted.estimate.initial_states
-
-        def simulate(vals):
-            return [model.simulate(vals, index, np.array(states[index], dtype=float))
-                    for index in range(len(train))]
-        nominal = simulate(values)
+        nominal = simulate_records(model, values, states)
         measured = [{channel: getattr(rec, channel) for channel in self.outputs}
                     for rec in train]
         residual = self._stack(measured, fitted.stops) - self._stack(nominal, fitted.stops)
@@ -327,7 +438,8 @@ class DiscoveryLoop:
             moved = dict(values)
             moved[name] = values[name] + step
             with np.errstate(all='ignore'):
-                columns.append((self._stack(simulate(moved), fitted.stops)
+                columns.append((self._stack(simulate_records(model, moved, states),
+                                            fitted.stops)
                                 - self._stack(nominal, fitted.stops)) / step)
         # Initial-state sensitivities are left out: they decay within a few time constants.
         matrix = np.column_stack(columns) if columns else np.zeros((residual.shape[0], 0))
@@ -342,17 +454,14 @@ class DiscoveryLoop:
         coefficient's typical magnitude as the (secant) step, so stick-slip events do not make
         the difference noisy; for a linear term this is its exact linear response.
         """
-        train, model = self._train_model(fitted, fitted.terms + tuple(terms))
+        _, model = self._train_model(fitted, fitted.terms + tuple(terms))
         start = dict(fitted.values)
         start.update({term.name: term.initial for term in terms})
-        states = fitted.estimate.initial_states
         columns = []
         for term in terms:
             values = dict(start)
             values[term.name] = term.initial + term.scale
-            with np.errstate(all='ignore'):
-                moved = [model.simulate(values, index, np.array(states[index], dtype=float))
-                         for index in range(len(train))]
+            moved = simulate_records(model, values, fitted.estimate.initial_states)
             columns.append((self._stack(moved, fitted.stops)
                             - self._stack(nominal, fitted.stops)) / term.scale)
         return np.column_stack(columns)
@@ -375,7 +484,8 @@ class DiscoveryLoop:
         fitted = columns @ coefficients
         return float(fitted @ fitted), coefficients
 
-    def screen(self, fitted, cls, residual, q, nominal):
+    def screen(self, fitted: Fit, cls: type[Effect], residual: np.ndarray,
+               q: np.ndarray | None, nominal: list) -> tuple[float, dict, dict] | None:
         """Best inner parameters of a candidate by the linearised fit; with start values."""
         best = None
         for inner in cls.inner_grid(fitted.records, fitted.values, self.torque_constant):
@@ -418,27 +528,15 @@ class DiscoveryLoop:
             return None
 
     def _base(self, fitted):
-        """
-        Start point of a refit: the fitted base values, with b and Mc lifted off zero.
+        return refit_start(fitted.values, self.records, self.torque_constant)
 
-        The fit works on logarithms, so a friction that a missing effect drove to zero would
-        stay there; a floor of 2 % of the driving torque's spread lets it come back.
-        """
-        names = ('J', 'b', 'Mc') if self.mechanical_only else \
-            ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
-        start = {name: float(fitted.values[name]) for name in names}
-        spread = torque_spread(self.records, start, self.torque_constant)
-        speed = max(float(np.std(np.concatenate([rec.speed for rec in self.records]))), 1e-12)
-        start['Mc'] = max(start['Mc'], 0.02 * spread)
-        start['b'] = max(start['b'], 0.02 * spread / speed)
-        return start
-
-    def screen_candidate(self, current, cls, residual, q, nominal):
+    def screen_candidate(self, current: Fit, cls: type[Effect], residual: np.ndarray,
+                         q: np.ndarray | None, nominal: list) -> Candidate | None:
         """
         Linearised screen of one candidate: its inner parameters, start and explained share.
 
-        Returns a dict (``cls``, ``inner``, ``start``, ``screen_explained``) or None when the
-        candidate has nothing to offer (no grid point, or a delay that rounds to zero samples).
+        Returns the :class:`Candidate` (not refitted) or None when the candidate has nothing
+        to offer (no grid point, or a delay that rounds to zero samples).
         """
         total = max(float(residual @ residual), 1e-300)
         if cls.TRANSFORM:
@@ -446,28 +544,34 @@ class DiscoveryLoop:
             for channel in SensorDelay.channels(self.mechanical_only):
                 gained, estimate = self._delay_estimate(current, channel, residual, q, nominal)
                 samples = int(np.round(estimate))
-                if samples != 0 and (best is None or gained / total > best['screen_explained']):
-                    best = {'cls': cls, 'inner': {'channel': channel, 'samples': samples},
-                            'start': {}, 'screen_explained': gained / total}
+                if samples != 0 and (best is None or gained / total > best.screen_explained):
+                    best = Candidate(cls, {'channel': channel, 'samples': samples}, {},
+                                     gained / total)
             return best
         found = self.screen(current, cls, residual, q, nominal)
         if found is None:
             return None
         gained, inner, start_terms = found
-        return {'cls': cls, 'inner': inner, 'start': start_terms,
-                'screen_explained': gained / total}
+        return Candidate(cls, inner, start_terms, gained / total)
 
-    def refit_candidate(self, current, item):
-        """Refit all parameters with the candidate added; fill ``fit`` and ``problem``."""
-        if item['cls'].TRANSFORM:
-            fitted = self._refit_delay(current, item['inner']['channel'],
-                                       item['inner']['samples'])
+    def refit_candidate(self, current: Fit, candidate: Candidate) -> Candidate:
+        """Refit all parameters with the candidate added; return it with its fit and problem."""
+        if candidate.effect.TRANSFORM:
+            fitted = self._refit_delay(current, candidate.inner['channel'],
+                                       candidate.inner['samples'])
         else:
-            fitted = self._try(current, item['cls'], item['inner'], item['start'])
-        if fitted is not None and np.isfinite(fitted.heldout_cost):
-            item['fit'] = fitted
-            item['inner'] = fitted.structure.items[-1][1]
-            item['problem'] = self._problem(current, fitted)
+            fitted = self._try(current, candidate.effect, candidate.inner, candidate.start)
+        if fitted is None or not np.isfinite(fitted.heldout_cost):
+            return candidate
+        return replace(candidate, fit=fitted, inner=fitted.structure.items[-1][1],
+                       problem=self._problem(current, fitted))
+
+    def score(self, current: Fit, candidate: Candidate) -> Candidate:
+        """Return the candidate with its held-out gain and BIC change (None if not refitted)."""
+        if candidate.fit is None:
+            return candidate
+        return replace(candidate, gain=1.0 - candidate.fit.heldout_cost / current.heldout_cost,
+                       bic_delta=self._bic(candidate.fit) - self._bic(current))
 
     def _problem(self, current, fitted):
         """Why a candidate's fit is not acceptable (physics, collapse), or None."""
@@ -506,8 +610,8 @@ class DiscoveryLoop:
         return fitted
 
     # ------------------------------------------------------------------ the loop
-    def run(self):
-        """Run the loop; return a :class:`DiscoveryResult`."""
+    def run(self) -> DiscoveryResult:
+        """Run the loop, refit the base and final structures on all the data; return it."""
         base = self.fit(Structure())
         current = base
         steps = []
@@ -522,16 +626,27 @@ class DiscoveryLoop:
             if len(current.structure) >= self.max_effects:
                 reason = f'stopped at {self.max_effects} effects'
                 break
-            step = self._step(current, analysis)
-            steps.append(step['report'])
-            if step['chosen'] is None:
+            step = self._round(current, analysis)
+            steps.append(step.report)
+            if step.chosen is None:
                 reason = 'no candidate lowers the held-out error enough'
                 break
-            current = step['chosen']
+            current = step.chosen.fitted
             analysis = self.analyse(current)
-        return DiscoveryResult(self, base, current, steps, analysis_before, analysis, reason)
+        records, terms, estimate = self.refit_all(current)
+        base_estimate = self.refit_all(base)[2] if len(current.structure) else estimate
+        return DiscoveryResult(
+            holdout_fraction=self.holdout_fraction, min_gain=self.min_gain,
+            outputs=self.outputs, torque_constant=self.torque_constant,
+            source_records=list(self.records), base=base, final=current, steps=steps,
+            analysis_before=analysis_before, analysis_after=analysis, reason=reason,
+            unexplained=self.material(analysis), records=records, terms=terms,
+            estimate=estimate, effects=current.structure.effects(estimate.parameters),
+            base_estimate=base_estimate, error_before=base.errors(self.outputs),
+            error_after=current.errors(self.outputs))
 
-    def _step(self, current, analysis):
+    def _round(self, current: Fit, analysis: dict) -> Round:
+        """One search round: screen every absent effect, refit the promising, choose."""
         residual, matrix, nominal = self._base_sensitivities(current)
         q = self._projector(matrix)
         present = set(current.structure.names())
@@ -539,89 +654,116 @@ class DiscoveryLoop:
         for cls in self.candidates:
             if cls.name in present:
                 continue
-            item = self.screen_candidate(current, cls, residual, q, nominal)
-            if item is not None:
-                item['fit'] = None
-                screened.append(item)
+            candidate = self.screen_candidate(current, cls, residual, q, nominal)
+            if candidate is not None:
+                screened.append(candidate)
         # Refit the candidates the linearised screen supports, and the best few anyway (the
         # screen is a linearisation: a strongly nonlinear effect may look smaller than it is).
-        screened.sort(key=lambda item: -item['screen_explained'])
-        for rank, item in enumerate(screened):
-            if rank < SCREEN_TOP or item['screen_explained'] >= SCREEN_SHARE * self.min_gain:
-                self.refit_candidate(current, item)
-        results = []
-        for item in screened:
-            if item['fit'] is not None:
-                item['gain'] = 1.0 - item['fit'].heldout_cost / current.heldout_cost
-                item['bic_delta'] = self._bic(item['fit']) - self._bic(current)
-            else:
-                item['gain'], item['bic_delta'] = None, None
-            results.append(item)
+        screened.sort(key=lambda candidate: -candidate.screen_explained)
+        threshold = SCREEN_SHARE * self.min_gain
+        scored = [self.score(current, self.refit_candidate(current, candidate))
+                  if rank < SCREEN_TOP or candidate.screen_explained >= threshold else candidate
+                  for rank, candidate in enumerate(screened)]
         order = {cls.name: position for position, cls in enumerate(self.candidates)}
-        refitted = sorted((item for item in results if item['fit'] is not None),
-                          key=lambda item: item['fit'].heldout_cost)
-        screened_out = sorted((item for item in results if item['fit'] is None),
-                              key=lambda item: -item['screen_explained'])
-        results = refitted + screened_out
+        refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
+                          key=lambda candidate: candidate.fitted.heldout_cost)
+        screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
+                              key=lambda candidate: -candidate.screen_explained)
         chosen = None
         equivalent = []
-        admissible = [item for item in refitted if not item.get('problem')]
-        drop = current.heldout_cost - admissible[0]['fit'].heldout_cost if admissible else 0.0
+        admissible = [candidate for candidate in refitted if not candidate.problem]
+        drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
         if drop > 0:
-            ties = [item for item in admissible
-                    if current.heldout_cost - item['fit'].heldout_cost >= TIE_SHARE * drop]
-            winner = min(ties, key=lambda item: order[item['cls'].name])
-            if winner['gain'] >= self.min_gain and winner['bic_delta'] < 0:
+            ties = [candidate for candidate in admissible
+                    if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
+            winner = min(ties, key=lambda candidate: order[candidate.name])
+            # Refitted candidates are scored: gain and bic_delta are set.
+            if winner.gain >= self.min_gain and winner.bic_delta < 0:  # type: ignore[operator]
                 chosen = winner
-                equivalent = [item for item in ties if item is not winner]
-        report = {
+                equivalent = [candidate for candidate in ties if candidate is not winner]
+        results = refitted + screened_out
+        report: dict[str, Any] = {
             'error_before': current.errors(self.outputs),
-            'candidates': [self._candidate_report(item, analysis) for item in results],
+            'candidates': [self._candidate_report(candidate, analysis)
+                           for candidate in results],
             'added': None,
         }
         if chosen is not None:
-            fitted = chosen['fit']
-            effect = fitted.structure.effects(fitted.values)[-1]
-            report['added'] = effect.describe(fitted.values)
-            report['error_after'] = fitted.errors(self.outputs)
-            report['gain_pct'] = chosen['gain'] * 100.0
-            report['equivalent'] = [
-                item['fit'].structure.effects(item['fit'].values)[-1].describe(
-                    item['fit'].values) for item in equivalent]
-        return {'chosen': chosen['fit'] if chosen else None, 'report': report}
+            report['added'] = chosen.describe()
+            report['error_after'] = chosen.fitted.errors(self.outputs)
+            report['gain_pct'] = chosen.gain * 100.0  # type: ignore[operator]
+            report['equivalent'] = [candidate.describe() for candidate in equivalent]
+        return Round(results, chosen, report)
 
-    def _candidate_report(self, item, analysis):
-        correlation = max((channel['regressors'].get(item['cls'].name, {}).get('max_abs', 0.0)
+    @staticmethod
+    def _candidate_report(candidate, analysis):
+        correlation = max((channel['regressors'].get(candidate.name, {}).get('max_abs', 0.0)
                            for channel in analysis.values()), default=0.0)
         return {
-            'name': item['cls'].name,
-            'inner': dict(item['inner']),
-            'refitted': item['fit'] is not None,
-            'rejected': item.get('problem'),
-            'heldout_gain_pct': None if item['gain'] is None else item['gain'] * 100.0,
-            'bic_delta': item['bic_delta'],
-            'screen_explained_pct': item['screen_explained'] * 100.0,
+            'name': candidate.name,
+            'inner': dict(candidate.inner),
+            'refitted': candidate.fit is not None,
+            'rejected': candidate.problem,
+            'heldout_gain_pct': None if candidate.gain is None else candidate.gain * 100.0,
+            'bic_delta': candidate.bic_delta,
+            'screen_explained_pct': candidate.screen_explained * 100.0,
             'regressor_correlation': correlation,
         }
 
-    def refit_all(self, fitted):
+    def refit_all(self, fitted: Fit) -> tuple[list[Record], tuple, Estimate]:
         """Refit a structure on all the data (no hold-out), from the training values."""
-        records = fitted.structure.transformed(self.records)
-        terms = _with_initial(fitted.structure.terms(records, fitted.values,
-                                                     self.torque_constant), fitted.values)
-        estimator = RefinedEstimator(initial=self._base(fitted))
-        return records, terms, estimator.fit(records, torque_constant=self.torque_constant,
-                                             terms=terms)
+        return refit_all_data(fitted.structure, self.records, self.torque_constant,
+                              fitted.values, self._base(fitted))
 
 
+def refit_start(values: dict, records: Sequence[Record],
+                torque_constant: float | None = None) -> dict[str, float]:
+    """
+    Start point of a refit: the fitted base values, with b and Mc lifted off zero.
+
+    The fit works on logarithms, so a friction that a missing effect drove to zero would
+    stay there; a floor of 2 % of the driving torque's spread lets it come back.
+    """
+    names = MECHANICAL_NAMES if torque_constant is not None else PARAMETER_NAMES
+    start = {name: float(values[name]) for name in names}
+    spread = torque_spread(records, start, torque_constant)
+    speed = max(float(np.std(np.concatenate([rec.speed for rec in records]))), 1e-12)
+    start['Mc'] = max(start['Mc'], 0.02 * spread)
+    start['b'] = max(start['b'], 0.02 * spread / speed)
+    return start
+
+
+def refit_all_data(structure: Structure, records: Sequence[Record],
+                   torque_constant: float | None, values: dict,
+                   start: dict) -> tuple[list[Record], tuple, Estimate]:
+    """
+    Fit a structure on all of the records (no hold-out).
+
+    The effects' coefficients start from ``values``, the base parameters from ``start``
+    (:func:`refit_start`); return the (transformed) records, the terms and the estimate.
+    """
+    prepared = structure.transformed(records)
+    terms = _with_initial(structure.terms(prepared, values, torque_constant), values)
+    estimator = RefinedEstimator(initial=start)
+    return prepared, terms, estimator.fit(prepared, torque_constant=torque_constant,
+                                          terms=terms)
+
+
+@dataclass(eq=False)
 class DiscoveryResult:
     """
-    What the loop found, with everything the report plots.
+    What the loop found, with everything the report plots (plain data, built by the loop).
 
     Attributes
     ----------
-    loop : DiscoveryLoop
-        The loop (records, settings).
+    holdout_fraction, min_gain : float
+        The loop's settings.
+    outputs : tuple of str
+        The simulated channels.
+    torque_constant : float or None
+        Mechanical-only mode.
+    source_records : list of Record
+        The records the loop ran on.
     base, final : Fit
         Base and final structure fitted on the training parts.
     steps : list of dict
@@ -630,28 +772,40 @@ class DiscoveryResult:
         Held-out residual analyses of the base and the final model.
     reason : str
         Why the loop stopped.
+    unexplained : bool
+        Structure that matters remains in the final residual.
     records, terms, estimate :
         The final structure refitted on all the data.
+    effects : list of Effect
+        The effects found, with the all-data values.
+    base_estimate : Estimate
+        The base structure refitted on all the data.
+    error_before, error_after : dict
+        Held-out simulation error of the base and the final model.
 
     """
 
-    def __init__(self, loop, base, final, steps, analysis_before, analysis_after, reason):
-        self.loop = loop
-        self.base = base
-        self.final = final
-        self.steps = steps
-        self.analysis_before = analysis_before
-        self.analysis_after = analysis_after
-        self.reason = reason
-        self.unexplained = loop.material(analysis_after)
-        self.records, self.terms, self.estimate = loop.refit_all(final)
-        self.effects = final.structure.effects(self.estimate.parameters)
-        if len(final.structure):
-            self.base_estimate = loop.refit_all(base)[2]
-        else:
-            self.base_estimate = self.estimate
+    holdout_fraction: float
+    min_gain: float
+    outputs: tuple
+    torque_constant: float | None
+    source_records: list
+    base: Fit
+    final: Fit
+    steps: list
+    analysis_before: dict
+    analysis_after: dict
+    reason: str
+    unexplained: bool
+    records: list
+    terms: tuple
+    estimate: Estimate
+    effects: list
+    base_estimate: Estimate
+    error_before: ChannelErrors
+    error_after: ChannelErrors
 
-    def errors_on(self, records):
+    def errors_on(self, records: Sequence[Record]) -> dict[str, ChannelErrors]:
         """
         Simulate the all-data base and final models on other records; return their errors.
 
@@ -664,55 +818,15 @@ class DiscoveryResult:
             ``before`` and ``after``, each ``{current_nrmse_pct, speed_nrmse_pct}``.
 
         """
-        tc = self.loop.torque_constant
+        tc = self.torque_constant
         return {'before': structure_errors(Structure(), self.base_estimate, records, tc),
                 'after': structure_errors(self.final.structure, self.estimate, records, tc)}
 
-    def errors_by_step(self, records):
-        """
-        Errors on other records after each effect added (all-data refits), in order.
-
-        Returns
-        -------
-        list of dict
-            ``{'effects': [names], current_nrmse_pct, speed_nrmse_pct}``, the base model
-            first.
-
-        """
-        items = self.final.structure.items
-        out = []
-        for count in range(len(items) + 1):
-            structure = Structure(items[:count])
-            if count == 0:
-                estimate = self.base_estimate
-            elif count == len(items):
-                estimate = self.estimate
-            else:
-                prepared = structure.transformed(self.loop.records)
-                values = self.estimate.parameters
-                terms = _with_initial(structure.terms(prepared, values,
-                                                      self.loop.torque_constant), values)
-                estimate = RefinedEstimator(initial=self.loop._base(self.final)).fit(
-                    prepared, torque_constant=self.loop.torque_constant, terms=terms)
-            errors = structure_errors(structure, estimate, records, self.loop.torque_constant)
-            out.append({'effects': structure.names(), **errors})
-        return out
-
-    @property
-    def error_before(self):
-        """Held-out simulation error of the base model."""
-        return self.base.errors(self.loop.outputs)
-
-    @property
-    def error_after(self):
-        """Held-out simulation error of the final model."""
-        return self.final.errors(self.loop.outputs)
-
-    def effects_json(self):
+    def effects_json(self) -> list[dict]:
         """``[{"name", "parameters"}]`` in the order added, with the all-data values."""
         return [effect.describe(self.estimate.parameters) for effect in self.effects]
 
-    def evidence(self):
+    def evidence(self) -> dict[str, dict[str, Any]]:
         """Summary of the final residual analysis (JSON-ready)."""
         out = {}
         for channel, item in self.analysis_after.items():
@@ -728,11 +842,11 @@ class DiscoveryResult:
             }
         return out
 
-    def summary(self):
+    def summary(self) -> dict[str, Any]:
         """JSON-ready account of the loop."""
         return {
-            'holdout_fraction': self.loop.holdout_fraction,
-            'min_gain_pct': self.loop.min_gain * 100.0,
+            'holdout_fraction': self.holdout_fraction,
+            'min_gain_pct': self.min_gain * 100.0,
             'reason': self.reason,
             'base_heldout_parameters': {key: float(value) for key, value in
                                         self.base.values.items()},
@@ -742,7 +856,40 @@ class DiscoveryResult:
         }
 
 
-def structure_errors(structure, estimate, records, torque_constant=None):
+def errors_by_step(found: DiscoveryResult, records: Sequence[Record]) -> list[dict[str, Any]]:
+    """
+    Errors on other records after each effect added (all-data refits), in order.
+
+    The base and the final structure are the result's all-data fits; every structure in
+    between is refitted here on the loop's records.
+
+    Returns
+    -------
+    list of dict
+        ``{'effects': [names], current_nrmse_pct, speed_nrmse_pct}``, the base model
+        first.
+
+    """
+    items = found.final.structure.items
+    tc = found.torque_constant
+    out = []
+    for count in range(len(items) + 1):
+        structure = Structure(items[:count])
+        if count == 0:
+            estimate = found.base_estimate
+        elif count == len(items):
+            estimate = found.estimate
+        else:
+            estimate = refit_all_data(
+                structure, found.source_records, tc, found.estimate.parameters,
+                refit_start(found.final.values, found.source_records, tc))[2]
+        errors = structure_errors(structure, estimate, records, tc)
+        out.append({'effects': structure.names(), **errors})
+    return out
+
+
+def structure_errors(structure: Structure, estimate: Estimate, records: Sequence[Record],
+                     torque_constant: float | None = None) -> ChannelErrors:
     """
     Simulate a fitted structure on records, each from its first sample; return the errors.
 
@@ -752,24 +899,13 @@ def structure_errors(structure, estimate, records, torque_constant=None):
         ``{current_nrmse_pct, speed_nrmse_pct}`` (current None in mechanical-only mode).
 
     """
-    outputs = ('speed',) if torque_constant is not None else ('current', 'speed')
     prepared = structure.transformed(records)
     values = estimate.parameters
     terms = structure.terms(prepared, values, torque_constant, values)
     model = OutputErrorModel(prepared, torque_constant, terms)
-    sims = {channel: [] for channel in outputs}
-    with np.errstate(all='ignore'):
-        for index, rec in enumerate(prepared):
-            state = np.array([float(getattr(rec, channel)[0]) for channel in outputs])
-            simulated = model.simulate(values, index, state)
-            for channel in outputs:
-                sims[channel].append(simulated[channel])
-    errors = {'current_nrmse_pct': None, 'speed_nrmse_pct': None}
-    for channel in outputs:
-        measured = np.concatenate([getattr(rec, channel) for rec in prepared])
-        value = nrmse_pct(np.concatenate(sims[channel]), measured)
-        errors[f'{channel}_nrmse_pct'] = value if np.isfinite(value) else None
-    return errors
+    states = [[float(getattr(rec, channel)[0]) for channel in model.outputs]
+              for rec in prepared]
+    return model_errors(model, values, states)
 
 
 def _evidence(analysis):
@@ -779,6 +915,7 @@ def _evidence(analysis):
             for channel, item in analysis.items()}
 
 
-def discover(records, torque_constant=None, **options):
+def discover(records: Sequence[Record], torque_constant: float | None = None,
+             **options: Any) -> DiscoveryResult:
     """Run the discovery loop on prepared records; return a :class:`DiscoveryResult`."""
     return DiscoveryLoop(records, torque_constant, **options).run()

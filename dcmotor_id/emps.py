@@ -208,6 +208,7 @@ def emps_study(data_dir=None):
         ``validation`` simulation errors of the base and the final model.
 
     """
+    from dcmotor_id.discovery import errors_by_step
     from dcmotor_id.identify import identify
     directory = find_data_dir(data_dir)
     estimation, gtau = load_emps(os.path.join(directory, ESTIMATION_FILE))
@@ -228,12 +229,12 @@ def emps_study(data_dir=None):
     out = {'published': dict(PUBLISHED_IDIM_LS), 'idim_ls': replication,
            'criteria': comparison, 'gtau': gtau}
     for key, vocabulary in (('loop', VOCABULARY), ('loop_extended', EXTENDED_VOCABULARY)):
-        result, found = identify([estimation], torque_constant=gtau, details=True,
-                                 vocabulary=vocabulary)
-        out[key] = {'result': result, 'found': found,
+        identified = identify([estimation], torque_constant=gtau, vocabulary=vocabulary)
+        found = identified.discovery_result
+        out[key] = {'result': identified.as_dict(), 'found': found,
                     'estimation': found.errors_on([estimation]),
                     'validation': found.errors_on([validation]),
-                    'validation_by_step': found.errors_by_step([validation])}
+                    'validation_by_step': errors_by_step(found, [validation])}
     return out
 
 

@@ -15,8 +15,11 @@ What a control engineer needs to judge the identified model, on one page:
 Plots use matplotlib's object interface with the Agg canvas (no display, no global state).
 """
 
+from __future__ import annotations
+
 import html
 import os
+from typing import Any, Mapping, Sequence, TYPE_CHECKING
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -24,7 +27,11 @@ import numpy as np
 
 from dcmotor_id.estimators.refined import OutputErrorModel
 from dcmotor_id.residuals import (autocorrelation, confidence_band, cross_correlation,
-                                  DEFAULT_LAGS)
+                                  DEFAULT_LAGS, output_channels, simulate_records)
+
+if TYPE_CHECKING:
+    from dcmotor_id.discovery import DiscoveryResult
+    from dcmotor_id.io import Record
 
 #: Units of the plotted channels.
 CHANNEL_UNITS = {'current': 'A', 'speed': 'rad/s', 'voltage': 'V'}
@@ -49,17 +56,15 @@ def _series(found, records, result):
             n = min(len(rec), len(base_rec))
             item = {'time': rec.time_s[:n], 'stop': found.final.stops[index], 'measured': {},
                     'before': {}, 'after': {}}
-            for channel in found.loop.outputs:
+            for channel in found.outputs:
                 item['measured'][channel] = getattr(rec, channel)[:n]
                 item['before'][channel] = found.base.simulated[index][channel][:n]
                 item['after'][channel] = found.final.simulated[index][channel][:n]
             out.append(item)
-        return out, found.loop.outputs
-    mechanical = result['mode'] == 'mechanical'
+        return out, found.outputs
     model = OutputErrorModel(records, result.get('torque_constant'))
-    values = dict(result['parameters'])
-    for index, rec in enumerate(records):
-        simulated = model.simulate(values, index, np.array(result['initial_states'][index]))
+    all_simulated = simulate_records(model, dict(result['parameters']), result['initial_states'])
+    for rec, simulated in zip(records, all_simulated):
         item = {'time': rec.time_s, 'stop': len(rec), 'measured': {}, 'before': {},
                 'after': {}}
         for channel in model.outputs:
@@ -67,10 +72,12 @@ def _series(found, records, result):
             item['before'][channel] = simulated[channel]
             item['after'][channel] = simulated[channel]
         out.append(item)
-    return out, (('speed',) if mechanical else ('current', 'speed'))
+    return out, output_channels(result['mode'] == 'mechanical')
 
 
-def plot_fit(series, outputs, directory, errors, units=CHANNEL_UNITS):
+def plot_fit(series: list[dict], outputs: Sequence[str], directory: str,
+             errors: Mapping[str, Mapping[str, float | None]],
+             units: Mapping[str, str] = CHANNEL_UNITS) -> str:
     """Measured vs model before and after, full record and a zoom into the held-out part."""
     item = series[0]
     figure = Figure(figsize=(11, 3.2 * len(outputs)))
@@ -152,8 +159,9 @@ def _input(series, records, found, result):
     return ('torque input' if mechanical else name), np.concatenate(pieces)
 
 
-def plot_residuals(series, outputs, directory, input_name, input_values,
-                   max_lag=DEFAULT_LAGS, units=CHANNEL_UNITS):
+def plot_residuals(series: list[dict], outputs: Sequence[str], directory: str,
+                   input_name: str, input_values: np.ndarray, max_lag: int = DEFAULT_LAGS,
+                   units: Mapping[str, str] = CHANNEL_UNITS) -> str:
     """Held-out residual before/after, its autocorrelation and input cross-correlation."""
     figure = Figure(figsize=(12, 3.0 * len(outputs)))
     axes = figure.subplots(len(outputs), 3, squeeze=False)
@@ -204,7 +212,7 @@ def plot_residuals(series, outputs, directory, input_name, input_values,
     return _save(figure, directory, 'residuals.png')
 
 
-def plot_steps(found, outputs, directory):
+def plot_steps(found: DiscoveryResult, outputs: Sequence[str], directory: str) -> str:
     """Held-out error after each round of the loop, per channel."""
     labels = ['base']
     values = {channel: [found.error_before.get(f'{channel}_nrmse_pct')] for channel in outputs}
@@ -267,7 +275,9 @@ def _evidence_rows(found):
         for channel, item in analysis.items():
             inputs = ', '.join(f'{name} {value["max_abs"]:.3f} (band {value["band"]:.3f})'
                                for name, value in item['inputs'].items())
+            one_step = item.get('one_step_nrmse_pct')
             rows.append([label, channel, _number(item['nrmse_pct'], 4) + ' %',
+                         'n/a' if one_step is None else _number(one_step, 4) + ' %',
                          _number(item['ljung_box']['statistic'], 4),
                          _number(item['ljung_box']['p_value'], 3),
                          _number(item['predictable_fraction'], 3),
@@ -312,8 +322,10 @@ img { max-width: 100%; }
 """
 
 
-def write_report(directory, result, found=None, records=None, channel_units=None,
-                 title='DC motor identification: before / after'):
+def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult | None = None,
+                 records: Sequence[Record] | None = None,
+                 channel_units: Mapping[str, str] | None = None,
+                 title: str = 'DC motor identification: before / after') -> str:
     """
     Write ``index.html`` and its PNGs to ``directory``; return the page's path.
 
@@ -322,10 +334,10 @@ def write_report(directory, result, found=None, records=None, channel_units=None
     directory : str
         Output directory (created).
     result : dict
-        The JSON result of :func:`~dcmotor_id.identify.identify`.
+        The JSON result (:meth:`~dcmotor_id.identify.IdentificationResult.as_dict`).
     found : DiscoveryResult, optional
-        The loop's result (``identify(..., details=True)``); without it the page shows the
-        base model's fit on the whole record.
+        The loop's result (:attr:`~dcmotor_id.identify.IdentificationResult.discovery_result`);
+        without it the page shows the base model's fit on the whole record.
     records : list of Record, optional
         The prepared records (needed when ``found`` is None).
     channel_units : dict, optional
@@ -365,7 +377,7 @@ def write_report(directory, result, found=None, records=None, channel_units=None
                     'vocabulary.')
         verdict_class = 'verdict warn'
     where = '' if found is None else \
-        f', on the held-out last {found.loop.holdout_fraction * 100:.0f} % of each record'
+        f', on the held-out last {found.holdout_fraction * 100:.0f} % of each record'
     parts = [f'<!DOCTYPE html><html><head><meta charset="utf-8"><title>dcmotor_id report'
              f'</title><style>{_STYLE}</style></head><body>',
              f'<h1>{html.escape(title)}</h1>',
@@ -397,12 +409,15 @@ def write_report(directory, result, found=None, records=None, channel_units=None
     parts.append('<h2>Residual analysis (held-out part)</h2>')
     parts.append(f'<img src="{images[1]}" alt="residuals and whiteness">')
     if found is not None:
-        parts.append(_table(['model', 'channel', 'NRMSE', 'Ljung-Box Q', 'p-value',
-                             'AR-predictable share', 'lags outside 99 % band',
+        parts.append(_table(['model', 'channel', 'NRMSE', 'one-step NRMSE', 'Ljung-Box Q',
+                             'p-value', 'AR-predictable share', 'lags outside 99 % band',
                              'max |corr| with input'], _evidence_rows(found)))
         parts.append('<p>White residual: Ljung-Box p-value above 0.01 (per channel, '
                      'Bonferroni). Structure that matters: not white and at least 5 % of the '
-                     'residual predictable from its own past.</p>')
+                     'residual predictable from its own past. The one-step error (the '
+                     'measured state propagated over one sample by the model) localises '
+                     'errors in time and ignores slow drifts of the simulation; n/a where the '
+                     'model has an effect it does not represent.</p>')
         if found.steps:
             parts.append('<h2>Search rounds</h2>')
             parts.append(f'<img src="{images[2]}" alt="error per step">')
@@ -410,7 +425,7 @@ def write_report(directory, result, found=None, records=None, channel_units=None
                                  'linearised screen', 'held-out gain', 'BIC change',
                                  'verdict'], _step_rows(found)))
             parts.append(f'<p>A candidate is added when it lowers the held-out error by at '
-                         f'least {found.loop.min_gain * 100:.0f} % and the BIC of the training '
+                         f'least {found.min_gain * 100:.0f} % and the BIC of the training '
                          f'fit; the loop stopped because {html.escape(found.reason)}.</p>')
     parts.append('</body></html>')
     path = os.path.join(directory, 'index.html')

@@ -1,11 +1,15 @@
 """
-Residual analysis: is what the model leaves white, and what does it correlate with.
+Residual analysis and the one simulation error per channel: what the model leaves, and why.
 
-The tools of the discovery loop (:mod:`dcmotor_id.discovery`) and of the report:
+The tools of :func:`dcmotor_id.identify.identify`, the discovery loop
+(:mod:`dcmotor_id.discovery`) and the report:
 
 * **Output (simulation) error**: the model driven by the measured input alone, minus the
   measurement.  With the right model and white sensor noise it is white and uncorrelated with
-  the input; structure in it is model error.
+  the input; structure in it is model error.  :func:`simulation_error_pct` is its one size
+  (percent of the measured signal's spread) and :func:`model_errors` runs a fitted model over
+  its records and returns it per channel: every ``{current,speed}_nrmse_pct`` of the results
+  comes from there.
 * **One-step error**: the measured state propagated over one sample by the exact ZOH solution
   of the identified model, minus the next measurement; it localises errors in time and is
   insensitive to slow drifts of the simulation.
@@ -20,8 +24,12 @@ All functions take numpy arrays and return plain floats, lists and dicts (JSON-r
 arrays for plotting; none modifies its inputs.
 """
 
+from __future__ import annotations
+
+from typing import Any, Mapping, Protocol, Sequence
+
 import numpy as np
-from scipy.linalg import expm
+from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2, norm
 
 from dcmotor_id.signals import noise_std
@@ -32,14 +40,127 @@ DEFAULT_LAGS = 25
 ALPHA = 0.01
 #: Order of the autoregressive predictor behind :func:`predictable_fraction`.
 AR_ORDER = 10
+#: Channels whose simulation error is reported, in the order of the JSON results.
+ERROR_CHANNELS = ('current', 'speed')
+
+FloatArray = NDArray[np.float64]
+#: ``{current_nrmse_pct, speed_nrmse_pct}``: a value in percent, or None (no such output, or
+#: no finite error).
+ChannelErrors = dict[str, 'float | None']
 
 
-def confidence_band(n_samples, level=1.0 - ALPHA):
+class SimulatedModel(Protocol):
+    """What :func:`model_errors` needs of a model (:class:`~dcmotor_id.estimators.refined.\
+OutputErrorModel` is one)."""
+
+    records: list
+    outputs: tuple
+
+    def simulate(self, values: Mapping[str, float], index: int,
+                 initial_state: FloatArray) -> dict[str, FloatArray]:
+        """Simulate record ``index`` from ``initial_state``; return the outputs by channel."""
+
+
+def output_channels(mechanical_only: bool) -> tuple[str, ...]:
+    """Return the simulated (output) channels: speed alone in mechanical-only mode."""
+    return ('speed',) if mechanical_only else ERROR_CHANNELS
+
+
+def error_key(channel: str) -> str:
+    """Return the result key of a channel's simulation error (``speed_nrmse_pct``)."""
+    return f'{channel}_nrmse_pct'
+
+
+def residual_nrmse_pct(residual: ArrayLike, measured: ArrayLike) -> float | None:
+    """
+    Return ``rms(residual) / std(measured) * 100``: a residual in percent of the signal spread.
+
+    None for a constant measurement.  The one normalisation of every error of the package
+    (simulation, one-step, the residual analysis).
+    """
+    residual = np.asarray(residual, dtype=float)
+    spread = float(np.std(np.asarray(measured, dtype=float)))
+    if not spread > 0:
+        return None
+    return float(np.sqrt(np.mean(residual ** 2))) / spread * 100.0
+
+
+def simulation_error_pct(simulated: ArrayLike, measured: ArrayLike) -> float | None:
+    """
+    Return the simulation error in percent of the measured signal's standard deviation.
+
+    :func:`residual_nrmse_pct` of ``simulated - measured``; None when it is not finite (a
+    constant measurement, or a simulation that diverged).
+    """
+    measured = np.asarray(measured, dtype=float)
+    value = residual_nrmse_pct(np.asarray(simulated, dtype=float) - measured, measured)
+    return value if value is not None and np.isfinite(value) else None
+
+
+def channel_errors(simulated: Mapping[str, ArrayLike], measured: Mapping[str, ArrayLike],
+                   outputs: Sequence[str]) -> ChannelErrors:
+    """
+    Return ``{current_nrmse_pct, speed_nrmse_pct}`` of the ``outputs`` channels.
+
+    ``simulated`` and ``measured`` hold each channel's samples (records concatenated); a
+    channel that is not an output (the current in mechanical-only mode) is None.
+    """
+    errors: ChannelErrors = {error_key(channel): None for channel in ERROR_CHANNELS}
+    for channel in outputs:
+        errors[error_key(channel)] = simulation_error_pct(simulated[channel], measured[channel])
+    return errors
+
+
+def simulate_records(model: SimulatedModel, values: Mapping[str, float],
+                     initial_states: Sequence[Sequence[float]]) -> list[dict[str, FloatArray]]:
+    """
+    Simulate every record of a model from its initial state; return the outputs per record.
+
+    Floating-point warnings are silenced: a wild parameter set may overflow, and its
+    simulation error then says so (None, or a large value).
+    """
+    with np.errstate(all='ignore'):
+        return [model.simulate(values, index, np.array(state, dtype=float))
+                for index, state in enumerate(initial_states)]
+
+
+def model_errors(model: SimulatedModel, values: Mapping[str, float],
+                 initial_states: Sequence[Sequence[float]]) -> ChannelErrors:
+    """
+    Simulate a fitted model over its records; return the simulation error per channel.
+
+    Parameters
+    ----------
+    model : OutputErrorModel
+        The model on the records (with the effect terms of the fitted structure).
+    values : dict
+        The fitted parameters (base and term coefficients).
+    initial_states : sequence of sequence of float
+        One initial state per record.
+
+    Returns
+    -------
+    dict
+        ``{current_nrmse_pct, speed_nrmse_pct}`` over the records concatenated (the
+        current None in mechanical-only mode).
+
+    """
+    simulated = simulate_records(model, values, initial_states)
+    return channel_errors(
+        {channel: np.concatenate([out[channel] for out in simulated])
+         for channel in model.outputs},
+        {channel: np.concatenate([getattr(rec, channel) for rec in model.records])
+         for channel in model.outputs},
+        model.outputs)
+
+
+def confidence_band(n_samples: int, level: float = 1.0 - ALPHA) -> float:
     """Half-width of the two-sided band of a white sequence's correlation at ``level``."""
     return float(norm.ppf(0.5 + 0.5 * level) / np.sqrt(max(n_samples, 1)))
 
 
-def autocorrelation(values, max_lag=DEFAULT_LAGS, centred=False):
+def autocorrelation(values: ArrayLike, max_lag: int = DEFAULT_LAGS,
+                    centred: bool = False) -> FloatArray:
     """
     Normalised autocorrelation ``rho[0..max_lag]`` (``rho[0] = 1``), by FFT.
 
@@ -59,7 +180,8 @@ def autocorrelation(values, max_lag=DEFAULT_LAGS, centred=False):
     return acov / acov[0]
 
 
-def cross_correlation(x, y, max_lag=DEFAULT_LAGS):
+def cross_correlation(x: ArrayLike, y: ArrayLike,
+                      max_lag: int = DEFAULT_LAGS) -> tuple[NDArray[np.int_], FloatArray]:
     """
     Normalised cross-correlation ``rho[tau] = corr(x[k + tau], y[k])`` for ``|tau| <= L``.
 
@@ -70,20 +192,23 @@ def cross_correlation(x, y, max_lag=DEFAULT_LAGS):
         means ``x`` follows ``y``.
 
     """
-    x = np.asarray(x, dtype=float) - np.mean(x)
-    y = np.asarray(y, dtype=float) - np.mean(y)
-    n = x.shape[0]
-    scale = np.sqrt(np.sum(x * x) * np.sum(y * y))
+    x_array = np.asarray(x, dtype=float)
+    y_array = np.asarray(y, dtype=float)
+    x_array = x_array - np.mean(x_array)
+    y_array = y_array - np.mean(y_array)
+    n = x_array.shape[0]
+    scale = np.sqrt(np.sum(x_array * x_array) * np.sum(y_array * y_array))
     lags = np.arange(-max_lag, max_lag + 1)
     if scale <= 0:
         return lags, np.zeros(lags.shape[0])
     size = 1 << int(np.ceil(np.log2(2 * n)))
-    full = np.fft.irfft(np.fft.rfft(x, size) * np.conj(np.fft.rfft(y, size)), size)
+    full = np.fft.irfft(np.fft.rfft(x_array, size) * np.conj(np.fft.rfft(y_array, size)), size)
     rho = np.concatenate([full[size - max_lag:], full[:max_lag + 1]]) / scale
     return lags, rho
 
 
-def ljung_box(values, lags=DEFAULT_LAGS, alpha=ALPHA):
+def ljung_box(values: ArrayLike, lags: int = DEFAULT_LAGS,
+              alpha: float = ALPHA) -> dict[str, Any]:
     """
     Ljung-Box test of whiteness.
 
@@ -106,7 +231,7 @@ def ljung_box(values, lags=DEFAULT_LAGS, alpha=ALPHA):
             'white': bool(p_value >= alpha)}
 
 
-def predictable_fraction(values, order=AR_ORDER):
+def predictable_fraction(values: ArrayLike, order: int = AR_ORDER) -> float:
     """
     Share of the residual's mean square an AR(``order``) predictor explains from its past.
 
@@ -127,7 +252,8 @@ def predictable_fraction(values, order=AR_ORDER):
     return float(max(0.0, 1.0 - (error @ error) / total))
 
 
-def correlation_summary(residual, signal, max_lag=DEFAULT_LAGS, level=1.0 - ALPHA):
+def correlation_summary(residual: ArrayLike, signal: ArrayLike, max_lag: int = DEFAULT_LAGS,
+                        level: float = 1.0 - ALPHA) -> dict[str, Any]:
     """
     Largest cross-correlation of a residual with a signal over ``|lag| <= max_lag``.
 
@@ -145,8 +271,10 @@ def correlation_summary(residual, signal, max_lag=DEFAULT_LAGS, level=1.0 - ALPH
             'band': band, 'outside': bool(abs(rho[position]) > band)}
 
 
-def analyse_channel(residual, measured, inputs=None, regressors=None, max_lag=DEFAULT_LAGS,
-                    alpha=ALPHA):
+def analyse_channel(residual: ArrayLike, measured: ArrayLike,
+                    inputs: Mapping[str, ArrayLike] | None = None,
+                    regressors: Mapping[str, ArrayLike] | None = None,
+                    max_lag: int = DEFAULT_LAGS, alpha: float = ALPHA) -> dict[str, Any]:
     """
     Analyse one output channel's residual.
 
@@ -175,14 +303,12 @@ def analyse_channel(residual, measured, inputs=None, regressors=None, max_lag=DE
     """
     residual = np.asarray(residual, dtype=float)
     measured = np.asarray(measured, dtype=float)
-    spread = float(np.std(measured))
-    rms = float(np.sqrt(np.mean(residual ** 2)))
     acf = autocorrelation(residual, max_lag)
     band = confidence_band(residual.shape[0], 1.0 - alpha)
     level = 1.0 - alpha
     return {
-        'rms': rms,
-        'nrmse_pct': rms / spread * 100.0 if spread > 0 else None,
+        'rms': float(np.sqrt(np.mean(residual ** 2))),
+        'nrmse_pct': residual_nrmse_pct(residual, measured),
         'noise_std': noise_std(measured),
         'ljung_box': ljung_box(residual, max_lag, alpha),
         'predictable_fraction': predictable_fraction(residual),
@@ -195,19 +321,28 @@ def analyse_channel(residual, measured, inputs=None, regressors=None, max_lag=DE
     }
 
 
-def zoh_matrices(a_matrix, sample_period_s):
-    """Exact ZOH discretisation ``(Ad, Gamma)`` with ``Gamma = int_0^dt exp(A s) ds``."""
+def zoh_matrices(a_matrix: ArrayLike, sample_period_s: float) -> tuple[FloatArray, FloatArray]:
+    """
+    Exact ZOH discretisation ``(Ad, Gamma)`` with ``Gamma = int_0^dt exp(A s) ds``.
+
+    :func:`scipy.signal.cont2discrete` with the identity as input matrix (so that its
+    discrete input matrix is ``Gamma``).
+    """
+    from scipy.signal import cont2discrete  # lazily, as in :mod:`dcmotor_id.signals`
+
     a_matrix = np.atleast_2d(np.asarray(a_matrix, dtype=float))
-    n = a_matrix.shape[0]
-    block = np.zeros((2 * n, 2 * n))
-    block[:n, :n] = a_matrix
-    block[:n, n:] = np.eye(n)
-    exponential = expm(block * sample_period_s)
-    return exponential[:n, :n], exponential[:n, n:]
+    identity = np.eye(a_matrix.shape[0])
+    ad, gamma, *_ = cont2discrete((a_matrix, identity, identity, identity), sample_period_s,
+                                  method='zoh')
+    return ad, gamma
 
 
-def one_step_error(values, record, torque_constant=None, voltage_extra=None, torque_extra=None,
-                   current_offset=None, speed_offset=None, coulomb_delta=0.0):
+def one_step_error(values: Mapping[str, float], record: Any,
+                   torque_constant: float | None = None,
+                   voltage_extra: ArrayLike | None = None, torque_extra: ArrayLike | None = None,
+                   current_offset: ArrayLike | None = None,
+                   speed_offset: ArrayLike | None = None,
+                   coulomb_delta: float = 0.0) -> dict[str, FloatArray]:
     """
     One-step prediction error of the identified model on one record.
 
@@ -239,14 +374,14 @@ def one_step_error(values, record, torque_constant=None, voltage_extra=None, tor
     n = len(record)
     dt = record.sample_period_s
     zeros = np.zeros(n)
-    torque_extra = zeros if torque_extra is None else torque_extra
+    torque = zeros if torque_extra is None else np.asarray(torque_extra, dtype=float)
     speed_meas = record.speed - (zeros if speed_offset is None else speed_offset)
     sign = np.sign(speed_meas)
     friction = np.where(sign > 0, values['Mc'] + coulomb_delta,
                         values['Mc'] - coulomb_delta) * sign
     if torque_constant is not None:
         ad, gamma = zoh_matrices([[-values['b'] / values['J']]], dt)
-        drive = (torque_constant * record.current + torque_extra - friction) / values['J']
+        drive = (torque_constant * record.current + torque - friction) / values['J']
         predicted = ad[0, 0] * speed_meas[:-1] + gamma[0, 0] * drive[:-1]
         return {'speed': predicted - speed_meas[1:]}
     current_meas = record.current - (zeros if current_offset is None else current_offset)
@@ -256,6 +391,6 @@ def one_step_error(values, record, torque_constant=None, voltage_extra=None, tor
     ad, gamma = zoh_matrices(a_matrix, dt)
     state = np.vstack([current_meas[:-1], speed_meas[:-1]])
     forcing = np.vstack([voltage[:-1] / values['La'],
-                         (torque_extra[:-1] - friction[:-1]) / values['J']])
+                         (torque[:-1] - friction[:-1]) / values['J']])
     predicted = ad @ state + gamma @ forcing
     return {'current': predicted[0] - current_meas[1:], 'speed': predicted[1] - speed_meas[1:]}

@@ -105,7 +105,7 @@ def test_cli_identifies_a_bag_like_the_library(tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     from_cli = json.loads(out.read_text())
     records = prepare_records([read_bag(str(tmp_path / 'bag'))])
-    direct = identify(records, discover=False)
+    direct = identify(records, discover=False).as_dict()
     assert from_cli['parameters'] == pytest.approx(direct['parameters'], rel=1e-12)
     truth = PAPER_MOTORS['paper2'].as_dict()
     assert from_cli['parameters'] == pytest.approx(truth, rel=0.02)

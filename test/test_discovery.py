@@ -137,7 +137,7 @@ def test_mechanical_only_load_torque():
 
 def test_identify_reports_the_loop_in_the_json_contract():
     records = motor_records([make_effect('load_torque', torque_Nm=0.5)])
-    result = identify(records)
+    result = identify(records).as_dict()
     assert result['effects'] == [{'name': 'load_torque',
                                   'parameters': {'torque_Nm': pytest.approx(0.5, rel=0.03)}}]
     assert result['unexplained'] is False
@@ -148,8 +148,8 @@ def test_identify_reports_the_loop_in_the_json_contract():
     assert set(result) >= {'parameters', 'stderr', 'method', 'effects', 'error_before',
                            'error_after', 'unexplained', 'mode', 'initial_states',
                            'noise_std', 'sample_period_s', 'n_samples', 'records', 'units'}
-    plain = identify(records, discover=False)
+    plain = identify(records, discover=False).as_dict()
     assert plain['effects'] == [] and plain['discovery'] is None
     assert plain['parameters']['Mc'] != pytest.approx(MOTOR.Mc, rel=0.03)  # biased by the load
-    paper = identify(records, method='paper')
+    paper = identify(records, method='paper').as_dict()
     assert paper['effects'] == [] and 'refined' in paper['discovery']['skipped']

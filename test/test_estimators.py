@@ -117,7 +117,7 @@ def test_multi_record_shares_parameters_and_estimates_each_initial_state():
 
 
 def test_identify_refined_result_layout_and_fit_error():
-    result = identify([motor_record(noise=0.005, seed=4)], discover=False)
+    result = identify([motor_record(noise=0.005, seed=4)], discover=False).as_dict()
     assert set(result['parameters']) == set(PARAMETER_NAMES + ('Ka', 'Ta'))
     assert set(result['stderr']) == set(result['parameters'])
     assert result['method'] == 'refined'
@@ -140,7 +140,8 @@ def mechanical_record(position_only=False, noise=0.0, seed=0):
 
 
 def test_mechanical_only_refined():
-    result = identify([mechanical_record()], torque_constant=MOTOR.CPhi, discover=False)
+    result = identify([mechanical_record()], torque_constant=MOTOR.CPhi,
+                      discover=False).as_dict()
     assert set(result['parameters']) == set(MECHANICAL_NAMES)
     assert result['mode'] == 'mechanical'
     assert result['error_after']['current_nrmse_pct'] is None
@@ -152,7 +153,7 @@ def test_mechanical_only_refined():
 
 def test_mechanical_only_paper_method():
     result = identify([mechanical_record()], method='paper', torque_constant=MOTOR.CPhi,
-                      discover=False)
+                      discover=False).as_dict()
     errors = relative_errors(result['parameters'], MECHANICAL_NAMES)
     assert max(errors.values()) < 0.01, errors  # Euler bias at dT = 1e-3 s
 
@@ -161,14 +162,14 @@ def test_mechanical_only_from_position_with_derived_speed():
     records = prepare_records([mechanical_record(position_only=True)],
                               torque_constant=MOTOR.CPhi)
     assert records[0].speed is not None
-    result = identify(records, torque_constant=MOTOR.CPhi, discover=False)
+    result = identify(records, torque_constant=MOTOR.CPhi, discover=False).as_dict()
     errors = relative_errors(result['parameters'], MECHANICAL_NAMES)
     assert max(errors.values()) < 1e-3, errors
 
 
 def test_mechanical_only_from_noisy_current_and_speed():
     record = mechanical_record(noise=0.01, seed=7)
-    result = identify([record], torque_constant=MOTOR.CPhi, discover=False)
+    result = identify([record], torque_constant=MOTOR.CPhi, discover=False).as_dict()
     reference = MOTOR.as_dict()
     for name in MECHANICAL_NAMES:
         error = abs(result['parameters'][name] - reference[name])
@@ -180,7 +181,7 @@ def test_position_only_in_full_mode():
     mech = mechanical_record(position_only=True)
     record = Record(full.time_s, current=full.current, voltage=full.voltage,
                     position=mech.position)
-    result = identify(prepare_records([record]), discover=False)
+    result = identify(prepare_records([record]), discover=False).as_dict()
     errors = relative_errors(result['parameters'])
     assert max(errors.values()) < 0.005, errors
 

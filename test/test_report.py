@@ -34,8 +34,8 @@ def check_png(path, min_width=500):
 
 
 def test_report_with_effects(tmp_path):
-    result, found = identify([loaded_record()], details=True)
-    page = write_report(str(tmp_path), result, found)
+    identified = identify([loaded_record()])
+    page = write_report(str(tmp_path), identified.as_dict(), identified.discovery_result)
     text = open(page, encoding='utf-8').read()
     for name in ('fit.png', 'residuals.png', 'steps.png'):
         assert f'src="{name}"' in text
@@ -49,7 +49,7 @@ def test_report_with_effects(tmp_path):
 
 def test_report_without_discovery(tmp_path):
     record = loaded_record(3.0)
-    result = identify([record], discover=False)
+    result = identify([record], discover=False).as_dict()
     page = write_report(str(tmp_path), result, None, [record])
     text = open(page, encoding='utf-8').read()
     assert 'No effect search' in text and 'steps.png' not in text

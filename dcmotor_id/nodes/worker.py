@@ -44,7 +44,7 @@ def identify_windows(windows, method, torque_constant, discover, compare_paper):
     Returns
     -------
     tuple
-        ``('ok', result)`` with the result dict of :func:`dcmotor_id.identify.identify` plus
+        ``('ok', result)`` with the result dict (``identify(...).as_dict()``) plus
         ``paper`` (the paper method's result, its error message, or None), or
         ``('error', message)`` when the data cannot identify the motor.
 
@@ -53,14 +53,14 @@ def identify_windows(windows, method, torque_constant, discover, compare_paper):
         records = prepare_records([record_from_stamps(stamps, channels, source)
                                    for stamps, channels, source in windows], torque_constant)
         result = identify(records, method=method, torque_constant=torque_constant,
-                          discover=discover)
+                          discover=discover).as_dict()
     except DcMotorIdError as error:
         return 'error', str(error)
     paper = None
     if compare_paper and method != 'paper':
         try:
             paper = identify(records, method='paper', torque_constant=torque_constant,
-                             discover=False)
+                             discover=False).as_dict()
         except DcMotorIdError as error:
             paper = str(error)
     result['paper'] = paper
