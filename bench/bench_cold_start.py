@@ -102,11 +102,12 @@ def run(repeats):
         rows.append([scenario, label, _spread(walls), _spread(cpus),
                      '/'.join(str(count) for count in added)])
     rows.sort(key=lambda row: SCENARIOS.index(row[0]))
-    first = {scenario: statistics.median(value[0] for value in
-                                         steps[(scenario, 'first identify')])
-             for scenario in SCENARIOS}
-    second = statistics.median(value[0] for value in steps[('with the warm-up',
-                                                               'second identify')])
+
+    def median_wall(scenario, label):
+        return statistics.median(value[0] for value in steps[(scenario, label)])
+
+    first = {scenario: median_wall(scenario, 'first identify') for scenario in SCENARIOS}
+    second = median_wall(SCENARIOS[1], 'second identify')
     return [
         f'Command: `{command_line()}`  ',
         f'Machine: {environment()}; load average {load_start[0]:.2f} at the start, '
