@@ -76,7 +76,7 @@ def run(repeats):
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(
             filter(None, [clone, os.environ.get('PYTHONPATH')])))
         where = subprocess.run([sys.executable, '-c', 'import dcmotor_id; '
-                                'print(dcmotor_id.__file__)'], env=env, check=True,
+                                'print(dcmotor_id.__file__)'], env=env, cwd=clone, check=True,
                                capture_output=True, text=True).stdout.strip()
         if not where.startswith(clone):
             raise RuntimeError(f'the clone is not the package imported: {where}')
