@@ -21,7 +21,7 @@ import tempfile
 import time
 from typing import Sequence
 
-#: Effects simulated into the warm-up record (every kernel branch: brush drop, delays, ...).
+#: Effects simulated into the warm-up record (the brush drop has its own kernel step).
 SIMULATED_EFFECTS = ('load_torque:torque_Nm=0.2', 'brush_drop:drop_V=1.0')
 
 
