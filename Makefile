@@ -3,15 +3,24 @@ PYTHON ?= python3.11
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
+# Where `make bench` writes its tables (the committed ones in bench/ stay as they are).
+BENCH_OUT := out/bench
 
-.PHONY: demo demo-offline test bench clean
+.PHONY: demo demo-offline test test-fast typecheck warmup bench clean
 
+# The install also compiles the numba kernels into their on-disk cache (dcmotor_id.warmup):
+# the user's first `dcmotor-id identify` then runs as fast as the second one.
 $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements.txt
 	$(PY) -m pip install --quiet --no-deps -e .
+	$(PY) -m dcmotor_id.warmup --quiet
 	touch $(STAMP)
+
+# Recompile the numba cache by hand (after editing a kernel, say).
+warmup: $(STAMP)
+	$(PY) -m dcmotor_id.warmup
 
 # The real node graph: sim_motor and identifier as processes, recording, then ~/identify.
 demo: $(STAMP)
@@ -21,8 +30,28 @@ demo: $(STAMP)
 demo-offline: $(STAMP)
 	$(VENV)/bin/dcmotor-id demo
 
-test: $(STAMP)
+# Everything: the type check, then every test (pytest's exit code, 5 when none is collected).
+test: typecheck
 	$(PY) -m pytest -q -ra
+
+# The inner loop: no ROS graph, nothing slower than a few seconds.
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -ra -m 'not ros and not slow'
+
+typecheck: $(STAMP)
+	$(PY) -m mypy
+
+# Every benchmark of bench/README.md, each table written to $(BENCH_OUT) (long: about an hour).
+bench: $(STAMP)
+	mkdir -p $(BENCH_OUT)
+	$(PY) bench/bench_replication.py > $(BENCH_OUT)/replication.md
+	$(PY) bench/bench_sampling_period.py > $(BENCH_OUT)/sampling_period.md
+	$(PY) bench/bench_noise.py > $(BENCH_OUT)/noise.md
+	$(PY) bench/bench_speed.py > $(BENCH_OUT)/speed.md
+	$(PY) bench/bench_online.py > $(BENCH_OUT)/online_results.md
+	$(PY) bench/bench_discovery.py --out $(BENCH_OUT)/discovery_results.md
+	$(PY) bench/bench_throughput.py --out $(BENCH_OUT)/throughput_results.md
+	$(PY) bench/bench_cold_start.py --out $(BENCH_OUT)/cold_start_results.md
 
 clean:
 	rm -rf $(VENV) build install log

@@ -8,7 +8,7 @@ PACKAGE = 'dcmotor_id'
 setup(
     name=PACKAGE,
     version='0.1.0',
-    packages=find_packages(exclude=['test', 'test.*', 'bench']),
+    packages=find_packages(exclude=['test', 'test.*', 'bench', 'studies', 'studies.*']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
@@ -16,9 +16,10 @@ setup(
         ('share/' + PACKAGE + '/launch', glob('launch/*.py')),
     ],
     python_requires='>=3.10',
-    install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap',
-                      'mcap-ros2-support'],
-    extras_require={'test': ['pytest']},
+    # py.typed: the package's type hints apply to its users (PEP 561).
+    package_data={PACKAGE: ['py.typed']},
+    install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap'],
+    extras_require={'test': ['pytest', 'mypy']},
     zip_safe=True,
     maintainer='dcmotor_id developers',
     maintainer_email='dev@dcmotor-id.invalid',

@@ -6,9 +6,10 @@ System Identification Benchmarks workshop, Eindhoven, 2019 (shared/data/emps).
 """
 
 import pytest
+# The study lives beside the package (studies/), importable from the repository root.
+from studies.emps import (emps_study, find_data_dir, PUBLISHED_IDIM_LS,
+                          PUBLISHED_RELATIVE_ERROR_PCT)
 
-from dcmotor_id.emps import (emps_study, find_data_dir, PUBLISHED_IDIM_LS,
-                             PUBLISHED_RELATIVE_ERROR_PCT)
 from dcmotor_id.errors import InputDataError
 
 try:
@@ -16,7 +17,8 @@ try:
 except InputDataError:  # the shared data are not part of the package
     DATA_DIR = None
 
-pytestmark = pytest.mark.skipif(DATA_DIR is None, reason='EMPS data not found')
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(DATA_DIR is None, reason='EMPS data not found')]
 
 
 @pytest.fixture(scope='module')

@@ -11,7 +11,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 @pytest.mark.flake8
 @pytest.mark.linter
 def test_flake8():
-    paths = [os.path.join(ROOT, name) for name in ('dcmotor_id', 'test', 'bench', 'setup.py')
+    paths = [os.path.join(ROOT, name) for name in ('dcmotor_id', 'studies', 'test', 'bench',
+                                                   'setup.py')
              if os.path.exists(os.path.join(ROOT, name))]
     rc, errors = main_with_errors(argv=['--config', os.path.join(ROOT, 'test', 'flake8.ini')]
                                   + paths)

@@ -20,6 +20,8 @@ from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.identifier import Identifier, LATCHED, RESULT_KEYS
 from dcmotor_id.nodes.sim_motor import SimMotor
 
+pytestmark = pytest.mark.ros
+
 TRUTH = PAPER_MOTORS['paper2'].as_dict()
 EXPECTED_KEYS = list(RESULT_KEYS) + [f'{key}_stderr' for key in RESULT_KEYS]
 
@@ -254,6 +256,7 @@ def test_lost_late_and_reordered_messages_land_on_their_samples(ros, tmp_path):
     ident.destroy_node()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('case', ['unwritable', 'full'])
 def test_unwritable_or_full_record_dir_is_reported_and_identify_still_works(ros, tmp_path,
                                                                             case):

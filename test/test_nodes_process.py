@@ -18,6 +18,8 @@ from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.common import spin_until
 from dcmotor_id.nodes.identifier import LATCHED, RESULT_KEYS
 
+pytestmark = pytest.mark.ros
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.path.dirname(sys.executable)
 COLCON = shutil.which('colcon', path=BIN) or shutil.which('colcon')
@@ -112,6 +114,7 @@ def client(ros_env):
     rclpy.try_shutdown()
 
 
+@pytest.mark.slow
 def test_installed_nodes_identify_across_processes_and_survive_sigkill(
         installed, ros_env, client, tmp_path):
     node, executor = client

@@ -20,6 +20,8 @@ from dcmotor_id.nodes.identifier import Identifier, RESULT_KEYS
 from dcmotor_id.nodes.replay import Replay
 from dcmotor_id.nodes.sim_motor import SimMotor
 
+pytestmark = pytest.mark.ros
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -73,6 +75,7 @@ def test_launch_file_starts_both_nodes_with_their_parameter_files():
                (node.name for node in tree.body if isinstance(node, ast.FunctionDef)))
 
 
+@pytest.mark.slow
 def test_replayed_bag_is_identified_on_its_own_clock(ros, tmp_path):
     from dcmotor_id.excitation import make_excitation
     from dcmotor_id.simulation import simulate_motor

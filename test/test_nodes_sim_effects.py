@@ -10,6 +10,8 @@ from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.sim_motor import parse_effects, SimMotor
 from dcmotor_id.simulation import simulate_motor
 
+pytestmark = pytest.mark.ros
+
 
 @pytest.fixture(scope='module')
 def ros(ros_env):

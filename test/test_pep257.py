@@ -11,6 +11,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 @pytest.mark.linter
 @pytest.mark.pep257
 def test_pep257():
-    paths = [os.path.join(ROOT, name) for name in ('dcmotor_id', 'test', 'bench', 'setup.py')
+    paths = [os.path.join(ROOT, name) for name in ('dcmotor_id', 'studies', 'test', 'bench',
+                                                   'setup.py')
              if os.path.exists(os.path.join(ROOT, name))]
     assert main(argv=paths) == 0, 'Found docstring style errors (see the output above)'

@@ -10,11 +10,17 @@ identifiable: this module maps it onto the mechanical-only mode of the package (
 = ``vir``, torque constant ``gtau``, position ``qm``, speed from the differentiating filter)
 with M, Fv, Fc of the benchmark in the roles of J, b, Mc (units N, m, kg for the linear axis).
 
-Run ``python -m dcmotor_id.emps [DATA_DIR]`` for the study the README reports.
+A study of one data set, kept beside the package rather than in it: run
+``python -m studies.emps [DATA_DIR] [--report DIR]`` from the repository root (or
+``python studies/emps.py ...``) for the study the README reports.  The data are looked for in
+``DATA_DIR``, then ``$EMPS_DATA_DIR``, then ``../shared/data/emps`` beside the repository.
 """
+
+from __future__ import annotations
 
 import os
 import sys
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy import signal
@@ -41,14 +47,15 @@ FILTER_CUTOFF_HZ = 100.0
 DECIMATION = 10
 #: Samples dropped at the start for the differentiation's edge effect (the reference's 50).
 BORDER_SAMPLES = 49
-#: Where the repository keeps the data, relative to this package.
-DEFAULT_DATA_DIR = os.path.join(os.path.dirname(__file__), '..', '..', 'shared', 'data', 'emps')
+#: The repository's root (this file is ``studies/emps.py``).
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: Where the data sit relative to the repository: ``../shared/data/emps`` beside it.
+DEFAULT_DATA_DIR = os.path.join(REPO_ROOT, '..', 'shared', 'data', 'emps')
 
 
-def find_data_dir(data_dir=None):
-    """Return the EMPS data directory (argument, ``EMPS_DATA_DIR``, or the shared tree)."""
-    candidates = [data_dir, os.environ.get('EMPS_DATA_DIR'), DEFAULT_DATA_DIR,
-                  '/work/shared/data/emps']
+def find_data_dir(data_dir: str | None = None) -> str:
+    """Return the EMPS data directory (argument, ``EMPS_DATA_DIR``, or beside the repository)."""
+    candidates = [data_dir, os.environ.get('EMPS_DATA_DIR'), DEFAULT_DATA_DIR]
     for candidate in candidates:
         if candidate and os.path.isfile(os.path.join(candidate, ESTIMATION_FILE)):
             return os.path.abspath(candidate)
@@ -56,7 +63,7 @@ def find_data_dir(data_dir=None):
                          'in a directory and pass it (or set EMPS_DATA_DIR)')
 
 
-def load_emps(path):
+def load_emps(path: str) -> tuple[Record, float]:
     """
     Load one EMPS ``.mat`` file as a record for the mechanical-only mode.
 
@@ -104,7 +111,7 @@ def _decimate(values, factor):
     return filtered[first::factor]
 
 
-def idim_ls(record, gtau, decimation=DECIMATION):
+def idim_ls(record: Record, gtau: float, decimation: int = DECIMATION) -> dict[str, Any]:
     """
     Estimate by the benchmark's IDIM-LS: ``gtau vir = M qdd + Fv qd + Fc sgn(qd) + offset``.
 
@@ -151,7 +158,8 @@ def _idim_kinematics(record):
     return speed, acceleration, slice(BORDER_SAMPLES, None)
 
 
-def idim_force_error_pct(parameters, record, gtau, decimation=DECIMATION):
+def idim_force_error_pct(parameters: Mapping[str, float], record: Record, gtau: float,
+                         decimation: int = DECIMATION) -> float:
     """Relative error [%] of the IDIM force fit for given (M, Fv, Fc, offset)."""
     speed, acceleration, keep = _idim_kinematics(record)
     model = (parameters['M'] * acceleration + parameters['Fv'] * speed
@@ -161,14 +169,15 @@ def idim_force_error_pct(parameters, record, gtau, decimation=DECIMATION):
     return float(100.0 * np.linalg.norm(force - model) / np.linalg.norm(force))
 
 
-def as_idim(parameters):
+def as_idim(parameters: Mapping[str, float]) -> dict[str, float]:
     """Map a mechanical-only result (J, b, Mc, load torque) onto the names M, Fv, Fc, offset."""
     return {'M': float(parameters['J']), 'Fv': float(parameters['b']),
             'Fc': float(parameters['Mc']),
             'offset': float(parameters.get('load_torque.torque_Nm', 0.0))}
 
 
-def simulation_error_pct(parameters, record, gtau):
+def simulation_error_pct(parameters: Mapping[str, float], record: Record,
+                         gtau: float) -> float:
     """
     Speed simulation error [% of std] of (M, Fv, Fc, offset) on a record, from its start.
 
@@ -185,14 +194,14 @@ def simulation_error_pct(parameters, record, gtau):
     return float(np.sqrt(np.mean((speed - record.speed) ** 2)) / np.std(record.speed) * 100.0)
 
 
-def output_error_idim_structure(record, gtau):
+def output_error_idim_structure(record: Record, gtau: float) -> Any:
     """Output-error fit of the IDIM-LS structure (base model + load_torque) on all the data."""
     terms = LoadTorque.terms([record], {}, {'Mc': 20.0}, gtau)
     estimate = RefinedEstimator().fit([record], torque_constant=gtau, terms=terms)
     return estimate
 
 
-def emps_study(data_dir=None):
+def emps_study(data_dir: str | None = None) -> dict[str, Any]:
     """
     Identify EMPS with the discovery loop and compare with IDIM-LS; return a dict.
 
@@ -238,7 +247,7 @@ def emps_study(data_dir=None):
     return out
 
 
-def format_study(study):
+def format_study(study: Mapping[str, Any]) -> str:
     """Markdown tables of the study (the README's EMPS section)."""
     published, replication = study['published'], study['idim_ls']
     oe = study['criteria']['output_error']
@@ -296,10 +305,10 @@ def _effect_text(effect):
     return f'{effect["name"]} ({values})'
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     """Print the EMPS study; ``--report DIR`` also writes the loop's report."""
     import argparse
-    parser = argparse.ArgumentParser(prog='python -m dcmotor_id.emps',
+    parser = argparse.ArgumentParser(prog='python -m studies.emps',
                                      description='EMPS: IDIM-LS cross-check and the discovery '
                                                  'loop on measured data')
     parser.add_argument('data_dir', nargs='?', help='directory with the EMPS .mat files')
