@@ -61,7 +61,7 @@ class Window:
 
     @property
     def size(self) -> int:
-        """Number of samples."""
+        """Return the number of samples."""
         return int(self.stamps_ns.size)
 
     @property
@@ -127,13 +127,13 @@ class WindowCutter:
 
     @property
     def windows(self) -> tuple[Window, ...]:
-        """The windows kept in memory, oldest first."""
+        """Return the windows kept in memory, oldest first."""
         with self._lock:
             return tuple(self._windows)
 
     @property
     def held_samples(self) -> int:
-        """Samples in the kept windows and in the window being filled."""
+        """Count the samples in the kept windows and in the window being filled."""
         with self._lock:
             return sum(window.size for window in self._windows) + self._current_count
 
