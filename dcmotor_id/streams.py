@@ -112,13 +112,13 @@ class StreamAligner:
         self._column = {name: column for column, name in enumerate(self.channels)}
         self._values = np.full((self.capacity, len(self.channels)), np.nan)
         self._have = np.zeros((self.capacity, len(self.channels)), dtype=bool)
-        self._base = None          # lowest index not yet emitted or given up
-        self._newest = None        # highest index seen on any channel
-        self._newest_by_channel = dict.fromkeys(self.channels)
+        self._base: Any = None     # lowest index not yet emitted or given up
+        self._newest: Any = None   # highest index seen on any channel
+        self._newest_by_channel: dict[str, Any] = dict.fromkeys(self.channels)
         self.stats = AlignerStats()
-        self.first_index = None    # lowest index ever seen
-        self._out_indices = []
-        self._out_values = []
+        self.first_index: Optional[int] = None    # lowest index ever seen
+        self._out_indices: list[np.ndarray] = []
+        self._out_values: list[np.ndarray] = []
 
     @property
     def next_index(self) -> Optional[int]:
@@ -319,7 +319,7 @@ class SampleInbox:
             index = int(sequence) - 1
         else:
             index = self.index_of_stamp(info.get('source_timestamp') or
-                                        info.get('received_timestamp'))
+                                        info['received_timestamp'])
         self.put(channel, index, value)
 
     def put(self, channel: str, index: int, value: float) -> None:
@@ -356,8 +356,9 @@ class SampleInbox:
             if not indices:
                 continue
             if isinstance(indices[0], np.ndarray):
-                indices, values = np.concatenate(indices), np.concatenate(values)
-            aligner.add_block(channel, indices, values)
+                aligner.add_block(channel, np.concatenate(indices), np.concatenate(values))
+            else:
+                aligner.add_block(channel, indices, values)
 
 
 def grid_indices(stamps_ns: Any, sample_period_s: float, origin_ns: int) -> np.ndarray:
@@ -483,8 +484,7 @@ def align_timestamps(stamps_by_channel: Mapping[str, Any], values_by_channel: Ma
     if common is None or common.size == 0:
         raise InputDataError(f'{name}: no instant has a value on every channel '
                              f'({", ".join(stamps_by_channel)}); check the topic names')
-    values = {}
-    for channel, (index, channel_values) in per_channel.items():
-        values[channel] = channel_values[np.searchsorted(index, common)]
+    aligned = {channel: channel_values[np.searchsorted(index, common)]
+               for channel, (index, channel_values) in per_channel.items()}
     stamps = origin + np.rint(common * period_ns).astype(np.int64)
-    return stamps, values
+    return stamps, aligned

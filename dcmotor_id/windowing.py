@@ -190,7 +190,8 @@ class WindowCutter:
             values = np.vstack([part[1] for part in self._current])
             self._current = []
             self._current_count = 0
-            stamps = self.anchor_ns + np.rint(indices * self._period_ns).astype(np.int64)
+            stamps = int(self.anchor_ns or 0) + np.rint(indices * self._period_ns).astype(
+                np.int64)
             window = Window(stamps, {name: values[:, k].copy()
                                      for k, name in enumerate(self.channels)})
             self._windows.append(window)

@@ -156,6 +156,15 @@ def test_second_concurrent_identify_is_refused_and_the_node_lives_on(identified)
     assert any(r.success for r in responses)
 
 
+def test_result_parameters_cannot_be_set_from_outside(identified):
+    ident = identified['ident']
+    before = ident.get_parameter('identified.Ra').value
+    outcome, = ident.set_parameters([Parameter('identified.Ra', value=1.0)])
+    assert not outcome.successful and 'result of ~/identify' in outcome.reason
+    assert ident.get_parameter('identified.Ra').value == before
+    assert ident.set_parameters([Parameter('stream_timeout_s', value=2.0)])[0].successful
+
+
 def test_online_estimate_converges_near_the_truth(identified):
     status = identified['online'][-1]
     values = {kv.key: kv.value for kv in status.values}

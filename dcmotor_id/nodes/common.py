@@ -8,10 +8,12 @@ import sys
 import time
 from typing import Any, Callable, Optional, Sequence, TypeVar
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
 import rclpy
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 #: Reliability names accepted by the ``qos_reliability`` parameters.
@@ -59,7 +61,7 @@ def declare_settings(node: Node, settings_class: type[Settings]) -> Settings:
     :func:`dcmotor_id.nodes.settings.parameter`); fields are declared in their order.
     """
     values = {item.name: declare(node, item.name, item.default, **item.metadata)
-              for item in fields(settings_class)}
+              for item in fields(settings_class)}  # type: ignore[arg-type]
     return settings_class(**values)
 
 
@@ -74,6 +76,41 @@ def guarded(callback: Callable[..., Any]) -> Callable[..., Any]:
                                     throttle_duration_sec=5.0)
             return None
     return run
+
+
+class ResultParameters:
+    """
+    Parameters ``<prefix><name>`` that publish a node's results and refuse to be set by others.
+
+    ``defaults`` maps each name to its initial value (its type is the parameter's type);
+    ``source`` names what sets them, in the refusal.
+    """
+
+    def __init__(self, node: Node, prefix: str, defaults: dict[str, Any], source: str) -> None:
+        self.node = node
+        self.prefix = prefix
+        self.source = source
+        self._setting = False
+        for name, value in defaults.items():
+            node.declare_parameter(prefix + name, value)
+        node.add_on_set_parameters_callback(self._guard)
+
+    def _guard(self, parameters: list[Parameter]) -> SetParametersResult:
+        for parameter in parameters:
+            if not self._setting and parameter.name.startswith(self.prefix):
+                return SetParametersResult(
+                    successful=False,
+                    reason=f'{parameter.name} is a result of {self.source}, not a setting')
+        return SetParametersResult(successful=True)
+
+    def publish(self, values: dict[str, Any]) -> None:
+        """Set the result parameters named in ``values`` at once."""
+        self._setting = True
+        try:
+            self.node.set_parameters([Parameter(self.prefix + name, value=value)
+                                      for name, value in values.items()])
+        finally:
+            self._setting = False
 
 
 def check_choice(name: str, value: Any, choices: Any) -> None:

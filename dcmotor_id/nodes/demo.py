@@ -68,7 +68,9 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
     node = rclpy.create_node('dcmotor_id_demo')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    online, latched, diagnostics = [], [], []
+    online: list[DiagnosticStatus] = []
+    latched: list[DiagnosticStatus] = []
+    diagnostics: list[DiagnosticArray] = []
     node.create_subscription(DiagnosticStatus, '/identifier/online_parameters', online.append,
                              10)
     node.create_subscription(DiagnosticStatus, '/identifier/parameters', latched.append,

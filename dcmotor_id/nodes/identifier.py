@@ -33,17 +33,16 @@ separate process (``identify_in_subprocess``); a second call meanwhile is refuse
 
 from __future__ import annotations
 
+from functools import partial
 import threading
 import time
 from typing import Any, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
@@ -52,7 +51,8 @@ from std_srvs.srv import Trigger
 
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.io import decode_batch, MIN_SAMPLES
-from dcmotor_id.nodes.common import BulkInput, declare_settings, guarded, run, sample_qos
+from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters,
+                                     run, sample_qos)
 from dcmotor_id.nodes.settings import IdentifierSettings
 from dcmotor_id.nodes.worker import FitProcess, WindowRecorder
 from dcmotor_id.online import OnlineEstimator
@@ -74,12 +74,8 @@ class Identifier(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('identifier', **kwargs)
         self.settings = settings = declare_settings(self, IdentifierSettings)
-        for key in RESULT_KEYS:
-            self.declare_parameter(f'identified.{key}', float('nan'))
-        self.declare_parameter('identified.method', '')
-        self.declare_parameter('identified.bags', [''])
-        self._setting_results = False
-        self.add_on_set_parameters_callback(self._guard_results)
+        self.results = ResultParameters(self, 'identified.', {
+            **dict.fromkeys(RESULT_KEYS, float('nan')), 'method': '', 'bags': ['']}, '~/identify')
 
         self.mechanical = settings.torque_constant > 0
         self.channels = ('current', 'speed') if self.mechanical else \
@@ -94,7 +90,7 @@ class Identifier(Node):
         self.estimator = OnlineEstimator(
             1.0 / rate, settings.online_memory_s,
             settings.online_converged_rel_stderr) if settings.online else None
-        self._stalled = set()
+        self._stalled: set[str] = set()
         self._identify_busy = threading.Lock()
         self._identify_started = 0.0
         self.last_result: Optional[dict] = None
@@ -112,8 +108,7 @@ class Identifier(Node):
         self.input_node = inputs = BulkInput(self)
         if settings.input == 'float64':
             for name in self.channels:
-                inputs.add(Float64, name, qos, lambda message, info, name=name:
-                           self.inbox.put_message(name, message.data, info))
+                inputs.add(Float64, name, qos, partial(self._on_float64, name))
         elif settings.input == 'batch':
             inputs.add(Float64MultiArray, 'samples', qos, lambda message, _: self._on_batch(
                 message))
@@ -121,8 +116,8 @@ class Identifier(Node):
             inputs.add(JointState, 'joint_states', qos, lambda message, _:
                        self._on_joint_state(message))
             if not self.mechanical:
-                inputs.add(Float64, 'voltage', qos, lambda message, info: self.inbox.put_message(
-                    'voltage', message.data, info, by_timestamp=True))
+                inputs.add(Float64, 'voltage', qos,
+                           partial(self._on_float64, 'voltage', by_timestamp=True))
         self.parameters_pub = self.create_publisher(DiagnosticStatus, '~/parameters', LATCHED)
         self.online_pub = self.create_publisher(DiagnosticStatus, '~/online_parameters', 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -141,16 +136,6 @@ class Identifier(Node):
         self.get_logger().info(f'identifier: {settings.input} input at {rate:g} Hz, window '
                                f'{settings.window_s:g} s, recording {where}')
 
-    def _guard_results(self, parameters):
-        if self._setting_results:
-            return SetParametersResult(successful=True)
-        for parameter in parameters:
-            if parameter.name.startswith('identified.'):
-                return SetParametersResult(
-                    successful=False,
-                    reason=f'{parameter.name} is a result of ~/identify, not a setting')
-        return SetParametersResult(successful=True)
-
     # ------------------------------------------------------------------ input
     def _log(self, level, text):
         """Log; errors (bad input, a full disk) at most every 5 s (one throttle for all)."""
@@ -158,6 +143,9 @@ class Identifier(Node):
             self.get_logger().error(text, throttle_duration_sec=5.0)
         else:
             getattr(self.get_logger(), level)(text)
+
+    def _on_float64(self, channel, message, info, by_timestamp=False):
+        self.inbox.put_message(channel, message.data, info, by_timestamp)
 
     def _on_batch(self, message):
         try:
@@ -280,15 +268,9 @@ class Identifier(Node):
             statuses.append(self._status('paper method', DiagnosticStatus.WARN,
                                          f'paper method failed: {paper}'))
         self._publish_diagnostics(statuses)
-        self._setting_results = True
-        try:
-            self.set_parameters(
-                [Parameter(f'identified.{key}', value=float(result['parameters'].get(
-                    key, float('nan')))) for key in RESULT_KEYS]
-                + [Parameter('identified.method', value=result['method']),
-                   Parameter('identified.bags', value=list(result['bags']) or [''])])
-        finally:
-            self._setting_results = False
+        values = {key: float(result['parameters'].get(key, float('nan'))) for key in RESULT_KEYS}
+        self.results.publish({**values, 'method': result['method'],
+                              'bags': list(result['bags']) or ['']})
 
     def _publish_failure(self, message):
         self.last_error = message
@@ -303,6 +285,7 @@ class Identifier(Node):
     # ------------------------------------------------------------------ online and health
     def online_status(self) -> DiagnosticStatus:
         """Return the online estimate as a DiagnosticStatus (``converged``, innovation RMS)."""
+        assert self.estimator is not None, 'online is false'
         estimate = self.estimator.estimate()
         return self._status(
             'online estimate',
