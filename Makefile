@@ -24,7 +24,7 @@ warmup: $(STAMP)
 
 # The real node graph: sim_motor and identifier as processes, recording, then ~/identify.
 demo: $(STAMP)
-	$(PY) -m dcmotor_id.ros_demo
+	$(PY) -m dcmotor_id.nodes.demo
 
 # The offline comparison of the paper's method and the default one (no ROS).
 demo-offline: $(STAMP)

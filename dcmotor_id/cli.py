@@ -22,6 +22,7 @@ from dcmotor_id.identify import identify, METHODS, prepare_records
 from dcmotor_id.io import BAG_TOPICS, read_bag, read_csv, Record, write_csv
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
+from dcmotor_id.summary import format_table
 
 
 def load_records(paths: Sequence[str],
@@ -34,33 +35,6 @@ def load_records(paths: Sequence[str],
         else:
             records.append(read_csv(path))
     return records
-
-
-def format_result(result):
-    """Render a result dict as a readable table."""
-    lines = [f"method: {result['method']}   mode: {result['mode']}   records: "
-             f"{len(result['records'])}   samples: {result['n_samples']}   "
-             f"dt: {result['sample_period_s']:.6g} s"]
-    lines.append(f"{'parameter':<10}{'value':>16}{'stderr':>14}{'rel.':>10}  unit")
-    for name, value in result['parameters'].items():
-        err = result['stderr'].get(name, float('nan'))
-        rel = abs(err / value) * 100 if value else float('nan')
-        lines.append(f'{name:<10}{value:>16.6g}{err:>14.3g}{rel:>9.3g}%  '
-                     f"{result['units'].get(name, '')}")
-    for effect in result.get('effects', []):
-        parameters = ', '.join(f'{key} = {value:.4g}' if isinstance(value, float) else
-                               f'{key} = {value}' for key, value in
-                               effect['parameters'].items())
-        lines.append(f"effect {effect['name']}: {parameters}")
-
-    def fmt(errors):
-        return ', '.join(f"{key.split('_')[0]} {value:.3g} %" for key, value in errors.items()
-                         if value is not None)
-    lines.append(f"simulation error before: {fmt(result['error_before'])}")
-    lines.append(f"simulation error after:  {fmt(result['error_after'])}")
-    if result.get('unexplained'):
-        lines.append('structure remains in the residual that no candidate effect explains')
-    return '\n'.join(lines)
 
 
 def _json_safe(value):
@@ -99,7 +73,7 @@ def _cmd_identify(args):
         print(f'report: {page}')
     if args.json:
         write_json(args.json, result)
-    print(format_result(result))
+    print(format_table(result))
     return 0
 
 

@@ -12,13 +12,21 @@ whatever order they arrive in, and says which samples were lost.
   was emitted or given up is counted as late and dropped. Memory is a fixed ring of
   ``capacity`` samples: a channel running further ahead pushes the oldest samples out, and a
   channel that stops is handled by :meth:`StreamAligner.flush`.
+* :class:`SampleInbox` is where message callbacks put values: it finds each value's sample
+  index (from the DDS publication sequence number or by timestamp) and hands everything that
+  arrived to an aligner in one go.
 * :func:`grid_indices` turns timestamps into sample indices, and :func:`align_timestamps` is
   the offline form used by the bag reader: every channel's ``(stamp_ns, value)`` pairs onto one
   grid.
 * :func:`contiguous_runs` splits emitted indices where samples are missing.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+import threading
+import time
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -67,7 +75,7 @@ class AlignerStats:
     restarts: int = 0
     unmatched_at_start: int = 0
 
-    def as_dict(self):
+    def as_dict(self) -> dict[str, int]:
         """Return the counters as a plain dict."""
         return dict(self.__dict__)
 
@@ -90,7 +98,8 @@ class StreamAligner:
 
     """
 
-    def __init__(self, channels, max_delay_samples=200, capacity=None):
+    def __init__(self, channels: Sequence[str], max_delay_samples: int = 200,
+                 capacity: Optional[int] = None) -> None:
         self.channels = tuple(channels)
         if not self.channels:
             raise ValueError('at least one channel is needed')
@@ -103,24 +112,24 @@ class StreamAligner:
         self._column = {name: column for column, name in enumerate(self.channels)}
         self._values = np.full((self.capacity, len(self.channels)), np.nan)
         self._have = np.zeros((self.capacity, len(self.channels)), dtype=bool)
-        self._base = None          # lowest index not yet emitted or given up
-        self._newest = None        # highest index seen on any channel
-        self._newest_by_channel = dict.fromkeys(self.channels)
+        self._base: Any = None     # lowest index not yet emitted or given up
+        self._newest: Any = None   # highest index seen on any channel
+        self._newest_by_channel: dict[str, Any] = dict.fromkeys(self.channels)
         self.stats = AlignerStats()
-        self.first_index = None    # lowest index ever seen
-        self._out_indices = []
-        self._out_values = []
+        self.first_index: Optional[int] = None    # lowest index ever seen
+        self._out_indices: list[np.ndarray] = []
+        self._out_values: list[np.ndarray] = []
 
     @property
-    def next_index(self):
+    def next_index(self) -> Optional[int]:
         """Lowest sample index not yet emitted or given up (None before any value)."""
         return self._base
 
-    def add(self, channel, index, value):
+    def add(self, channel: str, index: int, value: float) -> None:
         """Add one value of ``channel`` for sample ``index``."""
         self.add_block(channel, np.array([index], dtype=np.int64), np.array([value], float))
 
-    def add_block(self, channel, indices, values):
+    def add_block(self, channel: str, indices: Any, values: Any) -> None:
         """
         Add values of one channel for the given sample indices (any order).
 
@@ -235,12 +244,12 @@ class StreamAligner:
         self._values[slots[done]] = np.nan
         self._base = int(span[end - 1]) + 1
 
-    def flush(self):
+    def flush(self) -> None:
         """Give up waiting: emit every complete pending sample and lose the others."""
         if self._base is not None and self._newest is not None:
             self._collect(self._newest, force=True)
 
-    def pop_ready(self):
+    def pop_ready(self) -> tuple[np.ndarray, np.ndarray]:
         """
         Return ``(indices, values)`` of the complete samples emitted since the last call.
 
@@ -255,13 +264,110 @@ class StreamAligner:
         return indices, values
 
 
-def grid_indices(stamps_ns, sample_period_s, origin_ns):
+class SampleInbox:
+    """
+    Take values from message callbacks (any thread) until the processing step aligns them.
+
+    Parameters
+    ----------
+    channels : sequence of str
+        Channel names.
+    sample_period_s : float
+        The sample period [s]; timestamps are rounded to this grid.
+    align_by : str
+        ``'sequence'``: a value's index is its message's DDS publication sequence number
+        minus one (the n-th message published on each topic is sample n); ``'timestamp'``:
+        its DDS source timestamp on the grid (see :meth:`index_of_stamp`).
+
+    Attributes
+    ----------
+    last_seen : dict
+        Channel name -> :func:`time.monotonic` of its latest value.
+
+    """
+
+    def __init__(self, channels: Sequence[str], sample_period_s: float,
+                 align_by: str = 'sequence') -> None:
+        self.channels = tuple(channels)
+        self.sample_period_s = float(sample_period_s)
+        self.align_by = align_by
+        self.last_seen: dict[str, float] = {}
+        self._origin_ns: Optional[int] = None
+        self._lock = threading.Lock()
+        self._boxes: dict[str, tuple[list, list]] = self._empty()
+
+    def _empty(self) -> dict[str, tuple[list, list]]:
+        return {channel: ([], []) for channel in self.channels}
+
+    def index_of_stamp(self, stamp_ns: int) -> int:
+        """Sample index of a timestamp [ns] on the grid that starts at the first one seen."""
+        if self._origin_ns is None:
+            self._origin_ns = int(stamp_ns)
+        return int(grid_indices([stamp_ns], self.sample_period_s, self._origin_ns)[0])
+
+    def put_message(self, channel: str, value: float, info: Mapping[str, Any],
+                    by_timestamp: bool = False) -> None:
+        """
+        Put the value of one message with its DDS metadata ``info``.
+
+        ``info`` holds ``publication_sequence_number`` and ``source_timestamp`` or
+        ``received_timestamp`` [ns], as rclpy's ``take_message`` returns them;
+        ``by_timestamp`` places this channel by timestamp whatever ``align_by`` says.
+        """
+        sequence = info.get('publication_sequence_number')
+        if self.align_by == 'sequence' and not by_timestamp and sequence:
+            index = int(sequence) - 1
+        else:
+            index = self.index_of_stamp(info.get('source_timestamp') or
+                                        info['received_timestamp'])
+        self.put(channel, index, value)
+
+    def put(self, channel: str, index: int, value: float) -> None:
+        """Put one value of ``channel`` for sample ``index``."""
+        with self._lock:
+            self.last_seen[channel] = time.monotonic()
+            indices, values = self._boxes[channel]
+            indices.append(index)
+            values.append(value)
+
+    def put_block(self, channel: str, indices: np.ndarray, values: np.ndarray) -> None:
+        """Put values of ``channel`` for the sample ``indices``."""
+        with self._lock:
+            self.last_seen[channel] = time.monotonic()
+            store_indices, store_values = self._boxes[channel]
+            store_indices.append(indices)
+            store_values.append(values)
+
+    def put_times(self, time_s: np.ndarray, columns: Mapping[str, np.ndarray]) -> None:
+        """Put samples taken at ``time_s`` [s] (one grid instant each); NaN times are dropped."""
+        with np.errstate(invalid='ignore'):
+            indices = np.rint(np.asarray(time_s) / self.sample_period_s)
+        good = np.isfinite(indices)
+        indices = indices[good].astype(np.int64)
+        for channel, values in columns.items():
+            if channel in self.channels:
+                self.put_block(channel, indices, np.asarray(values)[good])
+
+    def drain_into(self, aligner: StreamAligner) -> None:
+        """Hand every value put so far to ``aligner``, channel by channel."""
+        with self._lock:
+            boxes, self._boxes = self._boxes, self._empty()
+        for channel, (indices, values) in boxes.items():
+            if not indices:
+                continue
+            if isinstance(indices[0], np.ndarray):
+                aligner.add_block(channel, np.concatenate(indices), np.concatenate(values))
+            else:
+                aligner.add_block(channel, indices, values)
+
+
+def grid_indices(stamps_ns: Any, sample_period_s: float, origin_ns: int) -> np.ndarray:
     """Nearest sample index ``round((stamp - origin) / dt)`` of every timestamp [ns]."""
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     return np.rint((stamps - np.int64(origin_ns)) / (sample_period_s * 1e9)).astype(np.int64)
 
 
-def contiguous_runs(indices):
+def contiguous_runs(indices: Any) -> list[slice]:
     """Split sorted sample indices into runs without gaps; return a list of slices."""
     indices = np.asarray(indices)
     if indices.size == 0:
@@ -272,7 +378,7 @@ def contiguous_runs(indices):
     return [slice(int(a), int(b)) for a, b in zip(starts, stops)]
 
 
-def estimate_period_ns(stamps_by_channel):
+def estimate_period_ns(stamps_by_channel: Mapping[str, Any]) -> float:
     """Median step of the timestamps over all channels [ns] (duplicates ignored)."""
     steps = []
     for stamps in stamps_by_channel.values():
@@ -285,7 +391,7 @@ def estimate_period_ns(stamps_by_channel):
     return float(np.median(np.concatenate(steps)))
 
 
-def refine_period_ns(stamps_by_channel, period_ns):
+def refine_period_ns(stamps_by_channel: Mapping[str, Any], period_ns: float) -> float:
     """
     Least-squares slope of the timestamps against their grid index [ns].
 
@@ -309,7 +415,9 @@ def refine_period_ns(stamps_by_channel, period_ns):
     return refined if abs(refined / period_ns - 1.0) < 0.01 else period_ns
 
 
-def align_timestamps(stamps_by_channel, values_by_channel, sample_period_s=None, source=''):
+def align_timestamps(stamps_by_channel: Mapping[str, Any], values_by_channel: Mapping[str, Any],
+                     sample_period_s: Optional[float] = None,
+                     source: str = '') -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """
     Pair the values of several channels by timestamp on one uniform grid.
 
@@ -376,8 +484,7 @@ def align_timestamps(stamps_by_channel, values_by_channel, sample_period_s=None,
     if common is None or common.size == 0:
         raise InputDataError(f'{name}: no instant has a value on every channel '
                              f'({", ".join(stamps_by_channel)}); check the topic names')
-    values = {}
-    for channel, (index, channel_values) in per_channel.items():
-        values[channel] = channel_values[np.searchsorted(index, common)]
+    aligned = {channel: channel_values[np.searchsorted(index, common)]
+               for channel, (index, channel_values) in per_channel.items()}
     stamps = origin + np.rint(common * period_ns).astype(np.int64)
-    return stamps, values
+    return stamps, aligned

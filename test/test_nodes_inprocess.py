@@ -158,6 +158,15 @@ def test_second_concurrent_identify_is_refused_and_the_node_lives_on(identified)
     assert any(r.success for r in responses)
 
 
+def test_result_parameters_cannot_be_set_from_outside(identified):
+    ident = identified['ident']
+    before = ident.get_parameter('identified.Ra').value
+    outcome, = ident.set_parameters([Parameter('identified.Ra', value=1.0)])
+    assert not outcome.successful and 'result of ~/identify' in outcome.reason
+    assert ident.get_parameter('identified.Ra').value == before
+    assert ident.set_parameters([Parameter('stream_timeout_s', value=2.0)])[0].successful
+
+
 def test_online_estimate_converges_near_the_truth(identified):
     status = identified['online'][-1]
     values = {kv.key: kv.value for kv in status.values}
@@ -174,7 +183,7 @@ def test_bag_recorded_by_the_node_gives_the_services_answer_in_the_cli(identifie
     for bag in bags:
         assert len(read_bag(bag)) >= 500
     out = tmp_path / 'cli.json'
-    discover = [] if ident.discover else ['--no-discover']
+    discover = [] if ident.settings.discover else ['--no-discover']
     assert cli_main(['identify', *bags, '--json', str(out)] + discover) == 0
     from_cli = json.loads(out.read_text())
     from_node = {key: ident.get_parameter(f'identified.{key}').value for key in RESULT_KEYS}
@@ -193,6 +202,10 @@ def test_identify_before_any_data_fails_clearly(ros, tmp_path):
 def test_nan_payloads_and_a_stopped_topic_leave_the_node_alive(ros, tmp_path):
     ident = identifier(ros, 'bad', tmp_path, stream_timeout_s=0.3, window_s=2.0)
     feeder = add(ros, rclpy.create_node('feeder', namespace='bad'))
+    streams = []
+    feeder.create_subscription(DiagnosticArray, '/diagnostics', lambda array: streams.extend(
+        status.message for status in array.status if status.hardware_id == '/bad/identifier'
+        and status.name == 'identifier: streams'), 50)
     publishers = {name: feeder.create_publisher(Float64, name, 1000)
                   for name in ('voltage', 'current', 'speed')}
     assert wait_for(lambda: all(p.get_subscription_count() for p in publishers.values()), 10)
@@ -205,11 +218,11 @@ def test_nan_payloads_and_a_stopped_topic_leave_the_node_alive(ros, tmp_path):
             time.sleep(0.01)
     assert wait_for(lambda: ident.aligner.stats.invalid >= 500, 10.0)
     # the topics stop: the node notices, keeps running and answers
-    assert wait_for(lambda: ident._stalled == {'voltage', 'current', 'speed'}, 5.0)
+    assert wait_for(lambda: streams and streams[-1] == 'stopped: current, speed, voltage', 5.0)
     response = call(feeder, 'identifier/identify')
     assert not response.success and 'not enough data' in response.message
     stats = ident.aligner.stats
-    assert stats.lost + stats.unmatched_at_start == 500 and ident.discarded_samples > 0
+    assert stats.lost + stats.unmatched_at_start == 500 and ident.cutter.discarded_samples > 0
     remove(ros, feeder, ident)
 
 
@@ -234,25 +247,21 @@ def test_lost_late_and_reordered_messages_land_on_their_samples(ros, tmp_path):
     for position, (_, name, sequence, value) in enumerate(messages):
         if position in lost:
             continue
-        ident._on_float64(name, Float64(data=float(value)),
-                          {'publication_sequence_number': sequence,
-                           'source_timestamp': 0})
+        ident.inbox.put_message(name, float(value), {'publication_sequence_number': sequence,
+                                                     'source_timestamp': 0})
         if position % 300 == 0:
-            ident._process()
-    ident._process()
-    ident.aligner.flush()
-    ident._consume(*ident.aligner.pop_ready())
+            ident.process()
+    ident.close()  # aligns the rest, gives up what is missing, closes the current window
     stats = ident.aligner.stats
     assert stats.reordered > 0 and stats.lost == len({messages[p][2] for p in lost})
-    ident._close_window('test')
-    assert sum(window.stamps_ns.size for window in ident._windows) > 7000
-    for window in ident._windows:
-        k = np.rint((window.stamps_ns - ident._anchor_ns) / 1e6).astype(int)
+    windows = ident.cutter.windows
+    assert sum(window.stamps_ns.size for window in windows) > 7000
+    for window in windows:
+        k = np.rint((window.stamps_ns - ident.cutter.anchor_ns) / 1e6).astype(int)
         np.testing.assert_array_equal(window.channels['voltage'], voltage[k])
         np.testing.assert_array_equal(window.channels['current'], current[k])
         np.testing.assert_array_equal(window.channels['speed'], speed[k])
     assert ident.estimator.estimate().converged
-    ident.close()
     ident.destroy_node()
 
 
@@ -274,6 +283,6 @@ def test_unwritable_or_full_record_dir_is_reported_and_identify_still_works(ros,
     response = call(probe, 'identifier/identify')
     assert response.success, response.message
     assert 'not recorded' in response.message
-    assert ident.record_error and ('cannot record' in ident.record_error or
-                                   'free' in ident.record_error)
+    record_error = ident.recorder.error
+    assert record_error and ('cannot record' in record_error or 'free' in record_error)
     remove(ros, probe, sim, ident)

@@ -19,6 +19,7 @@ from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.identifier import Identifier, RESULT_KEYS
 from dcmotor_id.nodes.replay import Replay
 from dcmotor_id.nodes.sim_motor import SimMotor
+from dcmotor_id.summary import format_line
 
 pytestmark = pytest.mark.ros
 
@@ -109,7 +110,7 @@ def test_replayed_bag_is_identified_on_its_own_clock(ros, tmp_path):
         time.sleep(1.5)
         assert ident.aligner.stats.emitted == voltage.size, ident.aligner.stats
         # the identifier's clock followed /clock: its samples carry the bag's time
-        assert abs(ident._anchor_ns - stamps[0]) < 0.2e9
+        assert abs(ident.cutter.anchor_ns - stamps[0]) < 0.2e9
         client = client_node.create_client(Trigger, '/replayed/identifier/identify')
         future = client.call_async(Trigger.Request())
         deadline = time.monotonic() + 120
@@ -237,8 +238,8 @@ def test_effects_are_reported_as_effect_keys_and_in_the_summary(ros, tmp_path):
                   'effects': [{'name': 'load_torque', 'parameters': {'torque_Nm': 0.25}},
                               {'name': 'backlash', 'parameters': {'side': 'both'}}],
                   'paper': None, 'bags': [], 'record_errors': []}
-        result['summary'] = ident._summary(result)
-        status = ident._result_status(result)
+        result['summary'] = format_line(result)
+        status = ident.result_status(result)
         values = {kv.key: kv.value for kv in status.values}
         assert values['effect.load_torque.torque_Nm'] == '0.25'
         assert values['effect.backlash.side'] == 'both'

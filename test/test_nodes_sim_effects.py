@@ -3,10 +3,13 @@
 import numpy as np
 import pytest
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray
 
 from dcmotor_id.io import decode_batch
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.nodes.common import sample_qos, spin_until as spin_executor_until
 from dcmotor_id.nodes.sim_motor import parse_effects, SimMotor
 from dcmotor_id.simulation import simulate_motor
 
@@ -20,17 +23,32 @@ def ros(ros_env):
     rclpy.try_shutdown()
 
 
+def spin_until(node, condition, timeout_s):
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        return spin_executor_until(executor, condition, timeout_s)
+    finally:
+        executor.shutdown()
+
+
 def published_samples(effects, count=2000):
-    """Run a sim_motor without noise, capture ``count`` batched samples, return them."""
+    """Run a sim_motor without noise, receive ``count`` batched samples, return them."""
     node = SimMotor(parameter_overrides=[
         Parameter('transport', value='batch'), Parameter('effects', value=effects),
         Parameter('noise_current_a', value=0.0), Parameter('noise_speed_rad_s', value=0.0),
         Parameter('signal', value='sine'), Parameter('amplitude_v', value=20.0)])
+    probe = rclpy.create_node('probe')
     sent = []
     try:
-        node._batch_publisher.publish = sent.append
-        node.publish_samples(count)
+        probe.create_subscription(Float64MultiArray, 'samples', sent.append,
+                                  sample_qos(5000, 'reliable'))
+        assert spin_until(probe, lambda: node.count_subscribers('samples') > 0, 10.0)
+        node.publish_samples(count)  # the node is not spun: no timer publishes besides
+        assert spin_until(probe, lambda: sum(m.layout.dim[1].size for m in sent) >= count,
+                          10.0)
     finally:
+        probe.destroy_node()
         node.destroy_node()
     rows = np.hstack([decode_batch([dim.label for dim in message.layout.dim],
                                    [dim.size for dim in message.layout.dim],

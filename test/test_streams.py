@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from dcmotor_id.errors import InputDataError
-from dcmotor_id.streams import align_timestamps, contiguous_runs, StreamAligner
+from dcmotor_id.streams import (align_timestamps, contiguous_runs, grid_indices, SampleInbox,
+                                StreamAligner)
 
 CHANNELS = ('voltage', 'current', 'speed')
 
@@ -176,3 +177,46 @@ def test_align_timestamps_refuses_stamps_off_any_grid():
         align_timestamps({'current': stamps, 'speed': stamps},
                          {'current': np.zeros(500), 'speed': np.zeros(500)},
                          sample_period_s=1e-3, source='x.mcap')
+
+
+def test_inbox_places_messages_by_sequence_number_or_by_timestamp():
+    inbox = SampleInbox(CHANNELS, 1e-3, align_by='sequence')
+    aligner = StreamAligner(CHANNELS, max_delay_samples=10)
+    for sequence in (3, 1, 2):  # reordered on the way
+        for name, value in values_of(sequence - 1).items():
+            inbox.put_message(name, float(value), {'publication_sequence_number': sequence,
+                                                   'source_timestamp': 123})
+    assert set(inbox.last_seen) == set(CHANNELS)
+    inbox.drain_into(aligner)
+    indices, values = drain(aligner)
+    assert indices.tolist() == [0, 1, 2]
+    assert values[:, 1].tolist() == [1000.0, 1001.0, 1002.0]
+    # by timestamp: on the grid that starts at the first stamp seen (one origin for all)
+    inbox = SampleInbox(CHANNELS, 1e-3, align_by='timestamp')
+    inbox.put_message('voltage', 1.0, {'publication_sequence_number': 7,
+                                       'source_timestamp': 10_000_000})
+    inbox.put_message('speed', 1.0, {'received_timestamp': 12_000_400})
+    assert inbox.index_of_stamp(10_499_999) == 0 and inbox.index_of_stamp(13_000_000) == 3
+    # a channel placed by timestamp although the others go by sequence number
+    inbox = SampleInbox(CHANNELS, 1e-3)
+    inbox.put_message('voltage', 1.0, {'publication_sequence_number': 7,
+                                       'source_timestamp': 5_000_000}, by_timestamp=True)
+    aligner = StreamAligner(CHANNELS, max_delay_samples=10)
+    inbox.drain_into(aligner)
+    assert aligner.first_index == 0
+    assert grid_indices([5_000_000, 7_000_000], 1e-3, 5_000_000).tolist() == [0, 2]
+
+
+def test_inbox_takes_blocks_by_time_and_drops_nan_times():
+    inbox = SampleInbox(('current', 'speed'), 1e-3)
+    time_s = np.array([0.0, 1e-3, np.nan, 3e-3])
+    inbox.put_times(time_s, {'voltage': np.zeros(4), 'current': np.arange(4.0),
+                             'speed': -np.arange(4.0)})
+    aligner = StreamAligner(('current', 'speed'), max_delay_samples=10)
+    inbox.drain_into(aligner)
+    indices, values = drain(aligner)
+    assert indices.tolist() == [0, 1, 3]
+    assert values.tolist() == [[0.0, -0.0], [1.0, -1.0], [3.0, -3.0]]
+    assert set(inbox.last_seen) == {'current', 'speed'}
+    inbox.drain_into(aligner)  # nothing new
+    assert drain(aligner)[0].size == 0

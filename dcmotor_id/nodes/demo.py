@@ -1,11 +1,13 @@
 """
-``make demo``: the real node graph: sim_motor and identifier as processes, then ~/identify.
+The ROS demo (``make demo``): sim_motor and identifier as processes, then ``~/identify``.
 
 Starts the two executables with the package's parameter files, lets the identifier record
 for ``--record-s`` seconds (printing the online estimate as it converges), calls
 ``/identifier/identify`` and prints the identified parameters against the simulated motor's,
 the paper method's for comparison, the online estimate and where the window bags are.
 """
+
+from __future__ import annotations
 
 import argparse
 import os
@@ -14,6 +16,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from typing import Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import rclpy
@@ -28,7 +31,7 @@ KEYS = PARAMETER_NAMES + DERIVED_NAMES
 
 
 def _config(name):
-    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     path = os.path.join(here, 'config', f'{name}.yaml')
     return ['--params-file', path] if os.path.isfile(path) else []
 
@@ -44,7 +47,7 @@ def _values(status):
     return {kv.key: kv.value for kv in status.values}
 
 
-def run_demo(record_s=12.0, record_dir=None):
+def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
     """Run the demo; return the exit code."""
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
@@ -65,7 +68,9 @@ def run_demo(record_s=12.0, record_dir=None):
     node = rclpy.create_node('dcmotor_id_demo')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    online, latched, diagnostics = [], [], []
+    online: list[DiagnosticStatus] = []
+    latched: list[DiagnosticStatus] = []
+    diagnostics: list[DiagnosticArray] = []
     node.create_subscription(DiagnosticStatus, '/identifier/online_parameters', online.append,
                              10)
     node.create_subscription(DiagnosticStatus, '/identifier/parameters', latched.append,
@@ -141,7 +146,7 @@ def run_demo(record_s=12.0, record_dir=None):
         logs.close()
 
 
-def main(argv=None):
+def main(argv: Optional[list[str]] = None) -> int:
     """Parse the options and run the demo."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[1])
     parser.add_argument('--record-s', type=float, default=12.0,

@@ -1,0 +1,67 @@
+"""The identifier node's parameters as one typed dataclass: names, defaults, ranges, texts."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Optional, Sequence
+
+from dcmotor_id.identify import METHODS
+
+INPUTS = ('float64', 'batch', 'joint_state')
+
+
+def parameter(default: Any, description: str, low: Optional[float] = None,
+              high: Optional[float] = None, choices: Optional[Sequence[str]] = None) -> Any:
+    """Describe one ROS parameter: its default, description, range and choices."""
+    return field(default=default, metadata={'description': description, 'low': low,
+                                            'high': high, 'choices': choices})
+
+
+@dataclass(frozen=True)
+class IdentifierSettings:
+    """The settings of the ``identifier`` node, one field per ROS parameter."""
+
+    input: str = parameter('float64', 'float64, batch or joint_state',  # noqa: A003
+                           choices=INPUTS)
+    sample_rate_hz: float = parameter(1000.0, 'sample rate of the drive [Hz]', 1.0, 1e6)
+    align_by: str = parameter('sequence', 'float64 input: sequence (DDS publication sequence '
+                              'number) or timestamp (DDS source timestamp)',
+                              choices=('sequence', 'timestamp'))
+    max_delay_s: float = parameter(0.5, 'how long a sample waits for a late channel before it '
+                                   'is counted as lost [s]', 0.0)
+    qos_depth: int = parameter(5000, 'history depth of the sample topics', 1)
+    qos_reliability: str = parameter('reliable', 'reliable or best_effort',
+                                     choices=('reliable', 'best_effort'))
+    joint_name: str = parameter('', 'joint_state input: joint to use ("" = the first)')
+    effort_scale: float = parameter(1.0, 'joint_state input: current = effort_scale * effort '
+                                    '[A]')
+    torque_constant: float = parameter(0.0, '> 0: mechanical-only mode, torque = K current '
+                                       '[N m/A]; identifies J, b, Mc without voltage', 0.0)
+    window_s: float = parameter(10.0, 'length of a recorded window and of the data identified '
+                                '[s]', 0.01)
+    min_window_s: float = parameter(0.5, 'runs of samples shorter than this (cut by lost '
+                                    'samples) are dropped, neither recorded nor identified '
+                                    '[s]', 0.0)
+    record: bool = parameter(True, 'write every window as an MCAP bag')
+    record_dir: str = parameter('~/.ros/dcmotor_id/windows', 'directory of the window bags')
+    disk_budget_mb: float = parameter(200.0, 'oldest windows are deleted beyond this [MiB]',
+                                      0.0)
+    min_free_mb: float = parameter(16.0, 'keep this much of the file system free [MiB]', 0.0)
+    record_format: str = parameter('auto', 'float64 (three topics), batch (samples) or auto '
+                                   '(as the input)', choices=('auto', 'float64', 'batch'))
+    method: str = parameter('refined', 'identification method', choices=tuple(METHODS))
+    compare_paper: bool = parameter(True, 'also run the paper method and report it')
+    discover: bool = parameter(True, 'run the residual analysis / effect discovery')
+    identify_in_subprocess: bool = parameter(True, 'fit in a separate process (keeps the '
+                                             'executor at full rate during a fit)')
+    online: bool = parameter(True, 'run the recursive online estimator')
+    online_rate_hz: float = parameter(2.0, 'rate of ~/online_parameters [Hz]', 0.01, 1e3)
+    online_memory_s: float = parameter(10.0, 'forgetting time constant of the online estimate '
+                                       '[s]', 1e-3)
+    online_converged_rel_stderr: float = parameter(0.05, 'relative standard error below '
+                                                   'which the online estimate counts as '
+                                                   'converged', 0.0)
+    stream_timeout_s: float = parameter(1.0, 'a topic silent this long counts as stopped [s]',
+                                        0.01)
+    process_rate_hz: float = parameter(50.0, 'rate at which received samples are aligned '
+                                       '[Hz]', 1.0)

@@ -1,0 +1,133 @@
+"""
+The text summary of an identification result: the CLI's table, the node's line and key-values.
+
+One result (the dict of :func:`dcmotor_id.identify.identify`) is rendered three ways, all from
+here: :func:`format_table` for ``dcmotor-id identify``, :func:`format_line` for the answer of
+the identifier node's ``~/identify``, and :func:`result_key_values` (and
+:func:`online_key_values` for the online estimate) for its ``DiagnosticStatus`` messages.
+Key-values carry numbers at full precision (:func:`format_value`), the texts at a few digits.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+from dcmotor_id.model import DERIVED_NAMES, PARAMETER_NAMES, UNITS
+
+#: Keys of the result, in order.
+RESULT_KEYS = PARAMETER_NAMES + DERIVED_NAMES
+
+KeyValues = list[tuple[str, str]]
+
+
+def format_value(value: Any) -> str:
+    """Full-precision text of a number (``nan`` for None; other values as they print)."""
+    if value is None:
+        return 'nan'
+    if isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool):
+        return repr(float(value))
+    return str(value)
+
+
+def format_errors(errors: Mapping[str, Any]) -> str:
+    """Render simulation errors per channel: ``current 1.2 %, speed 0.8 %`` (None left out)."""
+    return ', '.join(f"{key.split('_')[0]} {value:.3g} %" for key, value in errors.items()
+                     if value is not None)
+
+
+def format_table(result: Mapping[str, Any]) -> str:
+    """Render a result dict as a readable table (the output of ``dcmotor-id identify``)."""
+    lines = [f"method: {result['method']}   mode: {result['mode']}   records: "
+             f"{len(result['records'])}   samples: {result['n_samples']}   "
+             f"dt: {result['sample_period_s']:.6g} s"]
+    lines.append(f"{'parameter':<10}{'value':>16}{'stderr':>14}{'rel.':>10}  unit")
+    for name, value in result['parameters'].items():
+        err = result['stderr'].get(name, float('nan'))
+        rel = abs(err / value) * 100 if value else float('nan')
+        lines.append(f'{name:<10}{value:>16.6g}{err:>14.3g}{rel:>9.3g}%  '
+                     f"{result['units'].get(name, '')}")
+    for effect in result.get('effects', []):
+        parameters = ', '.join(f'{key} = {value:.4g}' if isinstance(value, float) else
+                               f'{key} = {value}' for key, value in
+                               effect['parameters'].items())
+        lines.append(f"effect {effect['name']}: {parameters}")
+    lines.append(f"simulation error before: {format_errors(result['error_before'])}")
+    lines.append(f"simulation error after:  {format_errors(result['error_after'])}")
+    if result.get('unexplained'):
+        lines.append('structure remains in the residual that no candidate effect explains')
+    return '\n'.join(lines)
+
+
+def format_line(result: Mapping[str, Any]) -> str:
+    """
+    Render a result as one line (the answer of ``~/identify``).
+
+    Besides the keys of :func:`~dcmotor_id.identify.identify` it reads ``paper`` (the paper
+    method's result, or why it failed), ``bags`` and ``record_errors`` when present.
+    """
+    values = result['parameters']
+    text = f"{result['method']}: " + ', '.join(
+        f'{key}={values[key]:.5g} {UNITS[key]}' for key in RESULT_KEYS if key in values)
+    text += f" ({format_errors(result['error_after'])}; {result['n_samples']} samples in " \
+        f"{len(result['records'])} window(s))"
+    effects = result.get('effects') or []
+    if effects:
+        text += '; effects: ' + '; '.join(
+            effect['name'] + ' ' + ', '.join(
+                f'{k}={v:.4g}' if isinstance(v, (int, float)) else f'{k}={v}'
+                for k, v in effect['parameters'].items())
+            for effect in effects)
+    paper = result.get('paper')
+    if isinstance(paper, dict):
+        text += '; paper: ' + ', '.join(
+            f"{key}={paper['parameters'][key]:.5g}" for key in RESULT_KEYS
+            if key in paper['parameters'])
+    elif paper:
+        text += f'; paper failed: {paper}'
+    if result.get('bags'):
+        text += '; bags: ' + ', '.join(result['bags'])
+    if result.get('record_errors'):
+        text += '; not recorded: ' + '; '.join(result['record_errors'])
+    return text
+
+
+def parameter_key_values(parameters: Mapping[str, Any]) -> KeyValues:
+    """Key-values of the :data:`RESULT_KEYS` of ``parameters`` (nan where missing)."""
+    return [(key, format_value(parameters.get(key, math.nan))) for key in RESULT_KEYS]
+
+
+def result_key_values(result: Mapping[str, Any]) -> KeyValues:
+    """
+    Key-values of a result (the ``~/parameters`` message).
+
+    Every key of :data:`RESULT_KEYS`, then ``<key>_stderr``, then
+    ``effect.<name>.<parameter>`` of the effects found (nan for a value the result lacks).
+    """
+    stderr = result['stderr']
+    pairs = parameter_key_values(result['parameters'])
+    pairs += [(f'{key}_stderr', format_value(stderr.get(key, math.nan)))
+              for key in RESULT_KEYS]
+    for effect in result.get('effects') or []:
+        pairs += [(f"effect.{effect['name']}.{name}", format_value(value))
+                  for name, value in effect['parameters'].items()]
+    return pairs
+
+
+def online_key_values(estimate: Any) -> KeyValues:
+    """
+    Key-values of an online estimate (:meth:`dcmotor_id.online.OnlineEstimator.estimate`).
+
+    Parameters and ``<key>_stderr`` as in :func:`result_key_values`, then ``converged``
+    (``true``/``false``), ``innovation_rms_current_A``, ``innovation_rms_speed_rad_s`` and
+    ``n_updates``.
+    """
+    pairs = [(key, format_value(estimate.parameters[key])) for key in RESULT_KEYS]
+    pairs += [(f'{key}_stderr', format_value(estimate.stderr[key])) for key in RESULT_KEYS]
+    return pairs + [
+        ('converged', str(estimate.converged).lower()),
+        ('innovation_rms_current_A', format_value(estimate.innovation_rms['current'])),
+        ('innovation_rms_speed_rad_s', format_value(estimate.innovation_rms['speed'])),
+        ('n_updates', str(estimate.n_updates))]
