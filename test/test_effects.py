@@ -5,7 +5,7 @@ import pytest
 
 from dcmotor_id.effects import (EFFECTS, EXTENDED_VOCABULARY, make_effect, parse_effect,
                                 SensorDelay, shaft_angle, VOCABULARY)
-from dcmotor_id.estimators.refined import StateTerm
+from dcmotor_id.estimators.base import StateTerm
 from dcmotor_id.excitation import make_excitation
 from dcmotor_id.io import Record
 from dcmotor_id.model import PAPER_MOTORS, state_matrix
@@ -37,7 +37,7 @@ def test_vocabulary_has_the_issue_names_and_describes_itself():
 def test_make_and_parse_effects():
     effect = parse_effect('sensor_delay:channel=current,samples=2')
     assert effect.parameters == {'channel': 'current', 'samples': 2}
-    assert effect.motor_effects() == {'current_delay_samples': 2}
+    assert effect.motor_effects() == MotorEffects(current_delay_samples=2)
     assert make_effect('load_torque', torque_Nm=0.5).describe() == {
         'name': 'load_torque', 'parameters': {'torque_Nm': 0.5}}
     with pytest.raises(ValueError, match='unknown effect'):
