@@ -7,6 +7,8 @@ each value over its sample (ZOH).  Units: V, s, Hz.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy import signal
@@ -15,8 +17,8 @@ from scipy import signal
 EXCITATION_KINDS = ('sine', 'sawtooth', 'prbs', 'chirp', 'multisine', 'paper')
 
 #: The paper's training excitations: N1 with a 0.5 Hz 110 V sine, N2 with a 1 Hz 43 V sawtooth.
-PAPER_SINE = {'kind': 'sine', 'amplitude_v': 110.0, 'frequency_hz': 0.5}
-PAPER_SAWTOOTH = {'kind': 'sawtooth', 'amplitude_v': 43.0, 'frequency_hz': 1.0}
+PAPER_SINE: dict[str, Any] = {'kind': 'sine', 'amplitude_v': 110.0, 'frequency_hz': 0.5}
+PAPER_SAWTOOTH: dict[str, Any] = {'kind': 'sawtooth', 'amplitude_v': 43.0, 'frequency_hz': 1.0}
 
 
 def sample_times(duration_s: float, sample_period_s: float) -> np.ndarray:

@@ -213,8 +213,8 @@ class OnlineEstimator:
         self._theta = np.zeros((_N_REGRESSORS, 2))
         self._cov = np.eye(_N_REGRESSORS) * self._initial_covariance
         self._err_sq = np.zeros(2)
-        self._scale = None
-        self._last = None
+        self._scale: np.ndarray | None = None
+        self._last: tuple[float, float, float] | None = None
         self.n_updates = 0
 
     def break_continuity(self) -> None:

@@ -86,7 +86,7 @@ class StateTerm(ExogenousTerm):
 
     def contribution(self, value: float) -> MotorEffects:
         """Return the term's contribution to the simulation with coefficient ``value``."""
-        return MotorEffects(**{self.field: value}, **dict(self.fixed))
+        return MotorEffects(**{self.field: value, **dict(self.fixed)})
 
     def fields(self) -> frozenset[str]:
         """Return the MotorEffects fields the term sets."""

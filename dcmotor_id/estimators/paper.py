@@ -93,7 +93,6 @@ class PaperEstimator:
         if terms:
             raise FitError('the paper method has no effect terms; use the refined method')
         dt = records[0].sample_period_s
-        mechanical_only = torque_constant is not None
         n2_set = self.n2_records if self.n2_records is not None else range(len(records))
         n2_in, n2_out = [], []
         for index in n2_set:
@@ -103,17 +102,16 @@ class PaperEstimator:
             n2_out.append(rec.speed[1:])
         v, cov_v = _train_neuron(np.vstack(n2_in), np.concatenate(n2_out))
         info = {'sample_period_s': dt, 'n2_weights': v.tolist()}
-        if mechanical_only:
+        if torque_constant is not None:
             cphi = float(torque_constant)
 
             def mech(weights):
                 j = cphi * dt / weights[0]
                 return [j, (1.0 - weights[1]) * j / dt, -weights[2] * j / dt]
             values, cov = _propagate(mech, v, cov_v)
-            names = MECHANICAL_NAMES
-            stderr = np.sqrt(np.maximum(np.diag(cov), 0.0))
-            return Estimate(self.name, dict(zip(names, map(float, values))),
-                            dict(zip(names, map(float, stderr))),
+            spread = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            return Estimate(self.name, dict(zip(MECHANICAL_NAMES, map(float, values))),
+                            dict(zip(MECHANICAL_NAMES, map(float, spread))),
                             [(float(rec.speed[0]),) for rec in records], info)
         n1_set = self.n1_records if self.n1_records is not None else range(len(records))
         n1_in, n1_out = [], []

@@ -23,7 +23,7 @@ Why this design (bench/README.md has the numbers):
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, cast, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -108,7 +108,7 @@ class OutputErrorModel:
         return total
 
     def simulate(self, values: Mapping[str, float], index: int,
-                 initial_state: Sequence[float]) -> dict[str, np.ndarray]:
+                 initial_state: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
         """Simulate record ``index``; return a dict of output arrays (current, speed)."""
         rec = self.records[index]
         dt = self.sample_periods_s[index]
@@ -116,7 +116,8 @@ class OutputErrorModel:
         effects, substeps = self._state_effects(values)
         delta = effects.coulomb_delta_Nm
         if self.mechanical_only:
-            torque = self.torque_constant * self.held_currents[index]
+            held = cast(np.ndarray, self.held_currents[index])
+            torque = cast(float, self.torque_constant) * held
             if extra_torque is not None:
                 torque = torque + extra_torque
             if substeps:
@@ -238,17 +239,18 @@ class RefinedEstimator:
         # Base parameters are fitted as logarithms (positive, relative steps); term
         # coefficients and initial states as multiples of their typical magnitude.
         floor = {name: 1e-9 * max(start_base.values()) for name in model.base_names}
-        z0 = [np.log(max(start_base[name], floor[name], 1e-300)) for name in model.base_names]
-        scales = [1.0] * n_base + [term.scale for term in model.terms]
-        z0 += [term.initial / term.scale for term in model.terms]
+        start = [np.log(max(start_base[name], floor[name], 1e-300))
+                 for name in model.base_names]
+        magnitudes = [1.0] * n_base + [term.scale for term in model.terms]
+        start += [term.initial / term.scale for term in model.terms]
         for rec in records:
             for channel in model.outputs:
                 values = getattr(rec, channel)
                 scale = max(float(np.std(values)), 1e-9)
-                scales.append(scale)
-                z0.append(float(values[0]) / scale)
-        scales = np.array(scales)
-        z0 = np.array(z0)
+                magnitudes.append(scale)
+                start.append(float(values[0]) / scale)
+        scales = np.array(magnitudes)
+        z0 = np.array(start)
         # Noise level per record and channel (records may come from different sensors or
         # ranges); the first pass weights by 1 % of the pooled spread, later passes by the
         # residual level, which makes the fit the Gaussian maximum-likelihood estimate.

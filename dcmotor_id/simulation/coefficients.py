@@ -105,7 +105,7 @@ def combine_contributions(parts: Iterable[MotorEffects]) -> MotorEffects:
                 total[position] += value
             elif value != _DEFAULTS[position]:
                 total[position] = value
-    return normalised(MotorEffects(*total))
+    return normalised(MotorEffects._make(total))
 
 
 EffectsLike = Union[None, MotorEffects, Iterable[Any]]
@@ -123,6 +123,7 @@ def combine_effects(effects: EffectsLike) -> MotorEffects:
         return _DEFAULTS
     if isinstance(effects, MotorEffects):
         return normalised(effects)
+    items: Iterable[Any] = effects
     return combine_contributions(
         effect if isinstance(effect, MotorEffects) else effect.motor_effects()
-        for effect in effects)
+        for effect in items)

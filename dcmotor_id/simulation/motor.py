@@ -93,7 +93,7 @@ def motor_forcing(params: MotorParameters, voltage: ArrayLike,
 
 
 def simulate_motor(params: MotorParameters, voltage: ArrayLike, sample_period_s: float,
-                   initial_state: Sequence[float] = (0.0, 0.0),
+                   initial_state: Sequence[float] | np.ndarray = (0.0, 0.0),
                    extra_voltage: ArrayLike | None = None,
                    extra_torque: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """
@@ -164,7 +164,8 @@ def _delayed(values: np.ndarray, samples: int) -> np.ndarray:
 
 
 def simulate_motor_effects(params: MotorParameters, voltage: ArrayLike, sample_period_s: float,
-                           effects: EffectsLike, initial_state: Sequence[float] = (0.0, 0.0),
+                           effects: EffectsLike,
+                           initial_state: Sequence[float] | np.ndarray = (0.0, 0.0),
                            extra_voltage: ArrayLike | None = None,
                            extra_torque: ArrayLike | None = None, oversample: int = 10,
                            initial_angle_rad: float = 0.0
@@ -258,7 +259,8 @@ class MotorStepper:
     """
 
     def __init__(self, params: MotorParameters, sample_period_s: float,
-                 initial_state: Sequence[float] = (0.0, 0.0), effects: EffectsLike = None,
+                 initial_state: Sequence[float] | np.ndarray = (0.0, 0.0),
+                 effects: EffectsLike = None,
                  oversample: int = 10) -> None:
         self.params = params
         self.sample_period_s = float(sample_period_s)
