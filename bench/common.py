@@ -14,10 +14,10 @@ import numba
 import numpy as np
 import scipy
 
-from dcmotor_id.demo import paper_records
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import RefinedEstimator
 from dcmotor_id.model import relative_errors_pct
+from dcmotor_id.simulation.scenarios import paper_records
 
 #: Parameters in the order of the paper's Tables 2-3.
 TABLE_NAMES = ('La', 'Ra', 'CPhi', 'Ka', 'Ta', 'J', 'b', 'Mc')

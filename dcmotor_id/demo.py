@@ -5,34 +5,10 @@ from __future__ import annotations
 import time
 from typing import Any
 
-import numpy as np
-
 from dcmotor_id.estimators.paper import PaperEstimator
-from dcmotor_id.excitation import add_sensor_noise, make_excitation, PAPER_SAWTOOTH, PAPER_SINE
 from dcmotor_id.identify import identify
-from dcmotor_id.io import Record
-from dcmotor_id.model import (DERIVED_NAMES, MotorParameters, PAPER_MOTORS, PARAMETER_NAMES,
-                              UNITS)
-from dcmotor_id.simulation import simulate_motor
-
-SAMPLE_PERIOD_S = 1e-4
-DURATION_S = 4.0
-
-
-def paper_records(params: MotorParameters, noise: float, seed: int = 0,
-                  sample_period_s: float = SAMPLE_PERIOD_S,
-                  duration_s: float = DURATION_S) -> list[Record]:
-    """Simulate the paper's two training sets (sine for N1, sawtooth for N2) with noise."""
-    rng = np.random.default_rng(seed)
-    records = []
-    for spec in (PAPER_SINE, PAPER_SAWTOOTH):
-        t, voltage = make_excitation(spec['kind'], duration_s, sample_period_s,
-                                     amplitude_v=spec['amplitude_v'],
-                                     frequency_hz=spec['frequency_hz'])
-        current, speed = simulate_motor(params, voltage, sample_period_s)
-        records.append(Record(t, add_sensor_noise(current, noise, rng), voltage,
-                              add_sensor_noise(speed, noise, rng), source=spec['kind']))
-    return records
+from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
+from dcmotor_id.simulation.scenarios import DURATION_S, paper_records, SAMPLE_PERIOD_S
 
 
 def _table(truth, results):

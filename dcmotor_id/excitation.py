@@ -1,22 +1,27 @@
 """
-Excitation signals (armature voltage) and sensor models.
+Excitation signals (armature voltage) and the sensor models: noise and quantisation.
 
 Every generator returns the voltage at the sample instants ``t_k = k dt``; the simulator holds
 each value over its sample (ZOH).  Units: V, s, Hz.
 """
 
+from __future__ import annotations
+
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import signal
 
 #: Names accepted by :func:`make_excitation` (and the CLI's ``--excitation``).
 EXCITATION_KINDS = ('sine', 'sawtooth', 'prbs', 'chirp', 'multisine', 'paper')
 
 #: The paper's training excitations: N1 with a 0.5 Hz 110 V sine, N2 with a 1 Hz 43 V sawtooth.
-PAPER_SINE = {'kind': 'sine', 'amplitude_v': 110.0, 'frequency_hz': 0.5}
-PAPER_SAWTOOTH = {'kind': 'sawtooth', 'amplitude_v': 43.0, 'frequency_hz': 1.0}
+PAPER_SINE: dict[str, Any] = {'kind': 'sine', 'amplitude_v': 110.0, 'frequency_hz': 0.5}
+PAPER_SAWTOOTH: dict[str, Any] = {'kind': 'sawtooth', 'amplitude_v': 43.0, 'frequency_hz': 1.0}
 
 
-def sample_times(duration_s, sample_period_s):
+def sample_times(duration_s: float, sample_period_s: float) -> np.ndarray:
     """Return ``t_k = k dt`` for ``0 <= t_k < duration_s``."""
     if sample_period_s <= 0 or duration_s <= 0:
         raise ValueError('duration and sample period must be positive')
@@ -24,8 +29,10 @@ def sample_times(duration_s, sample_period_s):
     return np.arange(n_samples) * sample_period_s
 
 
-def make_excitation(kind, duration_s, sample_period_s, amplitude_v=None, frequency_hz=None,
-                    offset_v=0.0, seed=0, max_frequency_hz=None):
+def make_excitation(kind: str, duration_s: float, sample_period_s: float,
+                    amplitude_v: float | None = None, frequency_hz: float | None = None,
+                    offset_v: float = 0.0, seed: int = 0,
+                    max_frequency_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """
     Generate an armature-voltage excitation.
 
@@ -98,7 +105,8 @@ def make_excitation(kind, duration_s, sample_period_s, amplitude_v=None, frequen
     return t, u + offset_v
 
 
-def add_sensor_noise(values, relative, rng):
+def add_sensor_noise(values: ArrayLike, relative: float,
+                     rng: np.random.Generator) -> np.ndarray:
     """Add white Gaussian noise of standard deviation ``relative * std(values)``."""
     values = np.asarray(values, dtype=float)
     if relative <= 0:
@@ -106,7 +114,7 @@ def add_sensor_noise(values, relative, rng):
     return values + rng.normal(0.0, relative * np.std(values), size=values.shape)
 
 
-def quantise(values, step):
+def quantise(values: ArrayLike, step: float | None) -> np.ndarray:
     """Round to a multiple of ``step`` (an ADC or encoder resolution); ``step <= 0``: no-op."""
     values = np.asarray(values, dtype=float)
     if step is None or step <= 0:

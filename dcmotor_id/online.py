@@ -30,14 +30,18 @@ accurate one. The online estimate tracks slow changes and tells whether the data
 motor.
 """
 
+from __future__ import annotations
+
 import cmath
 from dataclasses import dataclass, field
 import math
 
 from numba import njit
 import numpy as np
+from numpy.typing import ArrayLike
 
-from dcmotor_id.model import DERIVED_NAMES, PARAMETER_NAMES
+from dcmotor_id.estimators.jacobian import jacobian
+from dcmotor_id.model import DERIVED_NAMES, derived_values, is_admissible, PARAMETER_NAMES
 
 #: Names reported, in order.
 NAMES = PARAMETER_NAMES + DERIVED_NAMES
@@ -86,7 +90,7 @@ def _rls_block(phi, target, use, theta, cov, forgetting, trace_cap, err_sq):
     return n_used
 
 
-def log2x2(matrix):
+def log2x2(matrix: np.ndarray) -> np.ndarray | None:
     """
     Return the real principal logarithm of a real 2x2 matrix, or None if it has none.
 
@@ -110,7 +114,7 @@ def log2x2(matrix):
     return np.real(result)
 
 
-def physical_from_discrete(theta, sample_period_s):
+def physical_from_discrete(theta: ArrayLike, sample_period_s: float) -> dict[str, float]:
     """
     Physical parameters from the neuron weights ``theta`` (4x2, columns di and dw).
 
@@ -140,8 +144,8 @@ def physical_from_discrete(theta, sample_period_s):
         cphi = -a_matrix[0, 1] * la
         inertia = cphi / a_matrix[1, 0]
         values = {'Ra': ra, 'La': la, 'CPhi': cphi, 'J': inertia,
-                  'b': -a_matrix[1, 1] * inertia, 'Mc': -b_s[1] * inertia,
-                  'Ka': 1.0 / ra, 'Ta': la / ra}
+                  'b': -a_matrix[1, 1] * inertia, 'Mc': -b_s[1] * inertia}
+        values.update(derived_values(values))
     return {name: float(value) for name, value in values.items()}
 
 
@@ -191,8 +195,8 @@ class OnlineEstimator:
 
     """
 
-    def __init__(self, sample_period_s, memory_s=10.0, converged_rel_stderr=0.05,
-                 initial_covariance=1e4):
+    def __init__(self, sample_period_s: float, memory_s: float = 10.0,
+                 converged_rel_stderr: float = 0.05, initial_covariance: float = 1e4) -> None:
         if not sample_period_s > 0:
             raise ValueError('sample_period_s must be positive')
         if not memory_s > 0:
@@ -204,20 +208,20 @@ class OnlineEstimator:
         self._initial_covariance = float(initial_covariance)
         self.reset()
 
-    def reset(self):
+    def reset(self) -> None:
         """Forget everything."""
         self._theta = np.zeros((_N_REGRESSORS, 2))
         self._cov = np.eye(_N_REGRESSORS) * self._initial_covariance
         self._err_sq = np.zeros(2)
-        self._scale = None
-        self._last = None
+        self._scale: np.ndarray | None = None
+        self._last: tuple[float, float, float] | None = None
         self.n_updates = 0
 
-    def break_continuity(self):
+    def break_continuity(self) -> None:
         """Declare a gap: the next sample is not the successor of the last one."""
         self._last = None
 
-    def update(self, voltage, current, speed):
+    def update(self, voltage: ArrayLike, current: ArrayLike, speed: ArrayLike) -> int:
         """Feed consecutive samples (arrays of equal length, continuing the previous call)."""
         voltage = np.asarray(voltage, dtype=float).ravel()
         current = np.asarray(current, dtype=float).ravel()
@@ -251,7 +255,7 @@ class OnlineEstimator:
     def _weights(self, scaled_theta):
         return scaled_theta / self._scale[:, None]
 
-    def estimate(self):
+    def estimate(self) -> OnlineEstimate:
         """Return the current :class:`OnlineEstimate` (parameters, stderr, convergence)."""
         rms = {'current': float(np.sqrt(self._err_sq[0])),
                'speed': float(np.sqrt(self._err_sq[1]))}
@@ -265,15 +269,14 @@ class OnlineEstimator:
             # delta method over the 8 weights; each neuron's covariance is P * its noise var
             flat = theta.ravel(order='F')
             base = np.array([values[name] for name in NAMES])
-            jac = np.empty((len(NAMES), flat.size))
-            for column in range(flat.size):
-                step = 1e-6 * max(abs(flat[column]), 1e-9)
-                shifted = flat.copy()
-                shifted[column] += step
+
+            def physical(weights: np.ndarray) -> np.ndarray:
                 moved = physical_from_discrete(
-                    self._weights(shifted.reshape(theta.shape, order='F')),
+                    self._weights(weights.reshape(theta.shape, order='F')),
                     self.sample_period_s)
-                jac[:, column] = (np.array([moved[name] for name in NAMES]) - base) / step
+                return np.array([moved[name] for name in NAMES])
+            jac = jacobian(physical, flat, 1e-6 * np.maximum(np.abs(flat), 1e-9),
+                           central=False, f0=base)
             # cov(theta) of one neuron ~ P * its innovation variance (slightly conservative
             # with forgetting: the exact factor tends to 1/2 as the memory grows)
             covariance = np.zeros((flat.size, flat.size))
@@ -287,13 +290,13 @@ class OnlineEstimator:
         return OnlineEstimate(values, stderr, converged, rms, self.n_updates)
 
 
-def _is_converged(values, stderr, threshold):
+def _is_converged(values: dict[str, float], stderr: dict[str, float],
+                  threshold: float) -> bool:
+    """Admissible parameters (:func:`dcmotor_id.model.is_admissible`), each well determined."""
+    if not is_admissible(values):
+        return False
     for name in PARAMETER_NAMES:
-        value, error = values[name], stderr[name]
-        if not (np.isfinite(value) and np.isfinite(error)):
-            return False
-        if value < 0 or (value == 0 and name in ('Ra', 'La', 'CPhi', 'J')):
-            return False
-        if error > threshold * abs(value):
+        error = stderr[name]
+        if not np.isfinite(error) or error > threshold * abs(values[name]):
             return False
     return True

@@ -5,13 +5,15 @@ import pytest
 
 from dcmotor_id.effects import (EFFECTS, EXTENDED_VOCABULARY, make_effect, parse_effect,
                                 SensorDelay, shaft_angle, VOCABULARY)
-from dcmotor_id.estimators.refined import StateTerm
+from dcmotor_id.estimators.base import StateTerm
 from dcmotor_id.excitation import make_excitation
 from dcmotor_id.io import Record
 from dcmotor_id.model import PAPER_MOTORS, state_matrix
-from dcmotor_id.simulation import (HybridSystem, motor_forcing, MotorEffects, MotorStepper,
-                                   simulate_mechanical, simulate_mechanical_effects,
-                                   simulate_motor, simulate_motor_effects)
+from dcmotor_id.simulation import (combine_effects, HybridSystem, motor_forcing, MotorEffects,
+                                   MotorStepper, simulate_mechanical,
+                                   simulate_mechanical_effects, simulate_motor,
+                                   simulate_motor_effects)
+from dcmotor_id.simulation.coefficients import FIELD_RULES
 
 MOTOR = PAPER_MOTORS['paper2']
 DT = 1e-3
@@ -37,7 +39,7 @@ def test_vocabulary_has_the_issue_names_and_describes_itself():
 def test_make_and_parse_effects():
     effect = parse_effect('sensor_delay:channel=current,samples=2')
     assert effect.parameters == {'channel': 'current', 'samples': 2}
-    assert effect.motor_effects() == {'current_delay_samples': 2}
+    assert effect.motor_effects() == MotorEffects(current_delay_samples=2)
     assert make_effect('load_torque', torque_Nm=0.5).describe() == {
         'name': 'load_torque', 'parameters': {'torque_Nm': 0.5}}
     with pytest.raises(ValueError, match='unknown effect'):
@@ -200,3 +202,18 @@ def test_physical_checks_name_the_problem():
     assert 'below the Coulomb' in make_effect('stribeck', excess_Nm=-0.1).problem({}, [])
     assert 'negative in one direction' in make_effect(
         'coulomb_asymmetry', delta_Nm=1.5).problem({'Mc': 1.0}, [])
+
+
+def test_contributions_are_typed_and_combine_by_the_field_rule():
+    loads = combine_effects([make_effect('load_torque', torque_Nm=0.2),
+                             make_effect('load_torque', torque_Nm=0.3)])
+    assert loads.load_torque_Nm == pytest.approx(0.5)  # ADD
+    ripple = combine_effects([make_effect('cogging', amplitude_Nm=0.1, cycles_per_rev=4.0),
+                              make_effect('cogging', amplitude_Nm=0.1, cycles_per_rev=6.0)])
+    assert ripple.cogging_cycles_per_rev == 6.0 and ripple.cogging_amplitude_Nm == 0.2
+    for cls in EXTENDED_VOCABULARY:
+        contribution = cls().motor_effects() if cls is not SensorDelay else \
+            SensorDelay(samples=1).motor_effects()
+        assert isinstance(contribution, MotorEffects)
+    assert FIELD_RULES.keys() == set(MotorEffects._fields)
+    assert isinstance(combine_effects([SensorDelay(samples=2)]).speed_delay_samples, int)

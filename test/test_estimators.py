@@ -9,7 +9,6 @@ is exact on noise-free data and within a few of its own standard errors under no
 import numpy as np
 import pytest
 
-from dcmotor_id.demo import paper_records
 from dcmotor_id.errors import NotIdentifiableError
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import RefinedEstimator
@@ -18,6 +17,7 @@ from dcmotor_id.identify import identify, prepare_records
 from dcmotor_id.io import Record
 from dcmotor_id.model import MECHANICAL_NAMES, PAPER_MOTORS, PARAMETER_NAMES
 from dcmotor_id.simulation import simulate_motor
+from dcmotor_id.simulation.scenarios import paper_records
 
 MOTOR = PAPER_MOTORS['paper2']
 

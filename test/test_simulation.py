@@ -3,10 +3,12 @@
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from scipy.linalg import expm
 
 from dcmotor_id.excitation import make_excitation
-from dcmotor_id.model import PAPER_MOTORS
-from dcmotor_id.simulation import MotorStepper, simulate_mechanical, simulate_motor
+from dcmotor_id.model import PAPER_MOTORS, state_matrix
+from dcmotor_id.simulation import (MotorStepper, simulate_mechanical, simulate_motor,
+                                   zoh_matrices)
 
 
 def reference_simulation(params, voltage, dt, x0=(0.0, 0.0)):
@@ -122,3 +124,19 @@ def test_speed_touching_zero_inside_a_sample(motor):
     # The solution is continuous in the initial speed.
     _, from_rest = simulate_motor(params, voltage, dt)
     assert np.max(np.abs(speed[1:] - from_rest[1:])) < 1e-9
+
+
+@pytest.mark.parametrize('motor', ['paper1', 'paper2'])
+def test_zoh_matrices_match_the_block_exponential(motor):
+    a_matrix = state_matrix(PAPER_MOTORS[motor])
+    dt = 1e-3
+    block = np.zeros((4, 4))
+    block[:2, :2] = a_matrix
+    block[:2, 2:] = np.eye(2)
+    reference = expm(block * dt)
+    ad, gamma = zoh_matrices(a_matrix, dt)
+    assert np.allclose(ad, reference[:2, :2], rtol=1e-12, atol=1e-14)
+    assert np.allclose(gamma, reference[:2, 2:], rtol=1e-12, atol=1e-16)
+    ad1, gamma1 = zoh_matrices([[-0.3 / 0.03]], dt)
+    assert ad1[0, 0] == pytest.approx(np.exp(-10.0 * dt), rel=1e-14)
+    assert gamma1[0, 0] == pytest.approx(-np.expm1(-10.0 * dt) / 10.0, rel=1e-14)

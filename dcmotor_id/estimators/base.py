@@ -1,18 +1,23 @@
 """
-What every estimator takes and returns, and the data layout they share.
+What every estimator takes and returns: the :class:`Estimator` protocol, its terms and result.
 
 An estimator is an object with a ``name`` and ``fit(records, torque_constant=None, terms=())``
 returning an :class:`Estimate`.  ``records`` are checked, uniformly sampled
 :class:`~dcmotor_id.io.Record` objects that all carry current and speed, and voltage unless
 ``torque_constant`` is given (mechanical-only mode: identify J, b, Mc with the torque
-``torque_constant * current`` as the input).
+``torque_constant * current`` as the input).  Effects enter a fit as terms:
+:class:`ExogenousTerm` (linear in a coefficient, regressors from the measured signals) and
+:class:`StateTerm` (a coefficient of the simulated :class:`~dcmotor_id.simulation.MotorEffects`).
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
+from typing import Any, ClassVar, Protocol, runtime_checkable, Sequence
 
 import numpy as np
 
-from dcmotor_id.model import MECHANICAL_NAMES, PARAMETER_NAMES
+from dcmotor_id.simulation.coefficients import MotorEffects
 
 
 @dataclass(frozen=True)
@@ -27,7 +32,8 @@ class ExogenousTerm:
     Attributes
     ----------
     name : str
-        Name of the coefficient as reported (e.g. ``load_torque.torque_Nm``).
+        Name of the coefficient as reported (e.g. ``load_torque.torque_Nm``, see
+        :func:`dcmotor_id.model.term_name`).
     channel : str
         ``voltage``, ``torque``, ``current`` or ``speed``.
     regressors : tuple of numpy.ndarray
@@ -47,6 +53,47 @@ class ExogenousTerm:
 
 
 @dataclass(frozen=True)
+class StateTerm(ExogenousTerm):
+    """
+    An effect whose coefficient sets a field of :class:`~dcmotor_id.simulation.MotorEffects`.
+
+    Used where a regressor of measured signals cannot express the effect: friction that
+    depends on the simulated speed and changes the break-away level (Stribeck, asymmetric
+    Coulomb friction), or a brush drop that blocks the current.  The model is then simulated
+    with :func:`~dcmotor_id.simulation.simulate_motor_effects` (state-dependent terms held
+    over half-samples); fields the hybrid solver handles exactly
+    (:data:`~dcmotor_id.simulation.EXACT_FIELDS`: an asymmetric Coulomb friction) keep the
+    exact fast path.  ``channel`` is ``state`` and the regressors only serve the residual
+    correlations.
+
+    Attributes
+    ----------
+    field : str
+        The :class:`~dcmotor_id.simulation.MotorEffects` field the coefficient sets.
+    fixed : tuple of (str, float)
+        Other fields held at given values (e.g. the Stribeck velocity).
+
+    """
+
+    field: str = ''
+    fixed: tuple = ()
+
+    def __post_init__(self) -> None:
+        """Refuse a field the simulator does not have."""
+        for name in (self.field, *(key for key, _ in self.fixed)):
+            if name not in MotorEffects._fields:
+                raise ValueError(f'term {self.name}: {name!r} is not a MotorEffects field')
+
+    def contribution(self, value: float) -> MotorEffects:
+        """Return the term's contribution to the simulation with coefficient ``value``."""
+        return MotorEffects(**{self.field: value, **dict(self.fixed)})
+
+    def fields(self) -> frozenset[str]:
+        """Return the MotorEffects fields the term sets."""
+        return frozenset((self.field, *(key for key, _ in self.fixed)))
+
+
+@dataclass(frozen=True)
 class Estimate:
     """
     Result of one estimator on a set of records.
@@ -57,7 +104,8 @@ class Estimate:
         Estimator name.
     parameters : dict
         Physical parameters (Ra, La, CPhi, J, b, Mc, Ka, Ta; or J, b, Mc) in SI units, plus
-        the coefficient of every exogenous term by its name.
+        the coefficient of every exogenous term by its name (a values mapping of
+        :mod:`dcmotor_id.model` with the derived values added).
     stderr : dict
         Standard error of every entry of ``parameters`` (NaN where none is available).
     initial_states : list of tuple
@@ -74,32 +122,35 @@ class Estimate:
     info: dict = field(default_factory=dict)
 
     @property
-    def mechanical_only(self):
+    def mechanical_only(self) -> bool:
         """Whether only J, b and Mc were identified."""
         return 'Ra' not in self.parameters
 
 
-def parameter_names(mechanical_only):
-    """Return the base parameter names identified in a mode."""
-    return MECHANICAL_NAMES if mechanical_only else PARAMETER_NAMES
+@runtime_checkable
+class Estimator(Protocol):
+    """
+    What :func:`dcmotor_id.identify.identify` needs of an estimator.
+
+    Attributes
+    ----------
+    name : str
+        The method's name (``Estimate.method``).
+    supports_terms : bool
+        Whether :meth:`fit` accepts effect terms, which the effect discovery loop needs.
+
+    """
+
+    name: ClassVar[str]
+    supports_terms: ClassVar[bool]
+
+    def fit(self, records: Sequence[Any], torque_constant: float | None = None,
+            terms: Sequence[ExogenousTerm] = ()) -> Estimate:
+        """Fit the records; return the :class:`Estimate`."""
+        ...
 
 
-def derived_stderr(values, covariance, names):
-    """Return the standard errors of Ka = 1/Ra and Ta = La/Ra from a covariance."""
-    index = {name: position for position, name in enumerate(names)}
-    ra, la = values['Ra'], values['La']
-    grad_ka = np.zeros(len(names))
-    grad_ka[index['Ra']] = -1.0 / ra ** 2
-    grad_ta = np.zeros(len(names))
-    grad_ta[index['Ra']] = -la / ra ** 2
-    grad_ta[index['La']] = 1.0 / ra
-    return {
-        'Ka': float(np.sqrt(max(grad_ka @ covariance @ grad_ka, 0.0))),
-        'Ta': float(np.sqrt(max(grad_ta @ covariance @ grad_ta, 0.0))),
-    }
-
-
-def nrmse_pct(simulated, measured):
+def nrmse_pct(simulated: np.ndarray, measured: np.ndarray) -> float:
     """Return the simulation error in percent of the measured signal's standard deviation."""
     spread = np.std(measured)
     if spread == 0:

@@ -20,11 +20,17 @@ six digits, far more than a bound needs.  In mechanical-only mode the measured c
 model's input and is taken as noise-free.
 """
 
-import numpy as np
+from __future__ import annotations
 
-from dcmotor_id.estimators.base import derived_stderr
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from dcmotor_id.estimators.base import ExogenousTerm
+from dcmotor_id.estimators.jacobian import jacobian
 from dcmotor_id.estimators.refined import OutputErrorModel
-from dcmotor_id.model import MotorParameters
+from dcmotor_id.model import derived_stderr, MotorParameters, NON_NEGATIVE_NAMES
 
 
 def _noise_table(noise_std, n_records, outputs):
@@ -44,8 +50,10 @@ def _noise_table(noise_std, n_records, outputs):
     return table
 
 
-def output_sensitivities(model, values, initial_states, include_initial_states=True,
-                         relative_step=1e-6):
+def output_sensitivities(model: OutputErrorModel, values: Mapping[str, float],
+                         initial_states: Sequence[ArrayLike],
+                         include_initial_states: bool = True, relative_step: float = 1e-6
+                         ) -> tuple[list[str], list[dict[str, np.ndarray]]]:
     """
     Differentiate every simulated output with respect to the parameters.
 
@@ -83,37 +91,44 @@ def output_sensitivities(model, values, initial_states, include_initial_states=T
     result = [{channel: np.zeros((len(rec), len(labels))) for channel in model.outputs}
               for rec in model.records]
 
-    def difference(column, index, up, down, width):
-        out_up = model.simulate(up[0], index, up[1])
-        out_down = model.simulate(down[0], index, down[1])
-        for channel in model.outputs:
-            result[index][channel][:, column] = (out_up[channel] - out_down[channel]) / width
+    def outputs(index: int, vals: Mapping[str, float], state: np.ndarray) -> np.ndarray:
+        out = model.simulate(vals, index, state)
+        return np.concatenate([out[channel] for channel in model.outputs])
+
+    def store(index: int, columns: slice, matrix: np.ndarray) -> None:
+        length = len(model.records[index])
+        for position, channel in enumerate(model.outputs):
+            result[index][channel][:, columns] = matrix[position * length:
+                                                        (position + 1) * length]
 
     typical = {term.name: term.scale for term in model.terms}
-    for column, name in enumerate(names):
-        value = float(values[name])
-        step = relative_step * max(abs(value), typical.get(name, 0.0), 1e-12)
-        up = {**values, name: value + step}
-        # b and Mc may be zero: a one-sided difference keeps the friction non-negative.
-        lower = value if name in ('b', 'Mc') and value - step < 0 else value - step
-        down = {**values, name: lower}
-        for index, state in enumerate(states):
-            difference(column, index, (up, state), (down, state), value + step - lower)
+    point = np.array([float(values[name]) for name in names])
+    steps = relative_step * np.maximum(
+        np.maximum(np.abs(point), [typical.get(name, 0.0) for name in names]), 1e-12)
+    # b and Mc may be zero: a one-sided difference keeps the friction non-negative.
+    lower = np.array([0.0 if name in NON_NEGATIVE_NAMES else -np.inf for name in names])
+    for index, state in enumerate(states):
+        def by_parameters(theta: np.ndarray, index: int = index,
+                          state: np.ndarray = state) -> np.ndarray:
+            return outputs(index, {**values, **dict(zip(names, theta))}, state)
+        store(index, slice(0, n_params), jacobian(by_parameters, point, steps, lower=lower))
     if include_initial_states:
         for index, state in enumerate(states):
-            for position, channel in enumerate(model.outputs):
-                magnitude = max(abs(state[position]),
-                                float(np.std(getattr(model.records[index], channel))), 1e-12)
-                step = relative_step * magnitude
-                shift = np.zeros_like(state)
-                shift[position] = step
-                column = n_params + index * n_out + position
-                difference(column, index, (values, state + shift), (values, state - shift),
-                           2.0 * step)
+            magnitudes = [max(abs(state[position]),
+                              float(np.std(getattr(model.records[index], channel))), 1e-12)
+                          for position, channel in enumerate(model.outputs)]
+
+            def by_state(start: np.ndarray, index: int = index) -> np.ndarray:
+                return outputs(index, values, start)
+            column = n_params + index * n_out
+            store(index, slice(column, column + n_out),
+                  jacobian(by_state, state, relative_step * np.array(magnitudes)))
     return labels, result
 
 
-def fisher_information(model, values, initial_states, noise_std, include_initial_states=True):
+def fisher_information(model: OutputErrorModel, values: Mapping[str, float],
+                       initial_states: Sequence[ArrayLike], noise_std: Mapping[str, Any],
+                       include_initial_states: bool = True) -> tuple[list[str], np.ndarray]:
     """
     Fisher information of the output-error model with known white noise per channel.
 
@@ -149,8 +164,11 @@ def fisher_information(model, values, initial_states, noise_std, include_initial
     return names, information
 
 
-def cramer_rao_bound(records, truth, noise_std, torque_constant=None, terms=(),
-                     initial_states=None, include_initial_states=True):
+def cramer_rao_bound(records: Sequence[Any], truth: MotorParameters | Mapping[str, float],
+                     noise_std: Mapping[str, Any], torque_constant: float | None = None,
+                     terms: Sequence[ExogenousTerm] = (),
+                     initial_states: Sequence[ArrayLike] | None = None,
+                     include_initial_states: bool = True) -> dict[str, float]:
     """
     Smallest standard error of every parameter that an unbiased estimator can reach.
 

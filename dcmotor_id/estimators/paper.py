@@ -19,11 +19,17 @@ Standard errors are those of the linear regressions propagated to the parameters
 the scatter, not these biases).
 """
 
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
 import numpy as np
 from scipy.optimize import least_squares
 
 from dcmotor_id.errors import FitError
-from dcmotor_id.estimators.base import derived_stderr, Estimate
+from dcmotor_id.estimators.base import Estimate, ExogenousTerm
+from dcmotor_id.estimators.jacobian import jacobian
+from dcmotor_id.model import derived_stderr, derived_values, MECHANICAL_NAMES, PARAMETER_NAMES
 
 
 def _train_neuron(inputs, target):
@@ -51,15 +57,12 @@ def _train_neuron(inputs, target):
     return weights, covariance
 
 
-def _propagate(function, weights, covariance):
+def _propagate(function: Callable[[np.ndarray], Sequence[float]], weights: np.ndarray,
+               covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Values of ``function(weights)`` and their covariance by the delta method."""
     values = np.asarray(function(weights), dtype=float)
-    grad = np.empty((values.shape[0], weights.shape[0]))
-    for column in range(weights.shape[0]):
-        step = 1e-7 * max(abs(weights[column]), 1e-12)
-        shifted = weights.copy()
-        shifted[column] += step
-        grad[:, column] = (np.asarray(function(shifted)) - values) / step
+    grad = jacobian(function, weights, 1e-7 * np.maximum(np.abs(weights), 1e-12),
+                    central=False, f0=values)
     return values, grad @ covariance @ grad.T
 
 
@@ -76,17 +79,20 @@ class PaperEstimator:
     """
 
     name = 'paper'
+    #: No effect terms (so no effect discovery): the neurons are the paper's model only.
+    supports_terms = False
 
-    def __init__(self, n1_records=None, n2_records=None):
+    def __init__(self, n1_records: Sequence[int] | None = None,
+                 n2_records: Sequence[int] | None = None) -> None:
         self.n1_records = n1_records
         self.n2_records = n2_records
 
-    def fit(self, records, torque_constant=None, terms=()):
+    def fit(self, records: Sequence[Any], torque_constant: float | None = None,
+            terms: Sequence[ExogenousTerm] = ()) -> Estimate:
         """Train the neurons on the records and return the parameters."""
         if terms:
             raise FitError('the paper method has no effect terms; use the refined method')
         dt = records[0].sample_period_s
-        mechanical_only = torque_constant is not None
         n2_set = self.n2_records if self.n2_records is not None else range(len(records))
         n2_in, n2_out = [], []
         for index in n2_set:
@@ -96,17 +102,16 @@ class PaperEstimator:
             n2_out.append(rec.speed[1:])
         v, cov_v = _train_neuron(np.vstack(n2_in), np.concatenate(n2_out))
         info = {'sample_period_s': dt, 'n2_weights': v.tolist()}
-        if mechanical_only:
+        if torque_constant is not None:
             cphi = float(torque_constant)
 
             def mech(weights):
                 j = cphi * dt / weights[0]
                 return [j, (1.0 - weights[1]) * j / dt, -weights[2] * j / dt]
             values, cov = _propagate(mech, v, cov_v)
-            names = ('J', 'b', 'Mc')
-            stderr = np.sqrt(np.maximum(np.diag(cov), 0.0))
-            return Estimate(self.name, dict(zip(names, map(float, values))),
-                            dict(zip(names, map(float, stderr))),
+            spread = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            return Estimate(self.name, dict(zip(MECHANICAL_NAMES, map(float, values))),
+                            dict(zip(MECHANICAL_NAMES, map(float, spread))),
                             [(float(rec.speed[0]),) for rec in records], info)
         n1_set = self.n1_records if self.n1_records is not None else range(len(records))
         n1_in, n1_out = [], []
@@ -130,11 +135,10 @@ class PaperEstimator:
             j = cphi * dt / v1
             return [ra, ta * ra, cphi, j, (1.0 - v2) * j / dt, -v3 * j / dt]
         values, cov = _propagate(physical, weights, covariance)
-        names = ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
+        names = PARAMETER_NAMES
         parameters = dict(zip(names, map(float, values)))
         stderr = dict(zip(names, map(float, np.sqrt(np.maximum(np.diag(cov), 0.0)))))
-        parameters['Ka'] = 1.0 / parameters['Ra']
-        parameters['Ta'] = parameters['La'] / parameters['Ra']
+        parameters.update(derived_values(parameters))
         stderr.update(derived_stderr(parameters, cov, names))
         states = [(float(rec.current[0]), float(rec.speed[0])) for rec in records]
         return Estimate(self.name, parameters, stderr, states, info)

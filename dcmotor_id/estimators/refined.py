@@ -21,21 +21,25 @@ Why this design (bench/README.md has the numbers):
   signals (a state-variable-filter method, at three cut-offs) and the paper's neurons.
 """
 
-from dataclasses import dataclass
+from __future__ import annotations
+
+from typing import Any, cast, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from dcmotor_id.errors import FitError
-from dcmotor_id.estimators.base import (derived_stderr, Estimate, ExogenousTerm,
-                                        parameter_names)
+from dcmotor_id.estimators.base import Estimate, ExogenousTerm, StateTerm
+from dcmotor_id.estimators.jacobian import jacobian
 from dcmotor_id.estimators.paper import PaperEstimator
-from dcmotor_id.model import MotorParameters, state_matrix
+from dcmotor_id.model import (derived_stderr, derived_values, make_admissible, MotorParameters,
+                              parameter_names, POSITIVE_NAMES, state_matrix)
 from dcmotor_id.signals import low_pass
-from dcmotor_id.simulation import (HybridSystem, motor_forcing, MotorEffects,
+from dcmotor_id.simulation import (combine_contributions, EXACT_FIELDS, HybridSystem,
+                                   motor_forcing, MotorEffects, simulate_mechanical,
                                    simulate_mechanical_effects, simulate_motor_effects)
 
-_POSITIVE = ('Ra', 'La', 'CPhi', 'J')
+__all__ = ['OutputErrorModel', 'RefinedEstimator', 'StateTerm', 'STATE_OVERSAMPLE']
 _MISFIT = ('the motor model does not reproduce the data. Check that the columns are what their '
            'names say (units, signs: current and speed positive for a positive voltage)')
 #: Channels of exogenous terms: the linear ones of :class:`ExogenousTerm` and ``state``
@@ -43,31 +47,6 @@ _MISFIT = ('the motor model does not reproduce the data. Check that the columns 
 _CHANNELS = ('voltage', 'torque', 'current', 'speed', 'state')
 #: Sub-steps per sample when state-dependent effects are simulated.
 STATE_OVERSAMPLE = 2
-
-
-@dataclass(frozen=True)
-class StateTerm(ExogenousTerm):
-    """
-    An effect whose coefficient sets a field of :class:`~dcmotor_id.simulation.MotorEffects`.
-
-    Used where a regressor of measured signals cannot express the effect: friction that
-    depends on the simulated speed and changes the break-away level (Stribeck, asymmetric
-    Coulomb friction), or a brush drop that blocks the current.  The model is then simulated
-    with :func:`~dcmotor_id.simulation.simulate_motor_effects` (state-dependent terms held
-    over half-samples); a Coulomb asymmetry alone keeps the exact fast path.  ``channel`` is
-    ``state`` and the regressors only serve the residual correlations.
-
-    Attributes
-    ----------
-    field : str
-        The :class:`~dcmotor_id.simulation.MotorEffects` field the coefficient sets.
-    fixed : tuple of (str, float)
-        Other fields held at given values (e.g. the Stribeck velocity).
-
-    """
-
-    field: str = ''
-    fixed: tuple = ()
 
 
 class OutputErrorModel:
@@ -85,7 +64,8 @@ class OutputErrorModel:
 
     """
 
-    def __init__(self, records, torque_constant=None, terms=()):
+    def __init__(self, records: Sequence[Any], torque_constant: float | None = None,
+                 terms: Sequence[ExogenousTerm] = ()) -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
@@ -106,14 +86,18 @@ class OutputErrorModel:
                                         rec.current[-1]) if self.mechanical_only else None
                               for rec in self.records]
 
-    def _state_fields(self, values):
-        """Return the MotorEffects fields the state terms set (empty without them)."""
-        fields = {}
-        for term in self.terms:
-            if term.channel == 'state':
-                fields[term.field] = fields.get(term.field, 0.0) + values[term.name]
-                fields.update(dict(term.fixed))
-        return fields
+    def _state_effects(self, values: Mapping[str, float]) -> tuple[MotorEffects, bool]:
+        """
+        Return the effects the state terms simulate and whether they need sub-steps.
+
+        Without state terms: no effects.  Effects only on fields the hybrid solver handles
+        exactly (:data:`~dcmotor_id.simulation.EXACT_FIELDS`) keep the exact fast path.
+        """
+        state_terms = [term for term in self.terms if isinstance(term, StateTerm)]
+        effects = combine_contributions(term.contribution(values[term.name])
+                                        for term in state_terms)
+        fields = frozenset().union(*(term.fields() for term in state_terms))
+        return effects, bool(fields - EXACT_FIELDS)
 
     def _channel(self, values, channel, index):
         total = None
@@ -123,41 +107,41 @@ class OutputErrorModel:
                 total = contribution if total is None else total + contribution
         return total
 
-    def simulate(self, values, index, initial_state):
+    def simulate(self, values: Mapping[str, float], index: int,
+                 initial_state: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
         """Simulate record ``index``; return a dict of output arrays (current, speed)."""
         rec = self.records[index]
         dt = self.sample_periods_s[index]
         extra_torque = self._channel(values, 'torque', index)
-        fields = self._state_fields(values)
-        delta = fields.pop('coulomb_delta_Nm', 0.0)
-        friction_pos = max(values['Mc'] + delta, 0.0) / values['J']
-        friction_neg = max(values['Mc'] - delta, 0.0) / values['J']
-        effects = MotorEffects(coulomb_delta_Nm=delta, **fields) if fields else None
+        effects, substeps = self._state_effects(values)
+        delta = effects.coulomb_delta_Nm
         if self.mechanical_only:
-            torque = self.torque_constant * self.held_currents[index]
+            held = cast(np.ndarray, self.held_currents[index])
+            torque = cast(float, self.torque_constant) * held
             if extra_torque is not None:
                 torque = torque + extra_torque
-            if effects is not None:
+            if substeps:
                 speed, _ = simulate_mechanical_effects(
                     values['J'], values['b'], values['Mc'], torque, dt, effects,
                     initial_state[0], oversample=STATE_OVERSAMPLE)
                 out = {'speed': speed}
             else:
-                system = HybridSystem(np.array([[-values['b'] / values['J']]]), friction_pos,
-                                      friction_neg)
-                states = system.simulate((torque / values['J'])[:, None], initial_state, dt)
-                out = {'speed': states[:-1, 0]}
+                out = {'speed': simulate_mechanical(
+                    values['J'], values['b'], max(values['Mc'] + delta, 0.0), torque, dt,
+                    initial_state[0], max(values['Mc'] - delta, 0.0))}
         else:
-            params = MotorParameters(**{name: values[name] for name in self.base_names})
+            params = MotorParameters.from_dict(values)
             extra_voltage = self._channel(values, 'voltage', index)
-            if effects is not None:
+            if substeps:
                 current, speed, _ = simulate_motor_effects(
                     params, rec.voltage, dt, effects, initial_state, extra_voltage,
                     extra_torque, oversample=STATE_OVERSAMPLE)
                 out = {'current': current, 'speed': speed}
             else:
                 forcing = motor_forcing(params, rec.voltage, extra_voltage, extra_torque)
-                system = HybridSystem(state_matrix(params), friction_pos, friction_neg)
+                system = HybridSystem(state_matrix(params),
+                                      max(values['Mc'] + delta, 0.0) / values['J'],
+                                      max(values['Mc'] - delta, 0.0) / values['J'])
                 states = system.simulate(forcing, initial_state, dt)
                 out = {'current': states[:-1, 0], 'speed': states[:-1, 1]}
         for channel in self.outputs:
@@ -166,7 +150,7 @@ class OutputErrorModel:
                 out[channel] = out[channel] + offset
         return out
 
-    def measured(self, index, channel):
+    def measured(self, index: int, channel: str) -> np.ndarray:
         """Measured output ``channel`` of record ``index``."""
         return getattr(self.records[index], channel)
 
@@ -219,35 +203,6 @@ def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004
     return candidates
 
 
-def _central_jacobian(function, z, f0):
-    """Central-difference Jacobian of ``function`` at ``z`` (columns in ``z`` units)."""
-    jac = np.empty((f0.shape[0], z.shape[0]))
-    for column in range(z.shape[0]):
-        step = 1e-6 * max(abs(z[column]), 1e-3)
-        up, down = z.copy(), z.copy()
-        up[column] += step
-        down[column] -= step
-        jac[:, column] = (function(up) - function(down)) / (2.0 * step)
-    return jac
-
-
-def _physical(values):
-    """Make a start point admissible: positive Ra, La, CPhi, J; non-negative b, Mc."""
-    out = {}
-    for name, value in values.items():
-        value = float(value)
-        if not np.isfinite(value):
-            return None
-        if name in _POSITIVE:
-            value = abs(value)
-            if value == 0.0:
-                return None
-        elif name in ('b', 'Mc'):
-            value = max(value, 0.0)
-        out[name] = value
-    return out
-
-
 class RefinedEstimator:
     """
     Exact output-error estimator with noise-weighted channels and standard errors.
@@ -264,13 +219,17 @@ class RefinedEstimator:
     """
 
     name = 'refined'
+    #: Effect terms are supported (the discovery loop uses this estimator).
+    supports_terms = True
 
-    def __init__(self, max_nfev=100, reweight_passes=2, initial=None):
+    def __init__(self, max_nfev: int = 100, reweight_passes: int = 2,
+                 initial: Mapping[str, float] | None = None) -> None:
         self.max_nfev = max_nfev
         self.reweight_passes = reweight_passes
         self.initial = initial
 
-    def fit(self, records, torque_constant=None, terms=()):
+    def fit(self, records: Sequence[Any], torque_constant: float | None = None,
+            terms: Sequence[ExogenousTerm] = ()) -> Estimate:
         """Fit the records; return an :class:`Estimate` with standard errors."""
         model = OutputErrorModel(records, torque_constant, terms)
         names = list(model.base_names) + [term.name for term in model.terms]
@@ -280,17 +239,18 @@ class RefinedEstimator:
         # Base parameters are fitted as logarithms (positive, relative steps); term
         # coefficients and initial states as multiples of their typical magnitude.
         floor = {name: 1e-9 * max(start_base.values()) for name in model.base_names}
-        z0 = [np.log(max(start_base[name], floor[name], 1e-300)) for name in model.base_names]
-        scales = [1.0] * n_base + [term.scale for term in model.terms]
-        z0 += [term.initial / term.scale for term in model.terms]
+        start = [np.log(max(start_base[name], floor[name], 1e-300))
+                 for name in model.base_names]
+        magnitudes = [1.0] * n_base + [term.scale for term in model.terms]
+        start += [term.initial / term.scale for term in model.terms]
         for rec in records:
             for channel in model.outputs:
                 values = getattr(rec, channel)
                 scale = max(float(np.std(values)), 1e-9)
-                scales.append(scale)
-                z0.append(float(values[0]) / scale)
-        scales = np.array(scales)
-        z0 = np.array(z0)
+                magnitudes.append(scale)
+                start.append(float(values[0]) / scale)
+        scales = np.array(magnitudes)
+        z0 = np.array(start)
         # Noise level per record and channel (records may come from different sensors or
         # ranges); the first pass weights by 1 % of the pooled spread, later passes by the
         # residual level, which makes the fit the Gaussian maximum-likelihood estimate.
@@ -345,12 +305,12 @@ class RefinedEstimator:
             raise FitError(f'the output-error fit did not converge ({result.message})')
         values, states, theta = unpack(z)
         degenerate = [name for name in model.base_names if not np.isfinite(values[name])
-                      or (name in _POSITIVE and not 1e-200 < values[name] < 1e200)]
+                      or (name in POSITIVE_NAMES and not 1e-200 < values[name] < 1e200)]
         if degenerate:
             raise FitError(f'the output-error fit diverged ({", ".join(degenerate)} went to zero '
                            'or infinity): ' + _MISFIT)
         final = residual(z)
-        jac = _central_jacobian(residual, z, final)
+        jac = jacobian(residual, z, 1e-6 * np.maximum(np.abs(z), 1e-3))
         dof = max(final.shape[0] - z.shape[0], 1)
         s2 = float(final @ final) / dof
         cov_z = s2 * np.linalg.pinv(jac.T @ jac)
@@ -361,8 +321,7 @@ class RefinedEstimator:
         parameters = {name: float(values[name]) for name in names}
         stderr = {name: float(stderr_all[position]) for position, name in enumerate(names)}
         if not model.mechanical_only:
-            parameters['Ka'] = 1.0 / parameters['Ra']
-            parameters['Ta'] = parameters['La'] / parameters['Ra']
+            parameters.update(derived_values(parameters))
             stderr.update(derived_stderr(parameters, covariance[:n_base, :n_base],
                                          list(model.base_names)))
         info = {
@@ -393,7 +352,7 @@ class RefinedEstimator:
         best, best_cost = None, np.inf
         zero_terms = {term.name: term.initial for term in model.terms}
         for candidate in candidates:
-            admissible = _physical(candidate)
+            admissible = make_admissible(candidate)
             if admissible is None:
                 continue
             values = {**admissible, **zero_terms}

@@ -1,31 +1,26 @@
 """
-Exact simulation of the DC motor with the voltage held over each sample (ZOH).
+The numba kernels of the exact hybrid ZOH simulation (compiled once, cached on disk).
 
 Between speed reversals the motor is linear with piecewise-constant inputs, so each sample
-step is solved exactly with the matrix exponential (no integration error).  Coulomb friction
-makes the model hybrid: when the speed reaches zero inside a sample, the crossing instant is
-found on the exact closed-form solution (bisection to machine precision), and the shaft either
-reverses, when the driving torque exceeds the Coulomb torque, or sticks.  While stuck the speed
-is exactly zero, the armature current follows ``La di/dt = u - Ra i``, and the shaft breaks away
-at the instant the driving torque magnitude exceeds the Coulomb torque.
+step is solved exactly with the closed-form matrix exponential of a 2x2 (or 1x1) system.
+Coulomb friction makes the model hybrid: when the speed reaches zero inside a sample, the
+crossing instant is found on the exact solution (bisection to machine precision), and the shaft
+either reverses, when the driving torque exceeds the Coulomb torque, or sticks.  While stuck the
+speed is exactly zero, the armature current follows ``La di/dt = u - Ra i``, and the shaft
+breaks away at the instant the driving torque magnitude exceeds the Coulomb torque.
 
-Accuracy: the only approximations are the floating-point evaluation of the exponentials and
-the root finding; test_simulation.py checks the result against an adaptive Runge-Kutta
-reference (DOP853, rtol 1e-12, restarted at each event) to a relative error below 1e-8.
-
-The stepping runs in one numba-compiled kernel (compiled once, cached on disk): a sample
-costs tens of nanoseconds, which is what makes output-error fitting fast.
-
-All functions here take and return SI units and never modify their inputs.
+The entry points are :func:`simulate_kernel` (linear part and Coulomb friction, exact),
+:func:`effects_kernel` (plus the state-dependent effects of a
+:class:`~dcmotor_id.simulation.coefficients.MotorEffects`, read by field name, held over
+sub-steps) and :func:`discretise` (the exact ZOH matrices).  A sample costs tens of
+nanoseconds, which is what makes output-error fitting fast.  Arrays only: the motor-level
+functions in :mod:`dcmotor_id.simulation.motor` build them.
 """
 
-from dataclasses import dataclass
 import math
 
 from numba import njit
 import numpy as np
-
-from dcmotor_id.model import state_matrix
 
 
 @njit(cache=True)
@@ -248,7 +243,7 @@ def _event_step(a, n, x, g, duration, friction_pos, friction_neg, new):
 
 
 @njit(cache=True)
-def _discretise(a, n, dt):
+def discretise(a, n, dt):
     """Exact ZOH discretisation: ``Ad = exp(A dt)`` and ``Gamma = int_0^dt exp(A s) ds``."""
     ad = np.zeros((n, n))
     gamma = np.zeros((n, n))
@@ -266,10 +261,10 @@ def _discretise(a, n, dt):
 
 
 @njit(cache=True)
-def _simulate_kernel(a, forcing, friction_pos, friction_neg, x_start, dt):
+def simulate_kernel(a, forcing, friction_pos, friction_neg, x_start, dt):
     n_samples, n = forcing.shape
-    ad, gamma = _discretise(a, n, dt)
-    stick = _discretise(a, 1, dt)
+    ad, gamma = discretise(a, n, dt)
+    stick = discretise(a, 1, dt)
     stick_ad = stick[0][0, 0]
     stick_gamma = stick[1][0, 0]
     states = np.empty((n_samples + 1, n))
@@ -328,213 +323,6 @@ def _simulate_kernel(a, forcing, friction_pos, friction_neg, x_start, dt):
         for column in range(n):
             states[k + 1, column] = new[column]
     return states
-
-
-@dataclass(frozen=True)
-class HybridSystem:
-    """
-    A linear system whose last state is a shaft speed with Coulomb friction.
-
-    ``dx/dt = A x + g(t) - e_n F sgn(w)`` with ``w = x[-1]``, ``g`` held constant over each
-    sample, friction magnitude ``F = friction_pos`` for ``w > 0`` and ``friction_neg`` for
-    ``w < 0`` (in units of ``dw/dt``, i.e. torque / inertia).  At ``w = 0`` the shaft sticks
-    while ``-friction_neg <= drive <= friction_pos``, where ``drive`` is ``dw/dt`` without the
-    Coulomb term.
-
-    Attributes
-    ----------
-    a_matrix : numpy.ndarray
-        ``A``, 1x1 (speed only) or 2x2 (current, speed; invertible).
-    friction_pos, friction_neg : float
-        Coulomb friction magnitudes for positive and negative speed, >= 0.
-
-    """
-
-    a_matrix: np.ndarray
-    friction_pos: float
-    friction_neg: float
-
-    def simulate(self, forcing, x0, sample_period_s):
-        """
-        Simulate; return the states at the sample instants, shape ``(N + 1, n)``.
-
-        Parameters
-        ----------
-        forcing : numpy.ndarray
-            ``g`` at each sample, shape ``(N, n)``; held over ``[t_k, t_k + dt)``.
-        x0 : array_like
-            Initial state.
-        sample_period_s : float
-            Sample period ``dt`` [s].
-
-        """
-        forcing = np.ascontiguousarray(forcing, dtype=float)
-        a_matrix = np.ascontiguousarray(self.a_matrix, dtype=float)
-        return _simulate_kernel(a_matrix, forcing, float(self.friction_pos),
-                                float(self.friction_neg), np.asarray(x0, dtype=float),
-                                float(sample_period_s))
-
-
-def motor_system(params):
-    """Return the :class:`HybridSystem` of the full motor (state ``[i, w]``)."""
-    friction = params.Mc / params.J
-    return HybridSystem(state_matrix(params), friction, friction)
-
-
-def motor_forcing(params, voltage, extra_voltage=None, extra_torque=None):
-    """Build the forcing ``g = [u / La, tau / J]`` of the full motor, shape ``(N, 2)``."""
-    voltage = np.asarray(voltage, dtype=float)
-    forcing = np.zeros((voltage.shape[0], 2))
-    forcing[:, 0] = voltage / params.La
-    if extra_voltage is not None:
-        forcing[:, 0] += np.asarray(extra_voltage, dtype=float) / params.La
-    if extra_torque is not None:
-        forcing[:, 1] = np.asarray(extra_torque, dtype=float) / params.J
-    return forcing
-
-
-def simulate_motor(params, voltage, sample_period_s, initial_state=(0.0, 0.0),
-                   extra_voltage=None, extra_torque=None):
-    """
-    Simulate the motor exactly for a voltage held over each sample.
-
-    Parameters
-    ----------
-    params : MotorParameters
-        The motor.
-    voltage : array_like
-        Armature voltage ``u[k]`` [V], held over ``[t_k, t_k + dt)``.
-    sample_period_s : float
-        Sample period ``dt`` [s].
-    initial_state : tuple of float
-        ``(i0 [A], w0 [rad/s])`` at ``t_0``.
-    extra_voltage, extra_torque : array_like, optional
-        Further voltage added to ``u`` [V] and torque on the shaft [N m], per sample.
-
-    Returns
-    -------
-    current, speed : numpy.ndarray
-        ``i[k]`` and ``w[k]`` at the sample instants, same length as ``voltage``.
-
-    """
-    forcing = motor_forcing(params, voltage, extra_voltage, extra_torque)
-    states = motor_system(params).simulate(forcing, initial_state, sample_period_s)
-    return states[:-1, 0].copy(), states[:-1, 1].copy()
-
-
-def simulate_mechanical(inertia, viscous, coulomb, torque, sample_period_s,
-                        initial_speed=0.0, coulomb_neg=None):
-    """
-    Simulate the shaft alone, ``J dw/dt = torque - b w - Mc sgn(w)``, exactly.
-
-    Parameters
-    ----------
-    inertia, viscous, coulomb : float
-        ``J`` [kg m^2], ``b`` [N m s/rad], ``Mc`` [N m] (for positive speed).
-    torque : array_like
-        Applied torque per sample [N m], held over each sample.
-    sample_period_s : float
-        Sample period [s].
-    initial_speed : float
-        Speed at ``t_0`` [rad/s].
-    coulomb_neg : float, optional
-        Coulomb friction for negative speed when it differs [N m].
-
-    Returns
-    -------
-    numpy.ndarray
-        Speed at the sample instants [rad/s].
-
-    """
-    torque = np.asarray(torque, dtype=float)
-    neg = coulomb if coulomb_neg is None else coulomb_neg
-    system = HybridSystem(np.array([[-viscous / inertia]]), coulomb / inertia, neg / inertia)
-    states = system.simulate((torque / inertia)[:, None], [initial_speed], sample_period_s)
-    return states[:-1, 0].copy()
-
-
-@dataclass(frozen=True)
-class MotorEffects:
-    """
-    True state-dependent effects to simulate (what :mod:`dcmotor_id.effects` describes).
-
-    The vocabulary of :mod:`dcmotor_id.effects` turns each named effect into these fields;
-    they add up.  Signs: torques are positive when they drive the shaft in the positive
-    direction unless said otherwise, SI units.
-
-    Attributes
-    ----------
-    load_torque_Nm : float
-        Constant load torque ``T_L`` opposing positive rotation: ``J dw/dt = ... - T_L``.
-    coulomb_delta_Nm : float
-        Half-difference of the Coulomb friction: ``Mc + d`` for ``w > 0``, ``Mc - d`` for
-        ``w < 0`` (also the break-away thresholds).
-    viscous_delta_Nm_s : float
-        Half-difference of the viscous friction: ``(b + d) w`` for ``w > 0``, ``(b - d) w``
-        for ``w < 0``.
-    stribeck_excess_Nm, stribeck_velocity_rad_s : float
-        Friction magnitude ``Mc + excess exp(-(w / velocity)^2)``: static friction
-        ``Mc + excess`` at rest.
-    drag_Nm_s2 : float
-        Quadratic drag, torque ``-c w |w|`` [N m s^2/rad^2].
-    brush_drop_V : float
-        Brush voltage drop ``-V_b sgn(i)`` in the armature circuit.
-    resistance_rate_ohm_per_s : float
-        ``Ra(t) = Ra + rate (t - t_0)``, ``t_0`` the record start.
-    cogging_amplitude_Nm, cogging_cycles_per_rev, cogging_phase_rad : float
-        Torque ripple ``A sin(N theta + phase)`` with shaft angle ``theta``.
-    current_offset_A : float
-        Offset of the current sensor: measured = true + offset.
-    current_delay_samples, speed_delay_samples : int
-        Whole-sample delay of a sensor: measured ``y[k] = y_true[k - d]``.
-
-    """
-
-    load_torque_Nm: float = 0.0
-    coulomb_delta_Nm: float = 0.0
-    viscous_delta_Nm_s: float = 0.0
-    stribeck_excess_Nm: float = 0.0
-    stribeck_velocity_rad_s: float = 1.0
-    drag_Nm_s2: float = 0.0
-    brush_drop_V: float = 0.0
-    resistance_rate_ohm_per_s: float = 0.0
-    cogging_amplitude_Nm: float = 0.0
-    cogging_cycles_per_rev: float = 0.0
-    cogging_phase_rad: float = 0.0
-    current_offset_A: float = 0.0
-    current_delay_samples: int = 0
-    speed_delay_samples: int = 0
-
-    def coefficients(self):
-        """Pack the state-dependent fields for the kernel (float array)."""
-        return np.array([self.load_torque_Nm, self.coulomb_delta_Nm, self.viscous_delta_Nm_s,
-                         self.stribeck_excess_Nm, self.stribeck_velocity_rad_s,
-                         self.drag_Nm_s2, self.brush_drop_V, self.resistance_rate_ohm_per_s,
-                         self.cogging_amplitude_Nm, self.cogging_cycles_per_rev,
-                         self.cogging_phase_rad], dtype=float)
-
-
-def combine_effects(effects):
-    """
-    Return one :class:`MotorEffects` from ``None``, a MotorEffects or vocabulary effects.
-
-    Vocabulary effects (:mod:`dcmotor_id.effects`) have ``motor_effects()`` returning a dict
-    of :class:`MotorEffects` fields; additive fields add up, the others are set.
-    """
-    if effects is None:
-        return MotorEffects()
-    if isinstance(effects, MotorEffects):
-        return effects
-    total = {}
-    replaced = {'stribeck_velocity_rad_s', 'cogging_cycles_per_rev', 'cogging_phase_rad'}
-    for effect in effects:
-        fields = effect if isinstance(effect, dict) else effect.motor_effects()
-        for key, value in fields.items():
-            if key in replaced or key not in total:
-                total[key] = value
-            else:
-                total[key] += value
-    return MotorEffects(**total)
 
 
 @njit(cache=True)
@@ -633,20 +421,30 @@ def _brush_step(a, x, u_la, g1, drop_la, duration, friction_pos, friction_neg, n
 
 
 @njit(cache=True)
-def _effects_kernel(a0, n, forcing, coulomb, inertia, inductance, coefs, x_start, theta0, dt,
-                    oversample, t_start):
+def effects_kernel(a0, n, forcing, coulomb, inertia, inductance, effects, x_start, theta0, dt,
+                   oversample, t_start):
     """
     Simulate with state-dependent effects frozen over sub-steps of ``dt / oversample``.
 
     Between sub-steps the linear part, the Coulomb friction, speed reversals and stick-slip are
     solved exactly by :func:`_event_step`; the effect torques and voltages (and ``Ra(t)``) are
     evaluated at the start of each sub-step and held over it (first order in the sub-step).
-    Returns the states and the shaft angle at the sample instants.
+    ``effects`` is a :class:`~dcmotor_id.simulation.coefficients.MotorEffects` (its sensor
+    fields are applied by the caller).  Returns the states and the shaft angle at the sample
+    instants.
     """
     n_samples = forcing.shape[0]
-    load, c_delta, v_delta, s_excess, s_vel, drag, brush, ra_rate, cog_a, cog_n, cog_p = (
-        coefs[0], coefs[1], coefs[2], coefs[3], coefs[4], coefs[5], coefs[6], coefs[7],
-        coefs[8], coefs[9], coefs[10])
+    load = effects.load_torque_Nm
+    c_delta = effects.coulomb_delta_Nm
+    v_delta = effects.viscous_delta_Nm_s
+    s_excess = effects.stribeck_excess_Nm
+    s_vel = effects.stribeck_velocity_rad_s
+    drag = effects.drag_Nm_s2
+    brush = effects.brush_drop_V
+    ra_rate = effects.resistance_rate_ohm_per_s
+    cog_a = effects.cogging_amplitude_Nm
+    cog_n = effects.cogging_cycles_per_rev
+    cog_p = effects.cogging_phase_rad
     states = np.empty((n_samples + 1, n))
     angles = np.empty(n_samples + 1)
     x = np.empty(2)
@@ -693,136 +491,3 @@ def _effects_kernel(a0, n, forcing, coulomb, inertia, inductance, coefs, x_start
             states[k + 1, column] = x[column]
         angles[k + 1] = theta
     return states, angles
-
-
-def _delayed(values, samples):
-    """``values`` seen by a sensor ``samples`` late (the first value held before the start)."""
-    samples = int(samples)
-    if samples <= 0:
-        return values
-    return np.concatenate([np.full(samples, values[0]), values[:-samples]])
-
-
-def simulate_motor_effects(params, voltage, sample_period_s, effects, initial_state=(0.0, 0.0),
-                           extra_voltage=None, extra_torque=None, oversample=10,
-                           initial_angle_rad=0.0):
-    """
-    Simulate the motor with true state-dependent effects; return what sensors measure.
-
-    The linear part and the Coulomb friction (reversals, stick-slip) are solved exactly as in
-    :func:`simulate_motor`; effect terms that depend on the state are held over sub-steps of
-    ``sample_period_s / oversample``.  With no effects the result equals
-    :func:`simulate_motor` to round-off.
-
-    Parameters
-    ----------
-    params : MotorParameters
-        The motor.
-    voltage : array_like
-        Armature voltage per sample [V], held over each sample.
-    sample_period_s : float
-        Sample period [s].
-    effects : MotorEffects or sequence of vocabulary effects
-        The true effects (see :func:`combine_effects`).
-    initial_state : tuple of float
-        ``(i0, w0)``.
-    extra_voltage, extra_torque : array_like, optional
-        Further voltage [V] and torque [N m] per sample.
-    oversample : int
-        Sub-steps per sample for the state-dependent terms.
-    initial_angle_rad : float
-        Shaft angle at ``t_0`` (cogging).
-
-    Returns
-    -------
-    current, speed, angle : numpy.ndarray
-        Measured current [A] and speed [rad/s] (with sensor offset and delays applied) and the
-        true shaft angle [rad] at the sample instants.
-
-    """
-    spec = combine_effects(effects)
-    forcing = motor_forcing(params, voltage, extra_voltage, extra_torque)
-    states, angles = _effects_kernel(
-        np.ascontiguousarray(state_matrix(params)), 2, forcing, float(params.Mc),
-        float(params.J), float(params.La), spec.coefficients(),
-        np.asarray(initial_state, dtype=float), float(initial_angle_rad),
-        float(sample_period_s), int(oversample), 0.0)
-    current = _delayed(states[:-1, 0], spec.current_delay_samples) + spec.current_offset_A
-    speed = _delayed(states[:-1, 1], spec.speed_delay_samples)
-    return current, speed, angles[:-1].copy()
-
-
-def simulate_mechanical_effects(inertia, viscous, coulomb, torque, sample_period_s, effects,
-                                initial_speed=0.0, oversample=10, initial_angle_rad=0.0):
-    """
-    Simulate the shaft alone with true effects (mechanical-only counterpart).
-
-    Electrical effects (brush drop, resistance drift, current offset and delay) do not apply
-    here and are ignored.  Returns the measured speed and the true angle at the samples.
-    """
-    spec = combine_effects(effects)
-    torque = np.asarray(torque, dtype=float)
-    states, angles = _effects_kernel(
-        np.array([[-viscous / inertia]]), 1, np.ascontiguousarray((torque / inertia)[:, None]),
-        float(coulomb), float(inertia), 1.0, spec.coefficients(),
-        np.array([initial_speed], dtype=float), float(initial_angle_rad),
-        float(sample_period_s), int(oversample), 0.0)
-    return _delayed(states[:-1, 0], spec.speed_delay_samples), angles[:-1].copy()
-
-
-class MotorStepper:
-    """
-    Advance the motor one sample at a time (for a real-time simulated drive).
-
-    Parameters
-    ----------
-    params : MotorParameters
-        The motor.
-    sample_period_s : float
-        The step [s].
-    initial_state : tuple of float
-        ``(i0, w0)``.
-    effects : MotorEffects or sequence of vocabulary effects, optional
-        True effects to simulate (:mod:`dcmotor_id.effects`); :meth:`step` then returns what
-        the sensors measure (offset and delays applied).  Without effects the stepping is the
-        exact one of :func:`simulate_motor`.
-    oversample : int
-        Sub-steps per sample for state-dependent effects.
-
-    """
-
-    def __init__(self, params, sample_period_s, initial_state=(0.0, 0.0), effects=None,
-                 oversample=10):
-        self.params = params
-        self.sample_period_s = float(sample_period_s)
-        self._system = motor_system(params)
-        self.state = np.array(initial_state, dtype=float)
-        self.effects = None if effects is None else combine_effects(effects)
-        self.oversample = int(oversample)
-        self.angle_rad = 0.0
-        self.time_s = 0.0
-        if self.effects is not None:
-            spec = self.effects
-            self._coefficients = spec.coefficients()
-            self._a_matrix = np.ascontiguousarray(state_matrix(params))
-            self._current_queue = [float(self.state[0])] * spec.current_delay_samples
-            self._speed_queue = [float(self.state[1])] * spec.speed_delay_samples
-
-    def step(self, voltage, extra_torque=0.0, extra_voltage=0.0):
-        """Hold ``voltage`` [V] for one period; return the new ``(current, speed)``."""
-        forcing = motor_forcing(self.params, [voltage], [extra_voltage], [extra_torque])
-        if self.effects is None:
-            self.state = self._system.simulate(forcing, self.state, self.sample_period_s)[-1]
-            return float(self.state[0]), float(self.state[1])
-        states, angles = _effects_kernel(
-            self._a_matrix, 2, forcing, float(self.params.Mc), float(self.params.J),
-            float(self.params.La), self._coefficients, self.state, self.angle_rad,
-            self.sample_period_s, self.oversample, self.time_s)
-        self.state = states[-1].copy()
-        self.angle_rad = float(angles[-1])
-        self.time_s += self.sample_period_s
-        self._current_queue.append(float(self.state[0]))
-        self._speed_queue.append(float(self.state[1]))
-        current = self._current_queue.pop(0) + self.effects.current_offset_A
-        speed = self._speed_queue.pop(0)
-        return current, speed

@@ -1,0 +1,25 @@
+"""
+Exact simulation of the DC motor with the voltage held over each sample (ZOH), with effects.
+
+The package splits by concept: :mod:`~dcmotor_id.simulation.kernels` (the numba hybrid ZOH
+kernels), :mod:`~dcmotor_id.simulation.motor` (motor- and shaft-level simulation, the
+real-time stepper), :mod:`~dcmotor_id.simulation.coefficients` (:class:`MotorEffects`, the
+typed coefficients of the effects and how they combine) and
+:mod:`~dcmotor_id.simulation.scenarios` (standard simulated experiments).  Every public name is
+importable from here.
+"""
+
+from dcmotor_id.simulation.coefficients import (ADD, combine_contributions, combine_effects,
+                                                EXACT_FIELDS, MotorEffects, REPLACE,
+                                                SENSOR_FIELDS, set_fields)
+from dcmotor_id.simulation.motor import (HybridSystem, motor_forcing, motor_system,
+                                         MotorStepper, simulate_mechanical,
+                                         simulate_mechanical_effects, simulate_motor,
+                                         simulate_motor_effects, zoh_matrices)
+
+__all__ = [
+    'ADD', 'combine_contributions', 'combine_effects', 'EXACT_FIELDS', 'HybridSystem',
+    'motor_forcing', 'motor_system', 'MotorEffects', 'MotorStepper', 'REPLACE',
+    'SENSOR_FIELDS', 'set_fields', 'simulate_mechanical', 'simulate_mechanical_effects',
+    'simulate_motor', 'simulate_motor_effects', 'zoh_matrices',
+]
