@@ -23,19 +23,13 @@ import numpy as np
 
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.estimators.fisher import cramer_rao_bound
-from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.model import is_admissible, PAPER_MOTORS
 
 LEVELS = (0.0, 0.001, 0.003, 0.01, 0.03)
 #: The issue's targets at 1 % noise: largest error of the refined method [%].
 TARGET_PCT = {'Ra': 1.0, 'La': 1.0, 'CPhi': 1.0, 'J': 1.0, 'b': 1.0, 'Mc': 3.0}
 #: The issue's target on the refined method's spread: at most this multiple of the bound.
 TARGET_CRB_RATIO = 1.5
-
-
-def _physical(estimate):
-    values = estimate.parameters
-    return all(values[name] > 0 for name in ('Ra', 'La', 'CPhi', 'J')) and all(
-        values[name] >= 0 for name in ('b', 'Mc'))
 
 
 def simulate_level(params, level, runs, seed_base):
@@ -48,7 +42,7 @@ def simulate_level(params, level, runs, seed_base):
         try:
             paper = fit_paper(records)
             out['paper'].append(signed_errors_pct(paper, params))
-            out['paper_nonphysical'] += not _physical(paper)
+            out['paper_nonphysical'] += not is_admissible(paper.parameters)
         except (DcMotorIdError, ArithmeticError, np.linalg.LinAlgError):
             out['paper_failed'] += 1
         start = time.perf_counter()

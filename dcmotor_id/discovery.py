@@ -37,8 +37,9 @@ from scipy.linalg import qr
 
 from dcmotor_id.effects import SensorDelay, torque_spread, VOCABULARY
 from dcmotor_id.errors import DcMotorIdError
+from dcmotor_id.estimators.jacobian import jacobian
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.model import MECHANICAL_NAMES, PARAMETER_NAMES
+from dcmotor_id.model import parameter_names
 from dcmotor_id.residuals import (ALPHA, analyse_channel, channel_errors, ChannelErrors,
                                   DEFAULT_LAGS, model_errors, one_step_error, output_channels,
                                   residual_nrmse_pct, simulate_records)
@@ -431,18 +432,18 @@ class DiscoveryLoop:
         measured = [{channel: getattr(rec, channel) for channel in self.outputs}
                     for rec in train]
         residual = self._stack(measured, fitted.stops) - self._stack(nominal, fitted.stops)
-        columns = []
         names = list(model.base_names) + [term.name for term in fitted.terms]
-        for name in names:
-            step = 1e-6 * abs(values[name]) or 1e-9
-            moved = dict(values)
-            moved[name] = values[name] + step
+        point = np.array([values[name] for name in names], dtype=float)
+
+        def stacked(vector):
+            moved = {**values, **dict(zip(names, vector))}
             with np.errstate(all='ignore'):
-                columns.append((self._stack(simulate_records(model, moved, states),
-                                            fitted.stops)
-                                - self._stack(nominal, fitted.stops)) / step)
+                return self._stack(simulate_records(model, moved, states), fitted.stops)
+        steps = np.where(point != 0.0, 1e-6 * np.abs(point), 1e-9)
+        matrix = (jacobian(stacked, point, steps, central=False,
+                           f0=self._stack(nominal, fitted.stops))
+                  if names else np.zeros((residual.shape[0], 0)))
         # Initial-state sensitivities are left out: they decay within a few time constants.
-        matrix = np.column_stack(columns) if columns else np.zeros((residual.shape[0], 0))
         matrix = matrix[:, np.all(np.isfinite(matrix), axis=0)]
         return residual, matrix, nominal
 
@@ -457,14 +458,15 @@ class DiscoveryLoop:
         _, model = self._train_model(fitted, fitted.terms + tuple(terms))
         start = dict(fitted.values)
         start.update({term.name: term.initial for term in terms})
-        columns = []
-        for term in terms:
-            values = dict(start)
-            values[term.name] = term.initial + term.scale
-            moved = simulate_records(model, values, fitted.estimate.initial_states)
-            columns.append((self._stack(moved, fitted.stops)
-                            - self._stack(nominal, fitted.stops)) / term.scale)
-        return np.column_stack(columns)
+        names = [term.name for term in terms]
+
+        def stacked(vector):
+            moved = {**start, **dict(zip(names, vector))}
+            return self._stack(simulate_records(model, moved, fitted.estimate.initial_states),
+                               fitted.stops)
+        return jacobian(stacked, [term.initial for term in terms],
+                        [term.scale for term in terms], central=False,
+                        f0=self._stack(nominal, fitted.stops))
 
     @staticmethod
     def _projector(matrix):
@@ -724,7 +726,7 @@ def refit_start(values: dict, records: Sequence[Record],
     The fit works on logarithms, so a friction that a missing effect drove to zero would
     stay there; a floor of 2 % of the driving torque's spread lets it come back.
     """
-    names = MECHANICAL_NAMES if torque_constant is not None else PARAMETER_NAMES
+    names = parameter_names(torque_constant is not None)
     start = {name: float(values[name]) for name in names}
     spread = torque_spread(records, start, torque_constant)
     speed = max(float(np.std(np.concatenate([rec.speed for rec in records]))), 1e-12)

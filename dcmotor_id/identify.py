@@ -21,7 +21,8 @@ from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdent
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.io import check_record
-from dcmotor_id.model import DERIVED_NAMES, MECHANICAL_NAMES, PARAMETER_NAMES, UNITS
+from dcmotor_id.model import (DERIVED_NAMES, inadmissible, MECHANICAL_NAMES, PARAMETER_NAMES,
+                              POSITIVE_NAMES, UNITS)
 from dcmotor_id.residuals import ChannelErrors, model_errors
 from dcmotor_id.signals import low_pass, noise_std, speed_from_position
 
@@ -39,8 +40,6 @@ NO_FIT_NRMSE_PCT = 60.0
 #: Simulation error of the base model above which effect discovery is not tried (percent).
 HOPELESS_NRMSE_PCT = 100.0
 #: Parameters that must be positive (the others non-negative).
-# TODO(merge): model.py's admissibility check replaces this and the test in _check_result.
-POSITIVE_NAMES = ('Ra', 'La', 'CPhi', 'J')
 
 
 def prepare_records(records: Sequence[Record], torque_constant: float | None = None,
@@ -153,9 +152,7 @@ def simulation_errors(estimate: Estimate, records: Sequence[Record],
 
 def _check_result(estimate):
     """Refuse non-physical or non-identified results instead of reporting made-up numbers."""
-    bad = {name: value for name, value in estimate.parameters.items()
-           if name in PARAMETER_NAMES and not (np.isfinite(value) and (
-               value > 0 if name in POSITIVE_NAMES else value >= 0))}
+    bad = inadmissible(estimate.parameters)
     if bad:
         listing = ', '.join(f'{name} = {value:.4g} {UNITS[name]}' for name, value in bad.items())
         hint = (' Check the signs and units of the columns (current and speed must be positive '
@@ -276,13 +273,10 @@ def supports_discovery(estimator: Any) -> bool:
     """
     Whether the discovery loop can follow this estimator (it fits effect terms).
 
-    The estimator says so by a ``supports_discovery`` attribute; an estimator without it is
-    taken to support discovery when it is the refined one.
+    The :class:`~dcmotor_id.estimators.base.Estimator` protocol's ``supports_terms`` says
+    whether the estimator fits effect terms (the refined one does, the paper's does not).
     """
-    # TODO(merge): the Estimator protocol (estimators/base.py) declares supports_discovery;
-    # the isinstance fallback goes once RefinedEstimator sets the attribute.
-    return bool(getattr(estimator, 'supports_discovery',
-                        isinstance(estimator, RefinedEstimator)))
+    return bool(getattr(estimator, 'supports_terms', False))
 
 
 def identify(records: Sequence[Record], method: str = 'refined',

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2, norm
 
 from dcmotor_id.signals import noise_std
+from dcmotor_id.simulation import zoh_matrices
 
 #: Default number of lags of the whiteness test and the correlation plots.
 DEFAULT_LAGS = 25
@@ -319,22 +320,6 @@ def analyse_channel(residual: ArrayLike, measured: ArrayLike,
         'regressors': {name: correlation_summary(residual, values, max_lag, level)
                        for name, values in (regressors or {}).items()},
     }
-
-
-def zoh_matrices(a_matrix: ArrayLike, sample_period_s: float) -> tuple[FloatArray, FloatArray]:
-    """
-    Exact ZOH discretisation ``(Ad, Gamma)`` with ``Gamma = int_0^dt exp(A s) ds``.
-
-    :func:`scipy.signal.cont2discrete` with the identity as input matrix (so that its
-    discrete input matrix is ``Gamma``).
-    """
-    from scipy.signal import cont2discrete  # lazily, as in :mod:`dcmotor_id.signals`
-
-    a_matrix = np.atleast_2d(np.asarray(a_matrix, dtype=float))
-    identity = np.eye(a_matrix.shape[0])
-    ad, gamma, *_ = cont2discrete((a_matrix, identity, identity, identity), sample_period_s,
-                                  method='zoh')
-    return ad, gamma
 
 
 def one_step_error(values: Mapping[str, float], record: Any,

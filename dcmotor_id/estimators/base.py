@@ -148,11 +148,3 @@ class Estimator(Protocol):
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
         """Fit the records; return the :class:`Estimate`."""
         ...
-
-
-def nrmse_pct(simulated: np.ndarray, measured: np.ndarray) -> float:
-    """Return the simulation error in percent of the measured signal's standard deviation."""
-    spread = np.std(measured)
-    if spread == 0:
-        return float('nan')
-    return float(np.sqrt(np.mean((simulated - measured) ** 2)) / spread * 100.0)
