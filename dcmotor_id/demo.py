@@ -7,8 +7,8 @@ import numpy as np
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.excitation import add_sensor_noise, make_excitation, PAPER_SAWTOOTH, PAPER_SINE
 from dcmotor_id.identify import identify
-from dcmotor_id.io import Record
 from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
+from dcmotor_id.records import Record
 from dcmotor_id.simulation import simulate_motor
 
 SAMPLE_PERIOD_S = 1e-4

@@ -15,8 +15,8 @@ from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdent
 from dcmotor_id.estimators.base import nrmse_pct
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.io import check_record
 from dcmotor_id.model import DERIVED_NAMES, PARAMETER_NAMES, UNITS
+from dcmotor_id.records import check_record
 from dcmotor_id.signals import low_pass, noise_std, speed_from_position
 
 #: Estimators by the name the CLI's ``--method`` takes.

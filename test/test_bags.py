@@ -15,9 +15,10 @@ from rosbags.typesys import get_typestore, Stores
 from dcmotor_id.cli import main as cli_main
 from dcmotor_id.errors import InputDataError
 from dcmotor_id.excitation import make_excitation
+from dcmotor_id.formats.bag import read_bag, write_bag
 from dcmotor_id.identify import identify, prepare_records
-from dcmotor_id.io import read_bag, WindowBagWriter, write_bag
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.recording import WindowBagWriter
 from dcmotor_id.simulation import simulate_motor
 
 START_NS = 1_700_000_000_000_000_000
@@ -143,7 +144,7 @@ def test_window_writer_reports_full_and_unwritable_directories(tmp_path):
 
 WRITER_SCRIPT = """
 import sys, numpy as np
-from dcmotor_id.io import WindowBagWriter
+from dcmotor_id.recording import WindowBagWriter
 writer = WindowBagWriter(sys.argv[1], budget_bytes=10 ** 9)
 stamps = 10 ** 18 + np.arange(20000) * 10 ** 6
 channels = {name: np.random.default_rng(0).normal(size=20000)

@@ -14,7 +14,7 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 import yaml
 
-from dcmotor_id.io import write_bag
+from dcmotor_id.formats.bag import write_bag
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.identifier import Identifier, RESULT_KEYS
 from dcmotor_id.nodes.replay import Replay

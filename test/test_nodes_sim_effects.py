@@ -5,7 +5,7 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 
-from dcmotor_id.io import decode_batch
+from dcmotor_id.formats.batch import decode_batch
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.sim_motor import parse_effects, SimMotor
 from dcmotor_id.simulation import simulate_motor

@@ -55,12 +55,14 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
 from dcmotor_id.errors import DcMotorIdError
+from dcmotor_id.formats.batch import decode_batch
 from dcmotor_id.identify import METHODS
-from dcmotor_id.io import decode_batch, MIN_SAMPLES, record_from_stamps, WindowBagWriter
 from dcmotor_id.model import DERIVED_NAMES, PARAMETER_NAMES, UNITS
 from dcmotor_id.nodes.common import declare, run, sample_qos
 from dcmotor_id.nodes.worker import identify_windows, warm_up, watch_parent
 from dcmotor_id.online import OnlineEstimator
+from dcmotor_id.recording import WindowBagWriter
+from dcmotor_id.records import MIN_SAMPLES, record_from_stamps
 from dcmotor_id.streams import contiguous_runs, StreamAligner
 
 #: Keys of the result, in order.

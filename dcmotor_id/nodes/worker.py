@@ -13,7 +13,7 @@ import time
 
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.identify import identify, prepare_records
-from dcmotor_id.io import record_from_stamps
+from dcmotor_id.records import record_from_stamps
 
 
 def watch_parent(parent_pid, period_s=1.0):
