@@ -12,8 +12,10 @@ from __future__ import annotations
 from collections.abc import Collection, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
+import io
 import os
 import shutil
+import struct
 from typing import Any, Callable, Optional, Union
 import warnings
 
@@ -33,6 +35,8 @@ BAG_TOPICS = {'voltage': 'voltage', 'current': 'current', 'speed': 'speed', 'sam
 PARTIAL_PREFIX = '.partial_'
 #: Message type of the per-sample topics.
 FLOAT64_TYPE = 'std_msgs/msg/Float64'
+#: The first bytes of an MCAP file.
+MCAP_MAGIC = b'\x89MCAP0\r\n'
 
 
 class TruncatedBagWarning(UserWarning):
@@ -103,15 +107,47 @@ def _mcap_files(path: str) -> list[str]:
     return [path] if path.endswith('.mcap') else []
 
 
+def _mcap_pieces(data: bytes) -> tuple[int, bytes]:
+    """
+    Find where an MCAP file stops being complete.
+
+    Returns the end of the last complete record (the file up to there is readable record by
+    record) and, when the record cut by the end of the file is an uncompressed chunk, the
+    bytes of that chunk's records that did arrive (else ``b''``). Only the record framing of
+    the MCAP specification (opcode, uint64 length) and the chunk header are read here; the
+    records themselves are parsed by the mcap library.
+    """
+    from mcap.opcode import Opcode
+
+    position = len(MCAP_MAGIC)
+    while position + 9 <= len(data):
+        opcode, length = struct.unpack_from('<BQ', data, position)
+        end = position + 9 + length
+        if end > len(data):
+            if opcode != Opcode.CHUNK:
+                break
+            # chunk: start, end time (uint64), uncompressed size (uint64), crc (uint32),
+            # compression (uint32-prefixed string), records (uint64-prefixed bytes)
+            header = position + 9 + 28
+            if header + 4 > len(data):
+                break
+            (name_length,) = struct.unpack_from('<I', data, header)
+            records = header + 4 + name_length + 8
+            if records > len(data) or name_length:
+                break  # only an uncompressed chunk can be read in part
+            return position, data[records:]
+        position = end
+    return position, b''
+
+
 def _recover_mcap(files: list[str], reason: str) -> Optional[_RecoveredSource]:
     """
-    Read the complete chunks of MCAP files whose summary or end is missing.
+    Read the complete records of MCAP files whose end is missing.
 
-    The stream reader decodes record after record from the start and stops at the first
-    incomplete one, so every message of a chunk written before the cut is returned.
-    Return None when the files are not MCAP at all.
+    Every chunk before the cut is complete and read whole; of an uncompressed chunk cut by
+    the end of the file, the messages that arrived whole are read too. Return None when the
+    files are not MCAP at all.
     """
-    from mcap.exceptions import InvalidMagic
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
 
@@ -119,22 +155,29 @@ def _recover_mcap(files: list[str], reason: str) -> Optional[_RecoveredSource]:
     channels: dict[int, str] = {}
     topics: dict[str, str] = {}
     messages: list[tuple[str, int, bytes]] = []
+
+    def take(stream: io.BytesIO, skip_magic: bool) -> None:
+        try:
+            for record in StreamReader(stream, skip_magic=skip_magic).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Channel):
+                    channels[record.id] = record.topic
+                    topics[record.topic] = schemas.get(record.schema_id, '')
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    messages.append((channels[record.channel_id], int(record.log_time),
+                                     bytes(record.data)))
+        except Exception:  # noqa: BLE001, S110  (the end of the bytes: EndOfFile or struct)
+            pass
     for name in files:
         with open(name, 'rb') as stream:
-            try:
-                for record in StreamReader(stream).records:
-                    if isinstance(record, Schema):
-                        schemas[record.id] = record.name
-                    elif isinstance(record, Channel):
-                        channels[record.id] = record.topic
-                        topics[record.topic] = schemas.get(record.schema_id, '')
-                    elif isinstance(record, Message) and record.channel_id in channels:
-                        messages.append((channels[record.channel_id], int(record.log_time),
-                                         bytes(record.data)))
-            except InvalidMagic:
-                return None  # not an MCAP file: nothing to recover
-            except Exception:  # noqa: BLE001, S110  (the cut record fails in struct or mcap)
-                pass
+            data = stream.read()
+        if not data.startswith(MCAP_MAGIC):
+            return None  # not an MCAP file: nothing to recover
+        complete, partial = _mcap_pieces(data)
+        take(io.BytesIO(data[:complete]), skip_magic=False)
+        if partial:
+            take(io.BytesIO(partial), skip_magic=True)
     messages.sort(key=lambda message: message[1])
     stamps = [message[1] for message in messages]
     recovery = Recovery(path=', '.join(files), messages=len(messages),
@@ -188,11 +231,11 @@ def open_bag(path: PathLike) -> Iterator[Any]:
         reader.close()
 
 
-def _warn_recovered(path: str, recovery: Recovery, what: str) -> None:
+def _warn_recovered(path: str, recovery: Recovery, what: str, duration_s: float) -> None:
     warnings.warn(
         f'{path}: the MCAP file is truncated ({recovery.reason}); recovered {what} spanning '
-        f'{recovery.duration_s:.3f} s from the complete chunks before the cut, the rest is '
-        'lost', TruncatedBagWarning, stacklevel=3)
+        f'{duration_s:.3f} s, every complete message before the cut; the rest is lost',
+        TruncatedBagWarning, stacklevel=3)
 
 
 def load_messages(path: PathLike, *,
@@ -227,7 +270,7 @@ def load_messages(path: PathLike, *,
         recovery = source.recovery
     messages.sort(key=lambda item: item[0])
     if recovery is not None:
-        _warn_recovered(str(path), recovery, f'{len(messages)} messages')
+        _warn_recovered(str(path), recovery, f'{len(messages)} messages', recovery.duration_s)
     return topics, messages
 
 
@@ -298,8 +341,7 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
         if batch_topic is not None and available[batch_topic] == BATCH_TYPE:
             record = _read_batches(source, batch_topic, typestore, path, sample_period_s)
             if recovery is not None:
-                _warn_recovered(path, recovery, f'{len(record)} samples in '
-                                f'{recovery.messages} messages')
+                _warn_recovered_record(path, recovery, record)
             return record
         wanted = {channel: match_topic(names[channel], available)
                   for channel in ('voltage', 'current', 'speed')}
@@ -333,9 +375,13 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
                                     source=path)
     record = record_from_stamps(grid, values, source=path)
     if recovery is not None:
-        _warn_recovered(path, recovery, f'{len(record)} samples in {recovery.messages} '
-                        'messages')
+        _warn_recovered_record(path, recovery, record)
     return record
+
+
+def _warn_recovered_record(path: str, recovery: Recovery, record: Record) -> None:
+    _warn_recovered(path, recovery, f'{len(record)} samples ({recovery.messages} messages)',
+                    len(record) * record.sample_period_s)
 
 
 def _decode_float64(payloads: list[bytes], typestore: Any) -> np.ndarray:
