@@ -10,7 +10,8 @@ from typing import Optional
 
 import numpy as np
 
-from dcmotor_id.formats.bag import bag_size, PARTIAL_PREFIX, PathLike, write_bag
+from dcmotor_id.formats.bag import bag_size, PARTIAL_PREFIX, write_bag
+from dcmotor_id.records import PathLike
 
 #: Prefix of the window bags written by :class:`WindowBagWriter`.
 WINDOW_PREFIX = 'window_'

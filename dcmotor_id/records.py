@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import Any, Optional
+import os
+from typing import Any, Optional, Union
 
 import numpy as np
 
 from dcmotor_id.errors import InputDataError
 
+#: A path given as text or as an :class:`os.PathLike`.
+PathLike = Union[str, 'os.PathLike[str]']
 #: Columns a record can carry, with their units.
 COLUMNS = {'t': 's', 'voltage': 'V', 'current': 'A', 'speed': 'rad/s', 'position': 'rad'}
 #: Fewest samples a record must have to be identified.

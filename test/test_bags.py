@@ -231,3 +231,18 @@ def test_a_file_that_is_not_mcap_is_still_refused(tmp_path):
     (tmp_path / 'y.mcap').write_bytes(b'\x89MCAP0\r\n')  # only the magic: nothing to recover
     with pytest.raises(InputDataError, match='cannot open as a rosbag2 bag'):
         read_bag(str(tmp_path / 'y.mcap'))
+
+
+def test_one_reader_entry_point_picks_the_format(tmp_path):
+    from dcmotor_id.formats import detect_format, read_record, read_records
+    from dcmotor_id.formats.csv import write_csv
+
+    stamps, channels = motor_samples(0.5)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    bagged = read_record(tmp_path / 'bag')
+    write_csv(str(tmp_path / 'r.csv'), bagged)
+    assert [detect_format(path) for path in (tmp_path / 'bag', 'x.mcap', 'x.db3', 'r.csv')] \
+        == ['bag', 'bag', 'bag', 'csv']
+    from_bag, from_csv = read_records([str(tmp_path / 'bag'), str(tmp_path / 'r.csv')])
+    for name in ('time_s', 'voltage', 'current', 'speed'):
+        np.testing.assert_array_equal(getattr(from_csv, name), getattr(from_bag, name))

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 import os
-from typing import Any, Callable, Optional
+from typing import Callable, Optional
 
 from dcmotor_id.formats import bag, csv
-from dcmotor_id.records import Record
+from dcmotor_id.records import PathLike, Record
 
 #: Format name -> reader ``(path, topics=..., sample_period_s=...) -> Record``.
 READERS: dict[str, Callable[..., Record]] = {
@@ -24,13 +24,13 @@ READERS: dict[str, Callable[..., Record]] = {
 BAG_SUFFIXES = ('.mcap', '.db3')
 
 
-def detect_format(path: Any) -> str:
+def detect_format(path: PathLike) -> str:
     """Return the format of ``path``: ``bag`` (a directory, ``.mcap``, ``.db3``) or ``csv``."""
     text = str(path)
     return 'bag' if os.path.isdir(text) or text.endswith(BAG_SUFFIXES) else 'csv'
 
 
-def read_record(path: Any, *, topics: Optional[Mapping[str, str]] = None,
+def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
                 sample_period_s: Optional[float] = None) -> Record:
     """
     Read one record from a CSV file or a rosbag2 bag, choosing the reader by the path.
@@ -53,7 +53,7 @@ def read_record(path: Any, *, topics: Optional[Mapping[str, str]] = None,
     return READERS[detect_format(path)](path, topics=topics, sample_period_s=sample_period_s)
 
 
-def read_records(paths: Iterable[Any], *,
+def read_records(paths: Iterable[PathLike], *,
                  topics: Optional[Mapping[str, str]] = None) -> list[Record]:
     """Read every path with :func:`read_record`, in order."""
     return [read_record(path, topics=topics) for path in paths]

@@ -16,7 +16,7 @@ import io
 import os
 import shutil
 import struct
-from typing import Any, Callable, Optional, Union
+from typing import Any, Callable, Optional
 import warnings
 
 import numpy as np
@@ -24,9 +24,7 @@ import numpy as np
 from dcmotor_id.errors import InputDataError
 from dcmotor_id.formats.batch import (BATCH_CHANNELS, batch_message, BATCH_TYPE, BatchTypes,
                                       decode_batch_message)
-from dcmotor_id.records import Record, record_from_stamps
-
-PathLike = Union[str, 'os.PathLike[str]']
+from dcmotor_id.records import PathLike, Record, record_from_stamps
 
 #: Topic of every channel in a bag, as the identifier node names them (relative names match
 #: any namespace: ``voltage`` matches ``/voltage`` and ``/drive/voltage``).

@@ -9,14 +9,11 @@ from __future__ import annotations
 
 import csv
 import os
-from typing import Union
 
 import numpy as np
 
 from dcmotor_id.errors import InputDataError
-from dcmotor_id.records import COLUMNS, Record
-
-PathLike = Union[str, 'os.PathLike[str]']
+from dcmotor_id.records import COLUMNS, PathLike, Record
 
 #: Other names seen for the columns, for the hint of a refusal (never accepted silently).
 _ALIASES = {
@@ -28,7 +25,7 @@ _ALIASES = {
 }
 
 
-def _check_names(path: str, header: list[str], index: dict[str, int]) -> None:
+def _check_names(path: PathLike, header: list[str], index: dict[str, int]) -> None:
     """
     Refuse columns that are named like a known one but not exactly (e.g. ``Voltage``).
 
