@@ -16,7 +16,7 @@ import io
 import os
 import shutil
 import struct
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Protocol
 import warnings
 
 import numpy as np
@@ -69,6 +69,26 @@ class Recovery:
     def duration_s(self) -> float:
         """Time spanned by the recovered messages [s]."""
         return (self.last_ns - self.first_ns) * 1e-9
+
+
+class MessageSource(Protocol):
+    """
+    The messages of an open bag, undecoded (what :func:`open_bag` yields).
+
+    Attributes
+    ----------
+    topics : dict
+        Topic -> message type name (as the bag declares it; never imported here).
+    recovery : Recovery or None
+        What was read of a truncated MCAP file, or None for a complete bag.
+
+    """
+
+    topics: dict[str, str]
+    recovery: Optional[Recovery]
+
+    def messages(self, topics: Collection[str]) -> Iterator[tuple[str, int, bytes]]:
+        """Yield ``(topic, stamp_ns, cdr_bytes)`` of the given topics in time order."""
 
 
 class _RosbagsSource:
@@ -185,14 +205,12 @@ def _recover_mcap(files: list[str], reason: str) -> Optional[_RecoveredSource]:
 
 
 @contextmanager
-def open_bag(path: PathLike) -> Iterator[Any]:
+def open_bag(path: PathLike) -> Iterator[MessageSource]:
     """
-    Open a bag for reading; yield a source with ``topics`` and ``messages(topics)``.
+    Open a bag for reading; yield its :class:`MessageSource`.
 
-    ``topics`` maps every topic to its message type; ``messages(topics)`` yields ``(topic,
-    stamp_ns, cdr_bytes)`` of the given topics in time order; ``recovery`` is a
-    :class:`Recovery` when the bag was a truncated MCAP file read up to its last complete
-    chunk, else None.
+    rosbags reads complete bags; a truncated MCAP file is read with the mcap library up to
+    the cut, and the source's ``recovery`` says how much that was.
 
     Raises
     ------
@@ -229,11 +247,12 @@ def open_bag(path: PathLike) -> Iterator[Any]:
         reader.close()
 
 
-def _warn_recovered(path: str, recovery: Recovery, what: str, duration_s: float) -> None:
+def _warn_recovered(path: str, recovery: Recovery, what: str, duration_s: float,
+                    stacklevel: int = 3) -> None:
     warnings.warn(
         f'{path}: the MCAP file is truncated ({recovery.reason}); recovered {what} spanning '
         f'{duration_s:.3f} s, every complete message before the cut; the rest is lost',
-        TruncatedBagWarning, stacklevel=3)
+        TruncatedBagWarning, stacklevel=stacklevel)
 
 
 def load_messages(path: PathLike, *,
@@ -379,7 +398,7 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
 
 def _warn_recovered_record(path: str, recovery: Recovery, record: Record) -> None:
     _warn_recovered(path, recovery, f'{len(record)} samples ({recovery.messages} messages)',
-                    len(record) * record.sample_period_s)
+                    len(record) * record.sample_period_s, stacklevel=4)
 
 
 def _decode_float64(payloads: list[bytes], typestore: Any) -> np.ndarray:
@@ -390,7 +409,7 @@ def _decode_float64(payloads: list[bytes], typestore: Any) -> np.ndarray:
                     dtype=float)
 
 
-def _read_batches(source: Any, topic: str, typestore: Any, path: str,
+def _read_batches(source: MessageSource, topic: str, typestore: Any, path: str,
                   sample_period_s: Optional[float]) -> Record:
     from dcmotor_id.streams import align_timestamps
 
