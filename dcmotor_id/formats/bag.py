@@ -403,7 +403,7 @@ def _warn_recovered_record(path: str, recovery: Recovery, record: Record) -> Non
 
 def _decode_float64(payloads: list[bytes], typestore: Any) -> np.ndarray:
     # rosbags' deserializer, not a hand-written CDR decoder: bench/cdr_results.md measures a
-    # whole bag (60 s x 3 channels at 1 kHz) read and written 1.2-1.4 times faster with
+    # whole bag (60 s x 3 channels at 1 kHz) read and written only 1.3 times faster with
     # one, some 0.1-0.2 s a minute of samples: not worth code of our own
     return np.array([typestore.deserialize_cdr(data, FLOAT64_TYPE).data for data in payloads],
                     dtype=float)
