@@ -41,8 +41,8 @@ from scipy.optimize import least_squares
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.excitation import add_sensor_noise, make_excitation
 from dcmotor_id.identify import identify, prepare_records
-from dcmotor_id.io import Record
 from dcmotor_id.model import PAPER_MOTORS, relative_errors_pct
+from dcmotor_id.records import Record
 from dcmotor_id.simulation import simulate_motor
 
 DURATION_S = 60.0
@@ -57,7 +57,7 @@ import time
 start = time.perf_counter()
 import numpy as np
 from dcmotor_id.identify import identify, prepare_records
-from dcmotor_id.io import Record
+from dcmotor_id.records import Record
 imported = time.perf_counter()
 data = np.load(sys.argv[1])
 record = Record(data['t'], data['current'], data['voltage'], data['speed'])

@@ -18,9 +18,12 @@ import numpy as np
 from dcmotor_id.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.errors import DcMotorIdError, InputDataError
 from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excitation, quantise
+from dcmotor_id.formats import read_records
+from dcmotor_id.formats.bag import BAG_TOPICS
+from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.identify import identify, METHODS, prepare_records
-from dcmotor_id.io import BAG_TOPICS, read_bag, read_csv, Record, write_csv
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.records import Record
 from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 from dcmotor_id.summary import format_table
 
@@ -28,13 +31,7 @@ from dcmotor_id.summary import format_table
 def load_records(paths: Sequence[str],
                  topics: Mapping[str, str] | None = None) -> list[Record]:
     """Read every input path (CSV files, rosbag2 directories, .mcap or .db3 files)."""
-    records = []
-    for path in paths:
-        if os.path.isdir(path) or path.endswith(('.mcap', '.db3')):
-            records.append(read_bag(path, topics=topics))
-        else:
-            records.append(read_csv(path))
-    return records
+    return read_records(paths, topics=topics)
 
 
 def _json_safe(value):

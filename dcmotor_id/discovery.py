@@ -47,7 +47,7 @@ from dcmotor_id.residuals import (ALPHA, analyse_channel, channel_errors, Channe
 if TYPE_CHECKING:
     from dcmotor_id.effects import Effect
     from dcmotor_id.estimators.base import Estimate, ExogenousTerm
-    from dcmotor_id.io import Record
+    from dcmotor_id.records import Record
 
 #: Share of each record held out for selection.
 HOLDOUT_FRACTION = 0.3

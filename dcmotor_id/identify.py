@@ -20,16 +20,16 @@ from dcmotor_id.effects import VOCABULARY
 from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.io import check_record
 from dcmotor_id.model import (DERIVED_NAMES, inadmissible, MECHANICAL_NAMES, PARAMETER_NAMES,
                               POSITIVE_NAMES, UNITS)
+from dcmotor_id.records import check_record
 from dcmotor_id.residuals import ChannelErrors, model_errors
 from dcmotor_id.signals import low_pass, noise_std, speed_from_position
 
 if TYPE_CHECKING:
     from dcmotor_id.effects import Effect
     from dcmotor_id.estimators.base import Estimate
-    from dcmotor_id.io import Record
+    from dcmotor_id.records import Record
 
 #: Estimators by the name the CLI's ``--method`` takes.
 METHODS = {'refined': RefinedEstimator, 'paper': PaperEstimator}
@@ -81,6 +81,7 @@ def prepare_records(records: Sequence[Record], torque_constant: float | None = N
                     f'{record.source or "record"}: --speed-cutoff {speed_cutoff_hz:g} Hz is not '
                     f'below the Nyquist frequency {nyquist_hz:.6g} Hz of the record; give a '
                     'lower cut-off (the default is a tenth of the sample rate, at most 100 Hz)')
+            assert record.position is not None  # checked above: no speed means a position
             record = record.replace(speed=speed_from_position(
                 record.position, record.sample_period_s, speed_cutoff_hz))
         prepared.append(record)
@@ -104,10 +105,11 @@ def check_excitation(records: Sequence[Record], mechanical_only: bool) -> None:
         that never reverses (Coulomb friction then cannot be told from a load torque).
 
     """
-    speeds = np.concatenate([rec.speed for rec in records])
-    smooth = np.concatenate([low_pass(rec.speed, min(0.05, 25.0 * rec.sample_period_s), order=2)
-                             for rec in records])
-    noise = max(max(noise_std(rec.speed) for rec in records),
+    measured = [np.asarray(rec.speed, dtype=float) for rec in records]
+    speeds = np.concatenate(measured)
+    smooth = np.concatenate([low_pass(speed, min(0.05, 25.0 * rec.sample_period_s), order=2)
+                             for speed, rec in zip(measured, records)])
+    noise = max(max(noise_std(speed) for speed in measured),
                 1e-12 * max(np.max(np.abs(speeds)), 1e-300))
     if np.max(np.abs(smooth)) <= 10.0 * noise:
         raise NotIdentifiableError(

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from numba import njit
 import numpy as np
 
-from dcmotor_id.io import Record
+from dcmotor_id.records import Record
 from dcmotor_id.model import MotorParameters
 
 #: A small brushed motor (24 V class): armature time constant 0.4 ms.

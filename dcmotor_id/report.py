@@ -31,7 +31,7 @@ from dcmotor_id.residuals import (autocorrelation, confidence_band, cross_correl
 
 if TYPE_CHECKING:
     from dcmotor_id.discovery import DiscoveryResult
-    from dcmotor_id.io import Record
+    from dcmotor_id.records import Record
 
 #: Units of the plotted channels.
 CHANNEL_UNITS = {'current': 'A', 'speed': 'rad/s', 'voltage': 'V'}

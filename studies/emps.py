@@ -29,7 +29,7 @@ from scipy.io import loadmat
 from dcmotor_id.effects import EXTENDED_VOCABULARY, LoadTorque, VOCABULARY
 from dcmotor_id.errors import InputDataError
 from dcmotor_id.estimators.refined import RefinedEstimator
-from dcmotor_id.io import Record
+from dcmotor_id.records import Record
 from dcmotor_id.signals import central_differences, speed_from_position
 from dcmotor_id.simulation import MotorEffects, simulate_mechanical_effects
 

@@ -17,8 +17,8 @@ from dcmotor_id.cli import main
 from dcmotor_id.errors import InputDataError
 from dcmotor_id.excitation import make_excitation
 from dcmotor_id.identify import prepare_records
-from dcmotor_id.io import Record
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.records import Record
 from dcmotor_id.simulation import simulate_motor
 
 MOTOR = PAPER_MOTORS['paper2']

@@ -15,9 +15,10 @@ from rosbags.typesys import get_typestore, Stores
 from dcmotor_id.cli import main as cli_main
 from dcmotor_id.errors import InputDataError
 from dcmotor_id.excitation import make_excitation
+from dcmotor_id.formats.bag import load_messages, read_bag, TruncatedBagWarning, write_bag
 from dcmotor_id.identify import identify, prepare_records
-from dcmotor_id.io import read_bag, WindowBagWriter, write_bag
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.recording import WindowBagWriter
 from dcmotor_id.simulation import simulate_motor
 
 START_NS = 1_700_000_000_000_000_000
@@ -143,7 +144,7 @@ def test_window_writer_reports_full_and_unwritable_directories(tmp_path):
 
 WRITER_SCRIPT = """
 import sys, numpy as np
-from dcmotor_id.io import WindowBagWriter
+from dcmotor_id.recording import WindowBagWriter
 writer = WindowBagWriter(sys.argv[1], budget_bytes=10 ** 9)
 stamps = 10 ** 18 + np.arange(20000) * 10 ** 6
 channels = {name: np.random.default_rng(0).normal(size=20000)
@@ -178,3 +179,70 @@ def test_sigkill_while_writing_leaves_only_readable_bags(tmp_path):
     writer = WindowBagWriter(directory, budget_bytes=10 ** 9)  # cleans up the leftover
     assert not [name for name in os.listdir(directory) if name.startswith('.partial_')]
     assert writer.windows() == [str(directory / name) for name in finished]
+
+
+@pytest.mark.parametrize('batch_samples', [0, 250])
+@pytest.mark.parametrize('fraction', [0.99, 0.5])
+def test_truncated_mcap_is_read_up_to_the_cut_with_a_warning(tmp_path, fraction,
+                                                             batch_samples):
+    """A recorder that crashed or a copy cut short: the complete chunks are still data."""
+    stamps, channels = motor_samples(20.0)
+    path = tmp_path / 'bag'
+    write_bag(path, stamps, channels, batch_samples=batch_samples)
+    mcap = path / 'bag.mcap'
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[:int(len(data) * fraction)])
+    for source in (path, mcap):  # the bag directory and the bare file
+        with pytest.warns(TruncatedBagWarning) as caught:
+            record = read_bag(str(source))
+        count = len(record)
+        # every message that arrived whole is read, also those of the chunk that was cut
+        assert fraction - 0.05 < count / stamps.size <= min(fraction + 0.05, 1.0)
+        np.testing.assert_array_equal(record.time_s, (stamps[:count] - stamps[0]) * 1e-9)
+        for name, values in channels.items():
+            np.testing.assert_array_equal(getattr(record, name), values[:count])
+        message = str(caught[0].message)
+        assert 'truncated' in message
+        assert f'recovered {count} samples' in message
+        assert f'spanning {count * 1e-3:.3f} s' in message
+    with pytest.warns(TruncatedBagWarning, match='messages spanning'):
+        topics, messages = load_messages(str(mcap))  # undecoded, as replay reads them
+    assert list(topics) == (['/samples'] if batch_samples else ['/voltage', '/current',
+                                                                '/speed'])
+    assert messages[0][0] == stamps[0] and len(messages) > 0.45 * len(topics) * stamps.size / \
+        max(batch_samples, 1)
+
+
+def test_cli_identifies_a_truncated_bag_and_says_so(tmp_path, capsys):
+    stamps, channels = motor_samples(8.0)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    mcap = tmp_path / 'bag' / 'bag.mcap'
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[:int(len(data) * 0.99)])
+    with pytest.warns(TruncatedBagWarning):
+        code = cli_main(['identify', str(tmp_path / 'bag'), '--no-discover'])
+    assert code == 0, capsys.readouterr().err
+
+
+def test_a_file_that_is_not_mcap_is_still_refused(tmp_path):
+    (tmp_path / 'x.mcap').write_bytes(b'not an mcap file at all')
+    with pytest.raises(InputDataError, match='cannot open as a rosbag2 bag'):
+        read_bag(str(tmp_path / 'x.mcap'))
+    (tmp_path / 'y.mcap').write_bytes(b'\x89MCAP0\r\n')  # only the magic: nothing to recover
+    with pytest.raises(InputDataError, match='cannot open as a rosbag2 bag'):
+        read_bag(str(tmp_path / 'y.mcap'))
+
+
+def test_one_reader_entry_point_picks_the_format(tmp_path):
+    from dcmotor_id.formats import detect_format, read_record, read_records
+    from dcmotor_id.formats.csv import write_csv
+
+    stamps, channels = motor_samples(0.5)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    bagged = read_record(tmp_path / 'bag')
+    write_csv(str(tmp_path / 'r.csv'), bagged)
+    assert [detect_format(path) for path in (tmp_path / 'bag', 'x.mcap', 'x.db3', 'r.csv')] \
+        == ['bag', 'bag', 'bag', 'csv']
+    from_bag, from_csv = read_records([str(tmp_path / 'bag'), str(tmp_path / 'r.csv')])
+    for name in ('time_s', 'voltage', 'current', 'speed'):
+        np.testing.assert_array_equal(getattr(from_csv, name), getattr(from_bag, name))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dcmotor_id.cli import main
-from dcmotor_id.io import read_csv
+from dcmotor_id.formats.csv import read_csv
 from dcmotor_id.model import PAPER_MOTORS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -7,8 +7,8 @@ from dcmotor_id.discovery import discover
 from dcmotor_id.effects import make_effect
 from dcmotor_id.excitation import add_sensor_noise, make_excitation
 from dcmotor_id.identify import identify
-from dcmotor_id.io import Record
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.records import Record
 from dcmotor_id.simulation import (simulate_mechanical_effects, simulate_motor,
                                    simulate_motor_effects)
 

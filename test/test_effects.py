@@ -7,8 +7,8 @@ from dcmotor_id.effects import (EFFECTS, EXTENDED_VOCABULARY, make_effect, parse
                                 SensorDelay, shaft_angle, VOCABULARY)
 from dcmotor_id.estimators.base import StateTerm
 from dcmotor_id.excitation import make_excitation
-from dcmotor_id.io import Record
 from dcmotor_id.model import PAPER_MOTORS, state_matrix
+from dcmotor_id.records import Record
 from dcmotor_id.simulation import (combine_effects, HybridSystem, motor_forcing, MotorEffects,
                                    MotorStepper, simulate_mechanical,
                                    simulate_mechanical_effects, simulate_motor,

@@ -14,8 +14,8 @@ from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import RefinedEstimator
 from dcmotor_id.excitation import add_sensor_noise, make_excitation
 from dcmotor_id.identify import identify, prepare_records
-from dcmotor_id.io import Record
 from dcmotor_id.model import MECHANICAL_NAMES, PAPER_MOTORS, PARAMETER_NAMES
+from dcmotor_id.records import Record
 from dcmotor_id.simulation import simulate_motor
 from dcmotor_id.simulation.scenarios import paper_records
 

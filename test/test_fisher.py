@@ -7,8 +7,8 @@ from dcmotor_id.estimators.base import ExogenousTerm
 from dcmotor_id.estimators.fisher import cramer_rao_bound, fisher_information
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.excitation import add_sensor_noise, make_excitation
-from dcmotor_id.io import Record
 from dcmotor_id.model import MECHANICAL_NAMES, PAPER_MOTORS, PARAMETER_NAMES
+from dcmotor_id.records import Record
 from dcmotor_id.simulation import simulate_motor
 
 MOTOR = PAPER_MOTORS['paper2']

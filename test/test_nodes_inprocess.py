@@ -15,7 +15,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from dcmotor_id.cli import main as cli_main
-from dcmotor_id.io import read_bag
+from dcmotor_id.formats.bag import read_bag
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.identifier import Identifier, LATCHED, RESULT_KEYS
 from dcmotor_id.nodes.sim_motor import SimMotor

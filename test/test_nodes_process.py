@@ -13,7 +13,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from std_srvs.srv import Trigger
 
-from dcmotor_id.io import read_bag
+from dcmotor_id.formats.bag import read_bag
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.common import spin_until
 from dcmotor_id.nodes.identifier import LATCHED, RESULT_KEYS

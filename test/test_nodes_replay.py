@@ -3,6 +3,9 @@
 import ast
 import math
 import os
+import struct
+import subprocess
+import sys
 import threading
 import time
 
@@ -14,7 +17,7 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 import yaml
 
-from dcmotor_id.io import write_bag
+from dcmotor_id.formats.bag import write_bag
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.identifier import Identifier, RESULT_KEYS
 from dcmotor_id.nodes.replay import Replay
@@ -249,3 +252,41 @@ def test_effects_are_reported_as_effect_keys_and_in_the_summary(ros, tmp_path):
     finally:
         ident.close()
         ident.destroy_node()
+
+
+def hostile_bag(path, msgtype='unittest/__main__/Float64'):
+    """Write a bag whose /voltage topic declares ``msgtype`` (a Float64 payload)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    connection = writer.add_connection('/voltage', msgtype, msgdef='float64 data',
+                                       rihs01='RIHS01_' + '0' * 64)
+    for k in range(10):
+        writer.write(connection, 10 ** 9 + k * 10 ** 6,
+                     b'\x00\x01\x00\x00' + struct.pack('<d', float(k)))
+    writer.close()
+    return path
+
+
+def test_replay_refuses_a_bag_declaring_an_unknown_message_type(ros, tmp_path):
+    """A bag chooses its type names: they are looked up, never imported."""
+    bag = hostile_bag(tmp_path / 'hostile')
+    before = set(sys.modules)
+    with pytest.raises(ValueError) as caught:
+        Replay(parameter_overrides=[Parameter('bag', value=str(bag))])
+    message = str(caught.value)
+    assert "'unittest/__main__/Float64' (topic /voltage) is not played" in message
+    assert 'std_msgs/msg/Float64' in message and 'sensor_msgs/msg/JointState' in message
+    assert not [name for name in set(sys.modules) - before if name.startswith('unittest')]
+    assert 'unittest.__main__' not in sys.modules
+
+
+def test_replay_executable_refuses_a_hostile_bag_without_running_it(ros_env, tmp_path):
+    bag = hostile_bag(tmp_path / 'hostile')
+    result = subprocess.run(
+        [sys.executable, '-m', 'dcmotor_id.nodes.replay', '--ros-args', '-p', f'bag:={bag}'],
+        env=ros_env, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert "'unittest/__main__/Float64' (topic /voltage) is not played" in result.stderr
+    assert 'Ran 0 tests' not in result.stdout + result.stderr  # unittest's CLI never ran

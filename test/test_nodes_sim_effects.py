@@ -7,7 +7,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 
-from dcmotor_id.io import decode_batch
+from dcmotor_id.formats.batch import decode_batch
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.common import sample_qos, spin_until as spin_executor_until
 from dcmotor_id.nodes.sim_motor import parse_effects, SimMotor

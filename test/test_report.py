@@ -10,8 +10,8 @@ from dcmotor_id.cli import main as cli_main
 from dcmotor_id.effects import make_effect
 from dcmotor_id.excitation import add_sensor_noise, make_excitation
 from dcmotor_id.identify import identify
-from dcmotor_id.io import Record
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.records import Record
 from dcmotor_id.report import write_report
 from dcmotor_id.simulation import simulate_motor_effects
 

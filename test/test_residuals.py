@@ -5,8 +5,8 @@ import pytest
 from scipy.stats import chi2
 
 from dcmotor_id.excitation import make_excitation
-from dcmotor_id.io import Record
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.records import Record
 from dcmotor_id.residuals import (analyse_channel, autocorrelation, confidence_band,
                                   correlation_summary, cross_correlation, ljung_box,
                                   one_step_error, predictable_fraction)

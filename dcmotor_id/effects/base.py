@@ -35,7 +35,7 @@ from dcmotor_id.simulation.coefficients import MotorEffects
 Values = Mapping[str, float]
 #: Inner (grid-searched) parameters of an effect.
 Inner = Mapping[str, Any]
-#: Records (:class:`~dcmotor_id.io.Record`).
+#: Records (:class:`~dcmotor_id.records.Record`).
 Records = Sequence[Any]
 #: The terms an effect adds to the fit.
 Terms = tuple[ExogenousTerm, ...]

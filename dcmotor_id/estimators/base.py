@@ -3,7 +3,7 @@ What every estimator takes and returns: the :class:`Estimator` protocol, its ter
 
 An estimator is an object with a ``name`` and ``fit(records, torque_constant=None, terms=())``
 returning an :class:`Estimate`.  ``records`` are checked, uniformly sampled
-:class:`~dcmotor_id.io.Record` objects that all carry current and speed, and voltage unless
+:class:`~dcmotor_id.records.Record` objects that all carry current and speed, and voltage unless
 ``torque_constant`` is given (mechanical-only mode: identify J, b, Mc with the torque
 ``torque_constant * current`` as the input).  Effects enter a fit as terms:
 :class:`ExogenousTerm` (linear in a coefficient, regressors from the measured signals) and

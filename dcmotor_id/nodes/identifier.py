@@ -15,7 +15,7 @@ timer through :class:`~dcmotor_id.nodes.common.BulkInput`), by ``input``:
   land on the right sample); with ``align_by: timestamp`` the DDS source timestamp is rounded
   to the sample grid.
 * ``batch``: ``samples`` (``std_msgs/msg/Float64MultiArray``, layout
-  :data:`dcmotor_id.io.BATCH_LABEL`): many samples a message, for 10 kHz and more.
+  :data:`dcmotor_id.formats.batch.BATCH_LABEL`): many samples a message, for 10 kHz and more.
 * ``joint_state``: ``joint_states`` (``sensor_msgs/msg/JointState``; speed from
   ``velocity``, current from ``effort`` times ``effort_scale``, both at ``header.stamp``) plus
   ``voltage`` by its source timestamp, or no voltage when ``torque_constant`` > 0
@@ -50,12 +50,13 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
 from dcmotor_id.errors import DcMotorIdError
-from dcmotor_id.io import decode_batch, MIN_SAMPLES
+from dcmotor_id.formats.batch import decode_batch
 from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters,
                                      run, sample_qos)
 from dcmotor_id.nodes.settings import IdentifierSettings
 from dcmotor_id.nodes.worker import FitProcess, WindowRecorder
 from dcmotor_id.online import OnlineEstimator
+from dcmotor_id.records import MIN_SAMPLES
 from dcmotor_id.streams import SampleInbox, StreamAligner
 from dcmotor_id.summary import (online_key_values, parameter_key_values, result_key_values,
                                 RESULT_KEYS)

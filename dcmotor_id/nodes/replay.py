@@ -1,5 +1,5 @@
 """
-``replay``: republish a bag's topics with their recorded timing, and /clock.
+``replay``: the node that republishes a bag's topics with their recorded timing, and /clock.
 
 A stand-in for ``ros2 bag play --clock`` (not installable from the wheels). Every message is
 published as recorded (serialized CDR, no decoding) at ``start + (stamp - first) / rate``;
@@ -7,42 +7,91 @@ published as recorded (serialized CDR, no decoding) at ``start + (stamp - first)
 timestamp, so a node with ``use_sim_time`` sees the bag's own time. Topics keep their
 recorded names (give ``topic_prefix`` to publish under another namespace). The node exits
 when the bag is done (unless ``loop``).
+
+Only the message types of :data:`MESSAGE_TYPES` are played: a bag names its types itself, and
+an untrusted bag must not choose what is imported; any other type is refused by name.
 """
 
-import importlib
+from __future__ import annotations
+
+from collections.abc import Mapping
 import threading
 import time
+from typing import Any, Optional
 
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Log, ParameterEvent
 import rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, Float64MultiArray
 
+from dcmotor_id.formats.bag import load_messages
 from dcmotor_id.nodes.common import declare, run
 
+#: The message types a bag may declare -> their rclpy classes: the identifier's inputs, the
+#: simulator's outputs and what ``ros2 bag record -a`` adds beside them. Nothing else is played.
+MESSAGE_TYPES: dict[str, type] = {
+    'std_msgs/msg/Float64': Float64,
+    'std_msgs/msg/Float64MultiArray': Float64MultiArray,
+    'sensor_msgs/msg/JointState': JointState,
+    'diagnostic_msgs/msg/DiagnosticArray': DiagnosticArray,
+    'rosgraph_msgs/msg/Clock': Clock,
+    'rcl_interfaces/msg/Log': Log,
+    'rcl_interfaces/msg/ParameterEvent': ParameterEvent,
+}
 
-def message_class(msgtype):
-    """Return the rclpy message class of a type name like ``std_msgs/msg/Float64``."""
-    package, kind, name = msgtype.split('/')
-    return getattr(importlib.import_module(f'{package}.{kind}'), name)
+
+class UnsupportedMessageType(ValueError):
+    """A bag declares a message type that replay does not play."""
 
 
-def load_bag(path):
-    """Read a whole bag: ``(topics {name: msgtype}, [(stamp_ns, topic, bytes), ...])``."""
-    from rosbags.rosbag2 import Reader
+def message_class(msgtype: str, topic: str = '') -> type:
+    """
+    Return the rclpy message class of a type name like ``std_msgs/msg/Float64``.
 
-    with Reader(path) as reader:
-        topics = {conn.topic: conn.msgtype for conn in reader.connections}
-        messages = [(stamp, conn.topic, bytes(data))
-                    for conn, stamp, data in reader.messages()]
-    messages.sort(key=lambda item: item[0])
-    return topics, messages
+    Raises
+    ------
+    UnsupportedMessageType
+        When the type is not one of :data:`MESSAGE_TYPES` (nothing is imported for it).
+
+    """
+    try:
+        return MESSAGE_TYPES[msgtype]
+    except (KeyError, TypeError):
+        where = f' (topic {topic})' if topic else ''
+        raise UnsupportedMessageType(
+            f'message type {msgtype!r}{where} is not played; replay plays only '
+            f'{", ".join(MESSAGE_TYPES)}: remove that topic from the bag '
+            '(e.g. ros2 bag convert) or play it with ros2 bag play') from None
+
+
+def load_bag(path: str) -> tuple[dict[str, str], list[tuple[int, str, bytes]]]:
+    """
+    Read a whole bag: ``(topics {name: msgtype}, [(stamp_ns, topic, bytes), ...])``.
+
+    Every declared type is checked against :data:`MESSAGE_TYPES` before any message is read.
+
+    Raises
+    ------
+    UnsupportedMessageType
+        When a topic has a type that replay does not play.
+    InputDataError
+        When the path is not a readable bag.
+
+    """
+    def check(topics: Mapping[str, str]) -> None:
+        for topic, msgtype in topics.items():
+            message_class(msgtype, topic)
+    return load_messages(path, check=check)
 
 
 class Replay(Node):
     """Publish a bag's messages with their recorded timing."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__('replay', **kwargs)
         self.bag = declare(self, 'bag', '', 'bag directory or .mcap/.db3 file to play')
         self.rate = declare(self, 'rate', 1.0, 'playback speed factor', low=1e-3, high=1e3)
@@ -60,13 +109,15 @@ class Replay(Node):
                              '--ros-args -p bag:=/path/to/window_000001_...')
         try:
             self.topics, self.messages = load_bag(self.bag)
+        except UnsupportedMessageType as error:
+            raise ValueError(f'cannot play the bag {self.bag}: {error}') from None
         except Exception as error:  # noqa: BLE001  (rosbags raises several types)
             raise ValueError(f'cannot read the bag {self.bag}: {error}') from None
         if not self.messages:
             raise ValueError(f'the bag {self.bag} holds no messages')
         qos = QoSProfile(depth=depth)
         self._topic_publishers = {
-            topic: self.create_publisher(message_class(msgtype),
+            topic: self.create_publisher(message_class(msgtype, topic),
                                          self.topic_prefix.rstrip('/') + topic
                                          if self.topic_prefix else topic, qos)
             for topic, msgtype in self.topics.items()}
@@ -108,7 +159,7 @@ class Replay(Node):
         self.done.set()
 
 
-def main(args=None):
+def main(args: Optional[list[str]] = None) -> int:
     """Run the ``replay`` node until the bag is played."""
     return run(Replay, args, until=lambda node: node.done.is_set())
 

@@ -1,11 +1,11 @@
 """
-``sim_motor``: a DC motor drive simulated in real time (exact ZOH hybrid model).
+``sim_motor``: the node of a DC motor drive simulated in real time (exact ZOH hybrid model).
 
 Publishes the measured ``voltage`` [V], ``current`` [A] and ``speed`` [rad/s] of every sample
 at ``sample_rate_hz``, either as three ``std_msgs/msg/Float64`` topics (``transport:
 float64``: the n-th message of each topic is sample n, published voltage, current, speed in
 that order) or as batches on ``samples`` (``transport: batch``: ``std_msgs/msg/
-Float64MultiArray`` laid out as :data:`dcmotor_id.io.BATCH_LABEL`, ``t`` in seconds since the
+Float64MultiArray`` laid out as :mod:`dcmotor_id.formats.batch`, ``t`` in seconds since the
 simulation started), which is what makes 10 kHz and more practical. The voltage comes from
 the node's excitation generator, or from the ``voltage_command`` topic when
 ``use_voltage_command`` is true (the last command is held). Defaults: the paper's motor 2.
@@ -13,16 +13,19 @@ The ``effects`` parameter switches on effects of the vocabulary of :mod:`dcmotor
 (e.g. ``load_torque:torque_Nm=0.3;current_offset:offset_A=0.05``), simulated sample by sample.
 """
 
+from __future__ import annotations
+
 from array import array
+from typing import Any, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
-from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
 from dcmotor_id.effects import parse_effect
 from dcmotor_id.excitation import EXCITATION_KINDS, make_excitation
-from dcmotor_id.io import BATCH_CHANNELS, BATCH_LABEL, encode_batch
+from dcmotor_id.formats.batch import batch_message as build_batch, BatchTypes
 from dcmotor_id.model import MotorParameters, PAPER_MOTORS, UNITS
 from dcmotor_id.nodes.common import declare, run, sample_qos
 from dcmotor_id.simulation import motor_forcing, motor_system, MotorStepper
@@ -33,7 +36,7 @@ TRANSPORTS = ('float64', 'batch')
 class SimMotor(Node):
     """Real-time simulated drive publishing voltage, current and speed."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__('sim_motor', **kwargs)
         truth = PAPER_MOTORS['paper2']
         values = {name: declare(self, name, float(getattr(truth, name)),
@@ -93,7 +96,8 @@ class SimMotor(Node):
         self._stepper = None
         if self.effects:
             self._stepper = MotorStepper(self.params, self.sample_period_s, effects=self.effects)
-            self._measured = (self._stepper.effects.current_offset_A, 0.0)
+            offset = self._stepper.effects.current_offset_A if self._stepper.effects else 0.0
+            self._measured = (offset, 0.0)
         self._command = 0.0
         self._rng = np.random.default_rng(seed)
         self.published = 0
@@ -146,7 +150,7 @@ class SimMotor(Node):
         array.header.stamp = self.get_clock().now().to_msg()
         self._diagnostics.publish(array)
 
-    def publish_samples(self, count):
+    def publish_samples(self, count: int) -> None:
         """Simulate and publish the next ``count`` samples."""
         index = self.published + np.arange(count)
         if self.use_command:
@@ -184,7 +188,7 @@ class SimMotor(Node):
         self.published += count
 
 
-def parse_effects(text):
+def parse_effects(text: str) -> list:
     """
     Parse the ``effects`` parameter into vocabulary effects (empty text: none).
 
@@ -199,19 +203,19 @@ def parse_effects(text):
     return effects
 
 
-def batch_message(time_s, voltage, current, speed):
+#: The rclpy classes of a batch (rclpy takes the data as an ``array('d')``).
+RCLPY_BATCH = BatchTypes(message=Float64MultiArray, layout=MultiArrayLayout,
+                         dimension=MultiArrayDimension,
+                         pack=lambda values: array('d', values.tobytes()))
+
+
+def batch_message(time_s: np.ndarray, voltage: np.ndarray, current: np.ndarray,
+                  speed: np.ndarray) -> Float64MultiArray:
     """Pack samples into a Float64MultiArray in the documented batch layout."""
-    count = len(time_s)
-    message = Float64MultiArray()
-    message.layout.dim = [
-        MultiArrayDimension(label=BATCH_LABEL, size=len(BATCH_CHANNELS),
-                            stride=len(BATCH_CHANNELS) * count),
-        MultiArrayDimension(label='sample', size=count, stride=count)]
-    message.data = array('d', encode_batch(time_s, voltage, current, speed).tobytes())
-    return message
+    return build_batch(RCLPY_BATCH, time_s, voltage, current, speed)
 
 
-def main(args=None):
+def main(args: Optional[list[str]] = None) -> int:
     """Run the ``sim_motor`` node."""
     return run(SimMotor, args)
 

@@ -3,7 +3,7 @@ The identifier node's work off the executor: writing windows and fitting them (n
 
 :class:`WindowRecorder` writes the closed windows as bags on a thread of its own. The fit job
 (:func:`identify_windows`) gets the windows as plain arrays, builds the records exactly as
-:func:`dcmotor_id.io.read_bag` does, runs the chosen method and, for comparison, the paper's.
+:func:`dcmotor_id.formats.bag.read_bag` does, runs the chosen method and, for comparison, the paper's.
 In a process of its own (:class:`FitProcess`) the fit neither holds the node's interpreter
 lock nor shares its core, so the executor keeps taking samples at full rate while it runs.
 """
@@ -21,7 +21,8 @@ from typing import Any, Callable, Optional, Sequence, Union
 
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.identify import identify, prepare_records
-from dcmotor_id.io import record_from_stamps, WindowBagWriter
+from dcmotor_id.recording import WindowBagWriter
+from dcmotor_id.records import record_from_stamps
 from dcmotor_id.summary import format_line
 from dcmotor_id.windowing import Window
 
@@ -68,7 +69,7 @@ def identify_windows(windows: Sequence[tuple[Any, dict, str]], method: str,
                           discover=discover).as_dict()
     except DcMotorIdError as error:
         return 'error', str(error)
-    paper = None
+    paper: dict[str, Any] | str | None = None
     if compare_paper and method != 'paper':
         try:
             paper = identify(records, method='paper', torque_constant=torque_constant,
@@ -142,7 +143,7 @@ class FitProcess:
 
 class WindowRecorder:
     """
-    Write windows as bags with a :class:`~dcmotor_id.io.WindowBagWriter` on a thread of its own.
+    Write windows as bags with a :class:`~dcmotor_id.recording.WindowBagWriter` on a thread of its own.
 
     Parameters
     ----------
