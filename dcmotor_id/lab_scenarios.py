@@ -23,8 +23,8 @@ from dataclasses import dataclass
 from numba import njit
 import numpy as np
 
-from dcmotor_id.records import Record
 from dcmotor_id.model import MotorParameters
+from dcmotor_id.records import Record
 
 #: A small brushed motor (24 V class): armature time constant 0.4 ms.
 SMALL_MOTOR = MotorParameters(Ra=2.0, La=0.8e-3, CPhi=0.02, J=4e-6, b=2e-6, Mc=1.5e-3)

@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, runtime_checkable, Sequence
 
-import numpy as np
 
 from dcmotor_id.simulation.coefficients import MotorEffects
 

@@ -3,7 +3,8 @@ The identifier node's work off the executor: writing windows and fitting them (n
 
 :class:`WindowRecorder` writes the closed windows as bags on a thread of its own. The fit job
 (:func:`identify_windows`) gets the windows as plain arrays, builds the records exactly as
-:func:`dcmotor_id.formats.bag.read_bag` does, runs the chosen method and, for comparison, the paper's.
+:func:`dcmotor_id.formats.bag.read_bag` does, runs the chosen method and, for comparison,
+the paper's.
 In a process of its own (:class:`FitProcess`) the fit neither holds the node's interpreter
 lock nor shares its core, so the executor keeps taking samples at full rate while it runs.
 """
@@ -143,7 +144,7 @@ class FitProcess:
 
 class WindowRecorder:
     """
-    Write windows as bags with a :class:`~dcmotor_id.recording.WindowBagWriter` on a thread of its own.
+    Write windows as bags with a :class:`~dcmotor_id.recording.WindowBagWriter` on a thread.
 
     Parameters
     ----------

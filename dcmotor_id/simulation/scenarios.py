@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from dcmotor_id.excitation import add_sensor_noise, make_excitation, PAPER_SAWTOOTH, PAPER_SINE
-from dcmotor_id.records import Record
 from dcmotor_id.model import MotorParameters
+from dcmotor_id.records import Record
 from dcmotor_id.simulation.motor import simulate_motor
 
 #: Sample period of the paper's experiments [s].
