@@ -17,7 +17,7 @@ setup(
     ],
     python_requires='>=3.10',
     install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap',
-                      'mcap-ros2-support'],
+                      'mcap-ros2-support', 'control>=0.10'],
     extras_require={'test': ['pytest']},
     zip_safe=True,
     maintainer='dcmotor_id developers',
