@@ -49,6 +49,7 @@ import warnings
 import control
 import numpy as np
 from scipy.optimize import brentq
+from scipy.signal import BadCoefficients
 
 from dcmotor_id.errors import DcMotorIdError, InputDataError
 
@@ -135,7 +136,7 @@ class DesignOptions:
         rate, whichever is lower (mechanical mode: ``None`` = an ideal torque source).
     speed_bandwidth_hz : float or None
         Closed speed-loop -3 dB bandwidth [Hz]; ``None``: a tenth of the current bandwidth
-        (mechanical mode with an ideal torque source: 20 Hz or a twentieth of ... as above).
+        (of its default when the torque source is ideal).
     phase_margin_deg : float
         Phase margin of the speed loop [deg].
     sample_period_s : float or None
@@ -324,7 +325,8 @@ def feedforward(motor: Motor) -> dict:
     """
     p = motor.values
     if motor.mode == 'full':
-        return {'kS': p['Ra'] * p['Mc'] / p['CPhi'], 'kV': p['CPhi'] + p['Ra'] * p['b'] / p['CPhi'],
+        return {'kS': p['Ra'] * p['Mc'] / p['CPhi'],
+                'kV': p['CPhi'] + p['Ra'] * p['b'] / p['CPhi'],
                 'kA': p['Ra'] * p['J'] / p['CPhi'],
                 'units': {'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'},
                 'convention': 'u = kS sgn(w) + kV w + kA dw/dt (WPILib SimpleMotorFeedforward)'}
@@ -461,7 +463,8 @@ def _speed_pi_at(inner_w: control.LTI, crossover: float, phase_margin_deg: float
     phase = np.unwrap(np.angle(response))[-1]
     pi_phase = -math.pi + math.radians(phase_margin_deg) - phase
     if not -math.pi / 2 < pi_phase < 0:
-        raise _NoPI(pi_phase <= -math.pi / 2,
+        raise _NoPI(
+            pi_phase <= -math.pi / 2,
             f'a PI cannot give {phase_margin_deg:g} deg phase margin at '
             f'{crossover / (2 * math.pi):.4g} Hz (the plant has {math.degrees(phase):.1f} deg '
             'there): lower --phase-margin or --speed-bandwidth, or raise --current-bandwidth.')
@@ -481,7 +484,10 @@ def speed_loops(inner: control.LTI, kp: float, ki: float, dt: float | None,
     outputs = ['w', reference] + [name for name in ('i', 'u') if name in inner.output_labels]
     closed = control.interconnect([inner, pi, junction], inplist=['w_ref'], outlist=outputs,
                                   inputs=['w_ref'], outputs=outputs, name='speed_loop')
-    open_loop = pi * inner[inner.output_labels.index('w'), 0]
+    with warnings.catch_warnings():
+        # Near-zero numerator coefficients of the sampled product are harmless here.
+        warnings.simplefilter('ignore', BadCoefficients)
+        open_loop = pi * inner[inner.output_labels.index('w'), 0]
     return open_loop, closed
 
 
@@ -645,8 +651,8 @@ def robustness(motor: Motor, gains: Gains) -> dict:
                      **_flat(loop_metrics(perturbed, gains))})
     corner_rows = [({**values}, _flat(loop_metrics(perturbed, gains)))
                    for values, perturbed in corners]
-    table = [row for row in rows] + [metrics for _, metrics in corner_rows]
-    keys = [key for key in _flat(loop_metrics(motor, gains))]
+    table = rows + [metrics for _, metrics in corner_rows]
+    keys = list(_flat(loop_metrics(motor, gains)))
     spread = {}
     for key in keys:
         column = [row[key] for row in table if isinstance(row.get(key), float)]

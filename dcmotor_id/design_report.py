@@ -89,7 +89,7 @@ def bode_figure(motor: Motor, gains: Gains, result: dict) -> Figure:
     for k, (loop, system) in enumerate(names):
         metrics = result['nominal'][loop]
         crossover = 2 * math.pi * metrics['crossover_hz']
-        high = crossover * 300 if top is None else top * 0.999
+        high = crossover * 300 if top is None else top * 0.95
         omega = np.logspace(math.log10(crossover) - 3, math.log10(high), 800)
         response = system.frequency_response(omega)
         magnitude = 20 * np.log10(np.squeeze(response.magnitude))

@@ -63,6 +63,15 @@ def load_statespace(path: str) -> control.StateSpace:
                       outputs=data['outputs'])
 
 
+def _yaml_double(value: float) -> str:
+    """Format a float that YAML 1.1 and ROS read as a double (a point in the mantissa)."""
+    text = repr(float(value))
+    mantissa, _, exponent = text.partition('e')
+    if '.' not in mantissa:
+        mantissa += '.0'
+    return mantissa + ('e' + exponent if exponent else '')
+
+
 def sim_motor_yaml(values: dict) -> str:
     """Return a ``sim_motor`` parameter file for the motor ``values`` (motor shaft, SI)."""
     lines = ['# The identified motor for the sim_motor node (dcmotor-id design --export).',
@@ -73,9 +82,8 @@ def sim_motor_yaml(values: dict) -> str:
                 'J': 'inertia of rotor and load [kg m^2]', 'b': 'viscous friction [N m s/rad]',
                 'Mc': 'Coulomb friction [N m]'}
     for name in ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc'):
-        # repr of a float always has a decimal point or an exponent: ROS wants a double.
-        text = repr(float(values[name]))
-        lines.append(f'    {name}: {text:<24} # {comments[name]}')
+        entry = f'{name}: {_yaml_double(values[name])}'
+        lines.append(f'    {entry:<28} # {comments[name]}')
     return '\n'.join(lines) + '\n'
 
 

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from dcmotor_id.cli import main
-from dcmotor_id.design import (DesignError, DesignOptions, design, measured_bandwidth_hz,
+from dcmotor_id.design import (design, DesignError, DesignOptions, measured_bandwidth_hz,
                                motor_from_result, motor_model, Z95)
 from dcmotor_id.export import load_statespace, write_exports
 from dcmotor_id.model import PAPER_MOTORS
