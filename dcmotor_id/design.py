@@ -314,6 +314,44 @@ def current_pi(motor: Motor, bandwidth_hz: float) -> tuple[float, float]:
     return omega * motor.values['La'], omega * motor.values['Ra']
 
 
+def sampled_current_pi(motor: Motor, bandwidth_hz_: float,
+                       dt: float | None) -> tuple[tuple[float, float], float]:
+    """
+    Return the current PI for a sampled loop and its correction factor.
+
+    The closed form keeps ``Ti = La/Ra`` but ``Kp = 2 pi f_c La`` gives a sampled loop a
+    wider bandwidth than ``f_c`` (the zero-order hold's half-sample delay makes it peak:
+    +7 % at ``f_c = f_s/50``, +22 % at ``f_s/20``). With ``dt`` the design frequency is
+    scaled by the factor (found by brentq) that makes the sampled closed loop's -3 dB
+    bandwidth ``f_c``; without ``dt`` it is the closed form (factor 1).
+
+    Returns
+    -------
+    gains : tuple
+        ``(Kp [V/A], Ki [V/(A s)])``.
+    correction : float
+        The factor on ``f_c`` in the closed form.
+
+    """
+    if dt is None:
+        return current_pi(motor, bandwidth_hz_), 1.0
+
+    def mismatch(factor):
+        gains = current_pi(motor, factor * bandwidth_hz_)
+        inner = inner_loop(motor, gains, None, dt)
+        achieved = bandwidth_hz(inner[inner.output_labels.index('i'), 0])
+        return math.log(achieved / bandwidth_hz_) if np.isfinite(achieved) else 1.0
+
+    try:
+        factor = brentq(mismatch, 0.2, 1.2, xtol=1e-10)
+    except ValueError:
+        raise DesignError(
+            f'no current PI reaches {bandwidth_hz_:g} Hz at --sample-period {dt:g} s: lower '
+            '--current-bandwidth (a twentieth of the sampling rate or less) or sample '
+            'faster.') from None
+    return current_pi(motor, factor * bandwidth_hz_), factor
+
+
 def feedforward(motor: Motor) -> dict:
     """
     Return the feedforward gains (WPILib ``SimpleMotorFeedforward``), in shaft units.
@@ -433,6 +471,13 @@ def margins(loop: control.LTI) -> dict:
         warnings.simplefilter('ignore', UserWarning)
         gm, pm, _, wpc, wgc, _ = control.stability_margins(loop, returnall=True)
     gm, pm, wpc, wgc = (np.atleast_1d(x).astype(float) for x in (gm, pm, wpc, wgc))
+    if loop.isdtime(strict=True):
+        # stability_margins misses a phase crossing at the Nyquist frequency itself, where a
+        # sampled loop is real: L(-1) < 0 is a -180 deg crossing.
+        nyquist = complex(np.squeeze(loop(-1.0)))
+        if nyquist.real < 0 and abs(nyquist.real) > 0:
+            gm = np.append(gm, 1.0 / abs(nyquist.real))
+            wpc = np.append(wpc, math.pi / loop.dt)
     # Gain margins above 200 dB are phase crossings where the gain is numerically zero.
     keep = (wpc > 1e-6) & (gm > 1.0) & (gm < 1e10)
     gain_margin = float(np.min(gm[keep])) if keep.any() else float('inf')
@@ -700,7 +745,8 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
     dt = options.sample_period_s
     notes = []
     full = motor.mode == 'full'
-    current = current_pi(motor, options.current_bandwidth_hz) if full else None
+    current, correction = (sampled_current_pi(motor, options.current_bandwidth_hz, dt)
+                           if full else (None, None))
     torque_loop = None if full else options.current_bandwidth_hz
     if not full:
         notes.append('mechanical-only result (J, b, Mc): the speed loop acts on a torque '
@@ -731,7 +777,11 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
             'kp': current[0], 'ki': current[1], 'ti_s': current[0] / current[1],
             'units': {'kp': 'V/A', 'ki': 'V/(A s)'}, 'input': 'i_ref - i [A]', 'output': 'u [V]',
             'method': 'pole-zero cancellation of the armature pole (Ti = La/Ra, '
-                      'Kp = 2 pi f_c La)',
+                      'Kp = 2 pi f_c La)' + ('' if dt is None else
+                                             ', f_c scaled for the sampled loop'),
+            'closed_form': dict(zip(('kp', 'ki'),
+                                    current_pi(motor, options.current_bandwidth_hz))),
+            'sampling_correction': correction,
             'discrete': _difference_equation(pi) if dt is not None else None,
             'back_emf_feedforward_v_per_rad_s': motor.values['CPhi'],
         }

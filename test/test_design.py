@@ -78,7 +78,15 @@ def test_speed_pi_is_the_closed_form_on_an_ideal_torque_source():
 
 
 def test_discrete_gains_are_tustin(discrete):
-    _, _, result, _ = discrete
+    name, _, result, _ = discrete
+    p, loop = PAPER_MOTORS[name], result['current_loop']
+    assert loop['closed_form']['kp'] == pytest.approx(2 * math.pi * 200.0 * p.La, rel=1e-12)
+    # sampled: the closed form at f_c times a correction that restores the bandwidth
+    assert 0.85 < loop['sampling_correction'] < 1.0
+    assert loop['kp'] == pytest.approx(loop['sampling_correction'] * loop['closed_form']['kp'])
+    assert loop['ti_s'] == pytest.approx(p.La / p.Ra, rel=1e-9)
+    assert result['nominal']['current']['bandwidth_hz'] == pytest.approx(200.0, rel=1e-6)
+    assert 10.0 < result['nominal']['current']['gain_margin_db'] < 60.0
     for name in ('current_loop', 'speed_loop'):
         loop, q = result[name], result[name]['discrete']
         assert q['q0'] == pytest.approx(loop['kp'] + loop['ki'] * DT / 2, rel=1e-9)
