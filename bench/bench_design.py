@@ -86,7 +86,7 @@ def main():
     print('## Requested vs achieved (true motor, exact simulation)\n')
     print('Bandwidths [Hz] measured on the true motor; margins (phase [deg] / gain [dB]) of '
           'the sampled loops designed from the identified model; the last column is how far '
-          "the speed gain kp is from the one designed from the true parameters.\n")
+          'the speed gain kp is from the one designed from the true parameters.\n')
     print(markdown_table(['motor', 'dt [s]', 'asked: current / speed [Hz] / PM [deg]',
                           'current bandwidth', 'speed bandwidth', 'current PM / GM',
                           'speed PM / GM', 'speed kp vs true'], accuracy))

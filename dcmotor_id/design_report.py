@@ -6,8 +6,8 @@ The design page of the report: ``design.html`` with step responses and Bode plot
 * ``design_steps.png``: unit-step responses of the closed current loop (``i_ref -> i``) and
   of the closed speed loop (``w_ref -> w``), nominal and with the motor at the ends of every
   parameter's 95 % interval and at the worst corner of the intervals' box;
-* ``design_bode.png``: Bode plots of both open loops with the gain crossover, the phase margin
-  and the gain margin marked;
+* ``design_bode.png``: Bode plots of both open loops with the gain crossover and the phase
+  margin (red) and the phase crossover and gain margin (green, when below 0.95 Nyquist);
 * ``design.html``: the gains, the feedforward, the margins and bandwidths, the robustness table.
 
 Plots use matplotlib's object interface with the Agg canvas (no display, no global state).
@@ -112,6 +112,13 @@ def bode_figure(motor: Motor, gains: Gains, result: dict) -> Figure:
         gain_axis.set_ylabel('magnitude [dB]')
         phase_axis.set_ylabel('phase [deg]')
         phase_axis.set_xlabel('frequency [Hz]')
+        crossing = metrics.get('phase_crossover_hz', float('nan'))
+        if np.isfinite(crossing) and crossing <= frequency[-1]:
+            at = np.argmin(np.abs(frequency - crossing))
+            gain_axis.annotate('', xy=(frequency[at], 0.0), xytext=(frequency[at],
+                                                                    magnitude[at]),
+                               arrowprops={'arrowstyle': '<->', 'color': '#2ca02c'})
+            phase_axis.axvline(crossing, color='#2ca02c', lw=0.8, ls='--')
         index = np.argmin(np.abs(frequency - metrics['crossover_hz']))
         phase_axis.annotate('', xy=(frequency[index], -180.0), xytext=(frequency[index],
                                                                        phase[index]),
