@@ -753,6 +753,11 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
                      'command; the current loop needs Ra and La (identify with voltage).')
         notes.append('torque loop assumed ideal' if torque_loop is None else
                      f'torque loop assumed first order with {torque_loop:g} Hz bandwidth')
+    fastest = options.current_bandwidth_hz or options.speed_bandwidth_hz
+    if dt is not None and fastest > 0.1 / dt:
+        notes.append(f'{fastest:g} Hz is above a tenth of the sampling rate {1 / dt:g} Hz: the '
+                     'sampled loop keeps the bandwidth but loses gain margin (see the table); '
+                     'a computation delay in the drive would cost more.')
     reference = 'i_ref' if full else 'torque_ref'
     inner = inner_loop(motor, current, torque_loop, dt)
     kp, ki, crossover = design_speed(inner, options.speed_bandwidth_hz,
