@@ -64,13 +64,6 @@ DEFAULT_PHASE_MARGIN_DEG = 60.0
 #: Parameters of the linear loops (Mc only shifts the operating point).
 LINEAR_FULL = ('Ra', 'La', 'CPhi', 'J', 'b')
 LINEAR_MECHANICAL = ('J', 'b')
-#: Units of the design quantities.
-UNITS = {
-    'current.kp': 'V/A', 'current.ki': 'V/(A s)', 'current.ti': 's',
-    'speed.kp': 'A s/rad', 'speed.ki': 'A/rad', 'speed.ti': 's',
-    'speed.kp_torque': 'N m s/rad', 'speed.ki_torque': 'N m/rad',
-    'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad',
-}
 
 
 class DesignError(DcMotorIdError):
@@ -560,18 +553,15 @@ def design_speed(inner: control.LTI, bandwidth_hz_: float, phase_margin_deg: flo
         return math.log(achieved / target)
 
     low, high = math.log(target / 8), math.log(target * 1.2)
-    try:
-        f_low, f_high = mismatch(low), mismatch(high)
-        while f_high < 0 and high < math.log(target * 10):
-            low, f_low, high = high, f_high, high + math.log(1.5)
-            f_high = mismatch(high)
-        if f_low > 0 or f_high < 0:
-            raise DesignError(f'no PI crossover gives a speed bandwidth of {bandwidth_hz_:g} Hz '
-                              f'with {phase_margin_deg:g} deg phase margin: lower '
-                              '--speed-bandwidth or --phase-margin.')
-        log_crossover = brentq(mismatch, low, high, xtol=1e-9)
-    except DesignError:
-        raise
+    f_low, f_high = mismatch(low), mismatch(high)
+    while f_high < 0 and high < math.log(target * 10):
+        low, f_low, high = high, f_high, high + math.log(1.5)
+        f_high = mismatch(high)
+    if f_low > 0 or f_high < 0:
+        raise DesignError(f'no PI crossover gives a speed bandwidth of {bandwidth_hz_:g} Hz '
+                          f'with {phase_margin_deg:g} deg phase margin: lower '
+                          '--speed-bandwidth or --phase-margin.')
+    log_crossover = brentq(mismatch, low, high, xtol=1e-9)
     try:
         kp, ki = _speed_pi_at(inner_w, math.exp(log_crossover), phase_margin_deg, dt)
     except _NoPI as error:
