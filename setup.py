@@ -18,7 +18,8 @@ setup(
     python_requires='>=3.10',
     # py.typed: the package's type hints apply to its users (PEP 561).
     package_data={PACKAGE: ['py.typed']},
-    install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap'],
+    install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap',
+                      'control>=0.10'],
     extras_require={'test': ['pytest', 'mypy']},
     zip_safe=True,
     maintainer='dcmotor_id developers',

@@ -101,6 +101,28 @@ def _cmd_simulate(args):
     return 0
 
 
+def _cmd_design(args):
+    from dcmotor_id import design as control_design
+    from dcmotor_id.export import write_exports
+    result = control_design.load_result(args.result)
+    motor = control_design.motor_from_result(result, args.gear_ratio, args.output_shaft)
+    options = control_design.DesignOptions(args.current_bandwidth, args.speed_bandwidth,
+                                           args.phase_margin, args.sample_period)
+    design, gains = control_design.design(motor, options)
+    design['source'] = args.result
+    if args.export:
+        motor_shaft = control_design.motor_from_result(result, args.gear_ratio).values
+        design['export'] = write_exports(args.export, motor, motor_shaft)
+        print(f'exported: {args.export}')
+    if args.report:
+        from dcmotor_id.design_report import write_design_report
+        print(f'report: {write_design_report(args.report, design, motor, gains)}')
+    if args.json:
+        write_json(args.json, design)
+    print(control_design.format_design(design))
+    return 0
+
+
 def _cmd_demo(args):
     from dcmotor_id.demo import run_demo
     return run_demo()
@@ -175,6 +197,31 @@ def build_parser() -> argparse.ArgumentParser:
                           + ', '.join(EFFECTS) + '); adds the shaft angle as position')
     sim.add_argument('--out', required=True, metavar='FILE.csv')
     sim.set_defaults(handler=_cmd_simulate)
+
+    ctl = commands.add_parser('design', help='controller gains and model export from an '
+                              'identify result (python-control)')
+    ctl.add_argument('result', metavar='RESULT.json', help='JSON of `dcmotor-id identify --json`')
+    ctl.add_argument('--current-bandwidth', type=_positive, metavar='HZ',
+                     help='closed current-loop bandwidth (default 200 Hz, at most a 20th of '
+                          'the sampling rate; mechanical mode: default an ideal torque loop)')
+    ctl.add_argument('--speed-bandwidth', type=_positive, metavar='HZ',
+                     help='closed speed-loop -3 dB bandwidth (default a 10th of the current '
+                          'bandwidth)')
+    ctl.add_argument('--phase-margin', type=_positive, default=60.0, metavar='DEG',
+                     help='phase margin of the speed loop (default 60)')
+    ctl.add_argument('--sample-period', type=_positive, metavar='S',
+                     help='discrete gains (Tustin) for this controller period [s]; default '
+                          'continuous')
+    ctl.add_argument('--gear-ratio', type=_positive, default=1.0, metavar='N',
+                     help='motor speed / output speed (default 1)')
+    ctl.add_argument('--output-shaft', action='store_true',
+                     help='express speeds, gains and the model on the output shaft')
+    ctl.add_argument('--json', metavar='OUT', help='write the design as JSON here')
+    ctl.add_argument('--report', metavar='DIR', help='write design.html with step responses '
+                     'and Bode plots to DIR')
+    ctl.add_argument('--export', metavar='DIR', help='write model_statespace.json, '
+                     'sim_motor.yaml and urdf_dynamics.xml to DIR')
+    ctl.set_defaults(handler=_cmd_design)
 
     demo = commands.add_parser('demo', help='simulate motor 2 and identify it with both methods')
     demo.set_defaults(handler=_cmd_demo)
