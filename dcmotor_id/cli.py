@@ -120,7 +120,7 @@ def _cmd_plan(args):
             args.ramp_in, args.sample_period, args.margin, args.seed)
     except ValueError as error:
         raise InputDataError(str(error)) from None
-    print(plan.format())
+    print(plan.describe())
     if args.json:
         write_json(args.json, plan.as_dict())
         print(f'plan written to {args.json} (exciter -p plan_file:={args.json})')

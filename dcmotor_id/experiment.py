@@ -108,7 +108,7 @@ class Plan:
             'candidates': self.candidates,
         }
 
-    def format(self) -> str:
+    def describe(self) -> str:
         """Return the plan and its expected standard errors as text."""
         lines = [f'plan: {self.routine.describe()} (ramp-in {self.ramp_in_s:g} s, commands at '
                  f'{self.rate_hz:g} Hz)',
@@ -327,6 +327,7 @@ def design_experiment(prior: MotorParameters, limits: Limits,
             routine = Routine(kind=kind, amplitude_v=amplitude, duration_s=duration_s,
                               frequency_hz=low, max_frequency_hz=high, seed=seed)
             record = planned_record(routine, prior, rate_hz, ramp_in_s, sample_period_s)
+            assert record.current is not None and record.speed is not None
             peak_i = float(np.max(np.abs(record.current)))
             peak_w = float(np.max(np.abs(record.speed)))
             ok = peak_i <= margin * limits.current_a and peak_w <= margin * limits.speed_rad_s

@@ -47,7 +47,7 @@ def test_the_plan_respects_the_limits_and_beats_every_other_candidate():
     data = json.loads(json.dumps(plan.as_dict()))
     assert Routine.from_dict(data['routine']) == plan.routine
     assert set(data['expected_stderr']) == set(PARAMETER_NAMES + ('Ka', 'Ta'))
-    assert 'expected stderr' in plan.format()
+    assert 'expected stderr' in plan.describe()
 
 
 def test_a_lower_limit_plans_a_smaller_amplitude_with_larger_bounds():

@@ -10,10 +10,10 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
+import test_nodes_process as process
 
 from dcmotor_id.formats.batch import decode_batch_message
 from dcmotor_id.nodes.common import spin_until
-import test_nodes_process as process
 
 pytestmark = pytest.mark.ros
 
@@ -92,7 +92,7 @@ class Graph:
             (self.states[-3:], self.log('exciter'))
 
     def drive_settles_at_zero(self):
-        """The last command is 0 V and the drive applies 0 V afterwards."""
+        """Check that the last command is 0 V and that the drive applies 0 V afterwards."""
         spin_until(self.executor, lambda: False, 0.5)
         assert self.commands and self.commands[-1] == 0.0
         seen = len(self.voltage)
