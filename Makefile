@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed-stamp
 # Where `make bench` writes its tables (the committed ones in bench/ stay as they are).
 BENCH_OUT := out/bench
 
-.PHONY: demo demo-offline test test-fast typecheck warmup bench clean
+.PHONY: demo demo-loop demo-offline test test-fast typecheck warmup bench clean
 
 # The install also compiles the numba kernels into their on-disk cache (dcmotor_id.warmup):
 # the user's first `dcmotor-id identify` then runs as fast as the second one.
@@ -25,6 +25,10 @@ warmup: $(STAMP)
 # The real node graph: sim_motor and identifier as processes, recording, then ~/identify.
 demo: $(STAMP)
 	$(PY) -m dcmotor_id.nodes.demo
+
+# The excitation loop: plan -> exciter -> sim_motor -> identifier, expected vs achieved stderr.
+demo-loop: $(STAMP)
+	$(PY) -m dcmotor_id.nodes.loop_demo
 
 # The offline comparison of the paper's method and the default one (no ROS).
 demo-offline: $(STAMP)
@@ -52,6 +56,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_discovery.py --out $(BENCH_OUT)/discovery_results.md
 	$(PY) bench/bench_throughput.py --out $(BENCH_OUT)/throughput_results.md
 	$(PY) bench/bench_cold_start.py --out $(BENCH_OUT)/cold_start_results.md
+	$(PY) bench/bench_experiment.py > $(BENCH_OUT)/experiment_results.md
 
 clean:
 	rm -rf $(VENV) build install log

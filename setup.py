@@ -32,6 +32,7 @@ setup(
             'identifier = dcmotor_id.nodes.identifier:main',
             'sim_motor = dcmotor_id.nodes.sim_motor:main',
             'replay = dcmotor_id.nodes.replay:main',
+            'exciter = dcmotor_id.nodes.exciter:main',
         ],
     },
 )

@@ -128,6 +128,27 @@ def _cmd_demo(args):
     return run_demo()
 
 
+def _cmd_plan(args):
+    from dcmotor_id.experiment import DEFAULT_NOISE, design_experiment, load_prior
+    from dcmotor_id.routines import Limits
+    prior, noise = load_prior(args.prior)
+    noise = dict(noise or DEFAULT_NOISE)
+    noise.update({key: value for key, value in (('current', args.noise_current),
+                                                ('speed', args.noise_speed)) if value})
+    try:
+        plan = design_experiment(
+            prior, Limits(args.voltage_limit, args.current_limit, args.speed_limit), noise,
+            args.duration, args.kinds.split(','), args.parameters.split(','), args.rate,
+            args.ramp_in, args.sample_period, args.margin, args.seed)
+    except ValueError as error:
+        raise InputDataError(str(error)) from None
+    print(plan.describe())
+    if args.json:
+        write_json(args.json, plan.as_dict())
+        print(f'plan written to {args.json} (exciter -p plan_file:={args.json})')
+    return 0
+
+
 def _positive(text):
     value = float(text)
     if not (np.isfinite(value) and value > 0):
@@ -222,6 +243,28 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument('--export', metavar='DIR', help='write model_statespace.json, '
                      'sim_motor.yaml and urdf_dynamics.xml to DIR')
     ctl.set_defaults(handler=_cmd_design)
+    plan = commands.add_parser('plan', help='design a D-optimal PRBS/multisine for the exciter '
+                               'within limits; print it and the expected standard errors')
+    plan.add_argument('--prior', default='paper2', metavar='SOURCE',
+                      help='prior parameters: paper1, paper2, a result JSON or a datasheet '
+                           'JSON/YAML with Ra, La, CPhi, J, b, Mc (default paper2)')
+    for name, default, unit in (('voltage-limit', 48.0, 'V'), ('current-limit', 10.0, 'A'),
+                                ('speed-limit', 100.0, 'RAD_S'), ('duration', 10.0, 'S'),
+                                ('rate', 200.0, 'HZ'), ('sample-period', 1e-3, 'S')):
+        plan.add_argument(f'--{name}', type=_positive, default=default, metavar=unit)
+    plan.add_argument('--ramp-in', type=_non_negative, default=1.0, metavar='S')
+    plan.add_argument('--noise-current', type=_positive, metavar='A',
+                      help='current noise std (default: from a result file, else 0.01)')
+    plan.add_argument('--noise-speed', type=_positive, metavar='RAD_S',
+                      help='speed noise std (default: from a result file, else 0.02)')
+    plan.add_argument('--parameters', default='Ra,La,CPhi,J,b,Mc',
+                      help='parameters of the D-criterion, comma-separated')
+    plan.add_argument('--kinds', default='prbs,multisine', help='prbs and/or multisine')
+    plan.add_argument('--margin', type=_positive, default=0.9,
+                      help='share of the current/speed limits the simulation may reach')
+    plan.add_argument('--seed', type=int, default=0)
+    plan.add_argument('--json', metavar='OUT', help='write the plan here (exciter plan_file)')
+    plan.set_defaults(handler=_cmd_plan)
 
     demo = commands.add_parser('demo', help='simulate motor 2 and identify it with both methods')
     demo.set_defaults(handler=_cmd_demo)

@@ -1,0 +1,275 @@
+"""
+``exciter``: the node that drives a real (or simulated) motor with an excitation routine, safely.
+
+Publishes ``voltage_command`` (``std_msgs/msg/Float64``, relative name) at ``rate_hz`` while
+a routine runs (:mod:`dcmotor_id.routines`: quasistatic, dynamic, prbs, multisine, chirp,
+forward or backward; or the routine of a plan file written by ``dcmotor-id plan --json``).
+Services ``~/start`` and ``~/stop`` (``std_srvs/srv/Trigger``); the state (idle, ramping-in,
+running, stopped, stopped-by-limit, stale, done), the routine and its progress go to
+``/diagnostics``.  It reads the measurements the drive publishes, ``current`` and ``speed``
+(``std_msgs/msg/Float64``, ``input: float64``) or the batches on ``samples`` (``input:
+batch``, :mod:`dcmotor_id.formats.batch`, which carry the voltage too), and commands 0 V and
+stops at once when one exceeds its limit, when none arrived for ``stale_timeout_s``, on
+``~/stop``, at the end of the routine, and when the node is shut down or receives SIGINT or
+SIGTERM.  ``exciter --plan [plan options]`` prints an experiment plan without starting ROS
+(the same as ``dcmotor-id plan``).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from typing import Any, Optional
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import rclpy
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import Float64, Float64MultiArray
+from std_srvs.srv import Trigger
+
+from dcmotor_id.errors import DcMotorIdError
+from dcmotor_id.experiment import read_plan
+from dcmotor_id.formats.batch import decode_batch_message
+from dcmotor_id.nodes.common import BulkInput, declare, guarded, sample_qos
+from dcmotor_id.routines import DIRECTIONS, ExcitationSession, Limits, Routine, ROUTINES
+
+#: QoS of ``voltage_command``: reliable, so that the final 0 V is delivered.
+COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                         reliability=ReliabilityPolicy.RELIABLE)
+#: Diagnostic level of each state.
+LEVELS = {'idle': DiagnosticStatus.OK, 'ramping-in': DiagnosticStatus.OK,
+          'running': DiagnosticStatus.OK, 'done': DiagnosticStatus.OK,
+          'stopped': DiagnosticStatus.OK, 'stale': DiagnosticStatus.WARN,
+          'stopped-by-limit': DiagnosticStatus.ERROR}
+#: Zero commands sent after a stop (one a tick), in case the first one is lost.
+ZERO_REPEATS = 5
+
+
+class Exciter(Node):
+    """Excitation node (see the module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('exciter', **kwargs)
+        self._routine_parameters = {
+            'routine': declare(self, 'routine', 'prbs', 'excitation routine',
+                               choices=ROUTINES),
+            'direction': declare(self, 'direction', 'forward', 'forward or backward (negated)',
+                                 choices=DIRECTIONS),
+            'amplitude_v': declare(self, 'amplitude_v', 12.0, 'peak voltage of the routine '
+                                   '[V]', low=0.0),
+            'duration_s': declare(self, 'duration_s', 10.0, 'length of the routine, ramp-in '
+                                  'included [s]', low=1e-3),
+            'frequency_hz': declare(self, 'frequency_hz', 0.0, 'PRBS clock, lower band edge '
+                                    '(multisine, chirp), step frequency (dynamic); 0 = '
+                                    'default [Hz]', low=0.0),
+            'max_frequency_hz': declare(self, 'max_frequency_hz', 0.0, 'upper band edge '
+                                        '(multisine, chirp); 0 = default [Hz]', low=0.0),
+            'offset_v': declare(self, 'offset_v', 0.0, 'constant added to the routine [V]'),
+            'seed': declare(self, 'seed', 0, 'PRBS seed'),
+            'plan_file': declare(self, 'plan_file', '', 'plan JSON of dcmotor-id plan: its '
+                                 'routine replaces the parameters above'),
+        }
+        rate = declare(self, 'rate_hz', 200.0, 'command rate [Hz]', low=1.0, high=1e4)
+        ramp_in = declare(self, 'ramp_in_s', 1.0, 'ramp-in time of a routine [s]', low=0.0)
+        limits = Limits(
+            voltage_v=declare(self, 'voltage_limit_v', 48.0, 'hard voltage limit [V]',
+                              low=1e-9),
+            current_a=declare(self, 'current_limit_a', 10.0, 'hard current limit [A]',
+                              low=1e-9),
+            speed_rad_s=declare(self, 'speed_limit_rad_s', 100.0, 'hard speed limit [rad/s]',
+                                low=1e-9))
+        stale = declare(self, 'stale_timeout_s', 0.5, 'stop when no measurement arrived for '
+                        'this long [s]', low=1e-3)
+        source = declare(self, 'input', 'float64', 'float64: current and speed topics; '
+                         'batch: samples', choices=('float64', 'batch'))
+        depth = declare(self, 'qos_depth', 5000, 'history depth of the measurement topics',
+                        low=1)
+        reliability = declare(self, 'qos_reliability', 'reliable', 'reliable or best_effort',
+                              choices=('reliable', 'best_effort'))
+        self.autostart = declare(self, 'autostart', False, 'start the routine at once (when '
+                                 'measurements arrive)')
+        self.session = ExcitationSession(limits, rate, ramp_in, stale)
+        self._zeros_due = 0
+        self._last_state = self.session.state
+        self.command_publisher = self.create_publisher(Float64, 'voltage_command',
+                                                       COMMAND_QOS)
+        self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        qos = sample_qos(depth, reliability)
+        self.inputs = BulkInput(self)
+        if source == 'float64':
+            self.inputs.add(Float64, 'current', qos,
+                            lambda message, _: self._observe(current=[message.data]))
+            self.inputs.add(Float64, 'speed', qos,
+                            lambda message, _: self._observe(speed=[message.data]))
+        else:
+            self.inputs.add(Float64MultiArray, 'samples', qos, self._on_batch)
+        self.create_service(Trigger, '~/start', self._on_start)
+        self.create_service(Trigger, '~/stop', self._on_stop)
+        self.create_timer(1.0 / rate, self._tick)
+        self.create_timer(0.5, self._report)
+        self.get_logger().info(f'exciter ready: {source} input, limits {limits}, '
+                               f'commands at {rate:g} Hz; call ~/start')
+
+    @staticmethod
+    def now_s() -> float:
+        """Return the monotonic time the session runs on [s]."""
+        return time.monotonic()
+
+    def _observe(self, **channels: Any) -> None:
+        if self.session.observe(self.now_s(), **channels):
+            self._halt()
+
+    def _on_batch(self, message: Float64MultiArray, _: Any) -> None:
+        try:
+            _, voltage, current, speed = decode_batch_message(message)
+        except DcMotorIdError as error:
+            self.get_logger().warning(f'samples: {error}', throttle_duration_sec=5.0)
+            return
+        self._observe(current=current, speed=speed, voltage=voltage)
+
+    def routine(self) -> Routine:
+        """Return the routine of the parameters (or of ``plan_file``) as they are now."""
+        values = {name: self.get_parameter(name).value for name in self._routine_parameters}
+        plan_file = values.pop('plan_file')
+        if plan_file:
+            return Routine.from_dict(read_plan(plan_file)['routine'])
+        values['kind'] = values.pop('routine')
+        return Routine(**values)
+
+    def _on_start(self, request: Trigger.Request,
+                  response: Trigger.Response) -> Trigger.Response:
+        self.inputs.take()
+        try:
+            routine = self.routine()
+        except (ValueError, OSError, DcMotorIdError) as error:
+            response.success, response.message = False, f'bad routine: {error}'
+            return response
+        response.success, response.message = self.session.start(routine, self.now_s())
+        self.get_logger().info(f'~/start: {response.message}')
+        self._report()
+        return response
+
+    def _on_stop(self, request: Trigger.Request,
+                 response: Trigger.Response) -> Trigger.Response:
+        was = self.session.state
+        self.session.stop()
+        self._halt()
+        response.success = True
+        response.message = f'0 V commanded; state {self.session.state} (was {was})'
+        return response
+
+    def _halt(self) -> None:
+        """Command 0 V now and on the next ticks."""
+        self.publish_command(0.0)
+        self._zeros_due = ZERO_REPEATS
+        self.get_logger().warning(f'0 V: {self.session.state}: {self.session.reason}')
+        self._report()
+
+    def publish_command(self, value: float) -> None:
+        """Publish one voltage command [V]."""
+        self.command_publisher.publish(Float64(data=float(value)))
+
+    @guarded
+    def _tick(self) -> None:
+        self.inputs.take()
+        if self.autostart and self.session.state == 'idle' and \
+                self.session.fresh(self.now_s()):
+            self.autostart = False
+            self._on_start(Trigger.Request(), Trigger.Response())
+        was_active = self.session.active
+        value = self.session.command(self.now_s())
+        if value is not None:
+            self.publish_command(value)
+        if was_active and not self.session.active:
+            self._halt()
+        elif value is None and self._zeros_due > 0:
+            self._zeros_due -= 1
+            self.publish_command(0.0)
+        if self.session.state != self._last_state:
+            self._report()
+
+    def _report(self) -> None:
+        values = self.session.status()
+        self._last_state = self.session.state
+        status = DiagnosticStatus(level=LEVELS[self.session.state],
+                                  name=f'{self.get_name()}: excitation',
+                                  hardware_id=self.get_fully_qualified_name(),
+                                  message=self.session.state + (
+                                      f': {self.session.reason}' if self.session.reason
+                                      else ''))
+        status.values = [KeyValue(key=key, value=value) for key, value in values.items()]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(array)
+
+    def shutdown_command(self, reason: str) -> None:
+        """Stop with 0 V before the node goes away and wait until the command is delivered."""
+        self.session.stop(reason)
+        self.publish_command(0.0)
+        try:
+            self._report()
+            self.command_publisher.wait_for_all_acked(Duration(seconds=1.0))
+        except Exception:  # noqa: BLE001  (the 0 V went out; an ack is best effort)
+            pass
+
+    def close(self) -> None:
+        """Release the helper node of the measurement subscriptions."""
+        self.inputs.destroy()
+
+
+def main(args: Optional[list[str]] = None) -> int:
+    """Run the ``exciter`` node; ``exciter --plan ...`` prints a plan instead (no ROS)."""
+    argv = list(sys.argv[1:] if args is None else args)
+    own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
+    if '--plan' in own:
+        from dcmotor_id.cli import main as cli_main
+        return cli_main(['plan'] + [item for item in own if item != '--plan'])
+    # Own handlers: rclpy's would shut the context down before the 0 V could be published.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    received: list[int] = []
+    node: Optional[Exciter] = None
+
+    def on_signal(number: int, _: Any) -> None:
+        received.append(number)
+        if node is not None:
+            try:
+                node.publish_command(0.0)  # at once; the loop below stops cleanly after it
+            except Exception:  # noqa: BLE001  (publishing mid-callback: the loop repeats it)
+                pass
+
+    previous = {number: signal.signal(number, on_signal)
+                for number in (signal.SIGINT, signal.SIGTERM)}
+    code = 0
+    executor = SingleThreadedExecutor()
+    try:
+        node = Exciter()
+        executor.add_node(node)
+        while rclpy.ok() and not received:
+            executor.spin_once(timeout_sec=0.05)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as error:  # a bad parameter: say which and stop
+        print(f'exciter: {error}', file=sys.stderr)
+        code = 2
+    finally:
+        if node is not None:
+            if rclpy.ok():
+                reason = f'signal {signal.Signals(received[0]).name}' if received else \
+                    'node shut down'
+                node.shutdown_command(reason)
+            node.close()
+            node.destroy_node()
+        executor.shutdown()
+        rclpy.try_shutdown()
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+    return code
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
