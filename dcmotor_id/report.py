@@ -146,7 +146,7 @@ def plot_fit(series: list[dict], outputs: Sequence[str], directory: str,
 
 
 def _transients(values: np.ndarray, count: int, width: int) -> list[int]:
-    """Indices of the ``count`` largest changes of ``values``, at least ``width`` apart."""
+    """Return where the ``count`` largest changes of ``values`` are, ``width`` apart."""
     change = np.abs(np.diff(values))
     chosen: list[int] = []
     for index in np.argsort(change)[::-1]:
@@ -614,7 +614,7 @@ def _validation_parts(directory: str, validation: Validation,
                     'fit speed', 'fit position', 'position RMSE'], rows),
             '<p>Each record simulated open loop from an initial state estimated on its first '
             f'{validation.records[0].init_samples} samples (not scored); fit as MATLAB '
-            "compare: 100 (1 - |y - y_sim| / |y - mean y|).</p>",
+            'compare: 100 (1 - |y - y_sim| / |y - mean y|).</p>',
             f'<img src="{fit}" alt="validation: measured vs simulated">',
             f'<img src="{transients}" alt="validation transients">',
             f'<img src="{residuals}" alt="validation residuals">']

@@ -122,7 +122,8 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
     """
     if not isinstance(data, Mapping):
         raise InputDataError(f'{source}: not an identify result (a JSON object is expected)')
-    block = data.get('model') if isinstance(data.get('model'), Mapping) else model_block(data)
+    given = data.get('model')
+    block: Mapping[str, Any] = given if isinstance(given, Mapping) else model_block(data)
     mode = block.get('mode', 'full')
     if mode not in ('full', 'mechanical'):
         raise InputDataError(f'{source}: unknown mode {mode!r} (full or mechanical)')
@@ -163,7 +164,8 @@ def load_model(path: str) -> Model:
 
 def _effects_for(model: Model, sample_period_s: float) -> tuple[list[Any], dict[str, int]]:
     """Return the simulation effects and the sensor delays [samples of this record]."""
-    effects, delays = [], {}
+    effects: list[Any] = []
+    delays: dict[str, int] = {}
     for item in model.effects:
         parameters = dict(item.get('parameters', {}))
         if item['name'] == 'sensor_delay':
@@ -180,7 +182,7 @@ def _effects_for(model: Model, sample_period_s: float) -> tuple[list[Any], dict[
 
 
 def _shift(values: np.ndarray, samples: int) -> np.ndarray:
-    """What a sensor ``samples`` late (``< 0``: early) reports of ``values``."""
+    """Return what a sensor ``samples`` late (``< 0``: early) reports of ``values``."""
     if samples == 0:
         return values
     if samples > 0:
@@ -189,7 +191,7 @@ def _shift(values: np.ndarray, samples: int) -> np.ndarray:
 
 
 def simulate(model: Model, record: Record,
-             initial_state: Sequence[float]) -> dict[str, np.ndarray]:
+             initial_state: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
     """
     Simulate the model open loop over a record from an initial state.
 

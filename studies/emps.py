@@ -344,7 +344,6 @@ def position_output_fit(record: Record, gtau: float,
 
     from dcmotor_id.validate import simulate
 
-    names = ['M', 'Fv', 'Fc'] + list(effects)
     start = [95.0, 200.0, 20.0] + [POSITION_FIT_TERMS[name][1] for name in effects]
     scale = [10.0, 20.0, 2.0] + [POSITION_FIT_TERMS[name][2] for name in effects]
     measured = np.asarray(record.position, dtype=float)

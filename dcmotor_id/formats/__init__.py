@@ -35,7 +35,7 @@ __all__ = ['detect_format', 'read_record', 'read_records', 'ReadOptions', 'READE
 
 
 def detect_format(path: PathLike) -> str:
-    """Return the format of ``path``: ``bag`` (a directory, ``.mcap``, ``.db3``), ``mat``, ``csv``."""
+    """Return the format of ``path``: ``bag`` (directory, .mcap, .db3), ``mat`` or ``csv``."""
     text = str(path)
     if os.path.isdir(text) or text.endswith(BAG_SUFFIXES):
         return 'bag'

@@ -83,11 +83,11 @@ class ReadOptions:
             if channel not in CHANNELS:
                 raise InputDataError(f'--column/--interface {channel}=...: unknown channel '
                                      f'{channel!r}; the channels are {", ".join(CHANNELS)}')
-        for value, units, option in ((self.current_unit, CURRENT_UNITS, '--current-unit'),
-                                     (self.speed_unit, SPEED_UNITS, '--speed-unit'),
-                                     (self.position_unit, POSITION_UNITS, '--position-unit')):
-            if value not in units:
-                raise InputDataError(f'{option} {value}: choose one of {", ".join(units)}')
+        for unit, units, option in ((self.current_unit, CURRENT_UNITS, '--current-unit'),
+                                    (self.speed_unit, SPEED_UNITS, '--speed-unit'),
+                                    (self.position_unit, POSITION_UNITS, '--position-unit')):
+            if unit not in units:
+                raise InputDataError(f'{option} {unit}: choose one of {", ".join(units)}')
         for value, option in ((self.speed_counts_per_rev, '--speed-counts-per-rev'),
                               (self.position_counts_per_rev, '--position-counts-per-rev'),
                               (self.gear_ratio, '--gear-ratio'),
@@ -96,7 +96,7 @@ class ReadOptions:
                 raise InputDataError(f'{option} must be a positive number, got {value}')
 
     def column(self, channel: str) -> str:
-        """Return the file's name of a channel's column (the channel's own name by default)."""
+        """Name the file's column of a channel (the channel's own name by default)."""
         return self.columns.get(channel, channel)
 
     @property

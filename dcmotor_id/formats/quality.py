@@ -26,7 +26,7 @@ from dcmotor_id.records import Record
 #: Fraction of the driven samples exactly zero between non-zero neighbours: PWM-sampled.
 PWM_ZERO_FRACTION = 0.1
 #: Fraction of consecutive differences of a moving shaft exactly zero: too coarse a speed.
-QUANTISED_ZERO_FRACTION = 0.5
+QUANTISED_ZERO_FRACTION = 0.4
 #: Fewest distinct levels over the speed's range that a usable speed has.
 QUANTISED_LEVELS = 64
 #: Relative spread of the current that counts as changing (of its largest magnitude).
