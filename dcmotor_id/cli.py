@@ -21,6 +21,8 @@ from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excit
 from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS
 from dcmotor_id.formats.csv import write_csv
+from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
+                                        POSITION_UNITS, ReadOptions, SPEED_UNITS)
 from dcmotor_id.identify import identify, METHODS, prepare_records
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.records import Record
@@ -28,10 +30,10 @@ from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 from dcmotor_id.summary import format_table
 
 
-def load_records(paths: Sequence[str],
-                 topics: Mapping[str, str] | None = None) -> list[Record]:
-    """Read every input path (CSV files, rosbag2 directories, .mcap or .db3 files)."""
-    return read_records(paths, topics=topics)
+def load_records(paths: Sequence[str], topics: Mapping[str, str] | None = None,
+                 options: ReadOptions | None = None) -> list[Record]:
+    """Read every input path (CSV, .mat, rosbag2 directories, .mcap or .db3 files)."""
+    return read_records(paths, topics=topics, options=options or ReadOptions())
 
 
 def _json_safe(value):
@@ -58,12 +60,16 @@ def write_json(path: str, result: Mapping[str, Any]) -> None:
 def _cmd_identify(args):
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
-    records = prepare_records(load_records(args.files, topics), args.torque_constant,
+    options = reading_options(args)
+    records = prepare_records(load_records(args.files, topics, options), args.torque_constant,
                               args.resample, args.speed_cutoff)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
     identified = identify(records, method=args.method, torque_constant=args.torque_constant,
                           discover=not args.no_discover, vocabulary=vocabulary)
     result = identified.as_dict()
+    if options.gear_ratio != 1.0:
+        result['gear_ratio'] = options.gear_ratio
+        result['output_shaft'] = output_shaft(result['parameters'], options.gear_ratio)
     if args.report:
         from dcmotor_id.report import write_report
         page = write_report(args.report, result, identified.discovery_result, records)
@@ -71,7 +77,81 @@ def _cmd_identify(args):
     if args.json:
         write_json(args.json, result)
     print(format_table(result))
+    if 'output_shaft' in result:
+        print(f'at the output shaft (gear ratio {options.gear_ratio:g}): ' + ', '.join(
+            f'{name} = {value:.6g}' for name, value in result['output_shaft'].items()))
     return 0
+
+
+def reading_options(args: argparse.Namespace) -> ReadOptions:
+    """Return the :class:`ReadOptions` of the reading options (identify, validate)."""
+    return ReadOptions(
+        columns=parse_assignments(args.column, '--column'), current_unit=args.current_unit,
+        speed_unit=args.speed_unit, speed_counts_per_rev=args.speed_counts_per_rev,
+        position_unit=args.position_unit, position_counts_per_rev=args.position_counts_per_rev,
+        gear_ratio=args.gear_ratio, bus_voltage=args.voltage_from_duty, joint=args.joint,
+        interfaces=parse_assignments(args.interface, '--interface'))
+
+
+def _add_reading_options(command: argparse.ArgumentParser) -> None:
+    """Add the options that say how to read the files (mapping, units, duty, gear, bags)."""
+    group = command.add_argument_group('reading recordings as they come')
+    group.add_argument('--column', action='append', metavar='CHANNEL=NAME',
+                       help='take a channel (t, voltage, current, speed, position, duty, '
+                            'direction) from the column NAME (.mat: VARIABLE or VARIABLE:COLUMN, '
+                            '1-based); repeatable')
+    group.add_argument('--current-unit', choices=sorted(CURRENT_UNITS), default='A')
+    group.add_argument('--speed-unit', choices=sorted(SPEED_UNITS), default='rad/s')
+    group.add_argument('--speed-counts-per-rev', type=_positive, metavar='N',
+                       help='the speed column holds encoder pulses per sample, N per rev')
+    group.add_argument('--position-unit', choices=sorted(POSITION_UNITS), default='rad')
+    group.add_argument('--position-counts-per-rev', type=_positive, metavar='N',
+                       help='the position column holds encoder counts, N per revolution')
+    group.add_argument('--gear-ratio', type=_positive, default=1.0, metavar='N',
+                       help='speed and position measured at the output shaft of an N:1 gear; '
+                            'parameters at the motor shaft, output-shaft values alongside')
+    group.add_argument('--voltage-from-duty', type=_positive, metavar='BUS_V',
+                       help='voltage = duty column in [-1, 1] (or 0..1 with a direction '
+                            'column) times the bus voltage BUS_V')
+    group.add_argument('--joint', metavar='NAME',
+                       help='bags with control_msgs/msg/DynamicJointState: the joint')
+    group.add_argument('--interface', action='append', metavar='CHANNEL=NAME',
+                       help='bags with DynamicJointState: the interface of a channel (default '
+                            'voltage, current, velocity as speed, position); repeatable')
+
+
+def _cmd_validate(args):
+    from dcmotor_id.validate import format_validation, load_model, validate
+    check_output_paths(args.json, args.report)
+    model = load_model(args.model)
+    options = reading_options(args)
+    records = []
+    for record in load_records(args.files, options=options):
+        mechanical = model.torque_constant if model.mechanical_only else None
+        records += prepare_records([record], mechanical, args.resample, args.speed_cutoff)
+    validation = validate(model, records, args.init_samples, options.position_factor)
+    result = validation.as_dict()
+    if args.json:
+        write_json(args.json, result)
+    if args.report:
+        from dcmotor_id.report import write_validation_report
+        print(f'report: {write_validation_report(args.report, validation)}')
+    print(format_validation(result))
+    return 0
+
+
+def check_output_paths(*paths: str | None) -> None:
+    """Refuse output paths that cannot be written before any work is done."""
+    for path in paths:
+        if not path:
+            continue
+        parent = os.path.dirname(os.path.abspath(path)) or '.'
+        existing = parent
+        while not os.path.exists(existing):
+            existing = os.path.dirname(existing)
+        if not os.path.isdir(existing) or not os.access(existing, os.W_OK):
+            raise InputDataError(f'{path}: cannot be written ({existing} is not a writable '
+                                 'directory); give another output path')
 
 
 def _cmd_simulate(args):
@@ -196,7 +276,24 @@ def build_parser() -> argparse.ArgumentParser:
         ident.add_argument(f'--{channel}-topic', default=BAG_TOPICS[channel], metavar='TOPIC',
                            help=f'bags: {kind} topic of the {channel} (default '
                                 f'{BAG_TOPICS[channel]!r}, any namespace)')
+    _add_reading_options(ident)
     ident.set_defaults(handler=_cmd_identify)
+
+    val = commands.add_parser('validate', help='simulate an identified model on new records '
+                                               'and score it (NRMSE, fit %%, position RMSE)')
+    val.add_argument('model', metavar='MODEL.json', help='the JSON identify --json wrote')
+    val.add_argument('files', nargs='+', metavar='FILE', help='records, as for identify')
+    val.add_argument('--json', metavar='OUT', help='write the scores as JSON here')
+    val.add_argument('--report', metavar='DIR',
+                     help='write measured vs simulated, residuals and fit figures to DIR')
+    val.add_argument('--init-samples', type=int, default=20, metavar='N',
+                     help='samples at the start for the initial state, not scored (20)')
+    val.add_argument('--resample', action='store_true',
+                     help='interpolate irregularly sampled data onto a uniform grid')
+    val.add_argument('--speed-cutoff', type=_positive, metavar='HZ',
+                     help='cut-off of the filter deriving speed from position [Hz]')
+    _add_reading_options(val)
+    val.set_defaults(handler=_cmd_validate)
 
     sim = commands.add_parser('simulate', help='simulate a motor of the paper to CSV')
     sim.add_argument('--motor', choices=sorted(PAPER_MOTORS), default='paper2')

@@ -250,7 +250,8 @@ class IdentificationResult:
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""
-        return {
+        from dcmotor_id.validate import model_block
+        out = {
             'parameters': self.parameters,
             'stderr': self.stderr,
             'method': self.method,
@@ -269,6 +270,8 @@ class IdentificationResult:
             'discover': self.discover,
             'discovery': self.discovery,
         }
+        out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
+        return out
 
 
 def supports_discovery(estimator: Any) -> bool:

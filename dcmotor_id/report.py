@@ -32,9 +32,10 @@ from dcmotor_id.residuals import (autocorrelation, confidence_band, cross_correl
 if TYPE_CHECKING:
     from dcmotor_id.discovery import DiscoveryResult
     from dcmotor_id.records import Record
+    from dcmotor_id.validate import Validation
 
 #: Units of the plotted channels.
-CHANNEL_UNITS = {'current': 'A', 'speed': 'rad/s', 'voltage': 'V'}
+CHANNEL_UNITS = {'current': 'A', 'speed': 'rad/s', 'voltage': 'V', 'position': 'rad'}
 #: z of the two-sided 95 % interval of the parameter table.
 Z95 = 1.959964
 _COLOURS = {'measured': '0.55', 'before': '#d62728', 'after': '#1f77b4', 'band': '0.85'}
@@ -75,141 +76,224 @@ def _series(found, records, result):
     return out, output_channels(result['mode'] == 'mechanical')
 
 
+#: Records drawn side by side in one row of the small multiples.
+COLUMNS_PER_ROW = 4
+#: Records given their own residual analysis (the rest are listed as not drawn).
+MAX_RECORDS_DRAWN = 12
+#: Transients zoomed into per record (the largest input changes).
+TRANSIENTS = 3
+
+
+def _grid(count: int, rows_each: int, width: float = 3.6, height: float = 2.1):
+    """Return a figure and axes for ``count`` panels of ``rows_each`` stacked axes each."""
+    columns = min(count, COLUMNS_PER_ROW)
+    groups = -(-count // columns)
+    figure = Figure(figsize=(max(6.0, width * columns), height * rows_each * groups + 0.8))
+    axes = figure.subplots(rows_each * groups, columns, squeeze=False)
+    return figure, axes, columns
+
+
 def plot_fit(series: list[dict], outputs: Sequence[str], directory: str,
              errors: Mapping[str, Mapping[str, float | None]],
-             units: Mapping[str, str] = CHANNEL_UNITS) -> str:
-    """Measured vs model before and after, full record and a zoom into the held-out part."""
-    item = series[0]
-    figure = Figure(figsize=(11, 3.2 * len(outputs)))
-    axes = figure.subplots(len(outputs), 2, squeeze=False,
-                           gridspec_kw={'width_ratios': [2.2, 1]})
-    t = item['time']
-    stop = item['stop']
-    held = stop < len(t)
-    # Zoom where the base model errs most on the held-out part (relative to each channel).
-    start = stop if held else 0
-    badness = sum(np.abs(item['before'][c][start:] - item['measured'][c][start:])
-                  / max(float(np.std(item['measured'][c])), 1e-300) for c in outputs)
-    width = max(len(t) // 40, 100)
-    centre = start + int(np.argmax(badness))
-    low = int(np.clip(centre - width // 2, 0, max(len(t) - width, 0)))
-    zoom = slice(low, min(len(t), low + width))
-    for row, channel in enumerate(outputs):
-        unit = units[channel]
-        before = errors['before'].get(f'{channel}_nrmse_pct')
-        after = errors['after'].get(f'{channel}_nrmse_pct')
-        for column, part in enumerate((slice(None), zoom)):
-            ax = axes[row, column]
-            ax.plot(t[part], item['measured'][channel][part], color=_COLOURS['measured'],
-                    lw=1.6, label='measured')
-            ax.plot(t[part], item['before'][channel][part], color=_COLOURS['before'], lw=1.0,
-                    ls='--', label='base model')
-            ax.plot(t[part], item['after'][channel][part], color=_COLOURS['after'], lw=1.0,
-                    label='final model (with the effects found)')
-            if held and column == 0:
+             units: Mapping[str, str] = CHANNEL_UNITS, name: str = 'fit.png',
+             labels: Sequence[str] | None = None) -> str:
+    """
+    Measured vs model before and after for every record (small multiples), held-out marked.
+
+    One column per record (wrapping after :data:`COLUMNS_PER_ROW`), one row per channel.
+    """
+    shown = series[:MAX_RECORDS_DRAWN]
+    figure, axes, columns = _grid(len(shown), len(outputs))
+    for number, item in enumerate(shown):
+        group, column = divmod(number, columns)
+        t = item['time']
+        stop = item['stop']
+        for row, channel in enumerate(outputs):
+            ax = axes[group * len(outputs) + row, column]
+            ax.plot(t, item['measured'][channel], color=_COLOURS['measured'], lw=1.4,
+                    label='measured')
+            if item['before'] is not item['after']:
+                ax.plot(t, item['before'][channel], color=_COLOURS['before'], lw=0.8, ls='--',
+                        label='base model')
+            ax.plot(t, item['after'][channel], color=_COLOURS['after'], lw=0.8,
+                    label='final model' if item['before'] is not item['after'] else 'model')
+            if stop < len(t):
                 ax.axvspan(t[stop], t[-1], color=_COLOURS['band'], alpha=0.5, lw=0,
                            label='held out')
-            ax.set_ylabel(f'{channel} [{unit}]')
+            ax.set_ylabel(f'{channel} [{units.get(channel, "")}]', fontsize=8)
+            ax.tick_params(labelsize=7)
             ax.grid(True, lw=0.3)
-        axes[row, 0].set_title(f'{channel}: held-out NRMSE base {_pct(before)} -> final '
-                               f'{_pct(after)}', fontsize=9)
-        axes[row, 1].set_title('zoom where the base model errs most'
-                               + (' (held out)' if held else ''), fontsize=9)
-    axes[-1, 0].set_xlabel('time [s]')
-    axes[-1, 1].set_xlabel('time [s]')
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    figure.legend(handles, labels, loc='lower center', ncol=4, fontsize=9,
-                  bbox_to_anchor=(0.5, -0.04 / len(outputs)))
-    figure.suptitle('Measured vs simulated (the model runs free on the input; errors are '
-                    'NRMSE on the held-out part)', fontsize=10)
-    return _save(figure, directory, 'fit.png')
+            if row == 0:
+                label = labels[number] if labels else f'record {number + 1}'
+                ax.set_title(os.path.basename(str(label))[-40:], fontsize=8)
+        axes[group * len(outputs) + len(outputs) - 1, column].set_xlabel('time [s]', fontsize=8)
+    for number in range(len(shown), axes.shape[1] * (axes.shape[0] // len(outputs))):
+        group, column = divmod(number, columns)
+        for row in range(len(outputs)):
+            axes[group * len(outputs) + row, column].set_visible(False)
+    handles, texts = axes[0, 0].get_legend_handles_labels()
+    more = f' ({len(series) - len(shown)} more not drawn)' if len(series) > len(shown) else ''
+    before = ', '.join(f'{c} {_pct(errors["before"].get(f"{c}_nrmse_pct"))}' for c in outputs)
+    after = ', '.join(f'{c} {_pct(errors["after"].get(f"{c}_nrmse_pct"))}' for c in outputs)
+    title = f'Every record: measured vs simulated (free run on the input){more}'
+    if any(errors.get('after', {}).values()):
+        title += f'. NRMSE base {before}; final {after}'
+    figure.suptitle(title, fontsize=9)
+    figure.tight_layout(rect=(0, 0, 1, 0.93))
+    figure.legend(handles, texts, loc='upper center', ncol=4, fontsize=8,
+                  bbox_to_anchor=(0.5, 0.965))
+    return _save(figure, directory, name)
+
+
+def _transients(values: np.ndarray, count: int, width: int) -> list[int]:
+    """Return where the ``count`` largest changes of ``values`` are, ``width`` apart."""
+    change = np.abs(np.diff(values))
+    chosen: list[int] = []
+    for index in np.argsort(change)[::-1]:
+        if change[index] <= 0 or len(chosen) >= count:
+            break
+        if all(abs(int(index) - other) >= width for other in chosen):
+            chosen.append(int(index))
+    return sorted(chosen)
+
+
+def plot_transients(series: list[dict], outputs: Sequence[str], inputs: Sequence[np.ndarray],
+                    directory: str, input_name: str,
+                    units: Mapping[str, str] = CHANNEL_UNITS,
+                    name: str = 'transients.png') -> str:
+    """Zoom on the largest input changes of every record: measured vs simulated."""
+    shown = series[:MAX_RECORDS_DRAWN]
+    figure = Figure(figsize=(3.6 * TRANSIENTS, 1.9 * len(outputs) * len(shown) + 0.8))
+    axes = figure.subplots(len(outputs) * len(shown), TRANSIENTS, squeeze=False)
+    for number, (item, values) in enumerate(zip(shown, inputs)):
+        t = item['time']
+        width = int(np.clip(len(t) // 50, 20, 400))
+        starts = _transients(np.asarray(values[:len(t)], dtype=float), TRANSIENTS, width)
+        for slot in range(TRANSIENTS):
+            for row, channel in enumerate(outputs):
+                ax = axes[number * len(outputs) + row, slot]
+                if slot >= len(starts):
+                    ax.set_visible(False)
+                    continue
+                low = max(starts[slot] - width // 5, 0)
+                part = slice(low, min(low + width, len(t)))
+                ax.plot(t[part], item['measured'][channel][part], color=_COLOURS['measured'],
+                        lw=1.4, label='measured')
+                if item['before'] is not item['after']:
+                    ax.plot(t[part], item['before'][channel][part], color=_COLOURS['before'],
+                            lw=0.8, ls='--', label='base model')
+                ax.plot(t[part], item['after'][channel][part], color=_COLOURS['after'],
+                        lw=0.9, label='final model')
+                ax.axvline(t[starts[slot]], color='k', lw=0.4, ls=':')
+                ax.set_ylabel(f'{channel} [{units.get(channel, "")}]', fontsize=8)
+                ax.tick_params(labelsize=7)
+                ax.grid(True, lw=0.3)
+                if row == 0:
+                    ax.set_title(f'record {number + 1}: {input_name} step at '
+                                 f'{t[starts[slot]]:.4g} s', fontsize=8)
+    handles, texts = axes[0, 0].get_legend_handles_labels()
+    figure.suptitle('Transients: the largest input changes of each record (dotted line)',
+                    fontsize=9)
+    figure.tight_layout(rect=(0, 0, 1, 0.95))
+    figure.legend(handles, texts, loc='upper center', ncol=3, fontsize=8,
+                  bbox_to_anchor=(0.5, 0.975))
+    return _save(figure, directory, name)
 
 
 def _pct(value):
     return 'n/a' if value is None else f'{value:.3g} %'
 
 
-def _heldout(series, side, channel):
-    pieces = [item[side][channel][item['stop']:] - item['measured'][channel][item['stop']:]
-              for item in series]
-    joined = np.concatenate(pieces)
-    if joined.size == 0:  # no hold-out (the loop did not run): the whole record
-        joined = np.concatenate([item[side][channel] - item['measured'][channel]
-                                 for item in series])
-    return joined
-
-
-def _heldout_time(series):
-    pieces = [item['time'][item['stop']:] for item in series]
-    joined = np.concatenate(pieces)
-    if joined.size == 0:
-        joined = np.concatenate([item['time'] for item in series])
-    return joined
-
-
 def _input(series, records, found, result):
+    """Return the input's name and its values per record (not joined)."""
     mechanical = result['mode'] == 'mechanical'
     name = 'current' if mechanical else 'voltage'
     recs = found.final.records if found is not None else records
-    pieces = []
-    for item, rec in zip(series, recs):
-        values = getattr(rec, name)[:len(item['time'])]
-        part = values[item['stop']:]
-        pieces.append(part if part.size else values)
-    return ('torque input' if mechanical else name), np.concatenate(pieces)
+    values = [getattr(rec, name)[:len(item['time'])] for item, rec in zip(series, recs)]
+    return ('torque input' if mechanical else name), values
+
+
+def _acf_axis(ax, acfs: Sequence[tuple[np.ndarray, str, str]], band: float) -> None:
+    """Draw autocorrelations as bars with the white band; symlog when far outside it."""
+    lags = np.arange(1, len(acfs[0][0]) + 1)
+    width = 0.8 / len(acfs)
+    for number, (acf, colour, label) in enumerate(acfs):
+        ax.bar(lags + (number - (len(acfs) - 1) / 2) * width, acf, width=width, color=colour,
+               label=label, zorder=2)
+    ax.axhspan(-band, band, color=_COLOURS['band'], alpha=0.8, lw=0, zorder=0,
+               label=f'99 % band (white) +-{band:.2g}')
+    ax.axhline(0.0, color='k', lw=0.5)
+    peak = max(float(np.max(np.abs(acf))) for acf, _, _ in acfs)
+    if peak > 5 * band:
+        # far outside the band: a linear scale would flatten the band to a line
+        ax.set_yscale('symlog', linthresh=band, linscale=2.0)
+        ax.set_ylim(-1.05, 1.05)
+        marks = [value for value in (0.3, 1.0) if value > 2.5 * band]
+        ticks = sorted({0.0, band, -band} | set(marks) | {-value for value in marks})
+        ax.set_yticks(ticks, [f'{value:.2g}' for value in ticks])
+        ax.minorticks_off()
+        ax.text(0.98, 0.04, 'symlog scale: linear inside the band', transform=ax.transAxes,
+                ha='right', fontsize=7, color='0.3')
 
 
 def plot_residuals(series: list[dict], outputs: Sequence[str], directory: str,
-                   input_name: str, input_values: np.ndarray, max_lag: int = DEFAULT_LAGS,
-                   units: Mapping[str, str] = CHANNEL_UNITS) -> str:
-    """Held-out residual before/after, its autocorrelation and input cross-correlation."""
-    figure = Figure(figsize=(12, 3.0 * len(outputs)))
-    axes = figure.subplots(len(outputs), 3, squeeze=False)
-    for row, channel in enumerate(outputs):
-        unit = units[channel]
-        ax = axes[row, 0]
-        time = _heldout_time(series)
-        for side, label in (('before', 'base'), ('after', 'final')):
-            residual = _heldout(series, side, channel)
-            ax.plot(time[:residual.size], residual, color=_COLOURS[side], lw=0.6,
-                    label=f'{label}: rms {np.sqrt(np.mean(residual ** 2)):.3g} {unit}')
-        ax.set_ylabel(f'{channel} residual [{unit}]')
-        joined = ', records joined' if len(series) > 1 else ''
-        ax.set_xlabel(f'time [s] (held-out part{joined})')
-        ax.legend(fontsize=8, loc='upper right')
-        ax.grid(True, lw=0.3)
-        ax = axes[row, 1]
-        lags = np.arange(1, max_lag + 1)
-        for offset, (side, label) in zip((-0.18, 0.18), (('before', 'base'),
-                                                         ('after', 'final'))):
-            residual = _heldout(series, side, channel)
-            acf = autocorrelation(residual, max_lag)[1:]
-            ax.bar(lags + offset, acf, width=0.36, color=_COLOURS[side], label=label,
-                   zorder=2)
-        band = confidence_band(_heldout(series, 'after', channel).size)
-        ax.axhspan(-band, band, color=_COLOURS['band'], alpha=0.8, lw=0, zorder=0,
-                   label='99 % band (white)')
-        ax.axhline(0.0, color='k', lw=0.5)
-        ax.set_xlabel('lag [samples]')
-        ax.set_ylabel('autocorrelation')
-        ax.set_title(f'{channel}: whiteness of the residual', fontsize=9)
-        ax.legend(fontsize=8, loc='best', framealpha=0.9)
-        ax = axes[row, 2]
-        for side, label in (('before', 'base'), ('after', 'final')):
-            residual = _heldout(series, side, channel)
-            lag_axis, rho = cross_correlation(residual, input_values[:residual.size], max_lag)
-            ax.plot(lag_axis, rho, marker='o', ms=2.5, lw=0.8, color=_COLOURS[side],
-                    label=label, zorder=2)
-        ax.axhspan(-band, band, color=_COLOURS['band'], alpha=0.8, lw=0, zorder=0)
-        ax.axhline(0.0, color='k', lw=0.5)
-        ax.set_xlabel('lag [samples]')
-        ax.set_ylabel(f'corr(residual, {input_name})')
-        ax.set_title(f'{channel} residual vs input {input_name}', fontsize=9)
-        ax.legend(fontsize=8, loc='best', framealpha=0.9)
-    figure.suptitle('Held-out residual (model - measured): structure left = bars or dots '
-                    'outside the grey band', fontsize=10)
+                   input_name: str, inputs: Sequence[np.ndarray], max_lag: int = DEFAULT_LAGS,
+                   units: Mapping[str, str] = CHANNEL_UNITS, name: str = 'residuals.png',
+                   sides: Sequence[tuple[str, str]] = (('before', 'base'), ('after', 'final'))
+                   ) -> str:
+    """
+    Residual of every record on its own: the residual, its autocorrelation, input correlation.
+
+    Records are never joined (a join would put a jump into the residual and mix records);
+    each is analysed on its held-out part (the whole record when there is none).
+    """
+    shown = series[:MAX_RECORDS_DRAWN]
+    figure = Figure(figsize=(13, 2.5 * len(outputs) * len(shown) + 0.6))
+    axes = figure.subplots(len(outputs) * len(shown), 3, squeeze=False)
+    for number, (item, values) in enumerate(zip(shown, inputs)):
+        stop = item['stop'] if item['stop'] < len(item['time']) else 0
+        part = slice(stop, None)
+        time = item['time'][part]
+        driving = np.asarray(values[:len(item['time'])], dtype=float)[part]
+        for row, channel in enumerate(outputs):
+            unit = units.get(channel, '')
+            residuals = {side: item[side][channel][part] - item['measured'][channel][part]
+                         for side, _ in sides}
+            ax = axes[number * len(outputs) + row, 0]
+            for side, label in sides:
+                residual = residuals[side]
+                ax.plot(time, residual, color=_COLOURS[side], lw=0.6,
+                        label=f'{label}: rms {np.sqrt(np.mean(residual ** 2)):.3g} {unit}')
+            ax.set_ylabel(f'{channel} residual [{unit}]', fontsize=8)
+            ax.set_title(f'record {number + 1}' + (' (held-out part)' if stop else ''),
+                         fontsize=8)
+            ax.legend(fontsize=7, loc='upper right')
+            ax.grid(True, lw=0.3)
+            ax = axes[number * len(outputs) + row, 1]
+            band = confidence_band(residuals[sides[-1][0]].size)
+            _acf_axis(ax, [(autocorrelation(residuals[side], max_lag)[1:], _COLOURS[side],
+                            label) for side, label in sides], band)
+            ax.set_ylabel('autocorrelation', fontsize=8)
+            ax.set_title(f'record {number + 1}, {channel}: whiteness', fontsize=8)
+            ax.legend(fontsize=7, loc='upper right', framealpha=0.9)
+            ax = axes[number * len(outputs) + row, 2]
+            for side, label in sides:
+                lag_axis, rho = cross_correlation(residuals[side], driving, max_lag)
+                ax.plot(lag_axis, rho, marker='o', ms=2.0, lw=0.7, color=_COLOURS[side],
+                        label=label, zorder=2)
+            ax.axhspan(-band, band, color=_COLOURS['band'], alpha=0.8, lw=0, zorder=0)
+            ax.axhline(0.0, color='k', lw=0.5)
+            ax.set_ylabel(f'corr(residual, {input_name})', fontsize=8)
+            ax.set_title(f'record {number + 1}, {channel} residual vs {input_name}', fontsize=8)
+            for ax in axes[number * len(outputs) + row]:
+                ax.tick_params(labelsize=7)
+    axes[-1, 0].set_xlabel('time [s]')
+    axes[-1, 1].set_xlabel('lag [samples]')
+    axes[-1, 2].set_xlabel('lag [samples]')
+    figure.suptitle('Residual (model - measured) per record: structure left = bars or dots '
+                    'outside the grey band', fontsize=10, y=1.0)
     figure.tight_layout()
-    return _save(figure, directory, 'residuals.png')
+    return _save(figure, directory, name)
 
 
 def plot_steps(found: DiscoveryResult, outputs: Sequence[str], directory: str) -> str:
@@ -259,14 +343,44 @@ def _number(value, digits=5):
 
 
 def _parameter_rows(result):
+    flags = result.get('not_identifiable') or {}
     rows = []
     for name, value in result['parameters'].items():
         err = result['stderr'].get(name, float('nan'))
         low, high = value - Z95 * err, value + Z95 * err
         rel = abs(err / value) * 100 if value else float('nan')
+        flag = flags.get(name)
         rows.append([name, _number(value), _number(err, 3), f'[{_number(low)}, {_number(high)}]',
-                     _number(rel, 3) + ' %', html.escape(result['units'].get(name, ''))])
+                     _number(rel, 3) + ' %', html.escape(result['units'].get(name, '')),
+                     f'<span class="flag">not identifiable: {html.escape(str(flag))}</span>'
+                     if flag else ''])
     return rows
+
+
+def _flags(result: Mapping[str, Any]) -> str:
+    """HTML of the warnings and non-identifiable parameters (empty when there are none)."""
+    items = [html.escape(str(text)) for text in result.get('warnings') or []]
+    items += [f'<b>{html.escape(str(name))}</b> not identifiable: {html.escape(str(reason))}'
+              for name, reason in (result.get('not_identifiable') or {}).items()]
+    items += [f'record {html.escape(str(source))}: {html.escape(str(text))}'
+              for source, text in _record_errors(result)]
+    if not items:
+        return ''
+    return ('<div class="verdict warn"><b>Warnings</b><ul>'
+            + ''.join(f'<li>{item}</li>' for item in items) + '</ul></div>')
+
+
+def _record_errors(result: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """Per-record errors of the result, in whichever layout they come."""
+    errors = result.get('record_errors') or result.get('errors_by_record') or []
+    if isinstance(errors, Mapping):
+        return [(str(source), str(text)) for source, text in errors.items()]
+    out = []
+    for entry in errors:
+        if isinstance(entry, Mapping):
+            out.append((str(entry.get('source', entry.get('record', ''))),
+                        str(entry.get('error', entry.get('message', entry)))))
+    return out
 
 
 def _evidence_rows(found):
@@ -318,6 +432,7 @@ th { background: #eee; }
 td:first-child, th:first-child { text-align: left; }
 .verdict { font-size: 1.1em; padding: 0.6em; background: #f4f4f4; border-left: 4px solid #1f77b4; }
 .warn { border-left-color: #d62728; }
+.flag { color: #d62728; font-weight: bold; }
 img { max-width: 100%; }
 """
 
@@ -325,7 +440,8 @@ img { max-width: 100%; }
 def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult | None = None,
                  records: Sequence[Record] | None = None,
                  channel_units: Mapping[str, str] | None = None,
-                 title: str = 'DC motor identification: before / after') -> str:
+                 title: str = 'DC motor identification: before / after',
+                 validation: Validation | None = None) -> str:
     """
     Write ``index.html`` and its PNGs to ``directory``; return the page's path.
 
@@ -344,18 +460,23 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
         Units of current, speed and voltage on the plots (e.g. m/s for a linear axis).
     title : str
         Page title.
+    validation : Validation, optional
+        A validation of the model on other records (:func:`dcmotor_id.validate.validate`):
+        its table and figures are added.
 
     """
     os.makedirs(directory, exist_ok=True)
     units = dict(CHANNEL_UNITS, **(channel_units or {}))
     series, outputs = _series(found, records, result)
     errors = {'before': result['error_before'], 'after': result['error_after']}
-    images = [plot_fit(series, outputs, directory, errors, units)]
+    images = [plot_fit(series, outputs, directory, errors, units,
+                       labels=[str(source) for source in result.get('records') or []])]
     input_name, input_values = _input(series, records, found, result)
     images.append(plot_residuals(series, outputs, directory, input_name, input_values,
                                  units=units))
-    if found is not None and found.steps:
-        images.append(plot_steps(found, outputs, directory))
+    images.append(plot_steps(found, outputs, directory) if found is not None and found.steps
+                  else '')
+    transients = plot_transients(series, outputs, input_values, directory, input_name, units)
     effects = result.get('effects', [])
     if found is None:
         reason = (result.get('discovery') or {}).get('skipped',
@@ -395,9 +516,16 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
              '<p>NRMSE: root-mean-square of (simulated - measured) in percent of the measured '
              "signal's standard deviation" + where + '.</p>',
              f'<img src="{images[0]}" alt="measured vs model">',
+             '<h2>Transients</h2>',
+             f'<img src="{transients}" alt="transients">',
              '<h2>Parameters (final model, all data)</h2>',
+             _flags(result),
              _table(['parameter', 'value', 'std. error', '95 % interval', 'rel. error',
-                     'unit'], _parameter_rows(result))]
+                     'unit', 'flag'], _parameter_rows(result))]
+    if result.get('output_shaft'):
+        parts.append(f'<p>At the output shaft (gear ratio {result.get("gear_ratio")}): '
+                     + html.escape(', '.join(f'{k} = {_number(v)}' for k, v in
+                                             result['output_shaft'].items())) + '</p>')
     parts.append('<h2>Effects found</h2>')
     if effects:
         rows = [[html.escape(effect['name']),
@@ -406,7 +534,7 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
         parts.append(_table(['effect (in the order added)', 'parameters'], rows))
     else:
         parts.append('<p>none</p>')
-    parts.append('<h2>Residual analysis (held-out part)</h2>')
+    parts.append('<h2>Residual analysis (held-out part, each record on its own)</h2>')
     parts.append(f'<img src="{images[1]}" alt="residuals and whiteness">')
     if found is not None:
         parts.append(_table(['model', 'channel', 'NRMSE', 'one-step NRMSE', 'Ljung-Box Q',
@@ -427,6 +555,8 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
             parts.append(f'<p>A candidate is added when it lowers the held-out error by at '
                          f'least {found.min_gain * 100:.0f} % and the BIC of the training '
                          f'fit; the loop stopped because {html.escape(found.reason)}.</p>')
+    if validation is not None:
+        parts += _validation_parts(directory, validation, units)
     parts.append('</body></html>')
     path = os.path.join(directory, 'index.html')
     with open(path, 'w', encoding='utf-8') as stream:
@@ -437,3 +567,77 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
 def _errors_text(errors):
     return ', '.join(f'{key.split("_")[0]} {value:.3g} %' for key, value in errors.items()
                      if value is not None)
+
+
+def _validation_series(validation: Validation) -> tuple[list[dict], list[str]]:
+    """Series of a validation (measured vs simulated over the scored samples)."""
+    outputs = ['speed'] if validation.model.mechanical_only else ['current', 'speed']
+    if all(item.record.position is not None for item in validation.records):
+        outputs.append('position')
+    series = []
+    for item in validation.records:
+        simulated = {channel: item.simulated[channel] for channel in outputs}
+        series.append({'time': item.record.time_s, 'stop': len(item.record),
+                       'measured': {channel: np.asarray(getattr(item.record, channel))
+                                    for channel in outputs},
+                       'before': simulated, 'after': simulated})
+    return series, outputs
+
+
+def _validation_parts(directory: str, validation: Validation,
+                      units: Mapping[str, str]) -> list[str]:
+    """HTML parts of a validation: the score table and its figures."""
+    series, outputs = _validation_series(validation)
+    scores = validation.as_dict()['records']
+    worst = {'before': {}, 'after': {}}  # type: dict[str, dict[str, Any]]
+    fit = plot_fit(series, outputs, directory, worst, units, name='validation_fit.png',
+                   labels=[item['source'] for item in scores])
+    name = 'current' if validation.model.mechanical_only else 'voltage'
+    inputs = [getattr(item.record, name) for item in validation.records]
+    residuals = plot_residuals(series, outputs, directory,
+                               'torque input' if name == 'current' else name, inputs,
+                               units=units, name='validation_residuals.png',
+                               sides=(('after', 'model'),))
+    transients = plot_transients(series, outputs, inputs, directory, name, units,
+                                 name='validation_transients.png')
+    rows = []
+    for item in scores:
+        fits = item['fit_pct']
+        rows.append([html.escape(str(item['source'])), item['samples'],
+                     _pct(item['current_nrmse_pct']), _pct(item['speed_nrmse_pct']),
+                     _pct(fits['current']), _pct(fits['speed']), _pct(fits['position']),
+                     _number(item['position_rmse'], 4)])
+    notes = ''.join(f'<p class="verdict warn">{html.escape(text)}</p>'
+                    for text in validation.warnings)
+    return ['<h2>Validation on other records (open loop)</h2>', notes,
+            _table(['record', 'samples', 'current NRMSE', 'speed NRMSE', 'fit current',
+                    'fit speed', 'fit position', 'position RMSE'], rows),
+            '<p>Each record simulated open loop from an initial state estimated on its first '
+            f'{validation.records[0].init_samples} samples (not scored); fit as MATLAB '
+            'compare: 100 (1 - |y - y_sim| / |y - mean y|).</p>',
+            f'<img src="{fit}" alt="validation: measured vs simulated">',
+            f'<img src="{transients}" alt="validation transients">',
+            f'<img src="{residuals}" alt="validation residuals">']
+
+
+def write_validation_report(directory: str, validation: Validation,
+                            channel_units: Mapping[str, str] | None = None,
+                            title: str = 'DC motor model: validation on new records') -> str:
+    """Write ``validation.html`` and its PNGs (``validate --report DIR``); return its path."""
+    os.makedirs(directory, exist_ok=True)
+    units = dict(CHANNEL_UNITS, **(channel_units or {}))
+    model = validation.model
+    parameters = ', '.join(f'{name} = {_number(value)}' for name, value
+                           in model.parameters.items())
+    effects = ', '.join(effect['name'] for effect in model.effects) or 'none'
+    parts = [f'<!DOCTYPE html><html><head><meta charset="utf-8"><title>dcmotor_id '
+             f'validation</title><style>{_STYLE}</style></head><body>',
+             f'<h1>{html.escape(title)}</h1>',
+             f'<p>Model ({html.escape(model.mode)}): {html.escape(parameters)}; effects: '
+             f'{html.escape(effects)}.</p>']
+    parts += _validation_parts(directory, validation, units)
+    parts.append('</body></html>')
+    path = os.path.join(directory, 'validation.html')
+    with open(path, 'w', encoding='utf-8') as stream:
+        stream.write('\n'.join(parts))
+    return path

@@ -246,3 +246,64 @@ def test_one_reader_entry_point_picks_the_format(tmp_path):
     from_bag, from_csv = read_records([str(tmp_path / 'bag'), str(tmp_path / 'r.csv')])
     for name in ('time_s', 'voltage', 'current', 'speed'):
         np.testing.assert_array_equal(getattr(from_csv, name), getattr(from_bag, name))
+
+
+INTERFACE_VALUE_MSG = 'string[] interface_names\nfloat64[] values\n'
+DYNAMIC_JOINT_STATE_MSG = ('std_msgs/Header header\nstring[] joint_names\n'
+                           'control_msgs/InterfaceValue[] interface_values\n')
+
+
+def write_dynamic_joint_states(path, stamps_ns, joints):
+    """Write /dynamic_joint_states with a control_msgs definition registered for writing."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import get_typestore, get_types_from_msg, Stores
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    store.register(get_types_from_msg(INTERFACE_VALUE_MSG, 'control_msgs/msg/InterfaceValue'))
+    store.register(get_types_from_msg(DYNAMIC_JOINT_STATE_MSG,
+                                      'control_msgs/msg/DynamicJointState'))
+    types = store.types
+    writer = Writer(str(path), version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    connection = writer.add_connection('/dynamic_joint_states',
+                                       'control_msgs/msg/DynamicJointState', typestore=store)
+    for row, stamp in enumerate(stamps_ns):
+        values = [types['control_msgs/msg/InterfaceValue'](
+            interface_names=list(channels), values=np.array([channels[n][row] for n in channels]))
+            for channels in joints.values()]
+        header = types['std_msgs/msg/Header'](
+            stamp=types['builtin_interfaces/msg/Time'](sec=int(stamp // 10**9),
+                                                       nanosec=int(stamp % 10**9)),
+            frame_id='')
+        message = types['control_msgs/msg/DynamicJointState'](
+            header=header, joint_names=list(joints), interface_values=values)
+        writer.write(connection, int(stamp),
+                     store.serialize_cdr(message, 'control_msgs/msg/DynamicJointState'))
+    writer.close()
+
+
+def test_dynamic_joint_states_with_the_bags_own_definitions(tmp_path):
+    from dcmotor_id.formats import read_record
+    from dcmotor_id.formats.mapping import ReadOptions
+
+    n = 300
+    stamps = 5 * 10**9 + np.arange(n, dtype=np.int64) * 1_000_000
+    t = np.arange(n) * 1e-3
+    wheel = {'m0_voltage': 10 * np.sin(t * 7), 'effort': np.cos(t * 7),
+             'velocity': 60 * np.sin(t * 7 - 0.3), 'position': np.cumsum(np.sin(t))}
+    other = {'velocity': np.zeros(n)}
+    bag = tmp_path / 'djs'
+    write_dynamic_joint_states(bag, stamps, {'arm': other, 'wheel': wheel})
+    options = ReadOptions(joint='wheel', interfaces={'voltage': 'm0_voltage',
+                                                     'current': 'effort'},
+                          speed_unit='rpm')
+    record = read_record(str(bag), options=options)
+    np.testing.assert_allclose(record.time_s, t, atol=1e-12)
+    np.testing.assert_array_equal(record.voltage, wheel['m0_voltage'])
+    np.testing.assert_array_equal(record.current, wheel['effort'])
+    np.testing.assert_allclose(record.speed, wheel['velocity'] * 2 * np.pi / 60)
+    with pytest.raises(InputDataError, match='joints arm, wheel'):
+        read_record(str(bag), options=ReadOptions(interfaces={'current': 'effort'}))
+    with pytest.raises(InputDataError, match="no interface 'amps'"):
+        read_record(str(bag), options=ReadOptions(joint='wheel',
+                                                  interfaces={'current': 'amps'}))

@@ -1,9 +1,12 @@
 """
 The file formats of records behind one reader: :func:`read_record` picks the format of a path.
 
-A directory, a ``.mcap`` or a ``.db3`` file is a rosbag2 bag (:mod:`.bag`); any other file is
-CSV (:mod:`.csv`). :data:`READERS` maps each format to its reader, so a new format is one
-module plus one entry.
+A directory, a ``.mcap`` or a ``.db3`` file is a rosbag2 bag (:mod:`.bag`); a ``.mat`` file
+is MATLAB (:mod:`.mat`); any other file is CSV (:mod:`.csv`). :data:`READERS` maps each
+format to its reader, so a new format is one module plus one entry. Every reader takes the
+:class:`~dcmotor_id.formats.mapping.ReadOptions` (column mapping, units, duty, gear), and
+every record read passes :func:`~dcmotor_id.formats.quality.check_channels` (channels that
+cannot identify the motor are refused, naming the channel).
 """
 
 from __future__ import annotations
@@ -12,48 +15,64 @@ from collections.abc import Iterable, Mapping
 import os
 from typing import Callable, Optional
 
-from dcmotor_id.formats import bag, csv
+from dcmotor_id.formats import bag, csv, mat
+from dcmotor_id.formats.mapping import DEFAULT_OPTIONS, ReadOptions
+from dcmotor_id.formats.quality import check_channels
 from dcmotor_id.records import PathLike, Record
 
-#: Format name -> reader ``(path, topics=..., sample_period_s=...) -> Record``.
+#: Format name -> reader ``(path, topics=..., sample_period_s=..., options=...) -> Record``.
 READERS: dict[str, Callable[..., Record]] = {
     'bag': bag.read_bag,
-    'csv': lambda path, **_: csv.read_csv(path),
+    'csv': lambda path, options=DEFAULT_OPTIONS, **_: csv.read_csv(path, options),
+    'mat': lambda path, options=DEFAULT_OPTIONS, **_: mat.read_mat(path, options),
 }
 #: File name endings of the single-file bag formats (a directory is always a bag).
 BAG_SUFFIXES = ('.mcap', '.db3')
+#: File name endings of MATLAB files.
+MAT_SUFFIXES = ('.mat',)
+
+__all__ = ['detect_format', 'read_record', 'read_records', 'ReadOptions', 'READERS']
 
 
 def detect_format(path: PathLike) -> str:
-    """Return the format of ``path``: ``bag`` (a directory, ``.mcap``, ``.db3``) or ``csv``."""
+    """Return the format of ``path``: ``bag`` (directory, .mcap, .db3), ``mat`` or ``csv``."""
     text = str(path)
-    return 'bag' if os.path.isdir(text) or text.endswith(BAG_SUFFIXES) else 'csv'
+    if os.path.isdir(text) or text.endswith(BAG_SUFFIXES):
+        return 'bag'
+    return 'mat' if text.lower().endswith(MAT_SUFFIXES) else 'csv'
 
 
 def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
-                sample_period_s: Optional[float] = None) -> Record:
+                sample_period_s: Optional[float] = None,
+                options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     """
-    Read one record from a CSV file or a rosbag2 bag, choosing the reader by the path.
+    Read one record from a CSV, MATLAB or rosbag2 file, choosing the reader by the path.
 
     Parameters
     ----------
     path : str or os.PathLike
-        A CSV file, a rosbag2 directory, a ``.mcap`` or a ``.db3`` file.
+        A CSV file, a ``.mat`` file, a rosbag2 directory, a ``.mcap`` or a ``.db3`` file.
     topics : dict, optional
         Channel -> topic name, for bags (see :func:`dcmotor_id.formats.bag.read_bag`).
     sample_period_s : float, optional
         Grid step of a bag's timestamps [s]; default their median step.
+    options : ReadOptions
+        Column mapping, units, duty and gear (default: standard names in SI units).
 
     Raises
     ------
     InputDataError
-        When the file cannot be read, saying why and what to do.
+        When the file cannot be read or a channel cannot identify the motor, saying why and
+        what to do.
 
     """
-    return READERS[detect_format(path)](path, topics=topics, sample_period_s=sample_period_s)
+    record = READERS[detect_format(path)](path, topics=topics, sample_period_s=sample_period_s,
+                                          options=options)
+    return check_channels(record)
 
 
 def read_records(paths: Iterable[PathLike], *,
-                 topics: Optional[Mapping[str, str]] = None) -> list[Record]:
+                 topics: Optional[Mapping[str, str]] = None,
+                 options: ReadOptions = DEFAULT_OPTIONS) -> list[Record]:
     """Read every path with :func:`read_record`, in order."""
-    return [read_record(path, topics=topics) for path in paths]
+    return [read_record(path, topics=topics, options=options) for path in paths]

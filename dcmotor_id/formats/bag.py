@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import io
 import os
 import shutil
@@ -24,6 +24,7 @@ import numpy as np
 from dcmotor_id.errors import InputDataError
 from dcmotor_id.formats.batch import (BATCH_CHANNELS, batch_message, BATCH_TYPE, BatchTypes,
                                       decode_batch_message)
+from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
 from dcmotor_id.records import PathLike, Record, record_from_stamps
 
 #: Topic of every channel in a bag, as the identifier node names them (relative names match
@@ -33,6 +34,11 @@ BAG_TOPICS = {'voltage': 'voltage', 'current': 'current', 'speed': 'speed', 'sam
 PARTIAL_PREFIX = '.partial_'
 #: Message type of the per-sample topics.
 FLOAT64_TYPE = 'std_msgs/msg/Float64'
+#: Topic of ros2_control's joint states with every interface (joint_state_broadcaster).
+DYNAMIC_JOINT_STATES_TOPIC = '/dynamic_joint_states'
+#: Channel -> interface name of a joint in DynamicJointState messages, by default.
+DEFAULT_INTERFACES = {'voltage': 'voltage', 'current': 'current', 'speed': 'velocity',
+                      'position': 'position', 'duty': 'duty', 'direction': 'direction'}
 #: The first bytes of an MCAP file.
 MCAP_MAGIC = b'\x89MCAP0\r\n'
 
@@ -86,6 +92,9 @@ class MessageSource(Protocol):
 
     topics: dict[str, str]
     recovery: Optional[Recovery]
+    #: Message type -> its definition as stored in the bag (``ros2msg`` text, dependencies
+    #: appended), for types the reader's type store does not know.
+    definitions: dict[str, str]
 
     def messages(self, topics: Collection[str]) -> Iterator[tuple[str, int, bytes]]:
         """Yield ``(topic, stamp_ns, cdr_bytes)`` of the given topics in time order."""
@@ -98,6 +107,8 @@ class _RosbagsSource:
         self._reader = reader
         self.topics = {conn.topic: conn.msgtype for conn in reader.connections}
         self.recovery: Optional[Recovery] = None
+        self.definitions = {conn.msgtype: getattr(conn.msgdef, 'data', '')
+                            for conn in reader.connections}
 
     def messages(self, topics: Collection[str]) -> Iterator[tuple[str, int, bytes]]:
         connections = [conn for conn in self._reader.connections if conn.topic in topics]
@@ -109,10 +120,11 @@ class _RecoveredSource:
     """Messages read from the complete chunks of truncated MCAP files."""
 
     def __init__(self, topics: dict[str, str], messages: list[tuple[str, int, bytes]],
-                 recovery: Recovery) -> None:
+                 recovery: Recovery, definitions: Optional[dict[str, str]] = None) -> None:
         self.topics = topics
         self._messages = messages
         self.recovery: Optional[Recovery] = recovery
+        self.definitions = dict(definitions or {})
 
     def messages(self, topics: Collection[str]) -> Iterator[tuple[str, int, bytes]]:
         return (message for message in self._messages if message[0] in topics)
@@ -170,6 +182,7 @@ def _recover_mcap(files: list[str], reason: str) -> Optional[_RecoveredSource]:
     from mcap.stream_reader import StreamReader
 
     schemas: dict[int, str] = {}
+    definitions: dict[str, str] = {}
     channels: dict[int, str] = {}
     topics: dict[str, str] = {}
     messages: list[tuple[str, int, bytes]] = []
@@ -179,6 +192,7 @@ def _recover_mcap(files: list[str], reason: str) -> Optional[_RecoveredSource]:
             for record in StreamReader(stream, skip_magic=skip_magic).records:
                 if isinstance(record, Schema):
                     schemas[record.id] = record.name
+                    definitions[record.name] = bytes(record.data).decode('utf-8', 'replace')
                 elif isinstance(record, Channel):
                     channels[record.id] = record.topic
                     topics[record.topic] = schemas.get(record.schema_id, '')
@@ -201,7 +215,7 @@ def _recover_mcap(files: list[str], reason: str) -> Optional[_RecoveredSource]:
     recovery = Recovery(path=', '.join(files), messages=len(messages),
                         first_ns=min(stamps, default=0), last_ns=max(stamps, default=0),
                         reason=reason)
-    return _RecoveredSource(topics, messages, recovery)
+    return _RecoveredSource(topics, messages, recovery, definitions)
 
 
 @contextmanager
@@ -316,7 +330,8 @@ def match_topic(wanted: str, available: Collection[str]) -> Optional[str]:
 
 
 def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
-             sample_period_s: Optional[float] = None) -> Record:
+             sample_period_s: Optional[float] = None,
+             options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     """
     Read a record from a rosbag2 bag, using the bag's own timestamps.
 
@@ -337,6 +352,10 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
         channels keep :data:`BAG_TOPICS`. A relative name matches any namespace.
     sample_period_s : float, optional
         Grid step [s]; default the median step of the timestamps.
+    options : ReadOptions
+        Units of the channels; for ``control_msgs/msg/DynamicJointState`` bags (topic
+        :data:`DYNAMIC_JOINT_STATES_TOPIC`) the joint and the interface of each channel
+        (:func:`read_dynamic_joint_states`).
 
     Raises
     ------
@@ -345,6 +364,15 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
         on a uniform grid.
 
     """
+    record = _read_bag_si(path, topics, sample_period_s, options)
+    if options == DEFAULT_OPTIONS:
+        return record
+    columns: dict[str, np.ndarray] = dict(record.columns())
+    return build_record(columns, replace(options, bus_voltage=None), source=record.source)
+
+
+def _read_bag_si(path: PathLike, topics: Optional[Mapping[str, str]],
+                 sample_period_s: Optional[float], options: ReadOptions) -> Record:
     from dcmotor_id.streams import align_timestamps
 
     names = dict(BAG_TOPICS)
@@ -354,6 +382,13 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
     with open_bag(path) as source:
         available = source.topics
         recovery = source.recovery
+        joint_topic = match_topic(DYNAMIC_JOINT_STATES_TOPIC, available)
+        if joint_topic is not None and (options.joint is not None
+                                        or match_topic(names['current'], available) is None):
+            record = read_dynamic_joint_states(source, joint_topic, path, options)
+            if recovery is not None:
+                _warn_recovered_record(path, recovery, record)
+            return record
         batch_topic = match_topic(names['samples'], available)
         if batch_topic is not None and available[batch_topic] == BATCH_TYPE:
             record = _read_batches(source, batch_topic, typestore, path, sample_period_s)
@@ -394,6 +429,91 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
     if recovery is not None:
         _warn_recovered_record(path, recovery, record)
     return record
+
+
+def register_from_bag(typestore: Any, source: MessageSource, msgtype: str, path: str) -> None:
+    """
+    Teach ``typestore`` a message type from the definition the bag itself carries.
+
+    rosbag2 stores every connection's message definition (``ros2msg`` text with its
+    dependencies), so a type outside the standard store (e.g. control_msgs) is read without a
+    ROS installation; only definitions are parsed, no module is imported.
+    """
+    from rosbags.typesys import get_types_from_msg
+
+    if msgtype in typestore.types:
+        return
+    text = source.definitions.get(msgtype, '')
+    if not text.strip():
+        raise InputDataError(f'{path}: the bag has no definition of {msgtype}; it cannot be '
+                             'decoded without one (record with a rosbag2 that stores them)')
+    try:
+        typestore.register(get_types_from_msg(text, msgtype))
+    except Exception as error:  # noqa: BLE001  (the parser raises several types)
+        raise InputDataError(f'{path}: the definition of {msgtype} in the bag cannot be '
+                             f'parsed ({error})') from None
+
+
+def read_dynamic_joint_states(source: MessageSource, topic: str, path: str,
+                              options: ReadOptions = DEFAULT_OPTIONS) -> Record:
+    """
+    Read one joint of ``control_msgs/msg/DynamicJointState`` messages as a record.
+
+    Each message is one sample, timed by its header stamp (the bag's time when the stamp is
+    zero). The joint is ``options.joint`` (or the only one); channel ``c`` is the interface
+    ``options.interfaces[c]``, by default :data:`DEFAULT_INTERFACES` (``voltage``,
+    ``current``, ``velocity`` as speed, ``position``).
+
+    Raises
+    ------
+    InputDataError
+        The joint or an asked-for interface is absent (naming what the messages have).
+
+    """
+    msgtype = source.topics[topic]
+    typestore = _typestore()
+    register_from_bag(typestore, source, msgtype, path)
+    interfaces = dict(DEFAULT_INTERFACES)
+    interfaces.update(options.interfaces)
+    stamps: list[int] = []
+    values: dict[str, list[float]] = {channel: [] for channel in interfaces}
+    joint = options.joint
+    for _, stamp, data in source.messages((topic,)):
+        message = typestore.deserialize_cdr(data, msgtype)
+        names = list(message.joint_names)
+        if joint is None:
+            if len(names) != 1:
+                raise InputDataError(f'{path}: {topic} has the joints {", ".join(names)}; '
+                                     'choose one with --joint NAME')
+            joint = names[0]
+        if joint not in names:
+            raise InputDataError(f'{path}: joint {joint!r} is not in {topic}; it has '
+                                 f'{", ".join(names) or "no joints"} (--joint NAME)')
+        entry = message.interface_values[names.index(joint)]
+        available = dict(zip(entry.interface_names, entry.values))
+        for channel, name in list(interfaces.items()):
+            if name in available:
+                values[channel].append(float(available[name]))
+            elif channel in options.interfaces:
+                raise InputDataError(
+                    f'{path}: joint {joint!r} has no interface {name!r} for the {channel}; it '
+                    f'has {", ".join(available)} (--interface {channel}=NAME)')
+            else:
+                del interfaces[channel]
+                values.pop(channel)
+        header_ns = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+        stamps.append(int(header_ns) if header_ns else int(stamp))
+    if not stamps:
+        raise InputDataError(f'{path}: topic {topic} has no messages')
+    order = np.argsort(np.asarray(stamps, dtype=np.int64), kind='stable')
+    times = np.asarray(stamps, dtype=np.int64)[order]
+    columns: dict[str, np.ndarray] = {'t': (times - times[0]).astype(float) * 1e-9}
+    for channel, items in values.items():
+        columns[channel] = np.asarray(items, dtype=float)[order]
+    return build_record(columns, replace(options, current_unit='A', speed_unit='rad/s',
+                                         speed_counts_per_rev=None, position_unit='rad',
+                                         position_counts_per_rev=None, gear_ratio=1.0),
+                        source=path)
 
 
 def _warn_recovered_record(path: str, recovery: Recovery, record: Record) -> None:

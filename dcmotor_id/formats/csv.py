@@ -2,17 +2,30 @@
 CSV records: a header row naming the columns, then one sample a row.
 
 The header names the columns ``t`` [s], ``voltage`` [V], ``current`` [A], ``speed`` [rad/s]
-and optionally ``position`` [rad], in any order; other columns are ignored.
+and optionally ``position`` [rad], in any order; other columns are ignored. Other names and
+units are read through :class:`~dcmotor_id.formats.mapping.ReadOptions` (``--column``,
+``--current-unit`` ...).
+
+Large files are parsed in blocks by numpy's C reader, only the needed columns, each kept as
+one array: a 10-million-row file needs little more memory than its numbers
+(bench/csv_memory_results.md). A file that is not text (binary data, UTF-16 without a byte
+order mark) is refused with a message instead of a decoding traceback; UTF-16 with a byte
+order mark is read.
 """
 
 from __future__ import annotations
 
+import codecs
 import csv
+import io
+from itertools import islice
 import os
+from typing import Callable, IO
 
 import numpy as np
 
 from dcmotor_id.errors import InputDataError
+from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
 from dcmotor_id.records import COLUMNS, PathLike, Record
 
 #: Other names seen for the columns, for the hint of a refusal (never accepted silently).
@@ -23,6 +36,10 @@ _ALIASES = {
     'speed': ('w', 'omega', 'speed_rad_s', 'velocity', 'rpm', 'n'),
     'position': ('theta', 'pos', 'angle', 'position_rad'),
 }
+#: Rows parsed per block (the block's array is the only temporary copy).
+BLOCK_ROWS = 1 << 18
+#: Bytes looked at to tell text from binary data.
+SNIFF_BYTES = 1 << 16
 
 
 def _check_names(path: PathLike, header: list[str], index: dict[str, int]) -> None:
@@ -42,75 +59,208 @@ def _check_names(path: PathLike, header: list[str], index: dict[str, int]) -> No
         if exact_case:
             raise InputDataError(
                 f'{path}: column {exact_case[0]!r} must be named {name!r} (column names are '
-                f'lower case: {", ".join(COLUMNS)}); rename it')
+                f'lower case: {", ".join(COLUMNS)}); rename it or map it with --column '
+                f'{name}={exact_case[0]}')
         position_given = 'position' in index or any(
             column.lower() in _ALIASES['position'] for column in header)
         if near and (name == 'current' or (name == 'speed' and not position_given)):
             unit = ' (in rad/s)' if name == 'speed' else ' (in A)'
             raise InputDataError(
                 f'{path}: no column named {name!r}; found {near[0]!r}: if that is the {name}, '
-                f'rename it to {name}{unit}. The columns must be named {", ".join(COLUMNS)}')
+                f'rename it to {name}{unit} or map it with --column {name}={near[0]}. The '
+                f'columns must be named {", ".join(COLUMNS)}')
 
 
-def read_csv(path: PathLike) -> Record:
+def _encoding(path: PathLike) -> str:
+    """
+    Return the text encoding of the file, or refuse binary data with a message.
+
+    UTF-8 (with or without a byte order mark) and UTF-16 with a byte order mark are read;
+    NUL bytes or bytes that are not UTF-8 mean the file is not a CSV text file.
+    """
+    with open(path, 'rb') as stream:
+        head = stream.read(SNIFF_BYTES)
+    if head.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        return 'utf-16'
+    zero = head.find(b'\x00')
+    if zero >= 0:
+        even_zeros = head[1::2].count(0) > 0.4 * len(head[1::2])
+        hint = (' It looks like UTF-16 without a byte order mark: save it as UTF-8.'
+                if even_zeros else ' Give a comma-separated text file.')
+        raise InputDataError(f'{path}: not a CSV text file (a NUL byte at byte {zero}).{hint}')
+    try:
+        # the sniffed block may end inside a multi-byte character: decode incrementally
+        codecs.getincrementaldecoder('utf-8')().decode(head, final=False)
+    except UnicodeDecodeError as error:
+        raise InputDataError(
+            f'{path}: not a CSV text file (byte {error.start} is not UTF-8 text). Give a '
+            'comma-separated text file in UTF-8') from None
+    return 'utf-8-sig'
+
+
+def _open_text(path: PathLike, encoding: str) -> IO[str]:
+    return open(path, newline='', encoding=encoding, errors='strict')
+
+
+def read_csv(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     """
     Read a record from a CSV file with a header row.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    options : ReadOptions
+        Column mapping and units (default: the standard names in SI units).
 
     Raises
     ------
     InputDataError
-        When the file is missing, empty, lacks the ``t`` column, or has a cell that is not a
-        number.
+        When the file is missing, empty, not text, lacks the ``t`` column, or has a cell that
+        is not a number.
 
     """
     if not os.path.isfile(path):
         raise InputDataError(f'{path}: no such file; give the path of a CSV file or a bag')
-    with open(path, newline='', encoding='utf-8-sig') as stream:
-        rows = [row for row in csv.reader(stream) if row and any(cell.strip() for cell in row)]
-    if not rows:
-        raise InputDataError(f'{path}: the file is empty; it needs a header row '
-                             f'({", ".join(COLUMNS)}) and samples')
-    header = [name.strip() for name in rows[0]]
-    if len(header) == 1 and any(mark in header[0] for mark in (';', '\t', ' ')):
-        raise InputDataError(f'{path}: the header {header[0]!r} is one single column: the file '
-                             'must be comma-separated (t,voltage,current,speed)')
-    index = {}
-    for position, name in enumerate(header):
-        if name in COLUMNS:
-            if name in index:
-                raise InputDataError(f'{path}: column {name!r} appears twice in the header')
-            index[name] = position
-    _check_names(path, header, index)
+    encoding = _encoding(path)
+    try:
+        with _open_text(path, encoding) as stream:
+            header, header_line = _header(path, stream)
+            index = _column_index(path, header, options)
+            columns = _parse(path, stream, header_line, index,
+                             lambda: _open_text(path, encoding))
+    except UnicodeDecodeError as error:
+        raise InputDataError(f'{path}: not a CSV text file (bytes that are not {encoding} '
+                             f'text: {error.reason}); give a comma-separated UTF-8 file'
+                             ) from None
+    return build_record(columns, options, source=str(path))
+
+
+def _header(path: PathLike, stream: IO[str]) -> tuple[list[str], int]:
+    """Return the header's names and its line number (1-based); refuse an empty file."""
+    for number, line in enumerate(stream, start=1):
+        cells = next(csv.reader([line]), [])
+        if cells and any(cell.strip() for cell in cells):
+            header = [name.strip() for name in cells]
+            if len(header) == 1 and any(mark in header[0] for mark in (';', '\t', ' ')):
+                raise InputDataError(
+                    f'{path}: the header {header[0]!r} is one single column: the file must be '
+                    'comma-separated (t,voltage,current,speed)')
+            return header, number
+    raise InputDataError(f'{path}: the file is empty; it needs a header row '
+                         f'({", ".join(COLUMNS)}) and samples')
+
+
+def _column_index(path: PathLike, header: list[str], options: ReadOptions) -> dict[str, int]:
+    """Return channel -> column number of the header, refusing ambiguous or odd names."""
+    index: dict[str, int] = {}
+    for channel in options.wanted():
+        name = options.column(channel)
+        positions = [number for number, column in enumerate(header) if column == name]
+        if len(positions) > 1:
+            raise InputDataError(f'{path}: column {name!r} appears twice in the header')
+        if positions:
+            index[channel] = positions[0]
+        elif channel in options.columns:
+            raise InputDataError(f'{path}: --column {channel}={name}: no column {name!r} in '
+                                 f'the header; it has {", ".join(header)}')
+    standard = {channel: number for channel, number in index.items() if channel in COLUMNS}
+    _check_names(path, header, standard)
     if 't' not in index:
         near = [name for name in header if name.lower() in ('t', 'time', 'time_s', 'timestamp')]
-        hint = f' (found {near[0]!r}: rename it to t)' if near else ''
+        hint = f' (found {near[0]!r}: rename it to t or map it with --column t={near[0]})' \
+            if near else ''
         raise InputDataError(f'{path}: no time column t in the header {header}{hint}; the '
                              f'columns must be named {", ".join(COLUMNS)}')
-    if len(rows) == 1:
+    return index
+
+
+def _parse(path: PathLike, stream: IO[str], header_line: int, index: dict[str, int],
+           reopen: Callable[[], IO[str]]) -> dict[str, np.ndarray]:
+    """
+    Parse the samples of the chosen columns in blocks; return channel -> values.
+
+    numpy's C parser reads each block of lines into one small array; each column of it is
+    kept as its own piece and the pieces are joined once per channel at the end, so the
+    peak is about the numbers themselves plus one column and one block.
+    """
+    channels = list(index)
+    usecols = [index[channel] for channel in channels]
+    pieces: dict[str, list[np.ndarray]] = {channel: [] for channel in channels}
+    while True:
+        lines = list(islice(stream, BLOCK_ROWS))
+        if not lines:
+            break
+        try:
+            block = np.loadtxt(lines, delimiter=',', usecols=usecols, ndmin=2, comments=None,
+                               quotechar='"', dtype=float)
+        except ValueError:
+            block = None
+        if block is None or block.shape[1] != len(channels):
+            del lines, pieces
+            with reopen() as again:
+                return _parse_slowly(path, again, header_line, index)
+        for column, channel in enumerate(channels):
+            pieces[channel].append(np.ascontiguousarray(block[:, column]))
+        del block, lines
+    if not any(pieces[channel] for channel in channels):
         raise InputDataError(f'{path}: the file has a header but no samples; record or '
                              'export the data again')
-    data = {name: np.empty(len(rows) - 1) for name in index}
-    for row_number, row in enumerate(rows[1:], start=2):
+    out = {}
+    for channel in channels:
+        out[channel] = np.concatenate(pieces.pop(channel))
+    return out
+
+
+def _parse_slowly(path: PathLike, stream: IO[str], header_line: int,
+                  index: dict[str, int]) -> dict[str, np.ndarray]:
+    """
+    Parse row by row with the csv module, to name the first bad cell (or skip blank rows).
+
+    Only reached when the fast parser refuses a block: its messages carry no line number of
+    the file, and rows of empty cells (``,,,``) are skipped here as blank lines.
+    """
+    values: dict[str, list[float]] = {channel: [] for channel in index}
+    reader = csv.reader(stream)
+    for row_number, row in enumerate(reader, start=1):
+        if row_number <= header_line or not row or not any(cell.strip() for cell in row):
+            continue
         for name, column in index.items():
             try:
-                data[name][row_number - 2] = float(row[column])
+                values[name].append(float(row[column]))
             except (IndexError, ValueError):
                 cell = row[column] if column < len(row) else '(missing)'
                 raise InputDataError(
                     f'{path}: line {row_number}, column {name!r}: {cell!r} is not a number; '
                     'fix or remove that line') from None
-    return Record(time_s=data['t'], current=data.get('current'), voltage=data.get('voltage'),
-                  speed=data.get('speed'), position=data.get('position'), source=str(path))
+    if not values['t']:
+        raise InputDataError(f'{path}: the file has a header but no samples; record or '
+                             'export the data again')
+    return {name: np.array(items, dtype=float) for name, items in values.items()}
 
 
 def write_csv(path: PathLike, record: Record) -> None:
-    """Write a record as CSV with the standard header (``t`` first)."""
+    """Write a record as CSV with the standard header (``t`` first), atomically."""
     columns = record.columns()
     names = list(columns)
     table = np.column_stack([columns[name] for name in names])
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
-    temporary = f'{path}.partial'
-    np.savetxt(temporary, table, delimiter=',', header=','.join(names), comments='',
-               fmt='%.17g')
-    os.replace(temporary, path)
+    temporary = f'{path}.{os.getpid()}.{id(table):x}.partial'
+    try:
+        np.savetxt(temporary, table, delimiter=',', header=','.join(names), comments='',
+                   fmt='%.17g')
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+
+
+def read_csv_text(text: str, options: ReadOptions = DEFAULT_OPTIONS,
+                  source: str = '<text>') -> Record:
+    """Read a record from CSV text (tests, small in-memory tables)."""
+    stream = io.StringIO(text)
+    header, header_line = _header(source, stream)
+    index = _column_index(source, header, options)
+    columns = _parse(source, stream, header_line, index, lambda: io.StringIO(text))
+    return build_record(columns, options, source=source)

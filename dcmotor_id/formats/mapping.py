@@ -1,0 +1,222 @@
+"""
+How a recording's columns become a record's channels: column mapping, units, duty, gear.
+
+Every reader (CSV, MATLAB, bags) hands over raw columns by their names in the file; a
+:class:`ReadOptions` says which column is which channel (``--column voltage=m0_voltage``), in
+which unit current, speed and position were written, whether the voltage is a PWM duty times a
+bus voltage and whether speed and position were measured behind a gearbox.
+:func:`build_record` turns the raw columns into a :class:`~dcmotor_id.records.Record` in SI
+units at the motor shaft, which is what the identification and validation work in.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+import math
+from typing import Optional
+
+import numpy as np
+
+from dcmotor_id.errors import InputDataError
+from dcmotor_id.records import Record
+
+#: Channels a column can be mapped to (``duty`` and ``direction`` make the voltage).
+CHANNELS = ('t', 'voltage', 'current', 'speed', 'position', 'duty', 'direction')
+#: Current units -> factor to A.
+CURRENT_UNITS = {'A': 1.0, 'mA': 1e-3}
+#: Speed units -> factor to rad/s.
+SPEED_UNITS = {'rad/s': 1.0, 'rpm': 2.0 * math.pi / 60.0, 'rps': 2.0 * math.pi,
+               'deg/s': math.pi / 180.0}
+#: Position units -> factor to rad (``m`` for linear axes: kept as it is).
+POSITION_UNITS = {'rad': 1.0, 'deg': math.pi / 180.0, 'm': 1.0}
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """
+    How to read a recording (the CLI's reading options; the defaults read SI files as they are).
+
+    Attributes
+    ----------
+    columns : dict
+        Channel (:data:`CHANNELS`) -> name of its column in the file (CSV header name, MATLAB
+        variable or ``variable:column`` with a 1-based column as in MATLAB).
+    current_unit : str
+        Unit of the current column (:data:`CURRENT_UNITS`).
+    speed_unit : str
+        Unit of the speed column (:data:`SPEED_UNITS`).
+    speed_counts_per_rev : float or None
+        The speed column holds encoder pulses counted per sample, this many per revolution.
+    position_unit : str
+        Unit of the position column (:data:`POSITION_UNITS`).
+    position_counts_per_rev : float or None
+        The position column holds encoder counts, this many per revolution.
+    gear_ratio : float
+        Motor turns per output turn: speed and position were measured at the output shaft and
+        are converted to the motor shaft (the parameters are then at the motor shaft).
+    bus_voltage : float or None
+        The voltage is ``duty * bus_voltage`` from a ``duty`` column in [-1, 1] (or in [0, 1]
+        with a ``direction`` column whose positive values mean forward).
+    joint : str or None
+        Bags with ``control_msgs/msg/DynamicJointState``: the joint to read.
+    interfaces : dict
+        Bags: channel -> interface name of the joint (default: the channel's own name, and
+        ``velocity`` for speed, ``effort`` for nothing).
+
+    """
+
+    columns: Mapping[str, str] = field(default_factory=dict)
+    current_unit: str = 'A'
+    speed_unit: str = 'rad/s'
+    speed_counts_per_rev: Optional[float] = None
+    position_unit: str = 'rad'
+    position_counts_per_rev: Optional[float] = None
+    gear_ratio: float = 1.0
+    bus_voltage: Optional[float] = None
+    joint: Optional[str] = None
+    interfaces: Mapping[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """Refuse unknown channels and units with a message naming the choices."""
+        for channel in list(self.columns) + list(self.interfaces):
+            if channel not in CHANNELS:
+                raise InputDataError(f'--column/--interface {channel}=...: unknown channel '
+                                     f'{channel!r}; the channels are {", ".join(CHANNELS)}')
+        for unit, units, option in ((self.current_unit, CURRENT_UNITS, '--current-unit'),
+                                    (self.speed_unit, SPEED_UNITS, '--speed-unit'),
+                                    (self.position_unit, POSITION_UNITS, '--position-unit')):
+            if unit not in units:
+                raise InputDataError(f'{option} {unit}: choose one of {", ".join(units)}')
+        for value, option in ((self.speed_counts_per_rev, '--speed-counts-per-rev'),
+                              (self.position_counts_per_rev, '--position-counts-per-rev'),
+                              (self.gear_ratio, '--gear-ratio'),
+                              (self.bus_voltage, '--voltage-from-duty')):
+            if value is not None and not (np.isfinite(value) and value > 0):
+                raise InputDataError(f'{option} must be a positive number, got {value}')
+
+    def column(self, channel: str) -> str:
+        """Name the file's column of a channel (the channel's own name by default)."""
+        return self.columns.get(channel, channel)
+
+    @property
+    def mapped(self) -> bool:
+        """Whether any column is mapped explicitly."""
+        return bool(self.columns)
+
+    def wanted(self) -> list[str]:
+        """Channels to look for in the file, in :data:`CHANNELS` order."""
+        skip = set() if self.bus_voltage is not None else {'duty', 'direction'}
+        return [channel for channel in CHANNELS if channel not in skip]
+
+    @property
+    def position_factor(self) -> float:
+        """Factor from the file's position unit to the motor shaft's rad (or m)."""
+        if self.position_counts_per_rev is not None:
+            factor = 2.0 * math.pi / self.position_counts_per_rev
+        else:
+            factor = POSITION_UNITS[self.position_unit]
+        return factor * self.gear_ratio
+
+
+#: The options that read an SI file as it is.
+DEFAULT_OPTIONS = ReadOptions()
+
+
+def parse_assignments(items: Optional[list[str]], option: str) -> dict[str, str]:
+    """Parse repeated ``channel=name`` options (``--column``, ``--interface``) into a dict."""
+    out: dict[str, str] = {}
+    for item in items or []:
+        channel, sep, name = item.partition('=')
+        if not sep or not channel.strip() or not name.strip():
+            raise InputDataError(f'{option} {item!r}: write CHANNEL=NAME, e.g. '
+                                 f'{option} voltage=m0_voltage')
+        out[channel.strip()] = name.strip()
+    return out
+
+
+def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAULT_OPTIONS,
+                 source: str = '') -> Record:
+    """
+    Build a record in SI units at the motor shaft from raw columns by channel.
+
+    The arrays may be modified in place (readers hand over arrays they own, so that a large
+    file is not copied again).
+
+    Parameters
+    ----------
+    columns : dict
+        Channel -> raw values as in the file (``t`` in s).
+    options : ReadOptions
+        Units, duty and gear of the file.
+    source : str
+        Path, for messages.
+
+    Raises
+    ------
+    InputDataError
+        A duty column asked for but absent, or out of its range.
+
+    """
+    def scaled(name: str, factor: float) -> Optional[np.ndarray]:
+        values = columns.get(name)
+        if values is None:
+            return None
+        values = np.asarray(values, dtype=float)
+        if factor != 1.0:
+            values *= factor
+        return values
+
+    time_s = columns.get('t')
+    if time_s is None:
+        raise InputDataError(f'{source}: no time column; map it with --column t=NAME')
+    voltage = scaled('voltage', 1.0)
+    if options.bus_voltage is not None:
+        voltage = _voltage_from_duty(columns, options, source)
+    current = scaled('current', CURRENT_UNITS[options.current_unit])
+    speed = columns.get('speed')
+    if speed is not None:
+        if options.speed_counts_per_rev is not None:
+            period = float(np.median(np.diff(time_s[:10001]))) if len(time_s) > 1 else 1.0
+            factor = 2.0 * math.pi / options.speed_counts_per_rev / period
+        else:
+            factor = SPEED_UNITS[options.speed_unit]
+        speed = scaled('speed', factor * options.gear_ratio)
+    position = scaled('position', options.position_factor)
+    return Record(np.asarray(time_s, dtype=float), current=current, voltage=voltage,
+                  speed=speed, position=position, source=source)
+
+
+def _voltage_from_duty(columns: Mapping[str, np.ndarray], options: ReadOptions,
+                       source: str) -> np.ndarray:
+    """Return ``duty * bus_voltage``, signed by the direction column when there is one."""
+    duty = columns.get('duty')
+    if duty is None:
+        raise InputDataError(f'{source}: --voltage-from-duty needs a duty column (named '
+                             f'{options.column("duty")!r}); map it with --column duty=NAME')
+    duty = np.asarray(duty, dtype=float)
+    direction = columns.get('direction')
+    finite = duty[np.isfinite(duty)]
+    if direction is not None:
+        if finite.size and (finite.min() < -1e-9 or finite.max() > 1 + 1e-9):
+            raise InputDataError(f'{source}: duty with a direction column must lie in [0, 1]; '
+                                 f'found {finite.min():.6g} .. {finite.max():.6g}')
+        duty = duty * np.where(np.asarray(direction, dtype=float) > 0, 1.0, -1.0)
+    elif finite.size and np.max(np.abs(finite)) > 1 + 1e-9:
+        raise InputDataError(
+            f'{source}: the duty column must lie in [-1, 1] (or [0, 1] with a direction '
+            f'column); found {finite.min():.6g} .. {finite.max():.6g}. Give duty as a fraction '
+            '(a percentage divided by 100)')
+    return duty * float(options.bus_voltage or 0.0)
+
+
+def output_shaft(parameters: Mapping[str, float], gear_ratio: float) -> dict[str, float]:
+    """
+    Return the parameters seen at the output shaft of a gearbox of ratio ``gear_ratio``.
+
+    Torques scale with the ratio and inertias and viscous coefficients with its square
+    (a lossless gearbox): ``CPhi N``, ``J N^2``, ``b N^2``, ``Mc N``; Ra, La, Ka, Ta stay.
+    """
+    scale = {'CPhi': gear_ratio, 'J': gear_ratio ** 2, 'b': gear_ratio ** 2, 'Mc': gear_ratio}
+    return {name: float(value) * scale.get(name, 1.0) for name, value in parameters.items()
+            if value is not None}

@@ -1,0 +1,129 @@
+"""
+MATLAB ``.mat`` records: variables (or columns of a matrix) mapped to the channels.
+
+Version 5 files are read with :func:`scipy.io.loadmat`; version 7.3 files are HDF5 and need
+the optional ``h5py`` (``pip install h5py``). By default the variables are named as the
+channels (``t``, ``voltage``, ``current``, ``speed``, ``position``); ``--column current=data:7``
+takes column 7 (1-based, as in MATLAB) of the matrix ``data``.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Callable
+
+import numpy as np
+
+from dcmotor_id.errors import InputDataError
+from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
+from dcmotor_id.records import PathLike, Record
+
+#: The first bytes of an HDF5 file (MATLAB v7.3 puts them after a 512-byte header).
+HDF5_MAGIC = b'\x89HDF\r\n\x1a\n'
+
+
+def _is_hdf5(path: PathLike) -> bool:
+    with open(path, 'rb') as stream:
+        head = stream.read(520)
+    return head[512:520] == HDF5_MAGIC or head[:8] == HDF5_MAGIC
+
+
+def _load_v5(path: PathLike) -> Callable[[str], Any]:
+    from scipy.io import loadmat
+    try:
+        data = loadmat(path)
+    except (ValueError, TypeError, OSError, NotImplementedError) as error:
+        raise InputDataError(f'{path}: not a readable MATLAB file ({error})') from None
+    variables = {key: value for key, value in data.items() if not key.startswith('__')}
+
+    def get(name: str) -> Any:
+        return variables.get(name)
+    get.names = sorted(variables)  # type: ignore[attr-defined]
+    return get
+
+
+def _load_v73(path: PathLike) -> tuple[Callable[[str], Any], Any]:
+    try:
+        import h5py
+    except ImportError:
+        raise InputDataError(
+            f'{path}: a MATLAB v7.3 (HDF5) file; reading it needs h5py: pip install h5py, or '
+            "save the file as version 5 in MATLAB (save(..., '-v7'))") from None
+    handle = h5py.File(path, 'r')
+
+    def get(name: str) -> Any:
+        if name not in handle:
+            return None
+        # HDF5 stores MATLAB arrays transposed (column-major): transpose back
+        return np.asarray(handle[name]).T
+    get.names = sorted(handle.keys())  # type: ignore[attr-defined]
+    return get, handle
+
+
+def _column(path: PathLike, get: Callable[[str], Any], spec: str,
+            channel: str) -> np.ndarray | None:
+    """Return the values named by ``spec`` (``name`` or ``name:column``), or None if absent."""
+    name, _, column = spec.partition(':')
+    value = get(name)
+    if value is None:
+        return None
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputDataError(f'{path}: variable {name!r} ({channel}) is not numeric') from None
+    if column:
+        try:
+            number = int(column)
+        except ValueError:
+            raise InputDataError(f'{path}: --column {channel}={spec}: the column after ":" '
+                                 'must be a number (1-based, as in MATLAB)') from None
+        matrix = np.atleast_2d(array)
+        if matrix.shape[0] == 1 and matrix.shape[1] > 1 and number > 1:
+            matrix = matrix.T
+        if not 1 <= number <= matrix.shape[1]:
+            raise InputDataError(f'{path}: --column {channel}={spec}: {name!r} has '
+                                 f'{matrix.shape[1]} column(s) (1-based)')
+        return np.array(matrix[:, number - 1], dtype=float)
+    if array.ndim > 1 and sorted(array.shape)[-2] > 1:
+        raise InputDataError(f'{path}: variable {name!r} ({channel}) is a {array.shape} matrix; '
+                             f'pick a column with --column {channel}={name}:N (1-based)')
+    return np.array(np.ravel(array), dtype=float)
+
+
+def read_mat(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
+    """
+    Read a record from a MATLAB ``.mat`` file (v5 via scipy, v7.3 via h5py).
+
+    Raises
+    ------
+    InputDataError
+        A missing file or variable (naming the variables the file has), a matrix without a
+        column given, a v7.3 file without h5py installed.
+
+    """
+    if not os.path.isfile(path):
+        raise InputDataError(f'{path}: no such file')
+    handle = None
+    if _is_hdf5(path):
+        get, handle = _load_v73(path)
+    else:
+        get = _load_v5(path)
+    try:
+        columns = {}
+        for channel in options.wanted():
+            values = _column(path, get, options.column(channel), channel)
+            if values is None:
+                if channel in options.columns or channel == 't':
+                    raise InputDataError(
+                        f'{path}: no variable {options.column(channel).partition(":")[0]!r} for '
+                        f'{channel}; the file has {", ".join(get.names)}'  # type: ignore
+                        f'. Map it with --column {channel}=NAME (or NAME:COLUMN)')
+                continue
+            columns[channel] = values
+    finally:
+        if handle is not None:
+            handle.close()
+    lengths = {channel: values.shape[0] for channel, values in columns.items()}
+    if len(set(lengths.values())) > 1:
+        raise InputDataError(f'{path}: the channels have different lengths {lengths}')
+    return build_record(columns, options, source=str(path))
