@@ -20,7 +20,7 @@ setup(
     package_data={PACKAGE: ['py.typed']},
     install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap',
                       'control>=0.10'],
-    extras_require={'test': ['pytest', 'mypy']},
+    extras_require={'test': ['pytest', 'mypy'], 'mat73': ['h5py']},
     zip_safe=True,
     maintainer='dcmotor_id developers',
     maintainer_email='dev@dcmotor-id.invalid',
