@@ -112,9 +112,9 @@ def check_plausibility(parameters: Mapping[str, float], stderr: Mapping[str, flo
     dt, span = scales['dt'], scales['T']
     ra, cphi = values.get('Ra'), values.get('CPhi')
     if ra is not None and 'u/i' in scales:
-        far('Ra', ra, scales['u/i'], 'the data\'s u/i of')
+        far('Ra', ra, scales['u/i'], 'the u/i of the data,')
     if cphi is not None and 'u/w' in scales:
-        far('CPhi', cphi, scales['u/w'], 'the data\'s u/w of')
+        far('CPhi', cphi, scales['u/w'], 'the u/w of the data,')
     if ra and values.get('La') is not None:
         electrical = values['La'] / ra
         if not dt / SCALE_FACTOR <= electrical <= span * SCALE_FACTOR:
@@ -141,9 +141,9 @@ def check_plausibility(parameters: Mapping[str, float], stderr: Mapping[str, flo
     for name, scale in reference.items():
         value = values.get(name)
         if value is not None and scale > 0 and abs(value) < BOUND_FRACTION * scale:
-            warnings.append(f'{name} = {value:.3g} {UNITS[name]} is at the fit\'s lower bound '
-                            f'(below {BOUND_FRACTION:g} of the data\'s scale {scale:.3g} '
-                            f'{UNITS[name]}): not determined, read it as about 0')
+            warnings.append(f'{name} = {value:.3g} {UNITS[name]} is at the lower bound of the '
+                            f'fit (below {BOUND_FRACTION:g} of the scale of the data, '
+                            f'{scale:.3g} {UNITS[name]}): not determined, read it as about 0')
     zero = [name for name in FITTED_NAMES if name in values and
             np.isfinite(stderr.get(name, np.nan)) and stderr[name] == 0.0]
     if zero:

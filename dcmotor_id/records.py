@@ -184,7 +184,7 @@ def check_magnitudes(record: Record) -> None:
     if steps.size and not np.all(np.isfinite(steps)):
         row = int(np.flatnonzero(~np.isfinite(steps))[0]) + 1
         raise InputDataError(
-            f'{name}: column \'t\' jumps by more than a float can hold before sample {row} '
+            f"{name}: column 't' jumps by more than a float can hold before sample {row} "
             f'(t = {float(record.time_s[row]):.6g} s); the times must be seconds on one clock')
     for column, limit in MAGNITUDE_LIMITS.items():
         values = getattr(record, column)

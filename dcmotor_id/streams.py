@@ -181,10 +181,12 @@ class StreamAligner:
             self._newest = int(indices.max())
         self.first_index = int(indices.min()) if self.first_index is None else \
             min(self.first_index, int(indices.min()))
-        if int(indices.max()) < self._base - self.capacity or \
-                int(indices.min()) > self._newest + self.restart_samples:
-            # far behind everything seen, or absurdly far ahead: the source restarted its
-            # numbering (a new origin); the samples in between were never taken, not lost
+        top, low = int(indices.max()), int(indices.min())
+        if (top < self._base and low < self._base - self.capacity) or \
+                low > self._newest + self.restart_samples:
+            # all behind what went out and reaching far back, or absurdly far ahead: the
+            # source restarted its numbering (a new origin, a publisher restarted with its
+            # clock); the samples in between were never taken, not lost
             self.flush()
             self.stats.restarts += 1
             self._base = int(indices.min())
@@ -427,7 +429,7 @@ class SampleInbox:
         """Hand every value put so far to ``aligner``, channel by channel."""
         with self._lock:
             boxes, self._boxes = self._boxes, self._empty()
-        blocks = {}
+        blocks: dict[str, tuple[Any, Any]] = {}
         for channel, (indices, values) in boxes.items():
             if not indices:
                 continue

@@ -74,7 +74,7 @@ def die_with_parent(parent_pid: int) -> bool:
 
 def serve(connection: Connection, parent_pid: int) -> None:
     """
-    The worker process: run the jobs that come over ``connection`` until it closes.
+    Run the jobs that come over ``connection`` until it closes (the worker process).
 
     A job is ``(function name, arguments)``; the answer is ``('ok', value)`` or
     ``('raised', 'Type: message')``. SIGINT is ignored (a Ctrl-C in the terminal reaches the
@@ -83,7 +83,8 @@ def serve(connection: Connection, parent_pid: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent(parent_pid)
     watch_parent(parent_pid)
-    jobs = {'identify_windows': identify_windows, 'warm_up': warm_up}
+    jobs: dict[str, Callable[..., Any]] = {'identify_windows': identify_windows,
+                                           'warm_up': warm_up}
     warm_up()
     while True:
         try:
