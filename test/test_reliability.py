@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 import pytest
+from test_bad_input import good_table, HEADER, write
 
 from dcmotor_id import cli
 from dcmotor_id.errors import FitError, InputDataError
@@ -24,7 +25,6 @@ from dcmotor_id.plausibility import check_plausibility
 from dcmotor_id.records import Record
 from dcmotor_id.streams import SampleInbox, StreamAligner
 from dcmotor_id.windowing import WindowCutter
-from test_bad_input import good_table, HEADER, write
 
 CHANNELS = ('voltage', 'current', 'speed')
 
