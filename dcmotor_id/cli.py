@@ -8,9 +8,13 @@ saying what is wrong and what to do), 1 an unexpected failure.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import platform
 import sys
+import tempfile
+import traceback
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -47,17 +51,80 @@ def _json_safe(value):
     return value
 
 
+def _nearest_existing(path: str) -> str:
+    """Return ``path`` or its nearest ancestor that exists."""
+    while not os.path.exists(path):
+        parent = os.path.dirname(path)
+        if parent == path:
+            break
+        path = parent
+    return path
+
+
+def check_output_path(path: str, option: str, directory: bool = False) -> None:
+    """
+    Refuse an output path that cannot be written, before any work is done.
+
+    A file option (``--json``) must not name a directory; for both kinds, the nearest
+    existing ancestor must be a directory in which a file can be created (tried with a
+    temporary file, which also catches read-only file systems and running as root).
+
+    Raises
+    ------
+    InputDataError
+        Naming the option, the path and what is wrong.
+
+    """
+    target = os.path.abspath(path)
+    if not directory and (os.path.isdir(target) or path.endswith(os.sep)):
+        raise InputDataError(f'{option} {path}: is a directory; give a file name, e.g. '
+                             f'{os.path.join(path, "result.json")}')
+    if directory and os.path.exists(target) and not os.path.isdir(target):
+        raise InputDataError(f'{option} {path}: exists and is not a directory; give a '
+                             'directory for the report')
+    where = target if directory and os.path.isdir(target) else os.path.dirname(target)
+    existing = _nearest_existing(where)
+    if not os.path.isdir(existing):
+        raise InputDataError(f'{option} {path}: {existing} is a file, not a directory; choose '
+                             'another place')
+    try:
+        handle, probe = tempfile.mkstemp(dir=existing, prefix='.dcmotor_id_probe_')
+        os.close(handle)
+        os.unlink(probe)
+    except OSError as error:
+        raise InputDataError(f'{option} {path}: cannot write in {existing} '
+                             f'({error.strerror or error}); choose a writable place') from None
+
+
 def write_json(path: str, result: Mapping[str, Any]) -> None:
-    """Write the result as strict JSON, atomically (a temporary file renamed into place)."""
+    """
+    Write the result as strict JSON, atomically.
+
+    The text goes to a temporary file of a unique name in the target directory (so concurrent
+    runs never share one), then is renamed into place: a reader sees the old file or the whole
+    new one, never a torn one.
+    """
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
-    temporary = f'{path}.partial'
-    with open(temporary, 'w', encoding='utf-8') as stream:
-        json.dump(_json_safe(result), stream, indent=2, allow_nan=False)
-    os.replace(temporary, path)
+    handle, temporary = tempfile.mkstemp(dir=directory, suffix='.partial',
+                                         prefix=f'.{os.path.basename(path)}.')
+    try:
+        with os.fdopen(handle, 'w', encoding='utf-8') as stream:
+            json.dump(_json_safe(result), stream, indent=2, allow_nan=False)
+        os.chmod(temporary, 0o644)
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise
 
 
 def _cmd_identify(args):
+    # Every output place is checked first: a fit of minutes is never lost to a typo.
+    if args.json:
+        check_output_path(args.json, '--json')
+    if args.report:
+        check_output_path(args.report, '--report', directory=True)
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
     options = reading_options(args)
@@ -70,17 +137,26 @@ def _cmd_identify(args):
     if options.gear_ratio != 1.0:
         result['gear_ratio'] = options.gear_ratio
         result['output_shaft'] = output_shaft(result['parameters'], options.gear_ratio)
+    failures = []
     if args.report:
-        from dcmotor_id.report import write_report
-        page = write_report(args.report, result, identified.discovery_result, records)
-        print(f'report: {page}')
+        try:
+            from dcmotor_id.report import write_report
+            page = write_report(args.report, result, identified.discovery_result, records)
+            print(f'report: {page}')
+        except OSError as error:
+            failures.append(f'--report {args.report}: not written: {error.strerror or error}')
     if args.json:
-        write_json(args.json, result)
+        try:
+            write_json(args.json, result)
+        except OSError as error:
+            failures.append(f'--json {args.json}: not written: {error.strerror or error}')
     print(format_table(result))
     if 'output_shaft' in result:
         print(f'at the output shaft (gear ratio {options.gear_ratio:g}): ' + ', '.join(
             f'{name} = {value:.6g}' for name, value in result['output_shaft'].items()))
-    return 0
+    for failure in failures:
+        print(f'dcmotor-id: error: {failure} (the result is printed above)', file=sys.stderr)
+    return 2 if failures else 0
 
 
 def reading_options(args: argparse.Namespace) -> ReadOptions:
@@ -122,7 +198,10 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
 
 def _cmd_validate(args):
     from dcmotor_id.validate import format_validation, load_model, validate
-    check_output_paths(args.json, args.report)
+    if args.json:
+        check_output_path(args.json, '--json')
+    if args.report:
+        check_output_path(args.report, '--report', directory=True)
     model = load_model(args.model)
     options = reading_options(args)
     records = []
@@ -138,20 +217,6 @@ def _cmd_validate(args):
         print(f'report: {write_validation_report(args.report, validation)}')
     print(format_validation(result))
     return 0
-
-
-def check_output_paths(*paths: str | None) -> None:
-    """Refuse output paths that cannot be written before any work is done."""
-    for path in paths:
-        if not path:
-            continue
-        parent = os.path.dirname(os.path.abspath(path)) or '.'
-        existing = parent
-        while not os.path.exists(existing):
-            existing = os.path.dirname(existing)
-        if not os.path.isdir(existing) or not os.access(existing, os.W_OK):
-            raise InputDataError(f'{path}: cannot be written ({existing} is not a writable '
-                                 'directory); give another output path')
 
 
 def _cmd_simulate(args):
@@ -368,8 +433,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Unexpected exceptions that come from the data or the machine, not from a bug: exit 2.
+_ENVIRONMENT_HINTS = (
+    (MemoryError, 'not enough memory for these data; identify a shorter record or fewer '
+                  'files at a time, or free memory'),
+    (UnicodeError, 'the input is not text in UTF-8; save it as a UTF-8 CSV'),
+    (np.linalg.LinAlgError, 'the numbers do not fit a DC motor model; check that the columns '
+                            'are what their names say (current in A, speed in rad/s, not '
+                            'swapped) and that the data come from one drive'),
+    (FloatingPointError, 'the numbers overflow the computation; check the units of the '
+                         'columns'),
+    (OverflowError, 'the numbers overflow the computation; check the units of the columns'),
+)
+
+
+def _bug_report(error: BaseException) -> str:
+    """Return a short report of an unexpected exception: where it happened and versions."""
+    frames = traceback.extract_tb(error.__traceback__)
+    where = ', '.join(f'{os.path.basename(frame.filename)}:{frame.lineno} {frame.name}'
+                      for frame in frames[-3:])
+    return (f'dcmotor-id: internal error: {type(error).__name__}: {error}\n'
+            f'  at {where or "?"}\n'
+            f'  python {platform.python_version()}, numpy {np.__version__}, '
+            f'{platform.system()} {platform.machine()}\n'
+            '  This is a bug of dcmotor-id: please report it with this text, the command line '
+            'and, if you can, the input files.')
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; return the exit code."""
+    """
+    Run the command line; return the exit code.
+
+    Every failure ends as a message, never as a traceback: 2 for bad input, data that cannot
+    identify the motor and what the machine refuses (a path, memory), with what to do; 1 for
+    anything else, with a short report (a bug); 130 when interrupted.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -380,6 +478,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as error:
         print(f'dcmotor-id: error: {error}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print('dcmotor-id: interrupted', file=sys.stderr)
+        return 130
+    except Exception as error:  # noqa: BLE001  (the top-level handler: a message, not a trace)
+        for kind, hint in _ENVIRONMENT_HINTS:
+            if isinstance(error, kind):
+                print(f'dcmotor-id: error: {type(error).__name__}: {error}: {hint}',
+                      file=sys.stderr)
+                return 2
+        print(_bug_report(error), file=sys.stderr)
+        return 1
 
 
 if __name__ == '__main__':

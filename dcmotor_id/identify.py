@@ -22,6 +22,7 @@ from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.model import (DERIVED_NAMES, inadmissible, MECHANICAL_NAMES, PARAMETER_NAMES,
                               POSITIVE_NAMES, UNITS)
+from dcmotor_id.plausibility import check_plausibility
 from dcmotor_id.records import check_record
 from dcmotor_id.residuals import ChannelErrors, model_errors
 from dcmotor_id.signals import low_pass, noise_std, speed_from_position
@@ -345,6 +346,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
             f'the identified model does not reproduce the data (simulation error {worst:.3g} % '
             'of the signal spread). Check that the columns are what their names say (units, '
             'signs) and that the data come from a DC motor drive.')
+    check_plausibility(final.parameters, final.stderr, records, torque_constant)
     names = MECHANICAL_NAMES if mechanical_only else PARAMETER_NAMES + DERIVED_NAMES
     return IdentificationResult(
         parameters={name: final.parameters[name] for name in names},

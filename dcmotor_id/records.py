@@ -19,6 +19,12 @@ COLUMNS = {'t': 's', 'voltage': 'V', 'current': 'A', 'speed': 'rad/s', 'position
 MIN_SAMPLES = 100
 #: Largest tolerated deviation of a time step from the median step, relative.
 SAMPLING_TOLERANCE = 0.01
+#: Largest magnitude a drive's signal can have, by column: beyond it the values are corrupt
+#: (or in the wrong unit); 1e9 V, A or rad/s is far above any electric drive.
+MAGNITUDE_LIMITS = {'voltage': 1e9, 'current': 1e9, 'speed': 1e9, 'position': 1e12}
+#: Largest ratio of a sample's magnitude to the column's typical one (its 99th percentile of
+#: the non-zero magnitudes): a few samples this far above the rest are corrupt, not measured.
+OUTLIER_RATIO = 1e8
 
 
 @dataclass(frozen=True)
@@ -132,6 +138,7 @@ def check_record(record: Record, need_voltage: bool = True,
                 f'{name}: column {column!r} has {bad.size} NaN/inf value(s), the first at '
                 f'sample {bad[0]} (t = {float(record.time_s[bad[0]]):.9g} s); remove or repair '
                 'those samples')
+    check_magnitudes(record)
     steps = np.diff(record.time_s)
     if np.any(steps == 0):
         row = int(np.flatnonzero(steps == 0)[0]) + 1
@@ -153,6 +160,58 @@ def check_record(record: Record, need_voltage: bool = True,
                 'uniform grid: pass --resample to interpolate onto one, or fix the recording')
         return resample_uniform(record, period)
     return record
+
+
+def check_magnitudes(record: Record) -> None:
+    """
+    Refuse finite values no drive produces, naming the column and the first such sample.
+
+    Two checks per column: absolutely (:data:`MAGNITUDE_LIMITS`) and relative to the other
+    samples (:data:`OUTLIER_RATIO` times the 99th percentile of the non-zero magnitudes), so
+    a few corrupt samples (say +-1e308, finite but enough to overflow every derivative and
+    make a least-squares solver loop) never reach the fit. The time column must advance by
+    finite steps.
+
+    Raises
+    ------
+    InputDataError
+        Naming the column, the sample and its time, and what to do.
+
+    """
+    name = record.source or 'record'
+    with np.errstate(over='ignore', invalid='ignore'):
+        steps = np.diff(record.time_s)
+    if steps.size and not np.all(np.isfinite(steps)):
+        row = int(np.flatnonzero(~np.isfinite(steps))[0]) + 1
+        raise InputDataError(
+            f"{name}: column 't' jumps by more than a float can hold before sample {row} "
+            f'(t = {float(record.time_s[row]):.6g} s); the times must be seconds on one clock')
+    for column, limit in MAGNITUDE_LIMITS.items():
+        values = getattr(record, column)
+        if values is None or values.size == 0:
+            continue
+        magnitude = np.abs(np.asarray(values, dtype=float))
+        unit = COLUMNS[column]
+        beyond = np.flatnonzero(magnitude > limit)
+        if beyond.size:
+            row = int(beyond[0])
+            raise InputDataError(
+                f'{name}: column {column!r} has {beyond.size} value(s) beyond {limit:g} {unit}, '
+                f'the first {float(values[row]):.6g} {unit} at sample {row} (t = '
+                f'{float(record.time_s[row]):.9g} s): no drive produces that; remove or repair '
+                f'those samples, or convert the column to {unit}')
+        nonzero = magnitude[magnitude > 0]
+        if nonzero.size < 10:
+            continue
+        typical = float(np.percentile(nonzero, 99.0))
+        outliers = np.flatnonzero(magnitude > OUTLIER_RATIO * typical)
+        if outliers.size:
+            row = int(outliers[0])
+            raise InputDataError(
+                f'{name}: column {column!r} has {outliers.size} value(s) more than '
+                f'{OUTLIER_RATIO:g} times its typical magnitude ({typical:.3g} {unit}), the first '
+                f'{float(values[row]):.6g} {unit} at sample {row} (t = '
+                f'{float(record.time_s[row]):.9g} s): corrupt samples; remove or repair them')
 
 
 def resample_uniform(record: Record, sample_period_s: float) -> Record:

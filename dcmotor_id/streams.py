@@ -34,6 +34,8 @@ from dcmotor_id.errors import InputDataError
 
 #: Largest tolerated distance of a timestamp from its grid instant, in sample periods.
 MAX_GRID_RESIDUAL = 0.25
+#: Largest sample index taken (2^53: exact as a float, and far from int64 overflow).
+MAX_INDEX = 2 ** 53
 
 
 @dataclass
@@ -94,12 +96,23 @@ class StreamAligner:
     capacity : int, optional
         Ring size in samples (default ``4 * max_delay_samples``, at least 1024). A value whose
         index is more than ``capacity`` ahead of the oldest pending sample pushes the oldest
-        ones out (emitted if complete, lost otherwise).
+        ones out (emitted if complete, lost otherwise); :meth:`add_blocks` feeds large blocks
+        of all channels in pieces that fit, so that nothing is pushed out.
+    restart_samples : int, optional
+        A jump of the indices forward by more than this (default ``1000 * capacity``) is a
+        new origin (a restarted source, a new clock), counted in ``restarts``, not as that
+        many lost samples.
+
+    Attributes
+    ----------
+    invalid_by_channel : dict
+        Channel name -> values refused because they were not finite.
 
     """
 
     def __init__(self, channels: Sequence[str], max_delay_samples: int = 200,
-                 capacity: Optional[int] = None) -> None:
+                 capacity: Optional[int] = None,
+                 restart_samples: Optional[int] = None) -> None:
         self.channels = tuple(channels)
         if not self.channels:
             raise ValueError('at least one channel is needed')
@@ -109,6 +122,8 @@ class StreamAligner:
         self.capacity = int(capacity or max(4 * self.max_delay_samples, 1024))
         if self.capacity <= self.max_delay_samples:
             raise ValueError('capacity must exceed max_delay_samples')
+        self.restart_samples = int(restart_samples or 1000 * self.capacity)
+        self.invalid_by_channel = dict.fromkeys(self.channels, 0)
         self._column = {name: column for column, name in enumerate(self.channels)}
         self._values = np.full((self.capacity, len(self.channels)), np.nan)
         self._have = np.zeros((self.capacity, len(self.channels)), dtype=bool)
@@ -146,7 +161,9 @@ class StreamAligner:
         if indices.size == 0:
             return
         finite = np.isfinite(values)
-        self.stats.invalid += int(np.count_nonzero(~finite))
+        invalid = int(np.count_nonzero(~finite))
+        self.stats.invalid += invalid
+        self.invalid_by_channel[channel] += invalid
         indices, values = indices[finite], values[finite]
         if indices.size == 0:
             return
@@ -164,8 +181,12 @@ class StreamAligner:
             self._newest = int(indices.max())
         self.first_index = int(indices.min()) if self.first_index is None else \
             min(self.first_index, int(indices.min()))
-        if int(indices.max()) < self._base - self.capacity:
-            # far behind everything seen: the source restarted its numbering
+        top, low = int(indices.max()), int(indices.min())
+        if (top < self._base and low < self._base - self.capacity) or \
+                low > self._newest + self.restart_samples:
+            # all behind what went out and reaching far back, or absurdly far ahead: the
+            # source restarted its numbering (a new origin, a publisher restarted with its
+            # clock); the samples in between were never taken, not lost
             self.flush()
             self.stats.restarts += 1
             self._base = int(indices.min())
@@ -203,6 +224,55 @@ class StreamAligner:
         if None not in slowest:
             # every channel has moved on by max_delay_samples: what is missing will not come
             self._collect(min(slowest) - self.max_delay_samples)
+
+    def add_blocks(self, blocks: Mapping[str, tuple[Any, Any]]) -> None:
+        """
+        Add values of several channels at once: ``{channel: (indices, values)}``.
+
+        Blocks that span more than the ring (a batch of many samples, a backlog) are fed in
+        pieces of at most ``capacity - max_delay_samples`` consecutive indices, every channel
+        piece by piece, so the samples of one piece are complete and emitted before the next
+        piece comes: nothing is pushed out of the ring and lost. The pieces follow the
+        indices present (a sparse block costs one piece per ``capacity - max_delay_samples``
+        values, never one per index of its span).
+        """
+        arrays = {}
+        for channel, (indices, values) in blocks.items():
+            indices = np.asarray(indices, dtype=np.int64).ravel()
+            values = np.asarray(values, dtype=float).ravel()
+            if indices.shape != values.shape:
+                raise ValueError('indices and values must have the same length')
+            if indices.size:
+                arrays[channel] = (indices, values)
+        if not arrays:
+            return
+        piece = self.capacity - self.max_delay_samples
+        low = min(int(indices.min()) for indices, _ in arrays.values())
+        high = max(int(indices.max()) for indices, _ in arrays.values())
+        if high - low < piece:  # the common case: one message, one small batch
+            for channel, (indices, values) in arrays.items():
+                self.add_block(channel, indices, values)
+            return
+        orders = {}
+        for channel, (indices, _) in arrays.items():
+            order = np.argsort(indices, kind='stable')
+            orders[channel] = (order, indices[order])
+        cursors = dict.fromkeys(arrays, 0)
+        start: Optional[int] = low
+        while start is not None:
+            stop = start + piece  # exclusive
+            following = []
+            for channel, (indices, values) in arrays.items():
+                order, sorted_indices = orders[channel]
+                first = cursors[channel]
+                last = cursors[channel] = int(np.searchsorted(sorted_indices, stop))
+                if last > first:
+                    # the channel's values of this piece, in the order they came
+                    chosen = np.sort(order[first:last])
+                    self.add_block(channel, indices[chosen], values[chosen])
+                if last < sorted_indices.size:
+                    following.append(int(sorted_indices[last]))
+            start = min(following) if following else None
 
     def _advance(self, new_base):
         """Force the base up to ``new_base``: emit what is complete, lose the rest."""
@@ -293,6 +363,7 @@ class SampleInbox:
         self.align_by = align_by
         self.last_seen: dict[str, float] = {}
         self._origin_ns: Optional[int] = None
+        self.invalid_times = 0
         self._lock = threading.Lock()
         self._boxes: dict[str, tuple[list, list]] = self._empty()
 
@@ -339,10 +410,16 @@ class SampleInbox:
             store_values.append(values)
 
     def put_times(self, time_s: np.ndarray, columns: Mapping[str, np.ndarray]) -> None:
-        """Put samples taken at ``time_s`` [s] (one grid instant each); NaN times are dropped."""
-        with np.errstate(invalid='ignore'):
-            indices = np.rint(np.asarray(time_s) / self.sample_period_s)
-        good = np.isfinite(indices)
+        """
+        Put samples taken at ``time_s`` [s] (one grid instant each).
+
+        NaN times, and times beyond :data:`MAX_INDEX` sample periods (no int64 arithmetic
+        on them is safe), are dropped and counted in ``invalid_times``.
+        """
+        with np.errstate(invalid='ignore', over='ignore'):
+            indices = np.rint(np.asarray(time_s, dtype=float) / self.sample_period_s)
+            good = np.isfinite(indices) & (np.abs(indices) <= MAX_INDEX)
+        self.invalid_times += int(good.size - np.count_nonzero(good))
         indices = indices[good].astype(np.int64)
         for channel, values in columns.items():
             if channel in self.channels:
@@ -352,13 +429,15 @@ class SampleInbox:
         """Hand every value put so far to ``aligner``, channel by channel."""
         with self._lock:
             boxes, self._boxes = self._boxes, self._empty()
+        blocks: dict[str, tuple[Any, Any]] = {}
         for channel, (indices, values) in boxes.items():
             if not indices:
                 continue
             if isinstance(indices[0], np.ndarray):
-                aligner.add_block(channel, np.concatenate(indices), np.concatenate(values))
+                blocks[channel] = (np.concatenate(indices), np.concatenate(values))
             else:
-                aligner.add_block(channel, indices, values)
+                blocks[channel] = (indices, values)
+        aligner.add_blocks(blocks)
 
 
 def grid_indices(stamps_ns: Any, sample_period_s: float, origin_ns: int) -> np.ndarray:

@@ -104,21 +104,37 @@ class WindowCutter:
         Runs with fewer samples are dropped whatever ``min_window_s`` says.
     clock_ns : callable
         Returns the time [ns] that the first sample is anchored at (the node's clock).
+    restart_samples : int
+        A forward jump of the indices by more than this is a new origin, like any jump back.
+
+    Attributes
+    ----------
+    anchor_ns : int or None
+        The stamp sample index 0 has (the first sample is stamped with the clock's time when
+        it arrives, every later one ``period`` after the one before it). When the indices
+        go back (a restarted publisher, a new time origin) or jump absurdly far ahead, the
+        cutter anchors anew: the first sample of the new origin gets the clock's time, but
+        never less than a period after the last sample stamped, so windows never overlap
+        and are never stamped in the past. ``restarts`` counts the new anchors.
 
     """
 
     def __init__(self, channels: Sequence[str], sample_rate_hz: float, window_s: float,
                  min_window_s: float, *, min_samples: int,
-                 clock_ns: Callable[[], int]) -> None:
+                 clock_ns: Callable[[], int], restart_samples: int = 2 ** 40) -> None:
         self.channels = tuple(channels)
         self.sample_rate_hz = float(sample_rate_hz)
         self.window_s = float(window_s)
         self.min_samples = max(int(min_window_s * self.sample_rate_hz), int(min_samples))
         self.discarded_samples = 0
         self.anchor_ns: Optional[int] = None
+        self.restarts = 0
+        self.restart_samples = int(restart_samples)
         self._clock_ns = clock_ns
         self._period_ns = 1e9 / self.sample_rate_hz
         self._last_index: Optional[int] = None
+        self._reference: tuple[int, int] = (0, 0)   # (index, its stamp [ns])
+        self._last_stamp_ns: Optional[int] = None
         self._current: list[tuple[np.ndarray, np.ndarray]] = []
         self._current_count = 0
         self._windows: deque[Window] = deque()
@@ -147,15 +163,17 @@ class WindowCutter:
         runs: list[Run] = []
         if indices.size == 0:
             return runs
-        if self.anchor_ns is None:
-            self.anchor_ns = self._clock_ns() - int(round(int(indices[0]) * self._period_ns))
         full = self.window_s * self.sample_rate_hz
         for run_slice in contiguous_runs(indices):
             run_indices, run_values = indices[run_slice], values[run_slice]
-            after_gap = self._last_index is not None and \
-                run_indices[0] != self._last_index + 1
+            first = int(run_indices[0])
+            after_gap = self._last_index is not None and first != self._last_index + 1
             if after_gap:
                 self.close()
+            if self.anchor_ns is None or (self._last_index is not None and (
+                    first <= self._last_index or
+                    first - self._last_index > self.restart_samples)):
+                self._anchor(first)
             self._last_index = int(run_indices[-1])
             runs.append(Run(run_indices, run_values, bool(after_gap)))
             start = 0
@@ -169,6 +187,15 @@ class WindowCutter:
                 if self._current_count >= full - 0.5:
                     self.close()
         return runs
+
+    def _anchor(self, index: int) -> None:
+        """Stamp sample ``index`` now (after the last sample stamped) and the rest from it."""
+        stamp = int(self._clock_ns())
+        if self._last_stamp_ns is not None:
+            stamp = max(stamp, self._last_stamp_ns + int(math.ceil(self._period_ns)))
+            self.restarts += 1
+        self._reference = (int(index), stamp)
+        self.anchor_ns = stamp - int(round(index * self._period_ns))
 
     def close(self, keep_short: bool = False) -> Optional[Window]:
         """
@@ -190,8 +217,10 @@ class WindowCutter:
             values = np.vstack([part[1] for part in self._current])
             self._current = []
             self._current_count = 0
-            stamps = int(self.anchor_ns or 0) + np.rint(indices * self._period_ns).astype(
-                np.int64)
+            reference_index, reference_ns = self._reference
+            stamps = reference_ns + np.rint((indices - reference_index) * self._period_ns
+                                            ).astype(np.int64)
+            self._last_stamp_ns = int(stamps[-1])
             window = Window(stamps, {name: values[:, k].copy()
                                      for k, name in enumerate(self.channels)})
             self._windows.append(window)

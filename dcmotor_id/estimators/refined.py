@@ -189,6 +189,10 @@ def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004
         if not rows_m:
             continue
         try:
+            if not all(np.all(np.isfinite(part)) for part in rows_m + rhs_m + rows_e + rhs_e):
+                # LAPACK's least-squares solver never returns on an inf or NaN (overflowed
+                # derivatives of extreme values): skip this start point instead
+                raise np.linalg.LinAlgError('non-finite start-point equations')
             mech = np.linalg.lstsq(np.vstack(rows_m), np.concatenate(rhs_m), rcond=None)[0]
             if mechanical_only:
                 values = {'J': mech[0], 'b': mech[1], 'Mc': mech[2]}

@@ -98,7 +98,8 @@ def decode_batch(labels: Sequence[str], sizes: Sequence[int], data: Any) -> np.n
     Raises
     ------
     InputDataError
-        When the layout is not the documented one.
+        When the layout is not the documented one, or the times do not increase (samples
+        out of order would be fitted as a motor running backwards in time).
 
     """
     data = np.asarray(data, dtype=float)
@@ -109,7 +110,18 @@ def decode_batch(labels: Sequence[str], sizes: Sequence[int], data: Any) -> np.n
     if data.size % len(BATCH_CHANNELS):
         raise InputDataError(f'batched samples: {data.size} values is not a multiple of '
                              f'{len(BATCH_CHANNELS)} channels')
-    return data.reshape(len(BATCH_CHANNELS), -1)
+    block = data.reshape(len(BATCH_CHANNELS), -1)
+    if len(sizes) > 1 and sizes[1] != block.shape[1]:
+        raise InputDataError(f'batched samples: layout.dim[1] says {sizes[1]} samples, the '
+                             f'data hold {block.shape[1]}')
+    times = block[0][np.isfinite(block[0])]
+    backwards = np.flatnonzero(np.diff(times) <= 0)
+    if backwards.size:
+        row = int(backwards[0]) + 1
+        raise InputDataError(f'batched samples: the times do not increase at sample {row} '
+                             f'(t = {times[row]:.9g} s after {times[row - 1]:.9g} s); a batch '
+                             'holds its samples in time order')
+    return block
 
 
 def decode_batch_message(message: Any) -> np.ndarray:

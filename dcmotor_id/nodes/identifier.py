@@ -33,6 +33,7 @@ separate process (``identify_in_subprocess``); a second call meanwhile is refuse
 
 from __future__ import annotations
 
+from collections import Counter
 from functools import partial
 import threading
 import time
@@ -87,7 +88,11 @@ class Identifier(Node):
                                      max(1, int(round(settings.max_delay_s * rate))))
         self.cutter = WindowCutter(self.channels, rate, settings.window_s,
                                    settings.min_window_s, min_samples=MIN_SAMPLES,
-                                   clock_ns=lambda: self.get_clock().now().nanoseconds)
+                                   clock_ns=lambda: self.get_clock().now().nanoseconds,
+                                   restart_samples=self.aligner.restart_samples)
+        #: malformed batches refused, by reason, and the latest refusal's text
+        self.malformed: Counter[str] = Counter()
+        self.last_malformed = ''
         self.estimator = OnlineEstimator(
             1.0 / rate, settings.online_memory_s,
             settings.online_converged_rel_stderr) if settings.online else None
@@ -96,7 +101,7 @@ class Identifier(Node):
         self._identify_started = 0.0
         self.last_result: Optional[dict] = None
         self.last_error: Optional[str] = None
-        self._fits = FitProcess(settings.identify_in_subprocess)
+        self._fits = FitProcess(settings.identify_in_subprocess, settings.identify_timeout_s)
         fmt = settings.record_format if settings.record_format != 'auto' else \
             'batch' if settings.input == 'batch' else 'float64'
         self.recorder = WindowRecorder(
@@ -154,6 +159,11 @@ class Identifier(Node):
                                  [dim.size for dim in message.layout.dim],
                                  np.frombuffer(message.data, dtype=float))
         except DcMotorIdError as error:
+            text = str(error)
+            reason = 'bad labels' if 'labelled' in text else \
+                'times not increasing' if 'do not increase' in text else 'wrong sizes'
+            self.malformed[reason] += 1
+            self.last_malformed = text
             self._log('error', f'samples: {error}')
             return
         self.inbox.put_times(block[0], dict(zip(('voltage', 'current', 'speed'), block[1:])))
@@ -217,11 +227,13 @@ class Identifier(Node):
             windows = self.cutter.select()
             if not windows:
                 response.success = False
+                problems = self.input_problems()
                 response.message = (
                     f'not enough data: {self.cutter.held_samples} aligned samples so far, a '
                     f'run of at least {self.cutter.min_samples} samples without loss is '
                     f'needed; check that the drive publishes {", ".join(self.channels)}, '
-                    'then call again')
+                    'then call again' +
+                    (f'. Input so far: {"; ".join(problems)}' if problems else ''))
                 self._publish_failure(response.message)
                 return response
             future = Future(executor=self.executor)
@@ -234,6 +246,9 @@ class Identifier(Node):
             outcome = await future
             response.success = not isinstance(outcome, str)
             if response.success:
+                problems = self.input_problems()
+                if problems:  # what was refused or lost is said, never a silent success
+                    outcome['summary'] += f'; input so far: {"; ".join(problems)}'
                 self._publish_result(outcome)
                 response.message = outcome['summary']
             else:
@@ -242,6 +257,44 @@ class Identifier(Node):
             return response
         finally:
             self._identify_busy.release()
+
+    def input_problems(self) -> list[str]:
+        """
+        Say what went wrong with the input so far, one phrase per kind (empty when nothing).
+
+        Channels never received, values refused as NaN/inf (per channel), malformed batches
+        (by reason, with the latest refusal), samples with unusable times, duplicates, lost
+        and late samples, restarts of the source, runs too short to keep.
+        """
+        stats = self.aligner.stats
+        seen = set(self.inbox.last_seen)
+        problems = []
+        missing = [channel for channel in self.channels if channel not in seen]
+        if missing and (seen or stats.invalid or self.malformed):
+            problems.append(f'nothing received on {", ".join(missing)}')
+        elif missing and not seen:
+            problems.append('nothing received yet')
+        if stats.invalid:
+            per_channel = ', '.join(f'{channel} {count}' for channel, count in
+                                    self.aligner.invalid_by_channel.items() if count)
+            problems.append(f'{stats.invalid} invalid values (NaN/inf) refused: {per_channel}')
+        if self.malformed:
+            reasons = ', '.join(f'{reason} {count}' for reason, count in
+                                sorted(self.malformed.items()))
+            problems.append(f'{sum(self.malformed.values())} malformed batches refused '
+                            f'({reasons}; latest: {self.last_malformed})')
+        if self.inbox.invalid_times:
+            problems.append(f'{self.inbox.invalid_times} samples with NaN or absurd times '
+                            'dropped')
+        for count, what in ((stats.duplicates, 'duplicate values dropped'),
+                            (stats.lost, 'samples lost (a channel never delivered them)'),
+                            (stats.late, 'values dropped as too late'),
+                            (stats.restarts, 'restarts of the source (new time origin)'),
+                            (self.cutter.discarded_samples,
+                             'samples in runs too short to keep')):
+            if count:
+                problems.append(f'{count} {what}')
+        return problems
 
     def _status(self, what, level=DiagnosticStatus.OK, message='', pairs=()):
         return DiagnosticStatus(level=level, name=f'{self.get_name()}: {what}',
@@ -315,17 +368,31 @@ class Identifier(Node):
             self._close_window()
         self._stalled = set(stopped)
         level, message = DiagnosticStatus.OK, 'receiving'
+        missing = [channel for channel in self.channels if channel not in seen]
         if not seen:
             level, message = DiagnosticStatus.WARN, 'no samples received yet'
         elif stopped:
             level, message = DiagnosticStatus.WARN, f'stopped: {", ".join(stopped)}'
+        elif missing:
+            level, message = DiagnosticStatus.WARN, f'nothing received on {", ".join(missing)}'
+        if self.malformed and level == DiagnosticStatus.OK:
+            level, message = DiagnosticStatus.WARN, 'receiving; malformed batches refused'
         if self.recorder is not None and self.recorder.error:
             level, message = DiagnosticStatus.ERROR, self.recorder.error
         pairs = [(key, str(value)) for key, value in self.aligner.stats.as_dict().items()]
         pairs += [('first_sample', str(self.aligner.first_index)),
                   ('next_sample', str(self.aligner.next_index)),
                   ('windows_in_memory', str(len(self.cutter.windows))),
-                  ('discarded_samples', str(self.cutter.discarded_samples))]
+                  ('discarded_samples', str(self.cutter.discarded_samples)),
+                  ('missing_channels', ', '.join(missing)),
+                  ('malformed_batches', str(sum(self.malformed.values()))),
+                  ('malformed_reason', self.last_malformed),
+                  ('invalid_times', str(self.inbox.invalid_times)),
+                  ('window_restarts', str(self.cutter.restarts)),
+                  ('fit_restarts', str(self._fits.restarts)),
+                  ('problems', '; '.join(self.input_problems()))]
+        pairs += [(f'invalid.{channel}', str(count))
+                  for channel, count in self.aligner.invalid_by_channel.items()]
         if self.recorder is not None and self.recorder.writer is not None:
             pairs.append(('record_dir', self.recorder.writer.record_dir))
         self._publish_diagnostics([self._status('streams', level, message, pairs)])

@@ -54,6 +54,10 @@ class IdentifierSettings:
     discover: bool = parameter(True, 'run the residual analysis / effect discovery')
     identify_in_subprocess: bool = parameter(True, 'fit in a separate process (keeps the '
                                              'executor at full rate during a fit)')
+    identify_timeout_s: float = parameter(300.0, 'a fit still running after this is stopped '
+                                          '(its process killed and replaced) and ~/identify '
+                                          'answers with the timeout; 0 = no limit; needs '
+                                          'identify_in_subprocess [s]', 0.0)
     online: bool = parameter(True, 'run the recursive online estimator')
     online_rate_hz: float = parameter(2.0, 'rate of ~/online_parameters [Hz]', 0.01, 1e3)
     online_memory_s: float = parameter(10.0, 'forgetting time constant of the online estimate '

@@ -11,29 +11,37 @@ lock nor shares its core, so the executor keeps taking samples at full rate whil
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
+from concurrent.futures import Future
+import ctypes
 from multiprocessing import get_context
+from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
 import os
 import queue
+import signal
+import sys
 import threading
 import time
 from typing import Any, Callable, Optional, Sequence, Union
 
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.identify import identify, prepare_records
+from dcmotor_id.plausibility import check_plausibility
 from dcmotor_id.recording import WindowBagWriter
 from dcmotor_id.records import record_from_stamps
 from dcmotor_id.summary import format_line
 from dcmotor_id.windowing import Window
+
+#: ``prctl`` option: the signal a process gets when its parent dies (linux/prctl.h).
+PR_SET_PDEATHSIG = 1
 
 
 def watch_parent(parent_pid: int, period_s: float = 1.0) -> None:
     """
     Exit this worker process when the node that started it is gone.
 
-    Pool workers hold both ends of their job queue, so a node killed with SIGKILL would
-    otherwise leave them waiting forever. Runs as the pool's initializer.
+    The second line of defence after :func:`die_with_parent` (and the only one off Linux):
+    a worker whose node was killed with SIGKILL would otherwise wait forever.
     """
     def watch():
         while True:
@@ -41,6 +49,59 @@ def watch_parent(parent_pid: int, period_s: float = 1.0) -> None:
             if os.getppid() != parent_pid:
                 os._exit(0)
     threading.Thread(target=watch, name='watch_parent', daemon=True).start()
+
+
+def die_with_parent(parent_pid: int) -> bool:
+    """
+    Ask the kernel to kill this process with SIGKILL when its parent dies (Linux).
+
+    ``prctl(PR_SET_PDEATHSIG)`` through ctypes: no polling, works even while the worker is
+    stuck in a native call. The signal comes when the parent *thread* that started the
+    process ends, so :class:`FitProcess` starts its workers from one long-lived thread.
+    Returns whether the request was made; exits at once if the parent is already gone.
+    """
+    done = False
+    if sys.platform.startswith('linux'):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            done = libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            done = False
+    if os.getppid() != parent_pid:  # died before the request took effect
+        os._exit(0)
+    return done
+
+
+def serve(connection: Connection, parent_pid: int) -> None:
+    """
+    Run the jobs that come over ``connection`` until it closes (the worker process).
+
+    A job is ``(function name, arguments)``; the answer is ``('ok', value)`` or
+    ``('raised', 'Type: message')``. SIGINT is ignored (a Ctrl-C in the terminal reaches the
+    whole process group; the node decides when its worker ends).
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent_pid)
+    watch_parent(parent_pid)
+    jobs: dict[str, Callable[..., Any]] = {'identify_windows': identify_windows,
+                                           'warm_up': warm_up}
+    warm_up()
+    while True:
+        try:
+            job = connection.recv()
+        except (EOFError, OSError):
+            return
+        if job is None:
+            return
+        name, arguments = job
+        try:
+            answer: tuple[str, Any] = ('ok', jobs[name](*arguments))
+        except Exception as error:  # noqa: BLE001  (reported to the node, never a dead worker)
+            answer = ('raised', f'{type(error).__name__}: {error}')
+        try:
+            connection.send(answer)
+        except (OSError, ValueError):
+            return
 
 
 def warm_up() -> bool:
@@ -66,8 +127,15 @@ def identify_windows(windows: Sequence[tuple[Any, dict, str]], method: str,
     try:
         records = prepare_records([record_from_stamps(stamps, channels, source)
                                    for stamps, channels, source in windows], torque_constant)
-        result = identify(records, method=method, torque_constant=torque_constant,
-                          discover=discover).as_dict()
+        identified = identify(records, method=method, torque_constant=torque_constant,
+                              discover=discover)
+        result = identified.as_dict()
+        # the warnings of the result (if it has them) plus the plausibility warnings
+        warnings = list(result.get('warnings') or [])
+        warnings += [text for text in check_plausibility(
+            result['parameters'], result['stderr'], records, torque_constant)
+            if text not in warnings]
+        result['warnings'] = warnings
     except DcMotorIdError as error:
         return 'error', str(error)
     paper: dict[str, Any] | str | None = None
@@ -81,36 +149,122 @@ def identify_windows(windows: Sequence[tuple[Any, dict, str]], method: str,
     return 'ok', result
 
 
+class FitTimeout(TimeoutError):
+    """A fit took longer than its time limit; its process was killed and replaced."""
+
+
 class FitProcess:
     """
     Run :func:`identify_windows` in a process of its own, or here with ``in_subprocess`` false.
 
-    The process starts with the first job (and imports the numerical modules at once); when
-    it dies, a new one is started and the job fails with a message saying so.
+    One long-lived thread starts the process (at once, so the first job finds the numerical
+    modules imported), hands it the jobs and waits for each at most ``timeout_s``: a job
+    that takes longer (a solver that does not converge) is ended by killing the process,
+    which is replaced at once. A process that dies is replaced too. The process dies with
+    the node (:func:`die_with_parent`, :func:`watch_parent`), even on SIGKILL. In-process
+    (``in_subprocess`` false) a fit cannot be stopped, and ``timeout_s`` does not apply.
     """
 
-    def __init__(self, in_subprocess: bool = True) -> None:
+    def __init__(self, in_subprocess: bool = True, timeout_s: Optional[float] = None) -> None:
         self.in_subprocess = in_subprocess
-        self._pool: Optional[ProcessPoolExecutor] = None
+        self.timeout_s = timeout_s if timeout_s and timeout_s > 0 else None
+        self.restarts = 0
+        self._process: Optional[BaseProcess] = None
+        self._connection: Optional[Connection] = None
+        self._jobs: queue.Queue = queue.Queue()
+        self._lock = threading.Lock()
+        self._closing = False
+        self._thread: Optional[threading.Thread] = None
+        if in_subprocess:
+            self._thread = threading.Thread(target=self._loop, name='fit_process', daemon=True)
+            self._thread.start()
 
-    def _start(self) -> ProcessPoolExecutor:
-        pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context('spawn'),
-                                   initializer=watch_parent, initargs=(os.getpid(),))
-        pool.submit(warm_up)
-        return pool
+    @property
+    def pid(self) -> Optional[int]:
+        """Process id of the current worker (None in-process or before it started)."""
+        process = self._process
+        return process.pid if process is not None else None
 
-    def run(self, *arguments: Any) -> tuple[str, Any]:
-        """Return ``identify_windows(*arguments)``; raise ``RuntimeError`` if the process died."""
-        if not self.in_subprocess:
-            return identify_windows(*arguments)
-        if self._pool is None:
-            self._pool = self._start()
+    def _start(self) -> None:
+        context = get_context('spawn')
+        ours, theirs = context.Pipe()
+        process = context.Process(target=serve, args=(theirs, os.getpid()),
+                                  name='dcmotor_id_fit', daemon=True)
+        process.start()
+        theirs.close()
+        with self._lock:
+            self._process, self._connection = process, ours
+
+    def _stop(self) -> None:
+        """Kill the worker (if any) and wait for it."""
+        with self._lock:
+            process, connection = self._process, self._connection
+            self._process = self._connection = None
+        if process is not None:
+            process.kill()
+            process.join(timeout=10.0)
+        if connection is not None:
+            connection.close()
+
+    def _loop(self) -> None:
         try:
-            return self._pool.submit(identify_windows, *arguments).result()
-        except BrokenProcessPool:
-            self._pool = self._start()
+            self._start()
+        except Exception:  # noqa: BLE001  (retried with the first job, which reports it)
+            self._stop()
+        while True:
+            item = self._jobs.get()
+            if item is None or self._closing:
+                self._stop()
+                if item is not None:
+                    item[1].set_exception(RuntimeError('the node is shutting down'))
+                return
+            arguments, future = item
+            try:
+                future.set_result(self._run_one(arguments))
+            except BaseException as error:  # noqa: BLE001  (handed to the caller)
+                future.set_exception(error)
+
+    def _run_one(self, arguments: tuple) -> tuple[str, Any]:
+        if self._process is None or not self._process.is_alive():
+            self._stop()
+            self._start()
+        connection = self._connection
+        assert connection is not None
+        try:
+            connection.send(('identify_windows', arguments))
+            ready = connection.poll(self.timeout_s)
+        except (OSError, ValueError, EOFError):
+            ready = True  # broken pipe: the process died, recv below says so
+        if not ready:
+            self._stop()
+            self.restarts += 1
+            if not self._closing:
+                self._start()
+            raise FitTimeout(
+                f'the fit did not finish within identify_timeout_s = {self.timeout_s:g} s; '
+                'its process was stopped and a new one started. Call again; if it keeps '
+                'happening, identify shorter windows (window_s), set discover false or raise '
+                'identify_timeout_s')
+        try:
+            status, payload = connection.recv()
+        except (EOFError, OSError, ValueError):
+            self._stop()
+            self.restarts += 1
+            if not self._closing:
+                self._start()
             raise RuntimeError('the identification process died; it was restarted, '
                                'call again') from None
+        if status != 'ok':
+            raise RuntimeError(payload)
+        return payload
+
+    def run(self, *arguments: Any) -> tuple[str, Any]:
+        """Return ``identify_windows(*arguments)``; raise :class:`FitTimeout` or RuntimeError."""
+        if not self.in_subprocess:
+            return identify_windows(*arguments)
+        future: Future = Future()
+        self._jobs.put((arguments, future))
+        return future.result()
 
     def identify(self, windows: Sequence[Window], method: str,
                  torque_constant: Optional[float], discover: bool,
@@ -119,7 +273,8 @@ class FitProcess:
         Wait until the windows are written, identify from them; return the result or why not.
 
         The result is that of :func:`identify_windows` plus ``bags``, ``record_errors`` and
-        ``summary`` (:func:`dcmotor_id.summary.format_line`); a failure is a message.
+        ``summary`` (:func:`dcmotor_id.summary.format_line`, followed by the plausibility
+        warnings); a failure is a message (a timeout says so).
         """
         try:
             for window in windows:
@@ -131,15 +286,22 @@ class FitProcess:
                 return f'identification failed: {result}'
             result['bags'] = [window.path for window in windows if window.path]
             result['record_errors'] = [window.error for window in windows if window.error]
-            result['summary'] = format_line(result)
+            warnings = result.get('warnings') or []
+            result['summary'] = format_line(result) + ''.join(
+                f'; warning: {text}' for text in warnings)
             return result
+        except FitTimeout as error:
+            return f'identification failed: {error}'
         except Exception as error:  # noqa: BLE001  (report, never kill the node)
             return f'identification failed unexpectedly: {type(error).__name__}: {error}'
 
     def shutdown(self) -> None:
-        """Stop the process without waiting for a job that runs."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+        """Stop the process now, also in the middle of a job (which then fails)."""
+        self._closing = True
+        if self._thread is not None:
+            self._jobs.put(None)
+            self._stop()  # ends a running job at once: its recv fails
+            self._thread.join(timeout=10.0)
 
 
 class WindowRecorder:
