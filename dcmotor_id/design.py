@@ -48,6 +48,7 @@ import warnings
 
 import control
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 from scipy.signal import BadCoefficients
 
@@ -392,8 +393,8 @@ def _sampled(system: control.LTI, dt: float | None) -> control.LTI:
     return system if dt is None else control.c2d(system, dt, method='zoh')
 
 
-def inner_loop(motor: Motor, current_gains: tuple | None, current_bandwidth_hz: float | None,
-               dt: float | None) -> control.StateSpace:
+def inner_loop(motor: Motor, current_gains: tuple[float, float] | None,
+               current_bandwidth_hz: float | None, dt: float | None) -> control.StateSpace:
     """
     Return the plant the speed loop sees: reference of the inner loop -> ``w`` (and ``i``).
 
@@ -414,6 +415,8 @@ def inner_loop(motor: Motor, current_gains: tuple | None, current_bandwidth_hz: 
         return control.interconnect([plant, actuator], inplist=['torque_ref'],
                                     outlist=['w'], inputs=['torque_ref'], outputs=['w'],
                                     name='inner')
+    if current_gains is None:
+        raise TypeError('inner_loop: a full-mode motor needs the current PI gains')
     kp, ki = current_gains
     pi = pi_controller(kp, ki, dt, 'e_i', 'u')
     junction = control.summing_junction(['i_ref', '-i'], 'e_i', dt=dt, name='sum_i')
@@ -423,7 +426,7 @@ def inner_loop(motor: Motor, current_gains: tuple | None, current_bandwidth_hz: 
                                 name='inner')
 
 
-def _response(system: control.LTI, omega: np.ndarray) -> np.ndarray:
+def _response(system: control.LTI, omega: ArrayLike) -> np.ndarray:
     """Complex frequency response (handles sampled systems, unlike ``system(1j w)``)."""
     response = system.frequency_response(np.atleast_1d(omega))
     return np.atleast_1d(np.squeeze(response.complex))
@@ -590,8 +593,8 @@ class Gains:
 
     """
 
-    current: tuple | None
-    speed: tuple
+    current: tuple[float, float] | None
+    speed: tuple[float, float]
     dt: float | None
     torque_loop_hz: float | None = None
 
@@ -612,6 +615,8 @@ def loops(motor: Motor, gains: Gains) -> dict:
     speed_open, speed_closed = speed_loops(inner, *gains.speed, gains.dt, reference)
     systems = {'speed_open': speed_open, 'speed_closed': speed_closed, 'inner': inner}
     if motor.mode == 'full':
+        # inner_loop above has already refused a full-mode motor without current gains.
+        assert gains.current is not None
         plant = _sampled(motor_model(motor), gains.dt)
         pi = pi_controller(*gains.current, gains.dt, 'e_i', 'u')
         systems['current_open'] = pi * plant[0, 0]
@@ -735,29 +740,35 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
     dt = options.sample_period_s
     notes = []
     full = motor.mode == 'full'
-    current, correction = (sampled_current_pi(motor, options.current_bandwidth_hz, dt)
-                           if full else (None, None))
-    torque_loop = None if full else options.current_bandwidth_hz
+    # resolve_options sets the speed bandwidth always and the current one in full mode.
+    current_bandwidth, speed_bandwidth = options.current_bandwidth_hz, options.speed_bandwidth_hz
+    assert speed_bandwidth is not None
+    current: tuple[float, float] | None = None
+    correction: float | None = None
+    if full:
+        assert current_bandwidth is not None
+        current, correction = sampled_current_pi(motor, current_bandwidth, dt)
+    torque_loop = None if full else current_bandwidth
     if not full:
         notes.append('mechanical-only result (J, b, Mc): the speed loop acts on a torque '
                      'command; the current loop needs Ra and La (identify with voltage).')
         notes.append('torque loop assumed ideal' if torque_loop is None else
                      f'torque loop assumed first order with {torque_loop:g} Hz bandwidth')
-    fastest = options.current_bandwidth_hz or options.speed_bandwidth_hz
+    fastest = current_bandwidth or speed_bandwidth
     if dt is not None and fastest > 0.1 / dt:
         notes.append(f'{fastest:g} Hz is above a tenth of the sampling rate {1 / dt:g} Hz: the '
                      'sampled loop keeps the bandwidth but loses gain margin (see the table); '
                      'a computation delay in the drive would cost more.')
     reference = 'i_ref' if full else 'torque_ref'
     inner = inner_loop(motor, current, torque_loop, dt)
-    kp, ki, crossover = design_speed(inner, options.speed_bandwidth_hz,
+    kp, ki, crossover = design_speed(inner, speed_bandwidth,
                                      options.phase_margin_deg, dt, reference)
     gains = Gains(current, (kp, ki), dt, torque_loop)
     nominal = loop_metrics(motor, gains)
     if not all(values['stable'] for values in nominal.values()):
         raise DesignError('the designed loops are unstable at this sample period: lower the '
                           'bandwidths or sample faster.')
-    result = {
+    result: dict[str, Any] = {
         'mode': motor.mode, 'shaft': motor.shaft, 'gear_ratio': motor.gear_ratio,
         'sample_period_s': dt,
         'requested': {'current_bandwidth_hz': options.current_bandwidth_hz,
@@ -767,6 +778,7 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
                   'torque_constant': motor.torque_constant},
     }
     if full:
+        assert current is not None and current_bandwidth is not None
         pi = pi_controller(*current, dt, 'e_i', 'u')
         result['current_loop'] = {
             'kp': current[0], 'ki': current[1], 'ti_s': current[0] / current[1],
@@ -775,7 +787,7 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
                       'Kp = 2 pi f_c La)' + ('' if dt is None else
                                              ', f_c scaled for the sampled loop'),
             'closed_form': dict(zip(('kp', 'ki'),
-                                    current_pi(motor, options.current_bandwidth_hz))),
+                                    current_pi(motor, current_bandwidth))),
             'sampling_correction': correction,
             'discrete': _difference_equation(pi) if dt is not None else None,
             'back_emf_feedforward_v_per_rad_s': motor.values['CPhi'],

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+from typing import Any
 
 import control
 import numpy as np
@@ -123,7 +124,7 @@ def write_exports(directory: str, motor: Motor, motor_shaft_values: dict) -> dic
 
     """
     os.makedirs(directory, exist_ok=True)
-    paths = {}
+    paths: dict[str, Any] = {}
     path = os.path.join(directory, 'model_statespace.json')
     with open(path, 'w', encoding='utf-8') as stream:
         json.dump(statespace_dict(motor), stream, indent=2, allow_nan=False)
