@@ -132,7 +132,7 @@ def _cmd_fleet(args):
     from dcmotor_id.fleet import FleetOptions, run_fleet
     from dcmotor_id.fleet.progress import Progress
     options = FleetOptions(args.motor_from, args.torque_constant, not args.no_discover,
-                           args.window_s, args.min_window_s or args.window_s / 2)
+                           args.window_s, args.min_window_s)
     summary = run_fleet(args.paths, args.history, options, scheduler=args.scheduler,
                         workers=args.workers, force=args.force,
                         progress=None if args.quiet else Progress())
@@ -159,7 +159,7 @@ def _add_fleet_commands(commands):
     fleet.add_argument('--workers', type=int, metavar='N',
                        help='worker processes of the local cluster (default: one per core)')
     fleet.add_argument('--motor-from', default='namespace', metavar='namespace|path|PATTERN',
-                       help='name motors by the topics\' namespace (default), the directory '
+                       help="name motors by the topics' namespace (default), the directory "
                             'of the recording, or a regular expression on its path')
     fleet.add_argument('--torque-constant', type=_positive, metavar='K',
                        help='mechanical-only mode: identify J, b, Mc [N m/A]')

@@ -158,8 +158,10 @@ def part_files(history_dir: str) -> list[str]:
 def read_history(history_dir: str, latest: bool = True,
                  columns: Optional[Iterable[str]] = None) -> pa.Table:
     """
-    Read the history as one table (schemas of all files unified: newer columns are null in
-    older rows).
+    Read the history as one table.
+
+    The schemas of all files are unified: columns that newer files added are null in older
+    rows.
 
     Parameters
     ----------

@@ -53,7 +53,7 @@ class Progress:
 
     def update(self, bags_done: int, bags_total: int, windows_done: int, windows_known: int,
                failures: int, planning: bool = False, final: bool = False) -> None:
-        """Show the counts if ``interval_s`` has passed since the last update (or ``final``)."""
+        """Write the counts, at most every ``interval_s`` (always when ``final``)."""
         now = time.monotonic()
         if not final and now - self._last < self.interval_s:
             return

@@ -89,7 +89,7 @@ class MotorTrend:
 
     @property
     def level(self) -> str:
-        """Return the highest alarm level (``OK`` without alarms)."""
+        """Return the highest level of the alarms, or ``OK`` when there are none."""
         levels = [alarm.level for alarm in self.alarms]
         return 'ERROR' if 'ERROR' in levels else 'WARN' if levels else 'OK'
 
@@ -178,16 +178,17 @@ def plot_motor(trend: MotorTrend, directory: str, name: str) -> str:
                          markersize=5)
     effect_axis.set_yticks(range(len(names)), names or [])
     effect_axis.set_ylim(-0.7, max(len(names), 1) - 0.3)
-    effect_axis.set_title('effects found per window' + ('' if names else ': none'),
-                          fontsize=10)
+    appeared = any(alarm.name.startswith('effect ') for alarm in trend.alarms)
+    effect_axis.set_title('effects found per window' + ('' if names else ': none')
+                          + (' (orange: appeared, an alarm)' if appeared else ''), fontsize=10)
     effect_axis.grid(alpha=0.3)
     error_axis = axes[len(trend.parameters) + 1]
     for key, label, colour in (('error_before', 'base model', '#d62728'),
                                ('error_after', 'final model', '#1f77b4')):
         for channel, marker in (('current', 'o'), ('speed', '^')):
-            values = [_float(row.get(f'{key}_{channel}_nrmse_pct')) for row in trend.rows]
-            if any(math.isfinite(value) for value in values):
-                error_axis.plot(times, values, marker, color=colour, markersize=3,
+            errors = [_float(row.get(f'{key}_{channel}_nrmse_pct')) for row in trend.rows]
+            if any(math.isfinite(value) for value in errors):
+                error_axis.plot(times, errors, marker, color=colour, markersize=3,
                                 label=f'{channel}, {label}')
     error_axis.set_title('held-out simulation error [% of std]', fontsize=10)
     error_axis.legend(fontsize=7, loc='best')
@@ -235,8 +236,10 @@ def _safe_name(motor_id: str) -> str:
 def motor_trends(history_dir: str, settings: DetectorSettings = DetectorSettings()
                  ) -> tuple[list[MotorTrend], list[dict[str, Any]]]:
     """
-    Read the history; return every motor's trend, the most changed first, and the error
-    rows of recordings in which no motor could be told (unreadable bags).
+    Read the history; return the motors' trends (the most changed first) and orphan errors.
+
+    The orphan errors are the rows of recordings in which no motor could be told (bags that
+    could not be read).
     """
     table = read_history(history_dir)
     by_motor: dict[str, list[dict[str, Any]]] = {}
@@ -287,7 +290,7 @@ def write_fleet_report(history_dir: str, directory: str,
         f'<p>{len(trends)} motors, {windows} windows identified, {failures} failures; '
         f'<b>{alarmed} motors with change alarms</b>. History: '
         f'{html.escape(os.path.abspath(history_dir))}.</p>',
-        f'<p>A parameter alarms when it differs from its baseline (the mean of a motor\'s '
+        '<p>A parameter alarms when it differs from its baseline (the mean of a motor&#39;s '
         f'first {settings.baseline_share:.0%} of windows, at least {settings.min_baseline}) '
         f'by at least {settings.threshold:g} standard deviations and {settings.warn_pct:g} % '
         f'(ERROR from {settings.error_pct:g} %) in {settings.confirm} consecutive windows; an '
@@ -352,9 +355,9 @@ def _effects_table(trend: MotorTrend) -> str:
     rows = ['<table><tr><th>effect</th><th>windows</th><th>first found</th>'
             '<th>median value (first parameter)</th></tr>']
     for name, count in sorted(counts.items()):
-        values = [found[name] for _, found in trend.effects if name in found]
+        values = np.array([found[name] for _, found in trend.effects if name in found])
         first = next(time for time, found in trend.effects if name in found)
-        median = float(np.nanmedian(values)) if any(map(math.isfinite, values)) else math.nan
+        median = float(np.nanmedian(values)) if np.isfinite(values).any() else math.nan
         rows.append(f'<tr>{_cell(name)}{_cell(f"{count} of {len(trend.rows)}")}'
                     f'{_cell(_when(first))}{_cell(f"{median:.4g}")}</tr>')
     return ''.join(rows) + '</table>'

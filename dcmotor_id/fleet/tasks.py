@@ -39,8 +39,10 @@ class FleetOptions:
         Mechanical-only mode with this torque constant [N m/A].
     discover : bool
         Run the effect discovery loop on every window.
-    window_s, min_window_s : float
-        Window length and the shortest last window kept [s].
+    window_s : float
+        Window length [s] (the identifier node's default).
+    min_window_s : float, optional
+        Shortest last window kept [s]; default half a window.
 
     """
 
@@ -48,14 +50,18 @@ class FleetOptions:
     torque_constant: Optional[float] = None
     discover: bool = True
     window_s: float = 10.0
-    min_window_s: float = 5.0
+    min_window_s: Optional[float] = None
+
+    @property
+    def shortest_s(self) -> float:
+        """Return the shortest window kept [s]."""
+        return self.min_window_s if self.min_window_s is not None else 0.5 * self.window_s
 
 
 @dataclass
 class BagWindows:
     """
-    What reading one recording gave: its windows, and the motors or the whole recording
-    that could not be read (with the error message).
+    What reading one recording gave: its windows and what could not be read.
 
     Attributes
     ----------
@@ -136,7 +142,7 @@ def read_windows(source: Source, options: FleetOptions) -> BagWindows:
                 start_ns = int(round(float(record.time_s[0]) * 1e9)) if len(record) else 0
                 record = record.replace(time_s=record.time_s - record.time_s[0])
                 result.windows.extend(cut_windows(record, start_ns, motor, options.window_s,
-                                                  options.min_window_s))
+                                                  options.shortest_s))
             else:
                 with open_bag(source.path) as bag:
                     topics = dict(bag.topics)
@@ -151,7 +157,7 @@ def read_windows(source: Source, options: FleetOptions) -> BagWindows:
                         record = read_bag(source.path, topics=channels)
                         result.windows.extend(cut_windows(record, starts[motor], motor,
                                                           options.window_s,
-                                                          options.min_window_s))
+                                                          options.shortest_s))
                     except MACHINE_ERRORS:
                         raise
                     except Exception as error:  # noqa: BLE001  (a motor's data: its row)
@@ -163,7 +169,7 @@ def read_windows(source: Source, options: FleetOptions) -> BagWindows:
     result.warnings.extend(str(item.message) for item in caught)
     if not result.windows and not result.errors:
         result.errors.append(('', f'{source.path}: no window of at least '
-                                  f'{options.min_window_s:g} s'))
+                                  f'{options.shortest_s:g} s'))
     return result
 
 

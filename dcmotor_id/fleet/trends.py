@@ -182,8 +182,10 @@ def detect_changes(series: Mapping[str, Sequence[tuple[float, float, float]]],
 def effect_alarms(windows: Iterable[tuple[float, Mapping[str, float]]],
                   settings: DetectorSettings = DetectorSettings()) -> list[Alarm]:
     """
-    Find effects that appeared: absent from every baseline window, then found in ``confirm``
-    consecutive windows.
+    Find the effects that appeared.
+
+    An effect appeared when it is absent from every baseline window and then found in
+    ``confirm`` consecutive windows.
 
     Parameters
     ----------
@@ -220,8 +222,10 @@ def effect_alarms(windows: Iterable[tuple[float, Mapping[str, float]]],
 def change_score(points: Sequence[tuple[float, float, float]],
                  settings: DetectorSettings = DetectorSettings()) -> float:
     """
-    Return how much a parameter changed [%]: the median of its newest windows against the
-    mean of its baseline windows (NaN with too few windows).
+    Return how much a parameter changed [%].
+
+    The median of its newest windows against the mean of its baseline windows (as many of
+    each); NaN with too few windows.
     """
     values = [point[1] for point in sorted(points) if math.isfinite(point[1])]
     size = baseline_size(len(values), settings)

@@ -62,9 +62,10 @@ def cut_windows(record: Record, start_ns: int, motor_id: str, window_s: float,
     """
     # the period on whole nanoseconds, as the bag's stamps: 1/period is then exact enough
     # that a window of window_s holds window_s/period samples, not one more
-    period_s = round(record.sample_period_s * 1e9) * 1e-9
+    period_ns = round(record.sample_period_s * 1e9)
+    period_s = period_ns * 1e-9
     present = [name for name in CHANNELS if getattr(record, name) is not None]
-    cutter = WindowCutter(present, 1e9 / round(period_s * 1e9), window_s, min_window_s, min_samples=2,
+    cutter = WindowCutter(present, 1e9 / period_ns, window_s, min_window_s, min_samples=2,
                           clock_ns=lambda: int(start_ns))
     indices = np.rint(record.time_s / period_s).astype(np.int64)
     cutter.add(indices, np.column_stack([getattr(record, name) for name in present]))
