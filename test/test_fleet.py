@@ -81,7 +81,7 @@ def test_find_sources(tmp_path):
 def client():
     distributed = pytest.importorskip('distributed')
     cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                                       dashboard_address=None)
+                                       dashboard_address='127.0.0.1:0')
     with distributed.Client(cluster) as connected:
         yield connected
     cluster.close()

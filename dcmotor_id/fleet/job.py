@@ -91,7 +91,7 @@ def start_client(scheduler: Optional[str] = None, workers: Optional[int] = None)
     ----------
     scheduler : str, optional
         Address of a running scheduler (``tcp://host:8786``); default a
-        ``distributed.LocalCluster`` on this machine (localhost only, no dashboard).
+        ``distributed.LocalCluster`` on this machine (127.0.0.1 only; its HTTP port is a free one).
     workers : int, optional
         Worker processes of the local cluster (one thread each; default one per core).
 
@@ -100,7 +100,7 @@ def start_client(scheduler: Optional[str] = None, workers: Optional[int] = None)
     if scheduler:
         return Client(scheduler)
     cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                           processes=True, host='127.0.0.1', dashboard_address=None,
+                           processes=True, host='127.0.0.1', dashboard_address='127.0.0.1:0',
                            silence_logs=logging.ERROR)
     return Client(cluster)
 
