@@ -294,6 +294,57 @@ def _cmd_plan(args):
     return 0
 
 
+def _cmd_fleet(args):
+    from dcmotor_id.fleet import FleetOptions, run_fleet
+    from dcmotor_id.fleet.progress import Progress
+    options = FleetOptions(args.motor_from, args.torque_constant, not args.no_discover,
+                           args.window_s, args.min_window_s)
+    summary = run_fleet(args.paths, args.history, options, scheduler=args.scheduler,
+                        workers=args.workers, force=args.force,
+                        progress=None if args.quiet else Progress())
+    print(summary.text())
+    return 0
+
+
+def _cmd_fleet_report(args):
+    from dcmotor_id.fleet.report import write_fleet_report
+    print(f'report: {write_fleet_report(args.history, args.out)}')
+    return 0
+
+
+def _add_fleet_commands(commands):
+    """Add ``fleet`` and ``fleet-report`` (issue 14: dcmotor_id/fleet/)."""
+    fleet = commands.add_parser('fleet', help='identify many recordings on a Dask cluster into '
+                                'a per-motor Parquet history')
+    fleet.add_argument('paths', nargs='+', metavar='BAG_OR_DIR',
+                       help='bags, .mcap/.db3/CSV files, or directories searched recursively')
+    fleet.add_argument('--history', required=True, metavar='HISTORY_DIR',
+                       help='Parquet dataset the rows are appended to (one per window)')
+    fleet.add_argument('--scheduler', metavar='ADDRESS',
+                       help='address of a running Dask scheduler (default: a local cluster)')
+    fleet.add_argument('--workers', type=int, metavar='N',
+                       help='worker processes of the local cluster (default: one per core)')
+    fleet.add_argument('--motor-from', default='namespace', metavar='namespace|path|PATTERN',
+                       help="name motors by the topics' namespace (default), the directory "
+                            'of the recording, or a regular expression on its path')
+    fleet.add_argument('--torque-constant', type=_positive, metavar='K',
+                       help='mechanical-only mode: identify J, b, Mc [N m/A]')
+    fleet.add_argument('--no-discover', action='store_true', help='skip effect discovery')
+    fleet.add_argument('--force', action='store_true',
+                       help='identify recordings already in the history again')
+    fleet.add_argument('--window-s', type=_positive, default=10.0, metavar='S',
+                       help='window length [s] (default 10, as the identifier node)')
+    fleet.add_argument('--min-window-s', type=_positive, metavar='S',
+                       help='shortest last window kept [s] (default half a window)')
+    fleet.add_argument('--quiet', action='store_true', help='no progress bar on stderr')
+    fleet.set_defaults(handler=_cmd_fleet)
+    report = commands.add_parser('fleet-report', help='HTML page of a fleet history: trends, '
+                                 'effects, change alarms, fleet overview')
+    report.add_argument('history', metavar='HISTORY_DIR')
+    report.add_argument('--out', required=True, metavar='DIR')
+    report.set_defaults(handler=_cmd_fleet_report)
+
+
 def _positive(text):
     value = float(text)
     if not (np.isfinite(value) and value > 0):
@@ -430,6 +481,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = commands.add_parser('demo', help='simulate motor 2 and identify it with both methods')
     demo.set_defaults(handler=_cmd_demo)
+    _add_fleet_commands(commands)
     return parser
 
 
