@@ -2,7 +2,8 @@
 The file formats of records behind one reader: :func:`read_record` picks the format of a path.
 
 A directory, a ``.mcap`` or a ``.db3`` file is a rosbag2 bag (:mod:`.bag`); a ``.mat`` file
-is MATLAB (:mod:`.mat`); any other file is CSV (:mod:`.csv`). :data:`READERS` maps each
+is MATLAB (:mod:`.mat`), a ``.parquet`` file a Parquet table (:mod:`.parquet`); any other
+file is CSV (:mod:`.csv`). :data:`READERS` maps each
 format to its reader, so a new format is one module plus one entry. Every reader takes the
 :class:`~dcmotor_id.formats.mapping.ReadOptions` (column mapping, units, duty, gear), and
 every record read passes :func:`~dcmotor_id.formats.quality.check_channels` (channels that
@@ -15,7 +16,7 @@ from collections.abc import Iterable, Mapping
 import os
 from typing import Callable, Optional
 
-from dcmotor_id.formats import bag, csv, mat
+from dcmotor_id.formats import bag, csv, mat, parquet
 from dcmotor_id.formats.mapping import DEFAULT_OPTIONS, ReadOptions
 from dcmotor_id.formats.quality import check_channels
 from dcmotor_id.records import PathLike, Record
@@ -25,6 +26,7 @@ READERS: dict[str, Callable[..., Record]] = {
     'bag': bag.read_bag,
     'csv': lambda path, options=DEFAULT_OPTIONS, **_: csv.read_csv(path, options),
     'mat': lambda path, options=DEFAULT_OPTIONS, **_: mat.read_mat(path, options),
+    'parquet': lambda path, options=DEFAULT_OPTIONS, **_: parquet.read_parquet(path, options),
 }
 #: File name endings of the single-file bag formats (a directory is always a bag).
 BAG_SUFFIXES = ('.mcap', '.db3')
@@ -35,11 +37,13 @@ __all__ = ['detect_format', 'read_record', 'read_records', 'ReadOptions', 'READE
 
 
 def detect_format(path: PathLike) -> str:
-    """Return the format of ``path``: ``bag`` (directory, .mcap, .db3), ``mat`` or ``csv``."""
+    """Return the format of ``path``: bag (a directory, .mcap, .db3), mat, parquet or csv."""
     text = str(path)
     if os.path.isdir(text) or text.endswith(BAG_SUFFIXES):
         return 'bag'
-    return 'mat' if text.lower().endswith(MAT_SUFFIXES) else 'csv'
+    if text.lower().endswith(MAT_SUFFIXES):
+        return 'mat'
+    return 'parquet' if text.lower().endswith(parquet.PARQUET_SUFFIXES) else 'csv'
 
 
 def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,

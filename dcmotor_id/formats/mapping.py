@@ -164,7 +164,7 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
             return None
         values = np.asarray(values, dtype=float)
         if factor != 1.0:
-            values *= factor
+            values = values * factor  # a new array: the input columns stay as read
         return values
 
     time_s = columns.get('t')

@@ -1,0 +1,57 @@
+"""
+Parquet tables as records: the columns read by pyarrow, mapped as for CSV and MATLAB files.
+
+pyarrow is already a dependency of the fleet history, so this format costs nothing more.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from dcmotor_id.errors import InputDataError
+from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
+from dcmotor_id.records import PathLike, Record
+
+#: File name endings of Parquet files.
+PARQUET_SUFFIXES = ('.parquet', '.pq')
+
+
+def read_parquet(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
+    """
+    Read a record from a Parquet file: one column per channel, named as in a CSV file.
+
+    Raises
+    ------
+    InputDataError
+        A missing or unreadable file, or a channel column that is absent (naming the columns
+        the file has) or not numeric.
+
+    """
+    import pyarrow
+    import pyarrow.parquet as pq
+
+    if not os.path.isfile(path):
+        raise InputDataError(f'{path}: no such file')
+    try:
+        schema = pq.read_schema(path)
+    except (pyarrow.ArrowException, OSError) as error:
+        raise InputDataError(f'{path}: not a readable Parquet file ({error})') from None
+    names = list(schema.names)
+    wanted = {channel: options.column(channel) for channel in options.wanted()}
+    present = {channel: name for channel, name in wanted.items() if name in names}
+    for channel in ('t',) + tuple(options.columns):
+        if channel in wanted and channel not in present:
+            raise InputDataError(
+                f'{path}: no column {wanted[channel]!r} for {channel}; the file has '
+                f'{", ".join(names)}. Map it with --column {channel}=NAME')
+    table = pq.read_table(path, columns=sorted(set(present.values())))
+    columns = {}
+    for channel, name in present.items():
+        try:
+            columns[channel] = np.asarray(table.column(name).to_numpy(), dtype=float)
+        except (TypeError, ValueError, pyarrow.ArrowException):
+            raise InputDataError(f'{path}: column {name!r} ({channel}) is not numeric; give '
+                                 'numbers in SI units or map another column') from None
+    return build_record(columns, options, source=str(path))
