@@ -31,6 +31,8 @@ AT_ZERO_SHARE = 1e-6
 MISFIT_FACTOR = 3.0
 #: Initial state this many noise levels (and 2 % of the channel's range) off its first sample.
 INITIAL_STATE_FACTOR = 5.0
+#: Samples a current limit holds the current at its peak, per run.
+LIMIT_RUN_SAMPLES = 4
 #: Effects that on one-direction data are one constant torque with Mc.
 ONE_DIRECTION_CONFOUNDED = ('load_torque', 'coulomb_asymmetry', 'viscous_asymmetry')
 
@@ -185,7 +187,7 @@ def initial_state_warnings(estimate: Any, records: Sequence[Any],
         for channel, value in zip(outputs, state):
             measured = np.asarray(getattr(rec, channel), dtype=float)
             noise = max(noise_std(measured), 1e-12)
-            first = float(np.median(measured[:3]))
+            first = float(measured[0])
             gap = abs(float(value) - first)
             if gap > INITIAL_STATE_FACTOR * noise and gap > 0.02 * float(np.ptp(measured)):
                 name = rec.source or f'record {index + 1}'
@@ -221,14 +223,18 @@ def current_limit_warning(records: Sequence[Any]) -> str | None:
         return None
     peak = float(np.max(np.abs(current)))
     noise = max(np.sqrt(np.mean([noise_std(rec.current) ** 2 for rec in records])),
-                1e-3 * peak)
-    near = np.abs(current) >= peak - 3.0 * noise
-    runs = np.flatnonzero(np.diff(near.astype(int)) == 1).shape[0] + int(near[0])
-    if near.sum() >= 10 and runs >= 2 and near.mean() < 0.5:
-        return (f'the current sits at its peak {peak:.3g} A over {int(near.sum())} samples in '
-                f'{runs} runs: an amplifier current limit? The model has none, so the '
-                'electrical parameters (La, Ra) fitted through it describe the limit, not the '
-                'winding')
+                5e-3 * peak)
+    near = np.concatenate([[0], (np.abs(current) >= peak - 3.0 * noise).astype(int), [0]])
+    edges = np.diff(near)
+    lengths = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+    # A limit holds the current flat for several samples, again and again; the peaks of a
+    # smooth current pass the top in one or two samples.
+    long_runs = int(np.sum(lengths >= LIMIT_RUN_SAMPLES))
+    if long_runs >= 2 and near.mean() < 0.5:
+        return (f'the current sits at its peak {peak:.3g} A in {long_runs} runs of '
+                f'{LIMIT_RUN_SAMPLES} or more samples: an amplifier current limit? The model has '
+                'none, so the electrical parameters (La, Ra) fitted through it describe the '
+                'limit, not the winding')
     return None
 
 

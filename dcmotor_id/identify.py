@@ -465,6 +465,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
     outputs = output_channels(mechanical_only)
     warnings += _result_warnings(final, fitted_records, terms, outputs, torque_constant,
                                  quasi, list(bound) + list(upper_bounds), initial_state)
+    if not mechanical_only and not quasi and current_limit_warning(records):
+        for name in ('La', 'Ta'):
+            not_identifiable.setdefault(name, (
+                'the current rise follows an amplifier current limit (see the warning), not '
+                'the winding: this value describes the limit'))
     errors_detail = record_errors(records, estimate, final, found, torque_constant, terms,
                                   quasi)
     if errors_detail.get('note'):
