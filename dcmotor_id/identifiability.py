@@ -227,10 +227,13 @@ def current_limit_warning(records: Sequence[Any]) -> str | None:
     near = np.concatenate([[0], (np.abs(current) >= peak - 3.0 * noise).astype(int), [0]])
     edges = np.diff(near)
     lengths = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
-    # A limit holds the current flat for several samples, again and again; the peaks of a
-    # smooth current pass the top in one or two samples.
+    # A limit holds the current flat for several samples, again and again, and most of the
+    # time near the top is spent at the limit; the peaks of a smooth current pass the top in
+    # a few samples and spend most of their time near the top below it.
     long_runs = int(np.sum(lengths >= LIMIT_RUN_SAMPLES))
-    if long_runs >= 2 and near.mean() < 0.5:
+    top_band = np.abs(current) >= 0.95 * peak
+    flat_share = float(near.sum()) / max(float(top_band.sum()), 1.0)
+    if long_runs >= 2 and flat_share >= 0.5 and near.mean() < 0.5:
         return (f'the current sits at its peak {peak:.3g} A in {long_runs} runs of '
                 f'{LIMIT_RUN_SAMPLES} or more samples: an amplifier current limit? The model has '
                 'none, so the electrical parameters (La, Ra) fitted through it describe the '
