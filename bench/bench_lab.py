@@ -7,9 +7,10 @@ warnings), then ``--seeds`` Monte Carlo repetitions (discovery on): the ratio of
 median reported ``stderr`` (and of the Gauss-Newton ``stderr_model``) to the standard
 deviation of the estimates over the seeds, and to the split-half spread (``|a - b| / 2`` of
 the estimates from the two halves of the seed-0 record without discovery, a one-sample
-figure of the same standard deviation that also contains model error).  Goals (issue 8): no record that moves is refused, one-direction J and b
-within 5 %, stderr within a factor 2 of the spread, under 30 s for 300k samples with
-discovery, under 5 s to refuse a hopeless record.
+figure of the same standard deviation that also contains model error).  Goals (issue 8):
+no record that moves is refused, one-direction J and b within 5 %, stderr within a factor 2
+of the spread, under 30 s for 300k samples with discovery, under 5 s to refuse a hopeless
+record.
 
 Run from the repository root::
 

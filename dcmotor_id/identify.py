@@ -13,6 +13,7 @@ sample period, correlations, misfit) and returns an :class:`IdentificationResult
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+import time
 from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
@@ -22,12 +23,13 @@ from dcmotor_id.effects import VOCABULARY
 from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.estimators.uncertainty import with_robust_stderr
+from dcmotor_id.estimators.uncertainty import (block_scores, robust_covariance,
+                                               with_robust_stderr)
 from dcmotor_id.identifiability import (assess_excitation, at_bound, correlated_pairs,
                                         current_limit_warning, Excitation,
-                                        IDENTIFIABLE_REL_STDERR, initial_state_warnings, loose,
-                                        misfit_warning, ONE_DIRECTION_CONFOUNDED,
-                                        one_direction_note, useful)
+                                        IDENTIFIABLE_REL_STDERR, initial_state_warnings,
+                                        limited_samples, loose, misfit_warning,
+                                        ONE_DIRECTION_CONFOUNDED, one_direction_note, useful)
 from dcmotor_id.model import (DERIVED_NAMES, derived_values, inadmissible, MECHANICAL_NAMES,
                               PARAMETER_NAMES, parameter_names, POSITIVE_NAMES, UNITS)
 from dcmotor_id.progress import Progress, TimeBudgetExceeded
@@ -47,6 +49,8 @@ METHODS = {'refined': RefinedEstimator, 'paper': PaperEstimator}
 NO_FIT_NRMSE_PCT = 60.0
 #: Simulation error of the base model above which effect discovery is not tried (percent).
 HOPELESS_NRMSE_PCT = 100.0
+#: Time given to effect discovery when the base model is off by more than NO_FIT_NRMSE_PCT [s].
+HOPELESS_DISCOVERY_S = 3.0
 #: Default time budget [s] (``--max-time``).
 DEFAULT_MAX_TIME_S = 120.0
 #: Choices of ``--initial-state``.
@@ -379,6 +383,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
     warnings: list[str] = []
     not_identifiable: dict[str, str] = {}
     vocabulary = list(vocabulary or VOCABULARY)
+    limited = None if mechanical_only or estimator is not None or method != 'refined' else \
+        limited_samples(records)
+    if limited is not None:
+        return _identify_current_limited(records, limited, discover, vocabulary, progress,
+                                         initial_state)
     if excitation.one_direction:
         vocabulary = [cls for cls in vocabulary if cls.name not in ONE_DIRECTION_CONFOUNDED]
     estimator = estimator or _make_estimator(method, initial_state, progress)
@@ -399,8 +408,17 @@ def identify(records: Sequence[Record], method: str = 'refined',
         discovery_info = {'skipped': f'the base model does not fit ({base_worst:.3g} % '
                                      'simulation error)'}
     elif discover:
-        found, discovery_info = _run_discovery(records, torque_constant, estimator, vocabulary,
-                                               progress, initial_state)
+        deadline = progress.deadline
+        if base_worst > NO_FIT_NRMSE_PCT:
+            # A base model this far off is rarely rescued by one effect: a short look only, so
+            # that a record that cannot be fitted is refused in seconds.
+            progress.deadline = min(deadline if deadline is not None else np.inf,
+                                    time.monotonic() + HOPELESS_DISCOVERY_S)
+        try:
+            found, discovery_info = _run_discovery(records, torque_constant, estimator,
+                                                   vocabulary, progress, initial_state)
+        finally:
+            progress.deadline = deadline
         if found is not None and found.out_of_time:
             warnings.append(f'the time budget ({progress.max_time_s:g} s) ran out during '
                             'effect discovery: the result is the best structure so far'
@@ -465,11 +483,6 @@ def identify(records: Sequence[Record], method: str = 'refined',
     outputs = output_channels(mechanical_only)
     warnings += _result_warnings(final, fitted_records, terms, outputs, torque_constant,
                                  quasi, list(bound) + list(upper_bounds), initial_state)
-    if not mechanical_only and not quasi and current_limit_warning(records):
-        for name in ('La', 'Ta'):
-            not_identifiable.setdefault(name, (
-                'the current rise follows an amplifier current limit (see the warning), not '
-                'the winding: this value describes the limit'))
     errors_detail = record_errors(records, estimate, final, found, torque_constant, terms,
                                   quasi)
     if errors_detail.get('note'):
@@ -506,6 +519,99 @@ def identify(records: Sequence[Record], method: str = 'refined',
         input_records=list(records),
         discovery_result=found,
     )
+
+
+def _electrical_regression(records, limited):
+    """
+    Ra and CPhi from ``u[k-1] = Ra i[k] + CPhi w[k]`` on the samples off the current limit.
+
+    The quasi-static armature (the time constant below the sample period, where a current
+    limit is seen): the current sampled at ``t_k`` has settled under the voltage held over
+    the previous sample.  Samples at the limit, or right after it, are left out.  Returns the
+    values and the :func:`~dcmotor_id.estimators.uncertainty.robust_covariance` dict.
+    """
+    rows, targets, lengths = [], [], []
+    for rec, mask in zip(records, limited):
+        keep = ~mask
+        keep[1:] &= ~mask[:-1]
+        keep[0] = False
+        rows.append(np.column_stack([rec.current, rec.speed])[keep])
+        targets.append(np.asarray(rec.voltage, dtype=float)[np.flatnonzero(keep) - 1])
+        lengths.append(int(keep.sum()))
+    x, y = np.vstack(rows), np.concatenate(targets)
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    residual = y - x @ beta
+    info = {'normal_matrix': x.T @ x, 'chain': np.ones(2), 'names': ['Ra', 'CPhi'],
+            'residual_rms_weighted': float(np.sqrt(residual @ residual
+                                                   / max(y.shape[0] - 2, 1))),
+            **block_scores(residual, x, lengths, 1)}
+    return {'Ra': float(beta[0]), 'CPhi': float(beta[1])}, robust_covariance(info)
+
+
+def _identify_current_limited(records, limited, discover, vocabulary, progress, initial_state):
+    """
+    Identify a drive whose amplifier limits the current (the model has no limit).
+
+    The electrical part by :func:`_electrical_regression` off the limit, then the mechanical
+    part as in the mechanical-only mode with the measured current and that CPhi as the torque
+    constant; J, b and Mc carry CPhi's relative uncertainty too.  La is given as the upper
+    bound ``Ra dt`` (the samples off the limit follow the quasi-static equation).
+    """
+    values, robust = _electrical_regression(records, limited)
+    if not (values['Ra'] > 0 and values['CPhi'] > 0):
+        raise FitError('the current sits at an amplifier limit and the samples off the limit '
+                       f'give non-physical values (Ra = {values["Ra"]:.4g} Ohm, CPhi = '
+                       f'{values["CPhi"]:.4g} V s/rad): check the signs and units of the '
+                       'columns')
+    mechanical = identify(records, torque_constant=values['CPhi'], discover=discover,
+                          vocabulary=vocabulary, progress=progress,
+                          initial_state=initial_state)
+    ra, cphi = values['Ra'], values['CPhi']
+    dt = records[0].sample_period_s
+    se = dict(zip(('Ra', 'CPhi'), robust['stderr']))
+    se_model = dict(zip(('Ra', 'CPhi'), robust['stderr_model']))
+    parameters = {'Ra': ra, 'La': ra * dt, 'CPhi': cphi, **mechanical.parameters}
+    parameters.update(derived_values(parameters))
+    rel = se['CPhi'] / cphi
+    rel_model = se_model['CPhi'] / cphi
+
+    def combined(errors, share):
+        return {name: float(np.hypot(errors[name], share * abs(mechanical.parameters[name])))
+                for name in MECHANICAL_NAMES}
+    stderr = {'Ra': se['Ra'], 'La': np.nan, 'CPhi': se['CPhi'],
+              **combined(mechanical.stderr, rel), 'Ka': se['Ra'] / ra ** 2, 'Ta': np.nan}
+    stderr_model = {'Ra': se_model['Ra'], 'La': np.nan, 'CPhi': se_model['CPhi'],
+                    **combined(mechanical.stderr_model, rel_model),
+                    'Ka': se_model['Ra'] / ra ** 2, 'Ta': np.nan}
+    names = PARAMETER_NAMES + DERIVED_NAMES
+    reason = ('an amplifier current limit shapes the current rise, and off the limit the '
+              f'current follows the quasi-static equation: La < {ra * dt:.3g} H (Ra dt, upper '
+              'bound, given as its value)')
+    not_identifiable = {'La': reason, 'Ta': reason, **mechanical.not_identifiable}
+    warnings = [current_limit_warning(records) or 'current limit']
+    if abs(robust['correlation'][0, 1]) > 0.99:
+        warnings.append(f'Ra and CPhi are correlated {robust["correlation"][0, 1]:+.3f}: the '
+                        'data determine a combination of them better than each')
+    warnings += mechanical.warnings
+    warnings.append('the current is the input of the mechanical fit here: the simulation '
+                    'errors are of the speed only')
+    noise = dict(mechanical.noise_std)
+    noise['current'] = float(np.sqrt(np.mean([noise_std(rec.current) ** 2
+                                              for rec in records])))
+    return replace(
+        mechanical, parameters={name: float(parameters[name]) for name in names},
+        stderr={name: float(stderr[name]) for name in names},
+        stderr_model={name: float(stderr_model[name]) for name in names},
+        mode='full', torque_constant=None,
+        initial_states=[[float(rec.current[0]), *state]
+                        for rec, state in zip(records, mechanical.initial_states)],
+        noise_std=noise, units={name: UNITS[name] for name in names},
+        uncertainty_method=mechanical.uncertainty_method + '; Ra, CPhi: least squares off the '
+        'current limit with the same batch-means sandwich; J, b, Mc include the relative '
+        'uncertainty of CPhi',
+        not_identifiable=not_identifiable, warnings=warnings,
+        upper_bounds={'La': parameters['La'], 'Ta': parameters['Ta']},
+        elapsed_s=progress.elapsed())
 
 
 def _names(records):
@@ -593,10 +699,6 @@ def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, 
     misfit = misfit_warning(estimate, records, outputs, rms)
     if misfit:
         warnings.append(misfit)
-    if torque_constant is None:
-        limit = current_limit_warning(records)
-        if limit:
-            warnings.append(limit)
     return warnings
 
 

@@ -13,7 +13,8 @@ Why this design (bench/README.md has the numbers):
   reaches the Cramer-Rao bound.
 * **Honest uncertainty.**  Standard errors come from the Gauss-Newton covariance
   ``s^2 (J^T J)^-1`` at the optimum, with the noise level of each channel estimated from the
-  residual; Ka and Ta get theirs by the delta method.
+  residual; Ka and Ta get theirs by the delta method.  ``info`` carries what the data-based
+  (sandwich) covariance of :mod:`dcmotor_id.estimators.uncertainty` needs; identify uses it.
 * **Initial state and several records.**  Every record has its own estimated initial state
   ``(i0, w0)``; the physical parameters are shared (multi-experiment).
 * **Good start.**  Output error is a non-convex fit, so it starts from the best (lowest
