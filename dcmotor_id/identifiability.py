@@ -31,6 +31,8 @@ AT_ZERO_SHARE = 1e-6
 MISFIT_FACTOR = 3.0
 #: Initial state this many noise levels (and 2 % of the channel's range) off its first sample.
 INITIAL_STATE_FACTOR = 5.0
+#: Share of the speed an ARX predictor must explain for motion near the Nyquist frequency.
+ARX_EXPLAINED = 0.8
 #: Samples a current limit holds the current at its peak, per run.
 LIMIT_RUN_SAMPLES = 3
 #: Effects that on one-direction data are one constant torque with Mc.
@@ -99,6 +101,15 @@ def assess_excitation(records: Sequence[Any], mechanical_only: bool) -> Excitati
                 1e-12 * max(float(np.max(np.abs(speeds))), 1e-300))
     spread = max(float(np.std(speed)) for speed in measured)
     moves = bool(np.max(np.abs(smooth)) > 10.0 * noise or spread > 4.0 * noise)
+    if not moves:
+        # Motion near the Nyquist frequency (a 100 Hz log of a fast motor): the smoothing
+        # removes it and the second differences count it as noise.  The speed then still
+        # follows the input, which noise cannot: an ARX predictor explains most of it.
+        explained, predicted = _arx_explained(records, mechanical_only)
+        if explained > ARX_EXPLAINED:
+            moves = True
+            smooth = predicted
+            noise = 0.0
     # A reversal must be a visible part of the motion, not filter ringing around a start at rest.
     level = max(min(10.0 * noise, 0.2 * float(np.max(np.abs(smooth)))),
                 0.02 * float(np.max(np.abs(smooth))))
@@ -111,6 +122,35 @@ def assess_excitation(records: Sequence[Any], mechanical_only: bool) -> Excitati
         speed_change = np.ptp(smooth) / max(np.max(np.abs(smooth)), 1e-300)
         steady = bool(constant_voltage and speed_change < 0.05)
     return Excitation(moves, positive, negative, steady, noise, level)
+
+
+def _arx_explained(records: Sequence[Any], mechanical_only: bool) -> tuple[float, np.ndarray]:
+    """
+    Share of the speed an ARX(2, 5) one-step predictor from its past and the input explains.
+
+    Returns the share (pooled over records) and the predictions (records joined, the first
+    samples of each record as measured).
+    """
+    residual_ss, total_ss, predicted = 0.0, 0.0, []
+    for rec in records:
+        speed = np.asarray(rec.speed, dtype=float)
+        drive = np.asarray(rec.current if mechanical_only else rec.voltage, dtype=float)
+        n = speed.shape[0]
+        lags = 5
+        if n < 4 * (lags + 3):
+            predicted.append(speed)
+            continue
+        rows = [speed[lags - 1:n - 1], speed[lags - 2:n - 2], np.ones(n - lags)]
+        rows += [drive[lags - k:n - k] for k in range(1, lags + 1)]
+        x = np.column_stack(rows)
+        target = speed[lags:]
+        beta, *_ = np.linalg.lstsq(x, target, rcond=None)
+        fitted = x @ beta
+        residual_ss += float(np.sum((target - fitted) ** 2))
+        total_ss += float(np.sum((target - np.mean(target)) ** 2))
+        predicted.append(np.concatenate([speed[:lags], fitted]))
+    explained = 1.0 - residual_ss / total_ss if total_ss > 0 else 0.0
+    return explained, np.concatenate(predicted)
 
 
 def one_direction_note(excitation: Excitation, value: float) -> str:

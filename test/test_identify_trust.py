@@ -254,3 +254,24 @@ def test_cli_options_and_json_fields(tmp_path, capsys):
             'combined', 'upper_bounds', 'initial_state', 'elapsed_s'} <= set(result)
     assert 'not identifiable: Mc' in captured.out
     assert 'whole record' in captured.out
+
+
+@pytest.mark.parametrize('frequency_hz', [10.0, 20.0])
+def test_motion_near_nyquist_at_100_hz_is_seen(frequency_hz):
+    # The old check smoothed at 5 % of the sample rate and took the second differences as
+    # noise: a 100 Hz log of a motor reversing at 10-20 Hz read as "never moves".
+    from dcmotor_id.lab_scenarios import HOBBY_MOTOR, simulate_drive
+
+    rng = np.random.default_rng(0)
+    t = np.arange(1200) * 0.01
+    command = 2.2 * np.sign(np.sin(2 * np.pi * frequency_hz * t))
+    out = simulate_drive(HOBBY_MOTOR, command, 0.01)
+    record = Record(t, current=out['current'] + rng.normal(0, 0.005, t.shape),
+                    voltage=command, speed=out['speed'] + rng.normal(0, 1.0, t.shape))
+    excitation = assess_excitation([record], False)
+    assert excitation.moves and excitation.direction == 'both'
+    white = Record(t, current=rng.normal(size=t.shape), voltage=command,
+                   speed=rng.normal(size=t.shape))
+    assert not assess_excitation([white], False).moves
+    result = identify([record], discover=False)
+    assert abs(result.parameters['J'] / HOBBY_MOTOR.J - 1) < 0.1
