@@ -267,6 +267,9 @@ class DiscoveryLoop:
         best structure so far (``out_of_time`` in the result).
     initial_state : str
         ``estimate`` or ``measured`` (:class:`~dcmotor_id.estimators.refined.RefinedEstimator`).
+    quasi_static : bool
+        Fit the quasi-static armature (La -> 0; the electrical time constant below the sample
+        period) throughout.
 
     """
 
@@ -275,7 +278,7 @@ class DiscoveryLoop:
                  holdout_fraction: float = HOLDOUT_FRACTION, min_gain: float = MIN_GAIN,
                  max_effects: int = MAX_EFFECTS, max_lag: int = DEFAULT_LAGS,
                  alpha: float = ALPHA, progress: Progress | None = None,
-                 initial_state: str = 'estimate') -> None:
+                 initial_state: str = 'estimate', quasi_static: bool = False) -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
@@ -289,6 +292,7 @@ class DiscoveryLoop:
         self.weights: dict[str, float] | None = None
         self.progress = progress
         self.initial_state = initial_state
+        self.quasi_static = bool(quasi_static) and not self.mechanical_only
 
     # ------------------------------------------------------------------ fitting
     def _stops(self, records):
@@ -307,7 +311,7 @@ class DiscoveryLoop:
 
     def _estimator(self, **options: Any) -> RefinedEstimator:
         return RefinedEstimator(initial_state=self.initial_state, progress=self.progress,
-                                **options)
+                                quasi_static=self.quasi_static, **options)
 
     def fit(self, structure: Structure, start: dict | None = None, initial: dict | None = None,
             max_nfev: int = 100) -> Fit:
@@ -323,7 +327,7 @@ class DiscoveryLoop:
             raise ValueError('a structure with effects needs a start point')
         estimate = estimator.fit(train, torque_constant=self.torque_constant,
                                  terms=_slice_terms(terms, stops))
-        model = OutputErrorModel(records, self.torque_constant, terms)
+        model = OutputErrorModel(records, self.torque_constant, terms, self.quasi_static)
         simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
         fitted = Fit(structure, estimate, records, stops, simulated, terms)
         if self.weights is None:
@@ -398,7 +402,8 @@ class DiscoveryLoop:
         effect terms; a prediction belongs to the part of the sample it predicts.  Empty when
         the structure has a term the one-step model does not represent.
         """
-        if any(term.channel not in ONE_STEP_TERMS for term in fitted.terms):
+        if self.quasi_static or any(term.channel not in ONE_STEP_TERMS
+                                    for term in fitted.terms):
             return {}
         values = fitted.values
         errors: dict[str, list[np.ndarray]] = {channel: [] for channel in self.outputs}
@@ -456,7 +461,7 @@ class DiscoveryLoop:
     def _train_model(self, fitted, terms):
         train = [rec.slice(0, stop) for rec, stop in zip(fitted.records, fitted.stops)]
         return train, OutputErrorModel(train, self.torque_constant,
-                                       _slice_terms(terms, fitted.stops))
+                                       _slice_terms(terms, fitted.stops), self.quasi_static)
 
     def _stack(self, outputs_per_record, stops):
         parts = []
@@ -706,7 +711,8 @@ class DiscoveryLoop:
             unexplained=self.material(analysis), records=records, terms=terms,
             estimate=estimate, effects=current.structure.effects(estimate.parameters),
             base_estimate=base_estimate, error_before=base.errors(self.outputs),
-            error_after=current.errors(self.outputs), out_of_time=out_of_time)
+            error_after=current.errors(self.outputs), out_of_time=out_of_time,
+            quasi_static=self.quasi_static)
 
     def _round(self, current: Fit, analysis: dict) -> Round:
         """One search round: screen every absent effect, refit the promising, choose."""
@@ -782,7 +788,8 @@ class DiscoveryLoop:
         """Refit a structure on all the data (no hold-out), from the training values."""
         return refit_all_data(fitted.structure, self.records, self.torque_constant,
                               fitted.values, self._base(fitted), progress=self.progress,
-                              initial_state=self.initial_state)
+                              initial_state=self.initial_state,
+                              quasi_static=self.quasi_static)
 
 
 def refit_start(values: dict, records: Sequence[Record],
@@ -793,7 +800,7 @@ def refit_start(values: dict, records: Sequence[Record],
     The fit works on logarithms, so a friction that a missing effect drove to zero would
     stay there; a floor of 2 % of the driving torque's spread lets it come back.
     """
-    names = parameter_names(torque_constant is not None)
+    names = [name for name in parameter_names(torque_constant is not None) if name in values]
     start = {name: float(values[name]) for name in names}
     floors = friction_floors(start, records, torque_constant)
     start['Mc'] = max(start['Mc'], floors['Mc'])
@@ -882,6 +889,8 @@ class DiscoveryResult:
     out_of_time : bool
         The time budget ran out: the structure is the best so far and, when there was no
         time for the all-data refit, ``estimate`` is the training-part fit.
+    quasi_static : bool
+        The quasi-static armature (La -> 0) was fitted.
 
     """
 
@@ -905,6 +914,7 @@ class DiscoveryResult:
     error_before: ChannelErrors
     error_after: ChannelErrors
     out_of_time: bool = False
+    quasi_static: bool = False
 
     def errors_on(self, records: Sequence[Record]) -> dict[str, ChannelErrors]:
         """
@@ -983,7 +993,8 @@ def errors_by_step(found: DiscoveryResult, records: Sequence[Record]) -> list[di
         else:
             estimate = refit_all_data(
                 structure, found.source_records, tc, found.estimate.parameters,
-                refit_start(found.final.values, found.source_records, tc))[2]
+                refit_start(found.final.values, found.source_records, tc),
+                quasi_static=found.quasi_static)[2]
         errors = structure_errors(structure, estimate, records, tc)
         out.append({'effects': structure.names(), **errors})
     return out
@@ -1003,7 +1014,8 @@ def structure_errors(structure: Structure, estimate: Estimate, records: Sequence
     prepared = structure.transformed(records)
     values = estimate.parameters
     terms = structure.terms(prepared, values, torque_constant, values)
-    model = OutputErrorModel(prepared, torque_constant, terms)
+    model = OutputErrorModel(prepared, torque_constant, terms,
+                             bool(estimate.info.get('quasi_static')))
     states = [[float(getattr(rec, channel)[0]) for channel in model.outputs]
               for rec in prepared]
     return model_errors(model, values, states)

@@ -400,6 +400,20 @@ def identify(records: Sequence[Record], method: str = 'refined',
                        ) from None
     _check_physical(estimate)
     errors = simulation_errors(estimate, records, torque_constant)
+    quasi, full_la = False, None
+    if not mechanical_only and isinstance(estimator, RefinedEstimator):
+        # La first: when the data cannot resolve it, the quasi-static armature is the model
+        # of everything that follows (discovery included).
+        robust = with_robust_stderr(estimate)
+        full_la = (robust.parameters['La'], robust.stderr['La'], robust.parameters['Ra'])
+        if _la_unresolved(*full_la, records[0].sample_period_s):
+            refit = _quasi_static_refit(estimate, records, errors, initial_state, progress)
+            if refit is None:
+                not_identifiable['La'] = _la_reason(*full_la, records[0].sample_period_s,
+                                                    None)
+            else:
+                estimate, quasi = refit, True
+                errors = simulation_errors(estimate, records, None, quasi_static=True)
     found, discovery_info = None, None
     base_worst = max([value for value in errors.values() if value is not None] or [np.inf])
     if discover and not base_worst <= HOPELESS_NRMSE_PCT:
@@ -416,7 +430,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
                                     time.monotonic() + HOPELESS_DISCOVERY_S)
         try:
             found, discovery_info = _run_discovery(records, torque_constant, estimator,
-                                                   vocabulary, progress, initial_state)
+                                                   vocabulary, progress, initial_state, quasi)
         finally:
             progress.deadline = deadline
         if found is not None and found.out_of_time:
@@ -432,7 +446,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
     final, terms, fitted_records = estimate, (), list(records)
     if found is not None:
         final, terms, fitted_records = found.estimate, found.terms, found.records
-    in_sample = simulation_errors(final, fitted_records, torque_constant, terms)
+    in_sample = simulation_errors(final, fitted_records, torque_constant, terms, quasi)
     worst = max(value for value in in_sample.values() if value is not None) \
         if any(value is not None for value in in_sample.values()) else float('inf')
     if not np.isfinite(worst) or worst > NO_FIT_NRMSE_PCT:
@@ -443,14 +457,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
     final = with_robust_stderr(final)
     stderr_model = dict(final.info.get('stderr_model', final.stderr))
     upper_bounds: dict[str, float] = {}
-    quasi = False
-    if not mechanical_only and isinstance(estimator, RefinedEstimator):
-        final, quasi, upper_bounds, note = _electrical_limit(
-            final, fitted_records, terms, in_sample, initial_state, progress)
-        if note:
-            not_identifiable['La'] = note
-            stderr_model.update({name: final.info['stderr_model'].get(name, np.nan)
-                                 for name in final.info.get('names', [])})
+    if quasi and full_la is not None:
+        final, upper_bounds = _with_la_bound(final, *full_la, records[0].sample_period_s)
+        stderr_model = dict(final.info['stderr_model'])
+        not_identifiable['La'] = _la_reason(*full_la, records[0].sample_period_s,
+                                            upper_bounds['La'])
     names = MECHANICAL_NAMES if mechanical_only else PARAMETER_NAMES + DERIVED_NAMES
     parameters = {name: float(final.parameters[name]) for name in names}
     stderr = {name: float(final.stderr.get(name, np.nan)) for name in names}
@@ -621,63 +632,61 @@ def _names(records):
     return names[0] if len(names) == 1 else f'{len(records)} records'
 
 
-def _electrical_limit(estimate, records, terms, in_sample, initial_state, progress):
+def _la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
+    """Whether La is below what the sample period resolves, or undetermined."""
+    return bool(la / ra < dt or la_stderr > IDENTIFIABLE_REL_STDERR * la)
+
+
+def _quasi_static_refit(estimate, records, errors, initial_state, progress):
     """
-    Switch to the quasi-static armature (La -> 0) when the data cannot resolve La.
+    Refit with the quasi-static armature (La -> 0); return the estimate or None.
 
-    The electrical time constant below the sample period, or La with a standard error above
-    half its value: refit with the La -> 0 limit and report La by an upper bound (the larger
-    of ``Ra dt`` and the full fit's ``La + 2 stderr``).  The quasi-static fit is kept when
-    its simulation error is at most 25 % (and 0.5 points) worse than the full model's.
-
-    Returns
-    -------
-    tuple
-        ``(estimate, quasi_static, upper_bounds, reason or None)``.
-
+    The refit is kept when its current simulation error is at most 25 % (and 0.5 points)
+    worse than the full model's: the full model's La then adds nothing the data resolve.
     """
-    values, stderr = estimate.parameters, estimate.stderr
-    dt = records[0].sample_period_s
-    ta = values['La'] / values['Ra']
-    unresolved = ta < dt or stderr.get('La', 0.0) > IDENTIFIABLE_REL_STDERR * values['La']
-    if not unresolved:
-        return estimate, False, {}, None
+    values = estimate.parameters
     start = {name: values[name] for name in parameter_names(False) if name != 'La'}
-    start.update({term.name: values[term.name] for term in terms})
     progress.set_stage('quasi-static armature refit')
     try:
-        terms_start = tuple(replace(term, initial=float(values[term.name])) for term in terms)
         quasi = RefinedEstimator(initial=start, quasi_static=True, initial_state=initial_state,
-                                 progress=progress).fit(records, terms=terms_start)
-        quasi_errors = simulation_errors(quasi, records, None, terms_start, quasi_static=True)
-    except (DcMotorIdError, TimeBudgetExceeded, np.linalg.LinAlgError, ValueError):
-        return estimate, False, {}, _la_reason(values, stderr, dt, None)
-    full_current = in_sample.get('current_nrmse_pct') or 0.0
+                                 progress=progress).fit(records)
+        quasi_errors = simulation_errors(quasi, records, None, quasi_static=True)
+    except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
+        return None
+    full_current = errors.get('current_nrmse_pct') or 0.0
     quasi_current = quasi_errors.get('current_nrmse_pct')
     if quasi_current is None or quasi_current > 1.25 * full_current + 0.5:
-        return estimate, False, {}, _la_reason(values, stderr, dt, None)
-    quasi = with_robust_stderr(quasi)
-    bound = max(quasi.parameters['Ra'] * dt, values['La'] + 2.0 * stderr.get('La', 0.0))
+        return None
+    return quasi
+
+
+def _with_la_bound(quasi, la, la_stderr, ra_full, dt):
+    """
+    Give a quasi-static estimate La, Ka and Ta: La by its upper bound, Ta from it.
+
+    The bound is the larger of ``Ra dt`` (a time constant below the sample period) and the
+    full fit's ``La + 2 stderr``; ``stderr`` of La and Ta is NaN, Ka's follows Ra's.
+    """
+    bound = max(quasi.parameters['Ra'] * dt, la + 2.0 * la_stderr)
     parameters = dict(quasi.parameters)
     parameters['La'] = bound
     parameters.update(derived_values(parameters))
-    ra, ra_err = parameters['Ra'], quasi.stderr['Ra']
-    stderr_new = dict(quasi.stderr)
-    stderr_new.update({'La': float('nan'), 'Ta': float('nan'), 'Ka': ra_err / ra ** 2})
-    model_new = dict(quasi.info.get('stderr_model', {}))
-    model_new.update({'La': float('nan'), 'Ta': float('nan'),
-                      'Ka': model_new.get('Ra', np.nan) / ra ** 2})
-    info = {**quasi.info, 'stderr_model': model_new}
-    result = replace(quasi, parameters=parameters, stderr=stderr_new, info=info)
-    bounds = {'La': bound, 'Ta': parameters['Ta']}
-    return result, True, bounds, _la_reason(values, stderr, dt, bound)
+    ra = parameters['Ra']
+    stderr = dict(quasi.stderr)
+    stderr.update({'La': float('nan'), 'Ta': float('nan'), 'Ka': quasi.stderr['Ra'] / ra ** 2})
+    model = dict(quasi.info.get('stderr_model', quasi.stderr))
+    model.update({'La': float('nan'), 'Ta': float('nan'),
+                  'Ka': model.get('Ra', np.nan) / ra ** 2})
+    info = {**quasi.info, 'stderr_model': model}
+    result = replace(quasi, parameters=parameters, stderr=stderr, info=info)
+    return result, {'La': bound, 'Ta': parameters['Ta']}
 
 
-def _la_reason(values, stderr, dt, bound):
-    ta = values['La'] / values['Ra']
+def _la_reason(la, la_stderr, ra, dt, bound):
+    ta = la / ra
     why = (f'the electrical time constant La/Ra = {ta:.2g} s is below the sample period '
            f'{dt:.2g} s' if ta < dt else
-           f'La = {values["La"]:.3g} +/- {stderr.get("La", np.nan):.2g} H is not determined')
+           f'La = {la:.3g} +/- {la_stderr:.2g} H is not determined')
     if bound is None:
         return why + ': La is not identifiable from these data (sample faster to see it)'
     return (why + f': La < {bound:.3g} H (upper bound, given as its value); Ra, CPhi, J, b and '
@@ -702,7 +711,8 @@ def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, 
     return warnings
 
 
-def _run_discovery(records, torque_constant, estimator, vocabulary, progress, initial_state):
+def _run_discovery(records, torque_constant, estimator, vocabulary, progress, initial_state,
+                   quasi_static=False):
     """Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``."""
     if not supports_discovery(estimator):
         return None, {'skipped': f'effect discovery needs the refined method (the '
@@ -710,7 +720,8 @@ def _run_discovery(records, torque_constant, estimator, vocabulary, progress, in
                                  'terms)'}
     try:
         found = DiscoveryLoop(records, torque_constant, vocabulary=vocabulary,
-                              progress=progress, initial_state=initial_state).run()
+                              progress=progress, initial_state=initial_state,
+                              quasi_static=quasi_static).run()
         _check_physical(found.estimate)
     except TimeBudgetExceeded:
         return None, {'skipped': f'the time budget ({progress.max_time_s:g} s) ran out '
@@ -776,8 +787,8 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     outputs = output_channels(mechanical_only)
     prepared = found.records if found is not None else list(records)
     whole = {}
-    for label, estimate, record_terms, quasi in (
-            ('before', base, (), False), ('after', final, terms, quasi_static)):
+    for label, estimate, record_terms in (('before', base, ()), ('after', final, terms)):
+        quasi = bool(estimate.info.get('quasi_static'))
         source = records if label == 'before' else prepared
         model = OutputErrorModel(source, torque_constant, record_terms, quasi)
         with np.errstate(all='ignore'):
