@@ -275,3 +275,17 @@ def test_motion_near_nyquist_at_100_hz_is_seen(frequency_hz):
     assert not assess_excitation([white], False).moves
     result = identify([record], discover=False)
     assert abs(result.parameters['J'] / HOBBY_MOTOR.J - 1) < 0.1
+
+
+def test_node_line_carries_bounds_not_identifiable_and_warnings():
+    from dcmotor_id.summary import format_line, format_table
+
+    scenario = small_motor_low_rate(seed=0)
+    result = identify(scenario.records, discover=False).as_dict()
+    result['warnings'] = ['something to know']
+    line = format_line(result)
+    assert 'upper bounds: La<' in line
+    assert 'not identifiable: La' in line
+    assert line.endswith('warnings: something to know')
+    table = format_table(result)
+    assert 'upper bound' in table and 'warning: something to know' in table
