@@ -494,6 +494,10 @@ def identify(records: Sequence[Record], method: str = 'refined',
     outputs = output_channels(mechanical_only)
     warnings += _result_warnings(final, fitted_records, terms, outputs, torque_constant,
                                  quasi, list(bound) + list(upper_bounds), initial_state)
+    if found is not None and found.effects:
+        shift = _structure_shift(found.base_estimate, parameters, stderr)
+        if shift:
+            warnings.append(shift)
     errors_detail = record_errors(records, estimate, final, found, torque_constant, terms,
                                   quasi)
     if errors_detail.get('note'):
@@ -623,6 +627,25 @@ def _identify_current_limited(records, limited, discover, vocabulary, progress, 
         not_identifiable=not_identifiable, warnings=warnings,
         upper_bounds={'La': parameters['La'], 'Ta': parameters['Ta']},
         elapsed_s=progress.elapsed())
+
+
+def _structure_shift(base: Estimate, parameters: dict[str, float],
+                     stderr: dict[str, float]) -> str | None:
+    """Say how far the effects found moved the base parameters, when beyond 3 stderr."""
+    moved = {}
+    for name in ('Ra', 'CPhi', 'J', 'b', 'Mc'):
+        if name in base.parameters and np.isfinite(stderr.get(name, np.nan)) and \
+                stderr[name] > 0:
+            ratio = abs(parameters[name] - base.parameters[name]) / stderr[name]
+            if ratio > 3.0:
+                moved[name] = (100.0 * (parameters[name] / base.parameters[name] - 1.0), ratio)
+    if not moved:
+        return None
+    listing = ', '.join(f'{name} {change:+.3g} % ({ratio:.0f} stderr)'
+                        for name, (change, ratio) in moved.items())
+    return (f'the effects found move the base parameters beyond their standard errors ({listing}'
+            '): the structure matters more than the noise here, and the standard errors do not '
+            'cover the choice of structure; compare with --no-discover')
 
 
 def _names(records):

@@ -289,3 +289,14 @@ def test_node_line_carries_bounds_not_identifiable_and_warnings():
     assert line.endswith('warnings: something to know')
     table = format_table(result)
     assert 'upper bound' in table and 'warning: something to know' in table
+
+
+def test_a_structure_that_moves_the_parameters_is_said():
+    from dcmotor_id.identify import _structure_shift
+
+    base = SimpleNamespace(parameters={'J': 1.0, 'b': 2.0, 'Mc': 3.0})
+    text = _structure_shift(base, {'J': 1.01, 'b': 2.0, 'Mc': 3.0},
+                            {'J': 0.001, 'b': 0.01, 'Mc': 0.01})
+    assert 'J +1 % (10 stderr)' in text and '--no-discover' in text
+    assert _structure_shift(base, {'J': 1.001, 'b': 2.0, 'Mc': 3.0},
+                            {'J': 0.001, 'b': 0.01, 'Mc': 0.01}) is None
