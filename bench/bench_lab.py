@@ -59,7 +59,7 @@ def scenario_rows(name, make, seeds):
     result, elapsed, refused = _fit(scenario.records, tc, discover=True)
     if result is None:
         return lines + [f'**refused** after {elapsed:.1f} s: {refused}', '']
-    values, stated, model, discovered, added = [], [], [], [], []
+    values, stated, model, discovered, added, stated_found = [], [], [], [], [], []
     for seed in range(seeds):
         repeat = make(seed=seed)
         item, _, _ = _fit(repeat.records, tc)
@@ -70,6 +70,7 @@ def scenario_rows(name, make, seeds):
         item, _, _ = _fit(repeat.records, tc, discover=True)
         if item is not None:
             discovered.append(item.parameters)
+            stated_found.append(item.stderr)
             added.extend(effect['name'] for effect in item.effects)
     halves = [_fit(part, tc)[0] for part in _halves(scenario.records)]
     names = list(result.parameters)
@@ -81,8 +82,8 @@ def scenario_rows(name, make, seeds):
               '',
               '| parameter | truth | identified (seed 0, discovery) | error | stated stderr | '
               'MC sd | stderr / MC sd | Gauss-Newton / MC sd | MC sd with discovery | '
-              'split-half sd | stderr / split-half | note |',
-              '|---|---|---|---|---|---|---|---|---|---|---|---|']
+              'stderr / MC sd, discovery | split-half sd | stderr / split-half | note |',
+              '|---|---|---|---|---|---|---|---|---|---|---|---|---|']
     for key in names:
         if key not in truth:
             continue
@@ -92,8 +93,14 @@ def scenario_rows(name, make, seeds):
         sd = sd if sd > 0 else np.nan
         found = np.array([v[key] for v in discovered])
         sd_found = float(np.std(found, ddof=1)) if len(found) > 2 else np.nan
-        med = float(np.nanmedian([s[key] for s in stated])) if stated else np.nan
-        med_model = float(np.nanmedian([s[key] for s in model])) if model else np.nan
+        sd_found = sd_found if sd_found > 0 else np.nan
+        med_found = (float(np.nanmedian([s[key] for s in stated_found]))
+                     if stated_found and key not in result.upper_bounds else np.nan)
+        bounded = key in result.upper_bounds
+        med = float(np.nanmedian([s[key] for s in stated])) if stated and not bounded \
+            else np.nan
+        med_model = float(np.nanmedian([s[key] for s in model])) if model and not bounded \
+            else np.nan
         half = (abs(halves[0].parameters[key] - halves[1].parameters[key]) / 2
                 if all(h is not None for h in halves) else np.nan)
         half = half if half > 0 else np.nan
@@ -106,6 +113,7 @@ def scenario_rows(name, make, seeds):
             f'| {key} | {truth[key]:.4g} | {value:.4g} | {100 * (value / truth[key] - 1):+.1f} % '
             f'| {100 * result.stderr[key] / abs(value):.2g} % | {100 * sd / abs(value):.2g} % '
             f'| {med / sd:.2f} | {med_model / sd:.2f} | {100 * sd_found / abs(value):.2g} % '
+            f'| {med_found / sd_found:.2f} '
             f'| {100 * half / abs(value):.2g} % '
             f'| {med / half:.2f} | {note} |')
     lines += ['', 'warnings:'] + [f'- {text}' for text in result.warnings or ['none']] + ['']
