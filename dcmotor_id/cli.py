@@ -27,8 +27,10 @@ from dcmotor_id.formats.bag import BAG_TOPICS
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
                                         POSITION_UNITS, ReadOptions, SPEED_UNITS)
-from dcmotor_id.identify import identify, METHODS, prepare_records
+from dcmotor_id.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES, METHODS,
+                                 prepare_records)
 from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.progress import terminal_progress
 from dcmotor_id.records import Record
 from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 from dcmotor_id.summary import format_table
@@ -131,8 +133,14 @@ def _cmd_identify(args):
     records = prepare_records(load_records(args.files, topics, options), args.torque_constant,
                               args.resample, args.speed_cutoff)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
-    identified = identify(records, method=args.method, torque_constant=args.torque_constant,
-                          discover=not args.no_discover, vocabulary=vocabulary)
+    progress = terminal_progress(args.max_time, quiet=args.quiet)
+    try:
+        identified = identify(records, method=args.method,
+                              torque_constant=args.torque_constant,
+                              discover=not args.no_discover, vocabulary=vocabulary,
+                              progress=progress, initial_state=args.initial_state)
+    finally:
+        progress.close()
     result = identified.as_dict()
     if options.gear_ratio != 1.0:
         result['gear_ratio'] = options.gear_ratio
@@ -393,6 +401,14 @@ def build_parser() -> argparse.ArgumentParser:
                            help=f'bags: {kind} topic of the {channel} (default '
                                 f'{BAG_TOPICS[channel]!r}, any namespace)')
     _add_reading_options(ident)
+    ident.add_argument('--max-time', type=_positive, default=DEFAULT_MAX_TIME_S, metavar='S',
+                       help='time budget [s]: past it the best result so far is returned with '
+                            f'a warning (default {DEFAULT_MAX_TIME_S:g})')
+    ident.add_argument('--quiet', action='store_true',
+                       help='no progress line on stderr (it only shows on a terminal anyway)')
+    ident.add_argument('--initial-state', choices=INITIAL_STATES, default='estimate',
+                       help='estimate (default) the initial current and speed of every record, '
+                            'or pin them to the first measured samples (measured)')
     ident.set_defaults(handler=_cmd_identify)
 
     val = commands.add_parser('validate', help='simulate an identified model on new records '

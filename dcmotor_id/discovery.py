@@ -40,6 +40,7 @@ from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.estimators.jacobian import jacobian
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.model import parameter_names
+from dcmotor_id.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.residuals import (ALPHA, analyse_channel, channel_errors, ChannelErrors,
                                   DEFAULT_LAGS, model_errors, one_step_error, output_channels,
                                   residual_nrmse_pct, simulate_records)
@@ -65,6 +66,11 @@ MAX_EFFECTS = 4
 SCREEN_SHARE = 0.5
 #: Candidates refitted whatever their screen, best screen first.
 SCREEN_TOP = 2
+#: Candidates refitted whatever their screen when the model misfits far above the noise (the
+#: linearised screen then ranks, it does not gate: a decisive nonlinear effect can screen low).
+SCREEN_TOP_MISFIT = 4
+#: Held-out residual RMS above this multiple of the sensor noise is a misfit.
+MISFIT_FACTOR = 3.0
 #: Term channels the one-step error represents, and its argument for each (a ``state`` term,
 #: an effect simulated inside the model, has no one-step form there).
 ONE_STEP_TERMS = {'voltage': 'voltage_extra', 'torque': 'torque_extra',
@@ -256,6 +262,14 @@ class DiscoveryLoop:
         Lags of the whiteness test and correlations.
     alpha : float
         Significance level of the tests.
+    progress : Progress, optional
+        Progress report and time budget; when the budget runs out the loop stops with the
+        best structure so far (``out_of_time`` in the result).
+    initial_state : str
+        ``estimate`` or ``measured`` (:class:`~dcmotor_id.estimators.refined.RefinedEstimator`).
+    quasi_static : bool
+        Fit the quasi-static armature (La -> 0; the electrical time constant below the sample
+        period) throughout.
 
     """
 
@@ -263,7 +277,8 @@ class DiscoveryLoop:
                  vocabulary: Sequence[type[Effect]] = VOCABULARY,
                  holdout_fraction: float = HOLDOUT_FRACTION, min_gain: float = MIN_GAIN,
                  max_effects: int = MAX_EFFECTS, max_lag: int = DEFAULT_LAGS,
-                 alpha: float = ALPHA) -> None:
+                 alpha: float = ALPHA, progress: Progress | None = None,
+                 initial_state: str = 'estimate', quasi_static: bool = False) -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
@@ -275,10 +290,28 @@ class DiscoveryLoop:
         self.max_lag = int(max_lag)
         self.alpha = float(alpha)
         self.weights: dict[str, float] | None = None
+        self.progress = progress
+        self.initial_state = initial_state
+        self.quasi_static = bool(quasi_static) and not self.mechanical_only
 
     # ------------------------------------------------------------------ fitting
     def _stops(self, records):
-        return [max(int(round(len(rec) * (1.0 - self.holdout_fraction))), 1) for rec in records]
+        """
+        End of every record's training part: the held-out share of its *moving* extent.
+
+        A record that ends at standstill (a stroke, a pulse) would otherwise hold out a part
+        where nothing happens, which cannot judge a model.
+        """
+        stops = []
+        for rec in records:
+            first, last = moving_extent(rec.speed)
+            stop = first + (last - first) * (1.0 - self.holdout_fraction)
+            stops.append(min(max(int(round(stop)), 1), len(rec) - 1))
+        return stops
+
+    def _estimator(self, **options: Any) -> RefinedEstimator:
+        return RefinedEstimator(initial_state=self.initial_state, progress=self.progress,
+                                quasi_static=self.quasi_static, **options)
 
     def fit(self, structure: Structure, start: dict | None = None, initial: dict | None = None,
             max_nfev: int = 100) -> Fit:
@@ -289,12 +322,12 @@ class DiscoveryLoop:
         terms = _with_initial(structure.terms(records, base, self.torque_constant, initial),
                               initial or {})
         train = [rec.slice(0, stop) for rec, stop in zip(records, stops)]
-        estimator = RefinedEstimator(max_nfev=max_nfev, initial=start or None)
+        estimator = self._estimator(max_nfev=max_nfev, initial=start or None)
         if not start and terms:
             raise ValueError('a structure with effects needs a start point')
         estimate = estimator.fit(train, torque_constant=self.torque_constant,
                                  terms=_slice_terms(terms, stops))
-        model = OutputErrorModel(records, self.torque_constant, terms)
+        model = OutputErrorModel(records, self.torque_constant, terms, self.quasi_static)
         simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
         fitted = Fit(structure, estimate, records, stops, simulated, terms)
         if self.weights is None:
@@ -369,7 +402,8 @@ class DiscoveryLoop:
         effect terms; a prediction belongs to the part of the sample it predicts.  Empty when
         the structure has a term the one-step model does not represent.
         """
-        if any(term.channel not in ONE_STEP_TERMS for term in fitted.terms):
+        if self.quasi_static or any(term.channel not in ONE_STEP_TERMS
+                                    for term in fitted.terms):
             return {}
         values = fitted.values
         errors: dict[str, list[np.ndarray]] = {channel: [] for channel in self.outputs}
@@ -389,6 +423,19 @@ class DiscoveryLoop:
             _part(errors[channel], stops, part),
             _part([getattr(rec, channel)[1:] for rec in fitted.records], stops, part))
             for channel in self.outputs}
+
+    def misfit(self, fitted: Fit) -> bool:
+        """Whether the held-out residual is far above the sensor noise on some channel."""
+        from dcmotor_id.signals import noise_std
+
+        for channel in self.outputs:
+            residual = fitted.channel_residual(channel, 'heldout')
+            noise = np.sqrt(np.mean([noise_std(getattr(rec, channel)) ** 2
+                                     for rec in fitted.records]))
+            if residual.shape[0] and noise > 0 and \
+                    np.sqrt(np.mean(residual ** 2)) > MISFIT_FACTOR * noise:
+                return True
+        return False
 
     def _negligible(self, analysis):
         return all(item['nrmse_pct'] is not None and item['nrmse_pct'] < NEGLIGIBLE_NRMSE_PCT
@@ -414,7 +461,7 @@ class DiscoveryLoop:
     def _train_model(self, fitted, terms):
         train = [rec.slice(0, stop) for rec, stop in zip(fitted.records, fitted.stops)]
         return train, OutputErrorModel(train, self.torque_constant,
-                                       _slice_terms(terms, fitted.stops))
+                                       _slice_terms(terms, fitted.stops), self.quasi_static)
 
     def _stack(self, outputs_per_record, stops):
         parts = []
@@ -581,9 +628,11 @@ class DiscoveryLoop:
         reason = effect.problem(fitted.values, fitted.records)
         if reason:
             return reason
+        floor = friction_floors(current.values, self.records, self.torque_constant)
         for name in ('b', 'Mc'):
             before, after = current.values[name], fitted.values[name]
-            if before > 0 and after < 0.01 * before:
+            # A friction already at zero cannot collapse (it was 5e-193 in a lab record).
+            if before > 0.05 * floor[name] and after < 0.01 * before:
                 return (f'{name} collapses from {before:.4g} to {after:.3g}: the candidate '
                         'takes over the base friction instead of adding to it')
         return None
@@ -614,29 +663,46 @@ class DiscoveryLoop:
     # ------------------------------------------------------------------ the loop
     def run(self) -> DiscoveryResult:
         """Run the loop, refit the base and final structures on all the data; return it."""
+        if self.progress is not None:
+            self.progress.set_stage('discovery: base model on the training parts')
         base = self.fit(Structure())
         current = base
         steps = []
         analysis_before = self.analyse(base)
         analysis = analysis_before
         reason = 'explained'
-        while True:
-            if self.explained(analysis):
-                reason = 'the residual is white' if not self._negligible(analysis) else \
-                    'the model reproduces the data exactly'
-                break
-            if len(current.structure) >= self.max_effects:
-                reason = f'stopped at {self.max_effects} effects'
-                break
-            step = self._round(current, analysis)
-            steps.append(step.report)
-            if step.chosen is None:
-                reason = 'no candidate lowers the held-out error enough'
-                break
-            current = step.chosen.fitted
-            analysis = self.analyse(current)
-        records, terms, estimate = self.refit_all(current)
-        base_estimate = self.refit_all(base)[2] if len(current.structure) else estimate
+        out_of_time = False
+        try:
+            while True:
+                if self.explained(analysis):
+                    reason = 'the residual is white' if not self._negligible(analysis) else \
+                        'the model reproduces the data exactly'
+                    break
+                if len(current.structure) >= self.max_effects:
+                    reason = f'stopped at {self.max_effects} effects'
+                    break
+                step = self._round(current, analysis)
+                steps.append(step.report)
+                if step.chosen is None:
+                    reason = 'no candidate lowers the held-out error enough'
+                    break
+                current = step.chosen.fitted
+                analysis = self.analyse(current)
+        except TimeBudgetExceeded:
+            out_of_time = True
+            reason = 'the time budget ran out: the best structure so far is kept'
+        try:
+            if out_of_time:
+                raise TimeBudgetExceeded('no time left for the all-data refit')
+            if self.progress is not None:
+                self.progress.set_stage('discovery: final refit on all the data')
+            records, terms, estimate = self.refit_all(current)
+            base_estimate = self.refit_all(base)[2] if len(current.structure) else estimate
+        except TimeBudgetExceeded:
+            # The training-part fits are what there is: report them, said so in the result.
+            out_of_time = True
+            records, terms = current.records, current.terms
+            estimate, base_estimate = current.estimate, base.estimate
         return DiscoveryResult(
             holdout_fraction=self.holdout_fraction, min_gain=self.min_gain,
             outputs=self.outputs, torque_constant=self.torque_constant,
@@ -645,7 +711,8 @@ class DiscoveryLoop:
             unexplained=self.material(analysis), records=records, terms=terms,
             estimate=estimate, effects=current.structure.effects(estimate.parameters),
             base_estimate=base_estimate, error_before=base.errors(self.outputs),
-            error_after=current.errors(self.outputs))
+            error_after=current.errors(self.outputs), out_of_time=out_of_time,
+            quasi_static=self.quasi_static)
 
     def _round(self, current: Fit, analysis: dict) -> Round:
         """One search round: screen every absent effect, refit the promising, choose."""
@@ -663,9 +730,14 @@ class DiscoveryLoop:
         # screen is a linearisation: a strongly nonlinear effect may look smaller than it is).
         screened.sort(key=lambda candidate: -candidate.screen_explained)
         threshold = SCREEN_SHARE * self.min_gain
-        scored = [self.score(current, self.refit_candidate(current, candidate))
-                  if rank < SCREEN_TOP or candidate.screen_explained >= threshold else candidate
-                  for rank, candidate in enumerate(screened)]
+        top = SCREEN_TOP_MISFIT if self.misfit(current) else SCREEN_TOP
+        scored = []
+        for rank, candidate in enumerate(screened):
+            if rank < top or candidate.screen_explained >= threshold:
+                if self.progress is not None:
+                    self.progress.set_stage(f'discovery: candidate {candidate.name}')
+                candidate = self.score(current, self.refit_candidate(current, candidate))
+            scored.append(candidate)
         order = {cls.name: position for position, cls in enumerate(self.candidates)}
         refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
                           key=lambda candidate: candidate.fitted.heldout_cost)
@@ -715,7 +787,9 @@ class DiscoveryLoop:
     def refit_all(self, fitted: Fit) -> tuple[list[Record], tuple, Estimate]:
         """Refit a structure on all the data (no hold-out), from the training values."""
         return refit_all_data(fitted.structure, self.records, self.torque_constant,
-                              fitted.values, self._base(fitted))
+                              fitted.values, self._base(fitted), progress=self.progress,
+                              initial_state=self.initial_state,
+                              quasi_static=self.quasi_static)
 
 
 def refit_start(values: dict, records: Sequence[Record],
@@ -726,27 +800,55 @@ def refit_start(values: dict, records: Sequence[Record],
     The fit works on logarithms, so a friction that a missing effect drove to zero would
     stay there; a floor of 2 % of the driving torque's spread lets it come back.
     """
-    names = parameter_names(torque_constant is not None)
+    names = [name for name in parameter_names(torque_constant is not None) if name in values]
     start = {name: float(values[name]) for name in names}
-    spread = torque_spread(records, start, torque_constant)
-    speed = max(float(np.std(np.concatenate([rec.speed for rec in records]))), 1e-12)
-    start['Mc'] = max(start['Mc'], 0.02 * spread)
-    start['b'] = max(start['b'], 0.02 * spread / speed)
+    floors = friction_floors(start, records, torque_constant)
+    start['Mc'] = max(start['Mc'], floors['Mc'])
+    start['b'] = max(start['b'], floors['b'])
     return start
 
 
+def friction_floors(values: dict, records: Sequence[Record],
+                    torque_constant: float | None = None) -> dict[str, float]:
+    """Return the least start of Mc and b in a refit: 2 % of the driving torque's spread."""
+    spread = torque_spread(records, values, torque_constant)
+    speed = max(float(np.std(np.concatenate([rec.speed for rec in records]))), 1e-12)
+    return {'Mc': 0.02 * spread, 'b': 0.02 * spread / speed}
+
+
+def moving_extent(speed: np.ndarray) -> tuple[int, int]:
+    """
+    Return the first and one past the last sample where a speed moves beyond its noise.
+
+    The whole record when it never leaves the noise band (the caller decides then).
+    """
+    from dcmotor_id.signals import low_pass, noise_std
+
+    speed = np.asarray(speed, dtype=float)
+    smooth = low_pass(speed, 0.05, order=2)
+    noise = noise_std(speed)
+    level = max(min(10.0 * noise, 0.2 * float(np.max(np.abs(smooth)))), 1e-300)
+    moving = np.flatnonzero(np.abs(smooth - smooth[0]) > level)
+    if moving.shape[0] < 2:
+        return 0, speed.shape[0]
+    # Keep a little standstill after the motion ends: the stop is part of the dynamics.
+    margin = max(speed.shape[0] // 50, 1)
+    return 0, min(int(moving[-1]) + 1 + margin, speed.shape[0])
+
+
 def refit_all_data(structure: Structure, records: Sequence[Record],
-                   torque_constant: float | None, values: dict,
-                   start: dict) -> tuple[list[Record], tuple, Estimate]:
+                   torque_constant: float | None, values: dict, start: dict,
+                   **options: Any) -> tuple[list[Record], tuple, Estimate]:
     """
     Fit a structure on all of the records (no hold-out).
 
     The effects' coefficients start from ``values``, the base parameters from ``start``
     (:func:`refit_start`); return the (transformed) records, the terms and the estimate.
+    ``options`` go to the :class:`~dcmotor_id.estimators.refined.RefinedEstimator`.
     """
     prepared = structure.transformed(records)
     terms = _with_initial(structure.terms(prepared, values, torque_constant), values)
-    estimator = RefinedEstimator(initial=start)
+    estimator = RefinedEstimator(initial=start, **options)
     return prepared, terms, estimator.fit(prepared, torque_constant=torque_constant,
                                           terms=terms)
 
@@ -784,6 +886,11 @@ class DiscoveryResult:
         The base structure refitted on all the data.
     error_before, error_after : dict
         Held-out simulation error of the base and the final model.
+    out_of_time : bool
+        The time budget ran out: the structure is the best so far and, when there was no
+        time for the all-data refit, ``estimate`` is the training-part fit.
+    quasi_static : bool
+        The quasi-static armature (La -> 0) was fitted.
 
     """
 
@@ -806,6 +913,8 @@ class DiscoveryResult:
     base_estimate: Estimate
     error_before: ChannelErrors
     error_after: ChannelErrors
+    out_of_time: bool = False
+    quasi_static: bool = False
 
     def errors_on(self, records: Sequence[Record]) -> dict[str, ChannelErrors]:
         """
@@ -884,7 +993,8 @@ def errors_by_step(found: DiscoveryResult, records: Sequence[Record]) -> list[di
         else:
             estimate = refit_all_data(
                 structure, found.source_records, tc, found.estimate.parameters,
-                refit_start(found.final.values, found.source_records, tc))[2]
+                refit_start(found.final.values, found.source_records, tc),
+                quasi_static=found.quasi_static)[2]
         errors = structure_errors(structure, estimate, records, tc)
         out.append({'effects': structure.names(), **errors})
     return out
@@ -904,7 +1014,8 @@ def structure_errors(structure: Structure, estimate: Estimate, records: Sequence
     prepared = structure.transformed(records)
     values = estimate.parameters
     terms = structure.terms(prepared, values, torque_constant, values)
-    model = OutputErrorModel(prepared, torque_constant, terms)
+    model = OutputErrorModel(prepared, torque_constant, terms,
+                             bool(estimate.info.get('quasi_static')))
     states = [[float(getattr(rec, channel)[0]) for channel in model.outputs]
               for rec in prepared]
     return model_errors(model, values, states)

@@ -239,6 +239,28 @@ def coloured_disturbance(seed: int = 0, sample_period_s: float = 1e-3) -> Scenar
                     note='load torque: 0.15 N m RMS low-pass noise with a 2 Hz corner')
 
 
+def directions_with_load(seed: int = 0, sample_period_s: float = 1e-3,
+                         load_nm: float = 0.4) -> Scenario:
+    """Simulate two voltage-step records of motor 2, one per direction, under a constant load."""
+    from dcmotor_id.model import PAPER_MOTORS
+
+    rng = np.random.default_rng(seed)
+    truth = PAPER_MOTORS['paper2']
+    steps = max(int(round(sample_period_s / 5e-5)), 1)
+    records = []
+    for sign, levels in ((1.0, [20.0, 80.0, 40.0, 100.0, 30.0, 70.0]),
+                         (-1.0, [20.0, 90.0, 50.0, 100.0, 25.0, 60.0])):
+        command = sign * step_levels(levels, 0.5, sample_period_s)
+        load = np.full(command.shape[0] * steps, load_nm)
+        out = simulate_drive(truth, command, sample_period_s, load_torque_nm=load)
+        t = np.arange(command.shape[0]) * sample_period_s
+        records.append(Record(t, current=_noisy(out['current'], 0.02, rng), voltage=command,
+                              speed=_noisy(out['speed'], 0.2, rng),
+                              source=f'directions_with_load_{"forward" if sign > 0 else "back"}'))
+    return Scenario('directions_with_load', records, truth,
+                    note=f'two records (one per direction), constant load {load_nm} N m')
+
+
 def pwm_sampled_current(record: Record, duty_threshold: float = 0.6,
                         seed: int = 0) -> Record:
     """Return the record with its current as sampled inside the PWM off-phase (bimodal)."""
@@ -256,4 +278,5 @@ SCENARIOS = {
     'hobby_motor_encoder': hobby_motor_encoder,
     'small_motor_low_rate': small_motor_low_rate,
     'coloured_disturbance': coloured_disturbance,
+    'directions_with_load': directions_with_load,
 }

@@ -44,21 +44,73 @@ def format_table(result: Mapping[str, Any]) -> str:
              f"{len(result['records'])}   samples: {result['n_samples']}   "
              f"dt: {result['sample_period_s']:.6g} s"]
     lines.append(f"{'parameter':<10}{'value':>16}{'stderr':>14}{'rel.':>10}  unit")
+    bounds = result.get('upper_bounds') or {}
+    missing = result.get('not_identifiable') or {}
     for name, value in result['parameters'].items():
         err = result['stderr'].get(name, float('nan'))
+        err = float('nan') if err is None else err
+        unit = result['units'].get(name, '')
+        if name in bounds:
+            lines.append(f"{name:<10}{'< ' + format(value, '.4g'):>16}{'upper bound':>24}  "
+                         f'{unit}')
+            continue
         rel = abs(err / value) * 100 if value else float('nan')
-        lines.append(f'{name:<10}{value:>16.6g}{err:>14.3g}{rel:>9.3g}%  '
-                     f"{result['units'].get(name, '')}")
+        flag = ''
+        if name in missing:
+            flag = '  (at zero)' if 'bound zero' in missing[name] else '  (see below)'
+        lines.append(f'{name:<10}{value:>16.6g}{err:>14.3g}{rel:>9.3g}%  {unit}{flag}')
     for effect in result.get('effects', []):
         parameters = ', '.join(f'{key} = {value:.4g}' if isinstance(value, float) else
                                f'{key} = {value}' for key, value in
                                effect['parameters'].items())
         lines.append(f"effect {effect['name']}: {parameters}")
-    lines.append(f"simulation error before: {format_errors(result['error_before'])}")
-    lines.append(f"simulation error after:  {format_errors(result['error_after'])}")
+    detail = result.get('errors') or {}
+    if detail.get('records'):
+        lines += _record_error_lines(detail, result)
+    else:
+        lines.append(f"simulation error before: {format_errors(result['error_before'])}")
+        lines.append(f"simulation error after:  {format_errors(result['error_after'])}")
     if result.get('unexplained'):
         lines.append('structure remains in the residual that no candidate effect explains')
+    if result.get('uncertainty_method'):
+        lines.append(f"stderr: {result['uncertainty_method']}")
+    for name, reason in missing.items():
+        lines.append(f'not identifiable: {name}: {reason}')
+    for text in result.get('warnings') or []:
+        lines.append(f'warning: {text}')
     return '\n'.join(lines)
+
+
+def _record_error_lines(detail: Mapping[str, Any], result: Mapping[str, Any]) -> list[str]:
+    """Per-record simulation errors, each in percent of its own record, labelled by part."""
+    lines = []
+    fraction = detail.get('heldout_fraction')
+    heldout = (f'held-out last {fraction * 100:.0f} % of the motion' if fraction is not None
+               else None)
+    lines.append('simulation error (NRMSE, % of the spread of each record; fit % = 100 - NRMSE):')
+    if heldout:
+        lines.append(f"  all records, {heldout}: before {format_errors(result['error_before'])}"
+                     f"; after {format_errors(result['error_after'])} (spread of all records)")
+    for index, item in enumerate(detail['records']):
+        name = item.get('source') or f'record {index + 1}'
+        text = (f"  {name}: whole record {_metric_text(item['before']['whole_record'])} -> "
+                f"{_metric_text(item['after']['whole_record'])}")
+        if heldout:
+            if item['after'].get('heldout') is None:
+                text += '; held-out part at standstill, not judged'
+            else:
+                text += (f"; held-out {_metric_text(item['before']['heldout'])} -> "
+                         f"{_metric_text(item['after']['heldout'])}")
+        lines.append(text)
+    return lines
+
+
+def _metric_text(metrics: Mapping[str, Any] | None) -> str:
+    if not metrics:
+        return 'n/a'
+    return ', '.join(f'{channel} {metrics[f"{channel}_nrmse_pct"]:.3g} %'
+                     for channel in ('current', 'speed')
+                     if metrics.get(f'{channel}_nrmse_pct') is not None)
 
 
 def format_line(result: Mapping[str, Any]) -> str:
@@ -91,6 +143,13 @@ def format_line(result: Mapping[str, Any]) -> str:
         text += '; bags: ' + ', '.join(result['bags'])
     if result.get('record_errors'):
         text += '; not recorded: ' + '; '.join(result['record_errors'])
+    if result.get('upper_bounds'):
+        text += '; upper bounds: ' + ', '.join(f'{key}<{value:.3g}' for key, value in
+                                               result['upper_bounds'].items())
+    if result.get('not_identifiable'):
+        text += '; not identifiable: ' + ', '.join(result['not_identifiable'])
+    if result.get('warnings'):
+        text += '; warnings: ' + ' | '.join(result['warnings'])
     return text
 
 

@@ -7,6 +7,7 @@ printed.  One case runs as a separate process to check the same at the process b
 """
 
 import csv
+import json
 import subprocess
 import sys
 
@@ -199,16 +200,26 @@ def test_motor_never_moves(tmp_path, out, capsys):
                    'not identifiable', 'while the motor turns')
 
 
-def test_speed_never_reverses(tmp_path, out, capsys):
+def test_speed_never_reverses_is_identified_partially(tmp_path, out, capsys):
+    # Issue 8 changed this from a refusal: one-direction data identify J, b and the
+    # direction's total friction torque; Mc and a load torque are listed as not separable.
     t = np.arange(3000) * DT
     rows = simulate(60.0 + 40.0 * np.sin(2 * np.pi * 1.0 * t))
     path = write(tmp_path / 'forward.csv', HEADER, rows)
-    expect_refusal(capsys, [path, '--json', out], 'never reverses', 'Mc is not identifiable',
-                   'both ways')
-    # The mechanical-only mode needs the reversals as much.
+    code, message = run(capsys, path, '--json', out, '--no-discover')
+    assert code == 0, message
+    result = json.loads(out.read_text())
+    assert 'never reverses' in result['not_identifiable']['Mc']
+    assert 'load_torque' in result['not_identifiable']
+    assert result['combined']['friction_torque_Nm']['direction'] == 'positive'
+    for name in ('J', 'b'):
+        assert abs(result['parameters'][name] / getattr(MOTOR, name) - 1) < 0.05, name
+    # The mechanical-only mode too.
     shaft = write(tmp_path / 'shaft.csv', ['t', 'current', 'speed'], rows[:, [0, 2, 3]])
-    expect_refusal(capsys, [shaft, '--json', out, '--torque-constant', '0.7'],
-                   'never reverses')
+    code, message = run(capsys, shaft, '--json', out, '--torque-constant', '0.7',
+                        '--no-discover')
+    assert code == 0, message
+    assert 'Mc' in json.loads(out.read_text())['not_identifiable']
 
 
 @pytest.mark.parametrize('method, phrases', [

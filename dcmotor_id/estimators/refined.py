@@ -13,7 +13,8 @@ Why this design (bench/README.md has the numbers):
   reaches the Cramer-Rao bound.
 * **Honest uncertainty.**  Standard errors come from the Gauss-Newton covariance
   ``s^2 (J^T J)^-1`` at the optimum, with the noise level of each channel estimated from the
-  residual; Ka and Ta get theirs by the delta method.
+  residual; Ka and Ta get theirs by the delta method.  ``info`` carries what the data-based
+  (sandwich) covariance of :mod:`dcmotor_id.estimators.uncertainty` needs; identify uses it.
 * **Initial state and several records.**  Every record has its own estimated initial state
   ``(i0, w0)``; the physical parameters are shared (multi-experiment).
 * **Good start.**  Output error is a non-convex fit, so it starts from the best (lowest
@@ -23,7 +24,7 @@ Why this design (bench/README.md has the numbers):
 
 from __future__ import annotations
 
-from typing import Any, cast, Mapping, Sequence
+from typing import Any, Callable, cast, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -32,6 +33,7 @@ from dcmotor_id.errors import FitError
 from dcmotor_id.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.estimators.jacobian import jacobian
 from dcmotor_id.estimators.paper import PaperEstimator
+from dcmotor_id.estimators.uncertainty import block_scores
 from dcmotor_id.model import (derived_stderr, derived_values, make_admissible, MotorParameters,
                               parameter_names, POSITIVE_NAMES, state_matrix)
 from dcmotor_id.signals import low_pass
@@ -61,11 +63,15 @@ class OutputErrorModel:
         Given for the mechanical-only mode.
     terms : sequence of ExogenousTerm
         Extra linear terms (effects).
+    quasi_static : bool
+        The La -> 0 limit of the armature (an electrical time constant far below the sample
+        period): ``J dw/dt = CPhi (u - CPhi w) / Ra - b w - Mc sgn w`` and
+        ``i = (u - CPhi w) / Ra``; La is not a parameter then.
 
     """
 
     def __init__(self, records: Sequence[Any], torque_constant: float | None = None,
-                 terms: Sequence[ExogenousTerm] = ()) -> None:
+                 terms: Sequence[ExogenousTerm] = (), quasi_static: bool = False) -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
@@ -75,7 +81,9 @@ class OutputErrorModel:
                 raise ValueError(f'term {term.name}: channel must be one of {_CHANNELS}')
             if len(term.regressors) != len(self.records):
                 raise ValueError(f'term {term.name}: one regressor per record is needed')
-        self.base_names = parameter_names(self.mechanical_only)
+        self.quasi_static = bool(quasi_static) and not self.mechanical_only
+        self.base_names = tuple(name for name in parameter_names(self.mechanical_only)
+                                if not (self.quasi_static and name == 'La'))
         self.outputs = ('speed',) if self.mechanical_only else ('current', 'speed')
         # The period is a median over the record: computed once, not at every simulation.
         self.sample_periods_s = [rec.sample_period_s for rec in self.records]
@@ -129,6 +137,8 @@ class OutputErrorModel:
                 out = {'speed': simulate_mechanical(
                     values['J'], values['b'], max(values['Mc'] + delta, 0.0), torque, dt,
                     initial_state[0], max(values['Mc'] - delta, 0.0))}
+        elif self.quasi_static:
+            out = self._simulate_quasi_static(values, index, initial_state, effects, substeps)
         else:
             params = MotorParameters.from_dict(values)
             extra_voltage = self._channel(values, 'voltage', index)
@@ -149,6 +159,40 @@ class OutputErrorModel:
             if offset is not None:
                 out[channel] = out[channel] + offset
         return out
+
+    def _simulate_quasi_static(self, values, index, initial_state, effects, substeps):
+        """
+        Simulate the La -> 0 limit: the shaft driven by ``CPhi (u - CPhi w) / Ra``.
+
+        The shaft alone with viscous friction ``b + CPhi^2 / Ra`` and torque ``CPhi u / Ra``
+        (``u`` held over each sample, as in the full model); the current sampled at ``t_k``
+        is the one settled under ``u[k-1]``: ``(u[k-1] - CPhi w[k]) / Ra`` (``i0`` first).
+        """
+        rec = self.records[index]
+        dt = self.sample_periods_s[index]
+        ra, cphi = values['Ra'], values['CPhi']
+        voltage = np.asarray(rec.voltage, dtype=float)
+        extra_voltage = self._channel(values, 'voltage', index)
+        if extra_voltage is not None:
+            voltage = voltage + extra_voltage
+        torque = cphi * voltage / ra
+        extra_torque = self._channel(values, 'torque', index)
+        if extra_torque is not None:
+            torque = torque + extra_torque
+        viscous = values['b'] + cphi ** 2 / ra
+        delta = effects.coulomb_delta_Nm
+        if substeps:
+            speed, _ = simulate_mechanical_effects(values['J'], viscous, values['Mc'], torque,
+                                                   dt, effects, initial_state[1],
+                                                   oversample=STATE_OVERSAMPLE)
+        else:
+            speed = simulate_mechanical(values['J'], viscous, max(values['Mc'] + delta, 0.0),
+                                        torque, dt, initial_state[1],
+                                        max(values['Mc'] - delta, 0.0))
+        current = np.empty_like(speed)
+        current[0] = initial_state[0]
+        current[1:] = (voltage[:-1] - cphi * speed[1:]) / ra
+        return {'current': current, 'speed': speed}
 
     def measured(self, index: int, channel: str) -> np.ndarray:
         """Measured output ``channel`` of record ``index``."""
@@ -219,6 +263,14 @@ class RefinedEstimator:
         Passes re-estimating each channel's noise level (2 gives the ML weighting).
     initial : dict, optional
         A start point for the base parameters; skips the automatic initialisation.
+    quasi_static : bool
+        Fit the La -> 0 limit of the armature (:class:`OutputErrorModel`); no La then.
+    initial_state : str
+        ``estimate`` (default: every record's initial state is fitted) or ``measured`` (pinned
+        to the record's first samples).
+    progress : callable, optional
+        Called with ``(iteration, cost)`` at every evaluation of the fit
+        (:class:`dcmotor_id.progress.Progress`; it may raise to stop the fit).
 
     """
 
@@ -227,15 +279,22 @@ class RefinedEstimator:
     supports_terms = True
 
     def __init__(self, max_nfev: int = 100, reweight_passes: int = 2,
-                 initial: Mapping[str, float] | None = None) -> None:
+                 initial: Mapping[str, float] | None = None, quasi_static: bool = False,
+                 initial_state: str = 'estimate',
+                 progress: Callable[..., None] | None = None) -> None:
+        if initial_state not in ('estimate', 'measured'):
+            raise ValueError(f'initial_state must be estimate or measured, not {initial_state}')
         self.max_nfev = max_nfev
         self.reweight_passes = reweight_passes
         self.initial = initial
+        self.quasi_static = quasi_static
+        self.initial_state = initial_state
+        self.progress = progress
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
         """Fit the records; return an :class:`Estimate` with standard errors."""
-        model = OutputErrorModel(records, torque_constant, terms)
+        model = OutputErrorModel(records, torque_constant, terms, self.quasi_static)
         names = list(model.base_names) + [term.name for term in model.terms]
         n_base = len(model.base_names)
         n_state = len(model.outputs)
@@ -247,7 +306,9 @@ class RefinedEstimator:
                  for name in model.base_names]
         magnitudes = [1.0] * n_base + [term.scale for term in model.terms]
         start += [term.initial / term.scale for term in model.terms]
-        for rec in records:
+        pinned = (np.array([[float(getattr(rec, channel)[0]) for channel in model.outputs]
+                            for rec in records]) if self.initial_state == 'measured' else None)
+        for rec in records if pinned is None else ():
             for channel in model.outputs:
                 values = getattr(rec, channel)
                 scale = max(float(np.std(values)), 1e-9)
@@ -267,7 +328,8 @@ class RefinedEstimator:
             theta = z * scales
             theta[:n_base] = np.exp(z[:n_base])
             values = dict(zip(names, theta[:len(names)]))
-            states = theta[len(names):].reshape(len(records), n_state)
+            states = (theta[len(names):].reshape(len(records), n_state) if pinned is None
+                      else pinned)
             return values, states, theta
 
         def residual(z):
@@ -278,6 +340,8 @@ class RefinedEstimator:
                 for channel in model.outputs:
                     parts.append((out[channel] - model.measured(index, channel))
                                  / noise[index][channel])
+            if self.progress is not None:
+                self.progress(cost=float(sum(part @ part for part in parts)))
             return np.concatenate(parts)
 
         # Tolerances of 1e-8 leave the parameters within 1e-3 of a standard error of the
@@ -324,7 +388,7 @@ class RefinedEstimator:
         stderr_all = np.sqrt(np.maximum(np.diag(covariance), 0.0))
         parameters = {name: float(values[name]) for name in names}
         stderr = {name: float(stderr_all[position]) for position, name in enumerate(names)}
-        if not model.mechanical_only:
+        if 'La' in model.base_names:
             parameters.update(derived_values(parameters))
             stderr.update(derived_stderr(parameters, covariance[:n_base, :n_base],
                                          list(model.base_names)))
@@ -338,6 +402,13 @@ class RefinedEstimator:
             'residual_rms_weighted': float(np.sqrt(s2)),
             'covariance': covariance[:len(names), :len(names)].tolist(),
             'names': names,
+            'quasi_static': model.quasi_static,
+            # What the data-based covariance needs (dcmotor_id.estimators.uncertainty): J^T J
+            # and the score sums over blocks of samples, in the fit's coordinates z, and
+            # d theta / d z.
+            'normal_matrix': jac.T @ jac,
+            'chain': chain,
+            **block_scores(final, jac, [len(rec) for rec in records], n_state),
         }
         return Estimate(self.name, parameters, stderr,
                         [tuple(float(v) for v in row) for row in states], info)

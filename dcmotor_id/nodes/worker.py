@@ -26,7 +26,6 @@ from typing import Any, Callable, Optional, Sequence, Union
 
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.identify import identify, prepare_records
-from dcmotor_id.plausibility import check_plausibility
 from dcmotor_id.recording import WindowBagWriter
 from dcmotor_id.records import record_from_stamps
 from dcmotor_id.summary import format_line
@@ -130,12 +129,6 @@ def identify_windows(windows: Sequence[tuple[Any, dict, str]], method: str,
         identified = identify(records, method=method, torque_constant=torque_constant,
                               discover=discover)
         result = identified.as_dict()
-        # the warnings of the result (if it has them) plus the plausibility warnings
-        warnings = list(result.get('warnings') or [])
-        warnings += [text for text in check_plausibility(
-            result['parameters'], result['stderr'], records, torque_constant)
-            if text not in warnings]
-        result['warnings'] = warnings
     except DcMotorIdError as error:
         return 'error', str(error)
     paper: dict[str, Any] | str | None = None
