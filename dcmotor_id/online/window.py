@@ -20,8 +20,11 @@ Why this design (bench/online_results.md has the numbers):
   of one core; buffering a sample costs nothing measurable, so the estimator keeps up at any
   sample rate (at 10 kHz the refits simply come less often).  In the node they run in a
   process of their own (:class:`RefitProcess`), so a fit never stalls the sample intake.
-* **Tracking.**  The window forgets everything older than ``window_s``; a step change is
-  fully tracked one window after it happened, a ramp is followed with a lag of about half a
+* **Tracking.**  The window forgets everything older than ``window_s``, so a ramp is
+  followed with a lag of about half a window.  A sudden change makes the window's fit
+  leave a simulation error above the noise level of the recent fits; the last
+  ``restart_s`` are then fitted alone and, if the model holds there, the window restarts
+  from them (a change-adaptive window), so a step is tracked within seconds rather than a
   window (bench: tracking lag).
 * **A load torque.**  With speeds of both signs in the window, a constant torque on the
   shaft (``load_torque_Nm``, as the ``load_torque`` effect) is estimated as well; a drive
@@ -65,6 +68,13 @@ _LOAD_TERM = 'load_torque.torque_Nm'
 MIN_RUN_SAMPLES = 100
 #: Fraction of the window each speed sign needs for the load torque to be separable.
 MIN_SIGN_FRACTION = 0.1
+#: Simulation error over the reference noise level above which the window is suspected to
+#: hold a change (white noise keeps the ratio within a percent or two of 1 over a window).
+MISMATCH = 1.1
+#: Ratio at or below which the recent data alone are taken to fit (restart).
+HOLDS = 1.05
+#: Fits that held whose simulation error makes the reference noise level (their median).
+REFERENCE_FITS = 5
 
 
 @dataclass(frozen=True)
@@ -84,6 +94,11 @@ class RefitJob:
         Estimate a constant load torque if the speed takes both signs.
     time_s : float
         Data time at the end of the window [s].
+    reference_rms : dict or None
+        Simulation-error RMS per channel of recent fits that held (the noise level); a fit
+        well above it triggers the change-adaptive restart (see :func:`refit_window`).
+    restart_s : float
+        Length of the recent data a restart refits [s].
 
     """
 
@@ -92,6 +107,8 @@ class RefitJob:
     initial: Optional[dict]
     load_torque: bool
     time_s: float
+    reference_rms: Optional[dict] = None
+    restart_s: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -107,6 +124,8 @@ class RefitOutcome:
     cpu_s: float = 0.0
     error: str = ''
     torque_rms_Nm: float = math.nan
+    restarted_samples: int = 0
+    mismatch: float = math.nan
 
 
 def _records(job: RefitJob) -> list[Record]:
@@ -129,23 +148,57 @@ def _load_term(records: Sequence[Record], initial: Optional[Mapping[str, float]]
                           scale, 0.0)]
 
 
+def _fit(records: list[Record], initial: Optional[dict], load_torque: bool) -> tuple:
+    """Fit records warm (then cold if that fails); return the estimate and the terms."""
+    terms = _load_term(records, initial) if load_torque else []
+    try:
+        return RefinedEstimator(initial=initial).fit(records, terms=terms), terms
+    except Exception:  # noqa: BLE001  (a warm start into a bad region: start cold)
+        if initial is None:
+            raise
+        return RefinedEstimator().fit(records, terms=terms), terms
+
+
+def _mismatch(noise_std: Mapping[str, float], reference: Optional[Mapping[str, float]]
+              ) -> float:
+    """Return the largest ratio of a fit's simulation-error RMS to the reference (or NaN)."""
+    if not reference:
+        return math.nan
+    return max((noise_std[channel] / reference[channel] for channel in noise_std
+                if reference.get(channel, 0) > 0), default=math.nan)
+
+
 def refit_window(job: RefitJob) -> RefitOutcome:
     """
     Fit the window of ``job`` by exact output error; never raise.
 
     A warm start that fails is retried cold (the automatic start of the offline fit).
+
+    Change-adaptive restart: when the fit leaves a simulation error well above the noise
+    level of recent fits (:data:`MISMATCH`), the motor probably changed inside the window.
+    The last ``restart_s`` alone are then fitted too; if the model holds there
+    (:data:`HOLDS`), that fit is the outcome and the estimator forgets the older data, so a
+    step change is tracked within a few seconds instead of a window.
     """
     started = time.process_time()
     window_s = sum(len(run[0]) for run in job.runs) * job.sample_period_s
     try:
         records = _records(job)
-        terms = _load_term(records, job.initial) if job.load_torque else []
-        try:
-            estimate = RefinedEstimator(initial=job.initial).fit(records, terms=terms)
-        except Exception:  # noqa: BLE001  (a warm start into a bad region: start cold)
-            if job.initial is None:
-                raise
-            estimate = RefinedEstimator().fit(records, terms=terms)
+        estimate, terms = _fit(records, job.initial, job.load_torque)
+        restarted = 0
+        mismatch = _mismatch(estimate.info['noise_std'], job.reference_rms)
+        tail = int(round(job.restart_s / job.sample_period_s))
+        if tail > 0 and mismatch > MISMATCH and len(records[-1]) >= 2 * tail:
+            recent = [records[-1].slice(len(records[-1]) - tail, len(records[-1]))]
+            base = {name: float(estimate.parameters[name]) for name in PARAMETER_NAMES}
+            try:
+                candidate, candidate_terms = _fit(recent, base, job.load_torque)
+            except Exception:  # noqa: BLE001  (no restart then)
+                candidate = None
+            if candidate is not None and _mismatch(candidate.info['noise_std'],
+                                                   job.reference_rms) <= HOLDS:
+                estimate, terms, records, restarted = candidate, candidate_terms, recent, tail
+                window_s = tail * job.sample_period_s
         parameters = {name: float(estimate.parameters[name]) for name in NAMES}
         stderr = {name: max(float(estimate.stderr[name]), STDERR_FLOOR_REL * abs(value))
                   for name, value in parameters.items()}
@@ -159,7 +212,8 @@ def refit_window(job: RefitJob) -> RefitOutcome:
         torque_rms = float(parameters['CPhi'] * np.sqrt(np.mean(current ** 2)))
         return RefitOutcome(job.time_s, window_s, parameters, stderr, effects,
                             dict(estimate.info['noise_std']),
-                            time.process_time() - started, torque_rms_Nm=torque_rms)
+                            time.process_time() - started, torque_rms_Nm=torque_rms,
+                            restarted_samples=restarted, mismatch=mismatch)
     except Exception as error:  # noqa: BLE001  (a failed update must never stop the caller)
         text = str(error) or type(error).__name__
         return RefitOutcome(job.time_s, window_s, cpu_s=time.process_time() - started,
@@ -225,6 +279,9 @@ class WindowEstimator:
         Largest fraction of one core the refits may take, per second of data.
     load_torque : bool
         Estimate a constant load torque when the window holds both speed signs.
+    restart_s : float
+        Recent data refitted alone when the window no longer fits (a change inside it) [s];
+        0 switches the change-adaptive restart off.
     submit : callable, optional
         ``submit(job) -> Future`` running :func:`refit_window` elsewhere (e.g. a
         :class:`RefitProcess`); without it the refits run inside :meth:`update`.
@@ -238,7 +295,7 @@ class WindowEstimator:
     def __init__(self, sample_period_s: float, window_s: float = 20.0,
                  refit_interval_s: float = 2.0, min_window_s: float = 2.0,
                  converged_rel_stderr: float = 0.05, cpu_budget: float = 0.05,
-                 load_torque: bool = True,
+                 load_torque: bool = True, restart_s: float = 5.0,
                  submit: Optional[Callable[[RefitJob], Future]] = None,
                  initial: Optional[Mapping[str, float]] = None) -> None:
         if not sample_period_s > 0:
@@ -252,6 +309,7 @@ class WindowEstimator:
         self.converged_rel_stderr = float(converged_rel_stderr)
         self.cpu_budget = float(cpu_budget)
         self.load_torque = bool(load_torque)
+        self.restart_s = float(restart_s)
         self.submit = submit
         self._window_n = max(MIN_RUN_SAMPLES, int(round(self.window_s / self.sample_period_s)))
         self._first_initial = dict(initial) if initial else None
@@ -271,6 +329,9 @@ class WindowEstimator:
         self._future: Optional[Future] = None
         self._last: Optional[RefitOutcome] = None
         self._last_cpu_s = 0.0
+        self._job_updates = 0
+        self._held: deque = deque(maxlen=REFERENCE_FITS)
+        self.n_restarts = 0
         self.status = ''
 
     @property
@@ -320,9 +381,13 @@ class WindowEstimator:
     def _append(self, part: np.ndarray) -> None:
         self._chunks.append((self._run, part.copy()))
         self._buffered += part.shape[1]
-        while self._buffered > self._window_n:
+        self._trim(self._window_n)
+
+    def _trim(self, keep: int) -> None:
+        """Keep the newest ``keep`` samples of the buffer."""
+        while self._buffered > keep:
             run, oldest = self._chunks[0]
-            excess = self._buffered - self._window_n
+            excess = self._buffered - keep
             if oldest.shape[1] <= excess:
                 self._chunks.popleft()
                 self._buffered -= oldest.shape[1]
@@ -343,9 +408,14 @@ class WindowEstimator:
             joined = np.hstack(parts)
             if joined.shape[1] >= MIN_RUN_SAMPLES:
                 arrays.append((joined[0].copy(), joined[1].copy(), joined[2].copy()))
+        reference = None
+        if len(self._held) >= 2:
+            reference = {channel: float(np.median([held[channel] for held in self._held]))
+                         for channel in self._held[-1]}
+        self._job_updates = self.n_updates
         return RefitJob(self.sample_period_s, tuple(arrays),
                         dict(self._initial) if self._initial else None, self.load_torque,
-                        self.time_s)
+                        self.time_s, reference, min(self.restart_s, 0.5 * self.window_s))
 
     def _maybe_refit(self) -> None:
         self.poll()
@@ -420,6 +490,13 @@ class WindowEstimator:
             return
         self._last = outcome
         self.status = ''
+        if outcome.restarted_samples:
+            # forget what came before the recent data the restart fitted
+            self._trim(outcome.restarted_samples + self.n_updates - self._job_updates)
+            self.n_restarts += 1
+            self._held.clear()
+        if not outcome.mismatch > MISMATCH:
+            self._held.append(dict(outcome.noise_std))
         base = {name: outcome.parameters[name] for name in PARAMETER_NAMES}
         self._initial = base if is_admissible(base) else self._first_initial
 
