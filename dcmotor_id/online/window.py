@@ -45,6 +45,7 @@ from multiprocessing import get_context
 import os
 import time
 from typing import Callable, Mapping, Optional, Sequence
+import warnings
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -183,41 +184,50 @@ def refit_window(job: RefitJob) -> RefitOutcome:
     started = time.process_time()
     window_s = sum(len(run[0]) for run in job.runs) * job.sample_period_s
     try:
-        records = _records(job)
-        estimate, terms = _fit(records, job.initial, job.load_torque)
-        restarted = 0
-        mismatch = _mismatch(estimate.info['noise_std'], job.reference_rms)
-        tail = int(round(job.restart_s / job.sample_period_s))
-        if tail > 0 and mismatch > MISMATCH and len(records[-1]) >= 2 * tail:
-            recent = [records[-1].slice(len(records[-1]) - tail, len(records[-1]))]
-            base = {name: float(estimate.parameters[name]) for name in PARAMETER_NAMES}
-            try:
-                candidate, candidate_terms = _fit(recent, base, job.load_torque)
-            except Exception:  # noqa: BLE001  (no restart then)
-                candidate = None
-            if candidate is not None and _mismatch(candidate.info['noise_std'],
-                                                   job.reference_rms) <= HOLDS:
-                estimate, terms, records, restarted = candidate, candidate_terms, recent, tail
-                window_s = tail * job.sample_period_s
-        parameters = {name: float(estimate.parameters[name]) for name in NAMES}
-        stderr = {name: max(float(estimate.stderr[name]), STDERR_FLOOR_REL * abs(value))
-                  for name, value in parameters.items()}
-        effects = {LOAD_TORQUE: math.nan, LOAD_TORQUE + '_stderr': math.nan}
-        if terms:
-            load = float(estimate.parameters[_LOAD_TERM])
-            effects = {LOAD_TORQUE: load,
-                       LOAD_TORQUE + '_stderr': max(float(estimate.stderr[_LOAD_TERM]),
-                                                    STDERR_FLOOR_REL * abs(load))}
-        current = np.concatenate([rec.current for rec in records])
-        torque_rms = float(parameters['CPhi'] * np.sqrt(np.mean(current ** 2)))
-        return RefitOutcome(job.time_s, window_s, parameters, stderr, effects,
-                            dict(estimate.info['noise_std']),
-                            time.process_time() - started, torque_rms_Nm=torque_rms,
-                            restarted_samples=restarted, mismatch=mismatch)
+        with warnings.catch_warnings(), np.errstate(all='ignore'):
+            # data that are no motor make the start-point search divide by zero: reported
+            # as a failed fit, not as warnings in the node's log
+            warnings.simplefilter('ignore', RuntimeWarning)
+            return _refit(job, started, window_s)
     except Exception as error:  # noqa: BLE001  (a failed update must never stop the caller)
         text = str(error) or type(error).__name__
         return RefitOutcome(job.time_s, window_s, cpu_s=time.process_time() - started,
                             error=f'online fit failed: {text}')
+
+
+def _refit(job: RefitJob, started: float, window_s: float) -> RefitOutcome:
+    """Do the work of :func:`refit_window`."""
+    records = _records(job)
+    estimate, terms = _fit(records, job.initial, job.load_torque)
+    restarted = 0
+    mismatch = _mismatch(estimate.info['noise_std'], job.reference_rms)
+    tail = int(round(job.restart_s / job.sample_period_s))
+    if tail > 0 and mismatch > MISMATCH and len(records[-1]) >= 2 * tail:
+        recent = [records[-1].slice(len(records[-1]) - tail, len(records[-1]))]
+        base = {name: float(estimate.parameters[name]) for name in PARAMETER_NAMES}
+        try:
+            candidate, candidate_terms = _fit(recent, base, job.load_torque)
+        except Exception:  # noqa: BLE001  (no restart then)
+            candidate = None
+        if candidate is not None and _mismatch(candidate.info['noise_std'],
+                                               job.reference_rms) <= HOLDS:
+            estimate, terms, records, restarted = candidate, candidate_terms, recent, tail
+            window_s = tail * job.sample_period_s
+    parameters = {name: float(estimate.parameters[name]) for name in NAMES}
+    stderr = {name: max(float(estimate.stderr[name]), STDERR_FLOOR_REL * abs(value))
+              for name, value in parameters.items()}
+    effects = {LOAD_TORQUE: math.nan, LOAD_TORQUE + '_stderr': math.nan}
+    if terms:
+        load = float(estimate.parameters[_LOAD_TERM])
+        effects = {LOAD_TORQUE: load,
+                   LOAD_TORQUE + '_stderr': max(float(estimate.stderr[_LOAD_TERM]),
+                                                STDERR_FLOOR_REL * abs(load))}
+    current = np.concatenate([rec.current for rec in records])
+    torque_rms = float(parameters['CPhi'] * np.sqrt(np.mean(current ** 2)))
+    return RefitOutcome(job.time_s, window_s, parameters, stderr, effects,
+                        dict(estimate.info['noise_std']),
+                        time.process_time() - started, torque_rms_Nm=torque_rms,
+                        restarted_samples=restarted, mismatch=mismatch)
 
 
 class RefitProcess:
