@@ -24,7 +24,9 @@ timer through :class:`~dcmotor_id.nodes.common.BulkInput`), by ``input``:
 Outputs: ``~/parameters`` (``diagnostic_msgs/msg/DiagnosticStatus``, TRANSIENT_LOCAL depth 1:
 keys Ra, La, CPhi, J, b, Mc, Ka, Ta, ``<key>_stderr`` and ``effect.<name>.<parameter>``),
 ``/diagnostics``, the parameters ``identified.<key>``, and ``~/online_parameters`` (the
-recursive estimate with ``converged`` and the innovation RMS) at ``online_rate_hz``.
+online estimate with ``converged``, the innovation RMS and the change alarms, built by
+:mod:`dcmotor_id.monitoring`; the alarms also as the ``condition`` status on ``/diagnostics``)
+at ``online_rate_hz``.
 Service ``~/identify`` (``std_srvs/srv/Trigger``): closes the current window and identifies
 the most recent windows (at least ``window_s`` of data). The callback is a coroutine: a thread
 waits for the bags and runs the fit (the default method, and the paper's for comparison) in a
