@@ -19,6 +19,12 @@ two-sided CUSUM on ``z`` (``S+ = max(0, S+ + c (z - k))``, ``S-`` with ``-z``, d
 alarm.  Consecutive window estimates overlap, so each adds only the fraction ``c`` of new
 data it holds (time since the previous estimate over the window length).
 
+While a window mixes data from before and after a sudden change, its fit is a compromise
+that can move other parameters far (a step of b briefly shows as Coulomb friction); such an
+estimate is not ``settled`` (:attr:`~dcmotor_id.online.OnlineEstimate.settled`) and raises
+no new alarm until the window restarts after the change or the mismatch has lasted half a
+window (a slow drift).
+
 Where physics allows, the alarm says what the change probably is: a copper winding's
 resistance rises by :data:`COPPER_ALPHA_PER_K` per kelvin, so ``Ra +18 %`` reads "winding
 temperature about +46 K"; the other parameters are named for what they are and no more.
@@ -223,16 +229,17 @@ class ChangeDetector:
             (stderrs if key.endswith('_stderr') else quantities)[
                 key[:-len('_stderr')] if key.endswith('_stderr') else key] = number
         alarms = []
+        settled = bool(getattr(estimate, 'settled', True))
         for name in WATCHED:
             alarm = self._step(name, quantities.get(name, math.nan),
-                               stderrs.get(name, math.nan), time_s, weight)
+                               stderrs.get(name, math.nan), time_s, weight, settled)
             if alarm is not None:
                 alarms.append(alarm)
         self.alarms = alarms
         return alarms
 
     def _step(self, name: str, value: float, stderr: float, time_s: float,
-              weight: float) -> Optional[Alarm]:
+              weight: float, settled: bool = True) -> Optional[Alarm]:
         assert self.baseline is not None
         stat = self._stats.setdefault(name, _Cusum())
         base = self.baseline.value(name)
@@ -255,6 +262,8 @@ class ChangeDetector:
         else:
             change = (value - base) / abs(base) if base else math.inf
         size = abs(change) * 100.0
+        if not stat.active and not settled:
+            return None  # a window mixing before and after a change: wait (see module text)
         factor = 0.5 if stat.active else 1.0
         stat.active = abs(z) >= factor * self.threshold and size >= factor * self.warn_pct
         if not stat.active:

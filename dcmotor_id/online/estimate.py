@@ -53,6 +53,10 @@ class OnlineEstimate:
         CPU time of the last fit [s] (window estimator; NaN for the RLS).
     torque_rms_Nm : float
         RMS of the drive torque ``CPhi i`` over the window [N m] (scale of a load torque).
+    settled : bool
+        False while the model has stopped holding over the window for less than half a
+        window (the motor changed inside it; the fit mixes before and after): change alarms
+        wait for a restarted window or for the change to persist.
 
     """
 
@@ -68,6 +72,7 @@ class OnlineEstimate:
     status: str = ''
     fit_cpu_s: float = math.nan
     torque_rms_Nm: float = math.nan
+    settled: bool = True
 
 
 def is_converged(values: Mapping[str, float], stderr: Mapping[str, float],

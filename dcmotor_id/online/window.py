@@ -341,6 +341,7 @@ class WindowEstimator:
         self._last_cpu_s = 0.0
         self._job_updates = 0
         self._held: deque = deque(maxlen=REFERENCE_FITS)
+        self._mismatch_since = math.nan
         self.n_restarts = 0
         self.status = ''
 
@@ -505,8 +506,12 @@ class WindowEstimator:
             self._trim(outcome.restarted_samples + self.n_updates - self._job_updates)
             self.n_restarts += 1
             self._held.clear()
-        if not outcome.mismatch > MISMATCH:
-            self._held.append(dict(outcome.noise_std))
+        if outcome.restarted_samples or not outcome.mismatch > MISMATCH:
+            self._mismatch_since = math.nan
+            if not outcome.restarted_samples:
+                self._held.append(dict(outcome.noise_std))
+        elif not math.isfinite(self._mismatch_since):
+            self._mismatch_since = outcome.time_s
         base = {name: outcome.parameters[name] for name in PARAMETER_NAMES}
         self._initial = base if is_admissible(base) else self._first_initial
 
@@ -526,6 +531,11 @@ class WindowEstimator:
         age_s = self.time_s - last.time_s
         if not status and age_s > 3.0 * self.interval_s + self.window_s:
             status = f'the last fit is {age_s:.1f} s of data old'
+        mismatched = math.isfinite(self._mismatch_since)
+        if not status and mismatched:
+            status = (f'the model does not hold over the window (simulation error '
+                      f'{last.mismatch:.2f} times the noise level): the motor is changing')
+        settled = not mismatched or last.time_s - self._mismatch_since >= 0.5 * self.window_s
         converged = not status and is_converged(last.parameters, last.stderr,
                                                 self.converged_rel_stderr)
         if not converged and not status:
@@ -534,4 +544,5 @@ class WindowEstimator:
                'speed': last.noise_std.get('speed', math.nan)}
         return OnlineEstimate(dict(last.parameters), dict(last.stderr), converged, rms,
                               self.n_updates, self.method, last.time_s, last.window_s,
-                              dict(last.effects), status, last.cpu_s, last.torque_rms_Nm)
+                              dict(last.effects), status, last.cpu_s, last.torque_rms_Nm,
+                              settled)
