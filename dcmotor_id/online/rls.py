@@ -194,7 +194,7 @@ class OnlineEstimator:
 
     @property
     def time_s(self) -> float:
-        """Data time fed so far [s] (gaps not counted)."""
+        """Return the data time fed so far [s] (gaps not counted)."""
         return self.n_samples * self.sample_period_s
 
     def break_continuity(self) -> None:

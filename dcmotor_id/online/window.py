@@ -347,12 +347,12 @@ class WindowEstimator:
 
     @property
     def time_s(self) -> float:
-        """Data time fed so far [s] (gaps not counted)."""
+        """Return the data time fed so far [s] (gaps not counted)."""
         return self.n_updates * self.sample_period_s
 
     @property
     def interval_s(self) -> float:
-        """Data time between refits now [s]: the interval, stretched to the CPU budget."""
+        """Return the data time between refits now [s] (stretched to the CPU budget)."""
         return max(self.refit_interval_s, self._last_cpu_s / self.cpu_budget)
 
     def break_continuity(self) -> None:
