@@ -11,7 +11,7 @@ Key-values carry numbers at full precision (:func:`format_value`), the texts at 
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -175,18 +175,35 @@ def result_key_values(result: Mapping[str, Any]) -> KeyValues:
     return pairs
 
 
-def online_key_values(estimate: Any) -> KeyValues:
+def online_key_values(estimate: Any, alarms: Sequence[tuple[str, str]] = ()) -> KeyValues:
     """
-    Key-values of an online estimate (:meth:`dcmotor_id.online.OnlineEstimator.estimate`).
+    Key-values of an online estimate (:meth:`dcmotor_id.online.WindowEstimator.estimate`).
 
     Parameters and ``<key>_stderr`` as in :func:`result_key_values`, then ``converged``
     (``true``/``false``), ``innovation_rms_current_A``, ``innovation_rms_speed_rad_s`` and
-    ``n_updates``.
+    ``n_updates``; then, for an :class:`~dcmotor_id.online.OnlineEstimate`, ``method``,
+    ``status`` (why not converged), ``time_s`` and ``window_s`` (the data behind the
+    estimate), ``load_torque_Nm`` and ``load_torque_Nm_stderr`` (nan when not estimated) and
+    ``fit_cpu_s``; last the key-values of the change alarms ``alarms``
+    (:func:`dcmotor_id.monitoring.alarm_key_values`).
     """
     pairs = [(key, format_value(estimate.parameters[key])) for key in RESULT_KEYS]
     pairs += [(f'{key}_stderr', format_value(estimate.stderr[key])) for key in RESULT_KEYS]
-    return pairs + [
+    pairs += [
         ('converged', str(estimate.converged).lower()),
-        ('innovation_rms_current_A', format_value(estimate.innovation_rms['current'])),
-        ('innovation_rms_speed_rad_s', format_value(estimate.innovation_rms['speed'])),
+        ('innovation_rms_current_A', format_value(estimate.innovation_rms.get(
+            'current', math.nan))),
+        ('innovation_rms_speed_rad_s', format_value(estimate.innovation_rms.get(
+            'speed', math.nan))),
         ('n_updates', str(estimate.n_updates))]
+    if hasattr(estimate, 'method'):
+        effects = estimate.effects or {}
+        pairs += [
+            ('method', estimate.method), ('status', estimate.status),
+            ('time_s', format_value(estimate.time_s)),
+            ('window_s', format_value(estimate.window_s)),
+            ('load_torque_Nm', format_value(effects.get('load_torque_Nm', math.nan))),
+            ('load_torque_Nm_stderr', format_value(effects.get('load_torque_Nm_stderr',
+                                                               math.nan))),
+            ('fit_cpu_s', format_value(estimate.fit_cpu_s))]
+    return pairs + list(alarms)

@@ -24,7 +24,9 @@ timer through :class:`~dcmotor_id.nodes.common.BulkInput`), by ``input``:
 Outputs: ``~/parameters`` (``diagnostic_msgs/msg/DiagnosticStatus``, TRANSIENT_LOCAL depth 1:
 keys Ra, La, CPhi, J, b, Mc, Ka, Ta, ``<key>_stderr`` and ``effect.<name>.<parameter>``),
 ``/diagnostics``, the parameters ``identified.<key>``, and ``~/online_parameters`` (the
-recursive estimate with ``converged`` and the innovation RMS) at ``online_rate_hz``.
+online estimate with ``converged``, the innovation RMS and the change alarms, built by
+:mod:`dcmotor_id.monitoring`; the alarms also as the ``condition`` status on ``/diagnostics``)
+at ``online_rate_hz``.
 Service ``~/identify`` (``std_srvs/srv/Trigger``): closes the current window and identifies
 the most recent windows (at least ``window_s`` of data). The callback is a coroutine: a thread
 waits for the bags and runs the fit (the default method, and the paper's for comparison) in a
@@ -52,11 +54,11 @@ from std_srvs.srv import Trigger
 
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.formats.batch import decode_batch
+from dcmotor_id.monitoring import LEVELS, monitor_from_settings
 from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters,
                                      run, sample_qos)
 from dcmotor_id.nodes.settings import IdentifierSettings
 from dcmotor_id.nodes.worker import FitProcess, WindowRecorder
-from dcmotor_id.online import OnlineEstimator
 from dcmotor_id.records import MIN_SAMPLES
 from dcmotor_id.streams import SampleInbox, StreamAligner
 from dcmotor_id.summary import (online_key_values, parameter_key_values, result_key_values,
@@ -93,9 +95,9 @@ class Identifier(Node):
         #: malformed batches refused, by reason, and the latest refusal's text
         self.malformed: Counter[str] = Counter()
         self.last_malformed = ''
-        self.estimator = OnlineEstimator(
-            1.0 / rate, settings.online_memory_s,
-            settings.online_converged_rel_stderr) if settings.online else None
+        # online estimate and change alarms (ROS-free: dcmotor_id.monitoring, .online)
+        self.online = monitor_from_settings(settings, rate) if settings.online else None
+        self.estimator = self.online.estimator if self.online is not None else None
         self._stalled: set[str] = set()
         self._identify_busy = threading.Lock()
         self._identify_started = 0.0
@@ -192,12 +194,13 @@ class Identifier(Node):
 
     def _consume(self):
         for run_ in self.cutter.add(*self.aligner.pop_ready()):
-            if self.estimator is None:
+            if self.online is None:
                 continue
             if run_.after_gap:
-                self.estimator.break_continuity()
-            if not self.mechanical:
-                self.estimator.update(run_.values[:, 0], run_.values[:, 1], run_.values[:, 2])
+                self.online.break_continuity()
+            if not self.mechanical and self.online.update(
+                    run_.values[:, 0], run_.values[:, 1], run_.values[:, 2]):
+                self._log('error', self.online.error)
         self._dispatch()
 
     def _close_window(self, keep_short=False):
@@ -322,6 +325,8 @@ class Identifier(Node):
             statuses.append(self._status('paper method', DiagnosticStatus.WARN,
                                          f'paper method failed: {paper}'))
         self._publish_diagnostics(statuses)
+        if self.online is not None:
+            self.online.identified(result)  # the change baseline, if monitor_baseline says so
         values = {key: float(result['parameters'].get(key, float('nan'))) for key in RESULT_KEYS}
         self.results.publish({**values, 'method': result['method'],
                               'bags': list(result['bags']) or ['']})
@@ -338,18 +343,30 @@ class Identifier(Node):
 
     # ------------------------------------------------------------------ online and health
     def online_status(self) -> DiagnosticStatus:
-        """Return the online estimate as a DiagnosticStatus (``converged``, innovation RMS)."""
-        assert self.estimator is not None, 'online is false'
-        estimate = self.estimator.estimate()
-        return self._status(
-            'online estimate',
-            DiagnosticStatus.OK if estimate.converged else DiagnosticStatus.WARN,
-            ('converged' if estimate.converged else 'not converged') +
-            f' after {estimate.n_updates} sample pairs', online_key_values(estimate))
+        """Return the online estimate as a DiagnosticStatus (``converged``, alarms)."""
+        return self._online_statuses()[0]
+
+    def _online_statuses(self):
+        """Return the ``~/online_parameters`` status and the condition (alarm) status."""
+        assert self.online is not None, 'online is false'
+        estimate, alarms = self.online.snapshot()
+        level, message, pairs = self.online.condition(alarms, time.time())
+        severity = bytes([LEVELS.index(level)])
+        text = ('converged' if estimate.converged else 'not converged') + \
+            f' after {estimate.n_updates} samples' + \
+            (f' ({estimate.status})' if estimate.status else '') + \
+            (f'; {message}' if alarms else '')
+        online = self._status('online estimate', max(
+            DiagnosticStatus.OK if estimate.converged else DiagnosticStatus.WARN, severity),
+            text, online_key_values(estimate, pairs))
+        return online, self._status('condition', severity, message, pairs)
 
     @guarded
     def _publish_online(self):
-        self.online_pub.publish(self.online_status())
+        online, condition = self._online_statuses()
+        self.online_pub.publish(online)
+        if self.online is not None and self.online.detector is not None:
+            self._publish_diagnostics([condition])
 
     @guarded
     def _health(self):
@@ -406,6 +423,8 @@ class Identifier(Node):
             self._consume()
             self._close_window()
         finally:
+            if self.online is not None:
+                self.online.close()
             if self.recorder is not None:
                 self.recorder.close()
             self.input_node.destroy()

@@ -65,6 +65,33 @@ class IdentifierSettings:
     online_converged_rel_stderr: float = parameter(0.05, 'relative standard error below '
                                                    'which the online estimate counts as '
                                                    'converged', 0.0)
+    # --- online estimator (window or rls) and condition monitoring (issue 12)
+    online_method: str = parameter('window', 'window: exact output-error refits of a sliding '
+                                   'window (noise-consistent); rls: the old recursive least '
+                                   'squares (biased by noise)', choices=('window', 'rls'))
+    online_window_s: float = parameter(20.0, 'window of the online refits [s]', 0.1)
+    online_refit_interval_s: float = parameter(2.0, 'data time between online refits [s]', 0.01)
+    online_cpu_budget: float = parameter(0.08, 'largest fraction of one core the online refits '
+                                         'may take (the interval stretches)', 1e-3, 1.0)
+    online_load_torque: bool = parameter(True, 'also estimate a constant load torque when the '
+                                         'speed takes both signs')
+    online_in_subprocess: bool = parameter(True, 'run the online refits in a process of their '
+                                           'own')
+    monitor: bool = parameter(True, 'detect parameter changes; alarms on /diagnostics')
+    monitor_baseline: str = parameter('auto', 'auto (nominal_* if given, else the last '
+                                      '~/identify, else the first converged online estimate), '
+                                      'nominal, identify or online',
+                                      choices=('auto', 'nominal', 'identify', 'online'))
+    monitor_warn_pct: float = parameter(5.0, 'smallest change reported as WARN [%]', 0.0)
+    monitor_error_pct: float = parameter(15.0, 'smallest change reported as ERROR [%]', 0.0)
+    monitor_threshold_sigma: float = parameter(5.0, 'a change must exceed this many standard '
+                                               'deviations', 0.0)
+    nominal_Ra: float = parameter(0.0, 'nominal Ra for the change baseline [Ohm]; 0 = none', 0.0)
+    nominal_La: float = parameter(0.0, 'nominal La [H]; 0 = none', 0.0)
+    nominal_CPhi: float = parameter(0.0, 'nominal CPhi [V s]; 0 = none', 0.0)
+    nominal_J: float = parameter(0.0, 'nominal J [kg m^2]; 0 = none', 0.0)
+    nominal_b: float = parameter(0.0, 'nominal b [N m s/rad]', 0.0)
+    nominal_Mc: float = parameter(0.0, 'nominal Mc [N m]', 0.0)
     stream_timeout_s: float = parameter(1.0, 'a topic silent this long counts as stopped [s]',
                                         0.01)
     process_rate_hz: float = parameter(50.0, 'rate at which received samples are aligned '

@@ -11,6 +11,9 @@ the node's excitation generator, or from the ``voltage_command`` topic when
 ``use_voltage_command`` is true (the last command is held). Defaults: the paper's motor 2.
 The ``effects`` parameter switches on effects of the vocabulary of :mod:`dcmotor_id.effects`
 (e.g. ``load_torque:torque_Nm=0.3;current_offset:offset_A=0.05``), simulated sample by sample.
+The ``schedule`` parameter changes the motor while it runs (:mod:`dcmotor_id.online.schedule`,
+e.g. ``Ra:+25%:ramp:10:70;b:+50%:step:30;load_torque:+0.5:step:90``; parameters held over
+each timer tick), to show online tracking and change alarms.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from dcmotor_id.excitation import EXCITATION_KINDS, make_excitation
 from dcmotor_id.formats.batch import batch_message as build_batch, BatchTypes
 from dcmotor_id.model import MotorParameters, PAPER_MOTORS, UNITS
 from dcmotor_id.nodes.common import declare, run, sample_qos
+from dcmotor_id.online.schedule import parse_schedule
 from dcmotor_id.simulation import motor_forcing, motor_system, MotorStepper
 
 TRANSPORTS = ('float64', 'batch')
@@ -79,6 +83,8 @@ class SimMotor(Node):
                                      low=0)
         effects_text = declare(self, 'effects', '',
                                "effects to simulate: 'NAME:param=value,...' joined by ';'")
+        schedule = declare(self, 'schedule', '', 'parameter changes over time: '
+                           '"NAME:CHANGE:step:AT" or "NAME:CHANGE:ramp:FROM:TO" joined by ";"')
         depth = declare(self, 'qos_depth', 5000, 'history depth of the sample topics',
                         low=1)
         reliability = declare(self, 'qos_reliability', 'reliable',
@@ -93,6 +99,7 @@ class SimMotor(Node):
         self._system = motor_system(self.params)
         self._state = np.zeros(2)
         self.effects = parse_effects(effects_text)
+        self.schedule, self._base, self._load = parse_schedule(schedule), self.params, 0.0
         self._stepper = None
         if self.effects:
             self._stepper = MotorStepper(self.params, self.sample_period_s, effects=self.effects)
@@ -157,8 +164,11 @@ class SimMotor(Node):
             voltage = np.full(count, self._command)
         else:
             voltage = self._pattern[index % self._pattern.size]
+        if self.schedule:
+            self._follow_schedule(self.published * self.sample_period_s)
         if self._stepper is None:
-            forcing = motor_forcing(self.params, voltage)
+            load = np.full(count, -self._load)
+            forcing = motor_forcing(self.params, voltage, extra_torque=load)
             states = self._system.simulate(forcing, self._state, self.sample_period_s)
             self._state = states[-1].copy()
             measured = states[:-1]
@@ -167,7 +177,7 @@ class SimMotor(Node):
             measured = np.empty((count, 2))
             for k, u in enumerate(voltage.tolist()):
                 measured[k] = self._measured
-                self._measured = self._stepper.step(u)
+                self._measured = self._stepper.step(u, extra_torque=-self._load)
         current = measured[:, 0] + self._rng.normal(0.0, self.noise_current, count) \
             if self.noise_current > 0 else measured[:, 0].copy()
         speed = measured[:, 1] + self._rng.normal(0.0, self.noise_speed, count) \
@@ -186,6 +196,20 @@ class SimMotor(Node):
                     index[part] * self.sample_period_s, voltage[part], current[part],
                     speed[part]))
         self.published += count
+
+    def _follow_schedule(self, time_s: float) -> None:
+        """Set the motor and the load torque (opposing positive rotation) of ``time_s``."""
+        params, self._load = self.schedule.at(self._base, time_s)
+        if params == self.params:
+            return
+        self.params = params
+        self._system = motor_system(params)
+        if self._stepper is not None:
+            old = self._stepper
+            self._stepper = MotorStepper(params, self.sample_period_s, old.state, self.effects)
+            for name in ('angle_rad', 'time_s', '_current_queue', '_speed_queue'):
+                if hasattr(old, name):
+                    setattr(self._stepper, name, getattr(old, name))
 
 
 def parse_effects(text: str) -> list:

@@ -1,5 +1,8 @@
 """
-Recursive (online) identification on the exactly discretised neurons (no ROS here).
+The old online estimator: recursive least squares on the exactly discretised neurons.
+
+Kept for comparison (``online_method: rls``, bench/bench_online.py) and because it costs about
+a microsecond a sample; :mod:`dcmotor_id.online.window` is the default, noise-consistent one.
 
 Between speed reversals the motor is linear with the voltage held over each sample, so the
 exact zero-order-hold discretisation is, with ``s_k = sgn(w_k)``::
@@ -33,7 +36,6 @@ motor.
 from __future__ import annotations
 
 import cmath
-from dataclasses import dataclass, field
 import math
 
 from numba import njit
@@ -41,10 +43,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from dcmotor_id.estimators.jacobian import jacobian
-from dcmotor_id.model import DERIVED_NAMES, derived_values, is_admissible, PARAMETER_NAMES
+from dcmotor_id.model import derived_values
+from dcmotor_id.online.estimate import is_converged, NAMES, OnlineEstimate
 
-#: Names reported, in order.
-NAMES = PARAMETER_NAMES + DERIVED_NAMES
+__all__ = ['log2x2', 'OnlineEstimator', 'physical_from_discrete', 'RlsEstimator']
 _N_REGRESSORS = 4
 
 
@@ -149,34 +151,6 @@ def physical_from_discrete(theta: ArrayLike, sample_period_s: float) -> dict[str
     return {name: float(value) for name, value in values.items()}
 
 
-@dataclass(frozen=True)
-class OnlineEstimate:
-    """
-    A snapshot of the recursive estimate.
-
-    Attributes
-    ----------
-    parameters : dict
-        Ra, La, CPhi, J, b, Mc, Ka, Ta in SI units (NaN before the data excite the motor).
-    stderr : dict
-        Their standard errors (NaN where unknown).
-    converged : bool
-        Every parameter physical, each relative standard error below the threshold.
-    innovation_rms : dict
-        ``current`` [A] and ``speed`` [rad/s]: RMS of the one-step prediction error over the
-        forgetting horizon.
-    n_updates : int
-        Sample pairs used so far.
-
-    """
-
-    parameters: dict
-    stderr: dict
-    converged: bool
-    innovation_rms: dict = field(default_factory=dict)
-    n_updates: int = 0
-
-
 class OnlineEstimator:
     """
     Recursive least squares on the exactly discretised neurons.
@@ -216,6 +190,12 @@ class OnlineEstimator:
         self._scale: np.ndarray | None = None
         self._last: tuple[float, float, float] | None = None
         self.n_updates = 0
+        self.n_samples = 0
+
+    @property
+    def time_s(self) -> float:
+        """Return the data time fed so far [s] (gaps not counted)."""
+        return self.n_samples * self.sample_period_s
 
     def break_continuity(self) -> None:
         """Declare a gap: the next sample is not the successor of the last one."""
@@ -230,6 +210,7 @@ class OnlineEstimator:
             raise ValueError('voltage, current and speed must have the same length')
         if voltage.size == 0:
             return 0
+        self.n_samples += voltage.size
         if self._last is not None:
             voltage = np.concatenate([[self._last[0]], voltage])
             current = np.concatenate([[self._last[1]], current])
@@ -261,7 +242,8 @@ class OnlineEstimator:
                'speed': float(np.sqrt(self._err_sq[1]))}
         nan = {name: float('nan') for name in NAMES}
         if self._scale is None or self.n_updates < 2 * _N_REGRESSORS:
-            return OnlineEstimate(nan, dict(nan), False, rms, self.n_updates)
+            return OnlineEstimate(nan, dict(nan), False, rms, self.n_updates, method='rls',
+                                  time_s=self.n_samples * self.sample_period_s)
         theta = self._theta.copy()
         values = physical_from_discrete(self._weights(theta), self.sample_period_s)
         stderr = dict(nan)
@@ -286,17 +268,11 @@ class OnlineEstimator:
             with np.errstate(invalid='ignore'):
                 spread = np.sqrt(np.maximum(np.diag(jac @ covariance @ jac.T), 0.0))
             stderr = {name: float(value) for name, value in zip(NAMES, spread)}
-        converged = _is_converged(values, stderr, self.converged_rel_stderr)
-        return OnlineEstimate(values, stderr, converged, rms, self.n_updates)
+        converged = is_converged(values, stderr, self.converged_rel_stderr)
+        return OnlineEstimate(values, stderr, converged, rms, self.n_updates, method='rls',
+                              time_s=self.n_samples * self.sample_period_s,
+                              window_s=self.memory_s)
 
 
-def _is_converged(values: dict[str, float], stderr: dict[str, float],
-                  threshold: float) -> bool:
-    """Admissible parameters (:func:`dcmotor_id.model.is_admissible`), each well determined."""
-    if not is_admissible(values):
-        return False
-    for name in PARAMETER_NAMES:
-        error = stderr[name]
-        if not np.isfinite(error) or error > threshold * abs(values[name]):
-            return False
-    return True
+#: The recursive least squares under its own name (``OnlineEstimator`` is the historic one).
+RlsEstimator = OnlineEstimator
