@@ -26,11 +26,11 @@ from __future__ import annotations
 from typing import Any, cast, Mapping, Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from dcmotor_id.errors import FitError
 from dcmotor_id.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.estimators.jacobian import jacobian
+from dcmotor_id.estimators.normal_equations import block_size, NormalEquations
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.model import (derived_stderr, derived_values, make_admissible, MotorParameters,
                               parameter_names, POSITIVE_NAMES, state_matrix)
@@ -203,6 +203,19 @@ def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004
     return candidates
 
 
+class _Pass:
+    """One evaluation of the fit at a point ``z``: cost and (optionally) normal equations."""
+
+    def __init__(self, cost, hessian=None, gradient=None, sums=None, blocks=None,
+                 block_record=None):
+        self.cost = cost
+        self.hessian = hessian
+        self.gradient = gradient
+        self.sums = sums
+        self.blocks = blocks
+        self.block_record = block_record
+
+
 class RefinedEstimator:
     """
     Exact output-error estimator with noise-weighted channels and standard errors.
@@ -210,11 +223,14 @@ class RefinedEstimator:
     Parameters
     ----------
     max_nfev : int
-        Bound on Jacobian evaluations per least-squares pass.
+        Bound on the evaluations (simulations with sensitivities) per least-squares pass.
     reweight_passes : int
         Passes re-estimating each channel's noise level (2 gives the ML weighting).
     initial : dict, optional
         A start point for the base parameters; skips the automatic initialisation.
+    initial_states : sequence, optional
+        Start of every record's initial state (a warm start, e.g. from an earlier fit of the
+        same records); default: the first measured samples.
 
     """
 
@@ -223,10 +239,12 @@ class RefinedEstimator:
     supports_terms = True
 
     def __init__(self, max_nfev: int = 100, reweight_passes: int = 2,
-                 initial: Mapping[str, float] | None = None) -> None:
+                 initial: Mapping[str, float] | None = None,
+                 initial_states: Sequence[Sequence[float]] | None = None) -> None:
         self.max_nfev = max_nfev
         self.reweight_passes = reweight_passes
         self.initial = initial
+        self.initial_states = initial_states
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
@@ -243,12 +261,15 @@ class RefinedEstimator:
                  for name in model.base_names]
         magnitudes = [1.0] * n_base + [term.scale for term in model.terms]
         start += [term.initial / term.scale for term in model.terms]
-        for rec in records:
-            for channel in model.outputs:
+        warm = self.initial_states if self.initial_states is not None and len(
+            self.initial_states) == len(records) else None
+        for index, rec in enumerate(records):
+            for position, channel in enumerate(model.outputs):
                 values = getattr(rec, channel)
                 scale = max(float(np.std(values)), 1e-9)
                 magnitudes.append(scale)
-                start.append(float(values[0]) / scale)
+                first = float(values[0]) if warm is None else float(warm[index][position])
+                start.append(first / scale)
         scales = np.array(magnitudes)
         z0 = np.array(start)
         # Noise level per record and channel (records may come from different sensors or
@@ -258,6 +279,8 @@ class RefinedEstimator:
             [getattr(rec, channel) for rec in records]))), 1e-12) for channel in model.outputs}
         noise = [{channel: 0.01 * pooled[channel] for channel in model.outputs}
                  for _ in records]
+        analytic = NormalEquations.supports(model)
+        equations = NormalEquations(model) if analytic else None
 
         def unpack(z):
             theta = z * scales
@@ -266,7 +289,12 @@ class RefinedEstimator:
             states = theta[len(names):].reshape(len(records), n_state)
             return values, states, theta
 
-        def residual(z):
+        def chain_of(theta):
+            chain = scales.copy()
+            chain[:n_base] = theta[:n_base]
+            return chain
+
+        def residual(z, noise):
             values, states, _ = unpack(z)
             parts = []
             for index in range(len(records)):
@@ -276,46 +304,55 @@ class RefinedEstimator:
                                  / noise[index][channel])
             return np.concatenate(parts)
 
+        def evaluate(z, noise, with_sens):
+            values, states, theta = unpack(z)
+            if not np.all(np.isfinite(theta)):
+                return _Pass(np.inf)
+            try:
+                with np.errstate(all='ignore'):
+                    if analytic:
+                        return _analytic_pass(equations, values, states, noise, chain_of(theta),
+                                              with_sens, model.outputs)
+                    return _numeric_pass(lambda point: residual(point, noise), z, model,
+                                         noise, with_sens)
+            except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
+                # A parameter ran to zero or infinity on the way (the simulation kernels raise
+                # on a division by zero): the data do not fit this model.
+                raise FitError(f'the output-error fit diverged ({error}): ' + _MISFIT) from None
+
         # Tolerances of 1e-8 leave the parameters within 1e-3 of a standard error of the
         # converged optimum (noise-free: round-off); tighter ones only add iterations spent in
         # the weakly determined initial-state directions of a record that starts at rest.
         z = z0
         total_nfev = 0
+        converged = True
+        current = None
         for _ in range(max(1, self.reweight_passes)):
-            try:
-                with np.errstate(all='ignore'):
-                    result = least_squares(residual, z, method='lm', xtol=1e-8, ftol=1e-8,
-                                           gtol=1e-8, max_nfev=self.max_nfev * (z.shape[0] + 1))
-            except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
-                # A parameter ran to zero or infinity on the way (the simulation kernels raise
-                # on a division by zero): the data do not fit this model.
-                raise FitError(f'the output-error fit diverged ({error}): ' + _MISFIT) from None
-            total_nfev += result.nfev
-            if not np.all(np.isfinite(result.x)):
+            z, current, nfev, converged = _levenberg_marquardt(
+                lambda point, with_sens: evaluate(point, noise, with_sens), z, self.max_nfev)
+            total_nfev += nfev
+            if not np.all(np.isfinite(z)):
                 raise FitError('the output-error fit diverged (non-finite parameters): ' + _MISFIT)
-            z = result.x
-            values, states, _ = unpack(z)
-            noise = []
-            for index in range(len(records)):
-                out = model.simulate(values, index, states[index])
-                noise.append({channel: max(float(np.sqrt(np.mean(
-                    (out[channel] - model.measured(index, channel)) ** 2))),
-                    1e-13 * pooled[channel]) for channel in model.outputs})
-        if result.status <= 0:
-            raise FitError(f'the output-error fit did not converge ({result.message})')
+            noise = [{channel: max(float(np.sqrt(current.sums[index][position] / len(rec))),
+                                   1e-13 * pooled[channel])
+                      for position, channel in enumerate(model.outputs)}
+                     for index, rec in enumerate(records)]
+        if not converged:
+            raise FitError('the output-error fit did not converge (the number of function '
+                           'evaluations is exceeded)')
         values, states, theta = unpack(z)
         degenerate = [name for name in model.base_names if not np.isfinite(values[name])
                       or (name in POSITIVE_NAMES and not 1e-200 < values[name] < 1e200)]
         if degenerate:
             raise FitError(f'the output-error fit diverged ({", ".join(degenerate)} went to zero '
                            'or infinity): ' + _MISFIT)
-        final = residual(z)
-        jac = jacobian(residual, z, 1e-6 * np.maximum(np.abs(z), 1e-3))
-        dof = max(final.shape[0] - z.shape[0], 1)
-        s2 = float(final @ final) / dof
-        cov_z = s2 * np.linalg.pinv(jac.T @ jac)
-        chain = scales.copy()
-        chain[:n_base] = theta[:n_base]
+        final = evaluate(z, noise, True)
+        total_nfev += 1
+        n_residuals = sum(len(rec) for rec in records) * n_state
+        dof = max(n_residuals - z.shape[0], 1)
+        s2 = float(final.cost) / dof
+        cov_z = s2 * np.linalg.pinv(final.hessian)
+        chain = chain_of(theta)
         covariance = cov_z * np.outer(chain, chain)
         stderr_all = np.sqrt(np.maximum(np.diag(covariance), 0.0))
         parameters = {name: float(values[name]) for name in names}
@@ -334,6 +371,14 @@ class RefinedEstimator:
             'residual_rms_weighted': float(np.sqrt(s2)),
             'covariance': covariance[:len(names), :len(names)].tolist(),
             'names': names,
+            'sensitivities': 'analytic' if analytic else 'finite differences',
+            # The fit's normal equations in its internal coordinates z (theta = chain * dz
+            # locally) at the optimum, with the final noise weights: J^T J, the score sums
+            # J^T r over blocks of samples and the record of each block (robust covariance).
+            'normal_matrix': final.hessian,
+            'block_scores': final.blocks,
+            'block_record': final.block_record,
+            'chain': chain,
         }
         return Estimate(self.name, parameters, stderr,
                         [tuple(float(v) for v in row) for row in states], info)
@@ -372,3 +417,125 @@ class RefinedEstimator:
             raise FitError('no admissible start point for the output-error fit: the data do '
                            'not look like a DC motor (check signs and units of the columns)')
         return best
+
+
+def _analytic_pass(equations, values, states, noise, chain, with_sens, outputs):
+    """Accumulate the normal equations of every record with the analytic sensitivities."""
+    size = equations.n_shared + equations.n_state * len(states)
+    hessian = np.zeros((size, size)) if with_sens else None
+    gradient = np.zeros(size) if with_sens else None
+    cost = 0.0
+    sums, blocks, block_record = [], [], []
+    for index, state in enumerate(states):
+        inverse = [1.0 / noise[index][channel] for channel in outputs]
+        result = equations.record(values, index, state, inverse, with_sens)
+        cost += result.cost
+        sums.append(result.sums)
+        if with_sens:
+            columns = equations.columns(index)
+            hessian[np.ix_(columns, columns)] += result.hessian
+            gradient[columns] += result.gradient
+            full = np.zeros((result.blocks.shape[0], size))
+            full[:, columns] = result.blocks
+            blocks.append(full)
+            block_record.append(np.full(result.blocks.shape[0], index))
+    if not with_sens:
+        return _Pass(cost, sums=sums)
+    return _Pass(cost, hessian * np.outer(chain, chain), gradient * chain, sums,
+                 np.vstack(blocks) * chain, np.concatenate(block_record))
+
+
+def _numeric_pass(residual, z, model, noise, with_sens):
+    """
+    The same sums from forward differences of the simulation (models the kernel lacks).
+
+    Effects simulated on sub-steps (held over half-samples) and other model variants: the
+    residual and its Jacobian are materialised, as a least-squares solver would.
+    """
+    r = residual(z)
+    cost = float(r @ r)
+    if not np.isfinite(cost):
+        return _Pass(np.inf)
+    jac = None
+    if with_sens:
+        steps = np.sqrt(np.finfo(float).eps) * np.maximum(np.abs(z), 1.0)
+        jac = jacobian(residual, z, steps, central=False, f0=r)
+    sums, blocks, block_record = [], [], []
+    position = 0
+    for index, rec in enumerate(model.records):
+        length = len(rec)
+        starts = np.arange(0, length, block_size(length))
+        per_channel = np.zeros(len(model.outputs))
+        record_blocks = 0.0
+        for channel, name in enumerate(model.outputs):
+            part = slice(position, position + length)
+            per_channel[channel] = float(r[part] @ r[part]) * noise[index][name] ** 2
+            if jac is not None:
+                record_blocks = record_blocks + np.add.reduceat(
+                    jac[part] * r[part, None], starts, axis=0)
+            position += length
+        sums.append(per_channel)
+        if jac is not None:
+            blocks.append(record_blocks)
+            block_record.append(np.full(len(starts), index))
+    if jac is None:
+        return _Pass(cost, sums=sums)
+    return _Pass(cost, jac.T @ jac, jac.T @ r, sums, np.vstack(blocks),
+                 np.concatenate(block_record))
+
+
+def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8):
+    """
+    Levenberg-Marquardt on the accumulated normal equations; return ``(z, pass, nfev, ok)``.
+
+    MINPACK's ``lmder`` criteria on the normal equations alone (it never sees the ``2N x p``
+    Jacobian): the step ``(H + mu D) dz = -g`` with ``D`` the largest diagonal of ``H`` seen
+    (scale invariance), the damping adapted by the gain ratio (Nielsen's rule), convergence
+    when the relative cost reduction, actual and predicted, is below ``ftol``, the scaled step
+    below ``xtol`` of the scaled point, or the largest cosine between the residual and a
+    column of the Jacobian below ``gtol``.  ``ok`` is False when the evaluations ran out.
+    """
+    current = evaluate(z, True)
+    nfev = 1
+    if not np.isfinite(current.cost):
+        raise FitError('the output-error fit diverged (non-finite residuals at the start): '
+                       + _MISFIT)
+    scale = np.maximum(np.diag(current.hessian), 0.0)
+    mu = 1e-3
+    growth = 2.0
+    while nfev < max(int(max_evaluations), 2):
+        hessian, gradient, cost = current.hessian, current.gradient, current.cost
+        diagonal = np.diag(hessian)
+        scale = np.maximum(scale, diagonal)
+        damping = np.where(scale > 0.0, scale, 1.0)
+        column_norms = np.sqrt(np.maximum(diagonal, 0.0))
+        if cost <= 0.0:
+            return z, current, nfev, True
+        cosines = np.abs(gradient) / np.where(column_norms > 0.0, column_norms, np.inf)
+        if float(np.max(cosines, initial=0.0)) / np.sqrt(cost) <= gtol:
+            return z, current, nfev, True
+        try:
+            step = np.linalg.solve(hessian + mu * np.diag(damping), -gradient)
+        except np.linalg.LinAlgError:
+            step = np.linalg.lstsq(hessian + mu * np.diag(damping), -gradient, rcond=None)[0]
+        step_norm = float(np.sqrt(np.sum(damping * step ** 2)))
+        point_norm = float(np.sqrt(np.sum(damping * z ** 2)))
+        predicted = -(2.0 * gradient @ step + step @ hessian @ step)
+        trial = evaluate(z + step, True)
+        nfev += 1
+        actual = cost - trial.cost if np.isfinite(trial.cost) else -np.inf
+        ratio = actual / predicted if predicted > 0.0 else -1.0
+        if ratio > 1e-4:
+            z = z + step
+            current = trial
+            mu *= max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3)
+            growth = 2.0
+            if (abs(actual) <= ftol * cost and predicted <= ftol * cost) \
+                    or step_norm <= xtol * point_norm:
+                return z, current, nfev, True
+        else:
+            mu *= growth
+            growth *= 2.0
+            if step_norm <= xtol * point_norm or mu > 1e16:
+                return z, current, nfev, True
+    return z, current, nfev, False
