@@ -16,7 +16,7 @@ DT = 1e-3
 
 
 def record_of(kind, duration_s, amplitude_v=None, frequency_hz=None, x0=(0.0, 0.0)):
-    """A noise-free record of motor 2 (the data only matter through the input here)."""
+    """Simulate a noise-free record of motor 2 (the data only matter through the input here)."""
     t, voltage = make_excitation(kind, duration_s, DT, amplitude_v=amplitude_v,
                                  frequency_hz=frequency_hz)
     current, speed = simulate_motor(MOTOR, voltage, DT, x0)

@@ -67,7 +67,7 @@ class RecordSums:
 
 
 def block_size(n_samples: int) -> int:
-    """Samples per block of the score sums: at least :data:`MIN_BLOCKS` blocks a record."""
+    """Return the samples per block of the score sums (at least :data:`MIN_BLOCKS` a record)."""
     return max(1, int(n_samples) // MIN_BLOCKS)
 
 
@@ -209,6 +209,6 @@ class NormalEquations:
                           trajectory if store else None)
 
     def columns(self, index: int) -> list[int]:
-        """Global columns (shared parameters, then every record's state) of record ``index``."""
+        """Return the global columns of record ``index``: the shared ones, then its state's."""
         start = self.n_shared + index * self.n_state
         return list(range(self.n_shared)) + list(range(start, start + self.n_state))

@@ -47,6 +47,10 @@ _MISFIT = ('the motor model does not reproduce the data. Check that the columns 
 _CHANNELS = ('voltage', 'torque', 'current', 'speed', 'state')
 #: Sub-steps per sample when state-dependent effects are simulated.
 STATE_OVERSAMPLE = 2
+#: Samples the start-point search looks at, at most (windows spread over longer records).
+START_SAMPLES = 250_000
+#: Windows per record of the start-point search on long records.
+START_WINDOWS = 5
 
 
 class OutputErrorModel:
@@ -153,6 +157,20 @@ class OutputErrorModel:
     def measured(self, index: int, channel: str) -> np.ndarray:
         """Measured output ``channel`` of record ``index``."""
         return getattr(self.records[index], channel)
+
+
+def _windows(records, total):
+    """Cut :data:`START_WINDOWS` evenly spread windows of ``total`` samples in all."""
+    per_record = max(total // len(records), 1)
+    windows = []
+    for rec in records:
+        if len(rec) <= per_record:
+            windows.append(rec)
+            continue
+        width = max(per_record // START_WINDOWS, 1)
+        starts = np.linspace(0, len(rec) - width, START_WINDOWS).astype(int)
+        windows.extend(rec.slice(int(start), int(start) + width) for start in starts)
+    return windows
 
 
 def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004)):
@@ -388,6 +406,11 @@ class RefinedEstimator:
         if self.initial is not None:
             return {name: float(self.initial[name]) for name in model.base_names}
         records, constant = model.records, model.torque_constant
+        if not model.terms and sum(len(rec) for rec in records) > START_SAMPLES:
+            # A start point needs seconds of data, not hours: windows spread over each record
+            # keep the search's time and memory bounded (the fit itself uses every sample).
+            records = _windows(records, START_SAMPLES)
+            model = OutputErrorModel(records, constant)
         candidates = _svf_candidates(records, constant)
         try:
             paper = PaperEstimator().fit(records, torque_constant=constant).parameters
@@ -447,7 +470,7 @@ def _analytic_pass(equations, values, states, noise, chain, with_sens, outputs):
 
 def _numeric_pass(residual, z, model, noise, with_sens):
     """
-    The same sums from forward differences of the simulation (models the kernel lacks).
+    Accumulate the same sums by forward differences of the simulation (for other models).
 
     Effects simulated on sub-steps (held over half-samples) and other model variants: the
     residual and its Jacobian are materialised, as a least-squares solver would.

@@ -37,45 +37,15 @@ from dcmotor_id.simulation.kernels import (_dip_time, _drive, _event_step, _flow
 
 
 @njit(cache=True)
-def _matmul(a, b):
+def _mul_add(out, a, b, factor):
+    """``out += factor * a @ b`` for small square matrices."""
     size = a.shape[0]
-    out = np.zeros((size, size))
     for i in range(size):
         for k in range(size):
-            aik = a[i, k]
+            aik = a[i, k] * factor
             if aik != 0.0:
                 for j in range(size):
                     out[i, j] += aik * b[k, j]
-    return out
-
-
-@njit(cache=True)
-def _expm(m):
-    """
-    ``exp(M)`` of a small dense matrix: scaling and squaring with a Taylor series.
-
-    The scaled matrix has norm <= 0.5, so 18 Taylor terms are exact to round-off; written
-    here because numba has no ``expm`` and the matrices are 3x3 or 6x6.
-    """
-    size = m.shape[0]
-    norm = 0.0
-    for i in range(size):
-        row = 0.0
-        for j in range(size):
-            row += abs(m[i, j])
-        norm = max(norm, row)
-    squarings = 0
-    if norm > 0.5:
-        squarings = int(math.ceil(math.log(norm / 0.5) / math.log(2.0)))
-    scaled = m * (0.5 ** squarings)
-    result = np.eye(size)
-    term = np.eye(size)
-    for order in range(1, 19):
-        term = _matmul(term, scaled) / order
-        result += term
-    for _ in range(squarings):
-        result = _matmul(result, result)
-    return result
 
 
 @njit(cache=True)
@@ -85,43 +55,80 @@ def flow_matrices(a, da, n, tau):
 
     Returns ``ad = exp(A tau)``, ``gd = int_0^tau exp(A s) ds`` and, per column ``j``,
     ``dad[j]``, ``dgd[j]``: their derivatives in the direction ``da[j] = dA/dp_j`` (the blocks
-    of the exponential of ``[[A, 0, I], [dA, A, 0], [0, 0, 0]] tau``).
+    of the exponential of ``[[A, 0, I], [dA, A, 0], [0, 0, 0]] tau``).  Scaling and squaring
+    with a Taylor series differentiated term by term: ``d(A^k) = A d(A^(k-1)) + dA A^(k-1)``
+    and, per squaring, ``E(2t) = E^2``, ``G(2t) = G + E G`` and their product rules.  The
+    scaled ``A t`` has norm <= 0.5, so 14 terms are exact to round-off; written here because
+    numba has no ``expm`` (let alone its Frechet derivative), and a general block exponential
+    costs a hundred times more.
     """
     m = da.shape[0]
-    ad = np.zeros((n, n))
-    gd = np.zeros((n, n))
+    norm = 0.0
+    for i in range(n):
+        row = 0.0
+        for j in range(n):
+            row += abs(a[i, j])
+        norm = max(norm, row * tau)
+    squarings = 0
+    if norm > 0.5:
+        squarings = int(math.ceil(math.log(norm / 0.5) / math.log(2.0)))
+    t = tau * 0.5 ** squarings
+    at = a * t
+    ad = np.eye(n)
+    gd = np.eye(n) * t
+    power = np.eye(n)
     dad = np.zeros((m, n, n))
     dgd = np.zeros((m, n, n))
-    big = np.zeros((3 * n, 3 * n))
-    for r in range(n):
-        for c in range(n):
-            big[r, c] = a[r, c] * tau
-            big[n + r, n + c] = a[r, c] * tau
-        big[r, 2 * n + r] = tau
-    done = False
+    dpower = np.zeros((m, n, n))
+    active = np.zeros(m, dtype=np.bool_)
     for j in range(m):
-        nonzero = False
         for r in range(n):
             for c in range(n):
-                big[n + r, c] = da[j, r, c] * tau
                 if da[j, r, c] != 0.0:
-                    nonzero = True
-        if not nonzero and done:
-            continue
-        e = _expm(big)
+                    active[j] = True
+    new_power = np.empty((n, n))
+    new_dpower = np.empty((n, n))
+    for order in range(1, 15):
+        for j in range(m):
+            if not active[j]:
+                continue
+            new_dpower[:, :] = 0.0
+            _mul_add(new_dpower, dpower[j], at, 1.0 / order)
+            _mul_add(new_dpower, power, da[j], t / order)
+            for r in range(n):
+                for c in range(n):
+                    dpower[j, r, c] = new_dpower[r, c]
+                    dad[j, r, c] += new_dpower[r, c]
+                    dgd[j, r, c] += t * new_dpower[r, c] / (order + 1)
+        new_power[:, :] = 0.0
+        _mul_add(new_power, power, at, 1.0 / order)
         for r in range(n):
             for c in range(n):
-                ad[r, c] = e[r, c]
-                gd[r, c] = e[r, 2 * n + c]
-                dad[j, r, c] = e[n + r, c]
-                dgd[j, r, c] = e[n + r, 2 * n + c]
-        done = True
-    if not done:  # no columns at all
-        e = _expm(big)
-        for r in range(n):
-            for c in range(n):
-                ad[r, c] = e[r, c]
-                gd[r, c] = e[r, 2 * n + c]
+                power[r, c] = new_power[r, c]
+                ad[r, c] += new_power[r, c]
+                gd[r, c] += t * new_power[r, c] / (order + 1)
+    e2 = np.empty((n, n))
+    g2 = np.empty((n, n))
+    d2 = np.empty((n, n))
+    h2 = np.empty((n, n))
+    for _ in range(squarings):
+        for j in range(m):
+            if not active[j]:
+                continue
+            d2[:, :] = 0.0
+            _mul_add(d2, dad[j], ad, 1.0)
+            _mul_add(d2, ad, dad[j], 1.0)
+            h2[:, :] = dgd[j]
+            _mul_add(h2, dad[j], gd, 1.0)
+            _mul_add(h2, ad, dgd[j], 1.0)
+            dad[j] = d2
+            dgd[j] = h2
+        e2[:, :] = 0.0
+        _mul_add(e2, ad, ad, 1.0)
+        g2[:, :] = gd
+        _mul_add(g2, ad, gd, 1.0)
+        ad[:, :] = e2
+        gd[:, :] = g2
     return ad, gd, dad, dgd
 
 
@@ -135,7 +142,9 @@ def _propagate(n, ad, gd, dad, dgd, x, f, s, df, out):
             for c in range(n):
                 value += (ad[r, c] * s[c, j] + dad[j, r, c] * x[c] + dgd[j, r, c] * f[c]
                           + gd[r, c] * df[c, j])
-            out[r, j] = value
+            # A decaying sensitivity (of an initial state) would end as a subnormal number
+            # that rounds to itself: every operation on it costs a hundred cycles.
+            out[r, j] = value if abs(value) > 1e-100 else 0.0
 
 
 @njit(cache=True)
@@ -467,8 +476,9 @@ def normal_kernel(a, da, forcing, gscale, regs, reg_col, reg_row, reg_factor, or
             if _slip_sign(_drive(a, n, i_end, forcing[k]), friction_pos, friction_neg) == 0:
                 if with_sens:
                     for j in range(m):
-                        s[0, j] = (s1ad[0, 0] * s[0, j] + s1dad[j, 0, 0] * x[0]
-                                   + s1dgd[j, 0, 0] * forcing[k, 0] + s1gd[0, 0] * dg[0, j])
+                        value = (s1ad[0, 0] * s[0, j] + s1dad[j, 0, 0] * x[0]
+                                 + s1dgd[j, 0, 0] * forcing[k, 0] + s1gd[0, 0] * dg[0, j])
+                        s[0, j] = value if abs(value) > 1e-100 else 0.0
                         s[1, j] = 0.0
                 x[0] = i_end
                 x[1] = 0.0
@@ -493,4 +503,3 @@ def normal_kernel(a, da, forcing, gscale, regs, reg_col, reg_row, reg_factor, or
         for i in range(j):
             hessian[j, i] = hessian[i, j]
     return hessian, gradient, cost, sums, blocks
-
