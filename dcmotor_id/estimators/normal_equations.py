@@ -39,16 +39,13 @@ class RecordSums:
 
     Attributes
     ----------
-    hessian : numpy.ndarray
-        ``J^T J`` over the record's columns (shared parameters, then its initial state).
-    gradient : numpy.ndarray
-        ``J^T r``.
+    by_channel : tuple of numpy.ndarray
+        ``J_c^T J_c`` (n x m x m), ``J_c^T r_c`` (n x m) and the block score sums
+        (n_blocks x n x m) of every output channel ``c`` (a new weighting rescales them).
     cost : float
         ``sum r^2`` (residuals divided by the channel's noise level).
     sums : numpy.ndarray
         Unweighted ``sum e^2`` per output channel.
-    blocks : numpy.ndarray
-        ``J^T r`` over consecutive blocks of ``block_size`` samples (n_blocks x m).
     block_size : int
         Samples per block.
     trajectory : numpy.ndarray or None
@@ -57,13 +54,26 @@ class RecordSums:
 
     """
 
-    hessian: np.ndarray
-    gradient: np.ndarray
+    by_channel: tuple
     cost: float
     sums: np.ndarray
-    blocks: np.ndarray
     block_size: int
     trajectory: np.ndarray | None = None
+
+    @property
+    def hessian(self) -> np.ndarray:
+        """``J^T J`` over the record's columns (shared parameters, then its initial state)."""
+        return self.by_channel[0].sum(axis=0)
+
+    @property
+    def gradient(self) -> np.ndarray:
+        """``J^T r``."""
+        return self.by_channel[1].sum(axis=0)
+
+    @property
+    def blocks(self) -> np.ndarray:
+        """``J^T r`` over consecutive blocks of ``block_size`` samples (n_blocks x m)."""
+        return self.by_channel[2].sum(axis=1)
 
 
 def block_size(n_samples: int) -> int:
@@ -205,7 +215,7 @@ class NormalEquations:
             dfric_neg, np.asarray(initial_state, dtype=float), s_start, dt, measured[0],
             measured[-1], np.asarray(inverse_sigma, dtype=float), bool(with_sens), size,
             trajectory, bool(store))
-        return RecordSums(hessian, gradient, float(cost), sums, blocks, size,
+        return RecordSums((hessian, gradient, blocks), float(cost), sums, size,
                           trajectory if store else None)
 
     def columns(self, index: int) -> list[int]:

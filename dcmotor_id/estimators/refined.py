@@ -222,16 +222,33 @@ def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004
 
 
 class _Pass:
-    """One evaluation of the fit at a point ``z``: cost and (optionally) normal equations."""
+    """
+    One evaluation of the fit at a point ``z``: cost and (optionally) normal equations.
+
+    ``hessian``, ``gradient`` and ``blocks`` are in the fit's coordinates ``z``; ``sums`` are
+    the unweighted residual sums of squares per record and channel.  An analytic pass keeps
+    its per-channel sums (``parts``), so :meth:`reweighted` gives the same pass under new noise
+    weights without simulating again.
+    """
 
     def __init__(self, cost, hessian=None, gradient=None, sums=None, blocks=None,
-                 block_record=None):
+                 block_record=None, parts=None):
         self.cost = cost
         self.hessian = hessian
         self.gradient = gradient
         self.sums = sums
         self.blocks = blocks
         self.block_record = block_record
+        self.parts = parts
+
+    def reweighted(self, noise, outputs):
+        """Return this pass under the noise levels ``noise`` (None: simulate again)."""
+        if self.parts is None or self.hessian is None:
+            return None
+        equations, results, old, chain = self.parts
+        new = [np.array([1.0 / level[channel] for channel in outputs]) for level in noise]
+        return _assemble(equations, results, new, chain,
+                         [(w / w_old) ** 2 for w, w_old in zip(new, old)])
 
 
 class RefinedEstimator:
@@ -345,9 +362,11 @@ class RefinedEstimator:
         total_nfev = 0
         converged = True
         current = None
+        damping = None
         for _ in range(max(1, self.reweight_passes)):
-            z, current, nfev, converged = _levenberg_marquardt(
-                lambda point, with_sens: evaluate(point, noise, with_sens), z, self.max_nfev)
+            z, current, nfev, converged, damping = _levenberg_marquardt(
+                lambda point, with_sens: evaluate(point, noise, with_sens), z, self.max_nfev,
+                current=current, damping=damping)
             total_nfev += nfev
             if not np.all(np.isfinite(z)):
                 raise FitError('the output-error fit diverged (non-finite parameters): ' + _MISFIT)
@@ -355,6 +374,9 @@ class RefinedEstimator:
                                    1e-13 * pooled[channel])
                       for position, channel in enumerate(model.outputs)}
                      for index, rec in enumerate(records)]
+            # The next pass (and the covariance) starts from this point under the new weights:
+            # an analytic pass is rescaled channel by channel, others are simulated again.
+            current = current.reweighted(noise, model.outputs)
         if not converged:
             raise FitError('the output-error fit did not converge (the number of function '
                            'evaluations is exceeded)')
@@ -364,8 +386,10 @@ class RefinedEstimator:
         if degenerate:
             raise FitError(f'the output-error fit diverged ({", ".join(degenerate)} went to zero '
                            'or infinity): ' + _MISFIT)
-        final = evaluate(z, noise, True)
-        total_nfev += 1
+        final = current
+        if final is None:
+            final = evaluate(z, noise, True)
+            total_nfev += 1
         n_residuals = sum(len(rec) for rec in records) * n_state
         dof = max(n_residuals - z.shape[0], 1)
         s2 = float(final.cost) / dof
@@ -444,28 +468,40 @@ class RefinedEstimator:
 
 def _analytic_pass(equations, values, states, noise, chain, with_sens, outputs):
     """Accumulate the normal equations of every record with the analytic sensitivities."""
-    size = equations.n_shared + equations.n_state * len(states)
-    hessian = np.zeros((size, size)) if with_sens else None
-    gradient = np.zeros(size) if with_sens else None
-    cost = 0.0
-    sums, blocks, block_record = [], [], []
-    for index, state in enumerate(states):
-        inverse = [1.0 / noise[index][channel] for channel in outputs]
-        result = equations.record(values, index, state, inverse, with_sens)
-        cost += result.cost
-        sums.append(result.sums)
-        if with_sens:
-            columns = equations.columns(index)
-            hessian[np.ix_(columns, columns)] += result.hessian
-            gradient[columns] += result.gradient
-            full = np.zeros((result.blocks.shape[0], size))
-            full[:, columns] = result.blocks
-            blocks.append(full)
-            block_record.append(np.full(result.blocks.shape[0], index))
+    weights = [np.array([1.0 / level[channel] for channel in outputs]) for level in noise]
+    results = [equations.record(values, index, state, weights[index], with_sens)
+               for index, state in enumerate(states)]
     if not with_sens:
-        return _Pass(cost, sums=sums)
-    return _Pass(cost, hessian * np.outer(chain, chain), gradient * chain, sums,
-                 np.vstack(blocks) * chain, np.concatenate(block_record))
+        cost = float(sum(result.sums @ w ** 2 for result, w in zip(results, weights)))
+        return _Pass(cost, sums=[result.sums for result in results])
+    return _assemble(equations, results, weights, chain, [np.ones_like(w) for w in weights])
+
+
+def _assemble(equations, results, weights, chain, factors):
+    """
+    Sum the records' per-channel normal equations into one pass in ``z`` coordinates.
+
+    ``factors[record][channel]`` rescales each channel's sums (the ratio of the squared new
+    and old weights when the noise levels were re-estimated); ``weights`` are the new ones.
+    """
+    size = equations.n_shared + equations.n_state * len(results)
+    hessian = np.zeros((size, size))
+    gradient = np.zeros(size)
+    blocks, block_record = [], []
+    cost = 0.0
+    for index, (result, factor) in enumerate(zip(results, factors)):
+        by_hessian, by_gradient, by_blocks = result.by_channel
+        columns = equations.columns(index)
+        hessian[np.ix_(columns, columns)] += np.tensordot(factor, by_hessian, axes=1)
+        gradient[columns] += factor @ by_gradient
+        full = np.zeros((by_blocks.shape[0], size))
+        full[:, columns] = np.tensordot(by_blocks, factor, axes=([1], [0]))
+        blocks.append(full)
+        block_record.append(np.full(by_blocks.shape[0], index))
+        cost += float(result.sums @ weights[index] ** 2)
+    return _Pass(cost, hessian * np.outer(chain, chain), gradient * chain,
+                 [result.sums for result in results], np.vstack(blocks) * chain,
+                 np.concatenate(block_record), (equations, results, weights, chain))
 
 
 def _numeric_pass(residual, z, model, noise, with_sens):
@@ -507,58 +543,71 @@ def _numeric_pass(residual, z, model, noise, with_sens):
                  np.concatenate(block_record))
 
 
-def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8):
+def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8,
+                         current=None, damping=None):
     """
-    Levenberg-Marquardt on the accumulated normal equations; return ``(z, pass, nfev, ok)``.
+    Levenberg-Marquardt on the accumulated normal equations.
 
     MINPACK's ``lmder`` criteria on the normal equations alone (it never sees the ``2N x p``
     Jacobian): the step ``(H + mu D) dz = -g`` with ``D`` the largest diagonal of ``H`` seen
     (scale invariance), the damping adapted by the gain ratio (Nielsen's rule), convergence
     when the relative cost reduction, actual and predicted, is below ``ftol``, the scaled step
     below ``xtol`` of the scaled point, or the largest cosine between the residual and a
-    column of the Jacobian below ``gtol``.  ``ok`` is False when the evaluations ran out.
+    column of the Jacobian below ``gtol``.  After a rejected step the next trial is simulated
+    without sensitivities (a fifth of the cost) and only an accepted one with them.
+
+    Returns ``(z, pass, evaluations, converged, damping)``; ``current`` (the pass at ``z``)
+    and ``damping`` continue an earlier run (a reweighted pass starts from its optimum).
     """
-    current = evaluate(z, True)
-    nfev = 1
+    nfev = 0
+    if current is None:
+        current = evaluate(z, True)
+        nfev += 1
     if not np.isfinite(current.cost):
         raise FitError('the output-error fit diverged (non-finite residuals at the start): '
                        + _MISFIT)
     scale = np.maximum(np.diag(current.hessian), 0.0)
-    mu = 1e-3
+    mu = 1e-3 if damping is None else damping
     growth = 2.0
+    cheap = False
     while nfev < max(int(max_evaluations), 2):
         hessian, gradient, cost = current.hessian, current.gradient, current.cost
         diagonal = np.diag(hessian)
         scale = np.maximum(scale, diagonal)
-        damping = np.where(scale > 0.0, scale, 1.0)
+        weights = np.where(scale > 0.0, scale, 1.0)
         column_norms = np.sqrt(np.maximum(diagonal, 0.0))
         if cost <= 0.0:
-            return z, current, nfev, True
+            return z, current, nfev, True, mu
         cosines = np.abs(gradient) / np.where(column_norms > 0.0, column_norms, np.inf)
         if float(np.max(cosines, initial=0.0)) / np.sqrt(cost) <= gtol:
-            return z, current, nfev, True
+            return z, current, nfev, True, mu
         try:
-            step = np.linalg.solve(hessian + mu * np.diag(damping), -gradient)
+            step = np.linalg.solve(hessian + mu * np.diag(weights), -gradient)
         except np.linalg.LinAlgError:
-            step = np.linalg.lstsq(hessian + mu * np.diag(damping), -gradient, rcond=None)[0]
-        step_norm = float(np.sqrt(np.sum(damping * step ** 2)))
-        point_norm = float(np.sqrt(np.sum(damping * z ** 2)))
+            step = np.linalg.lstsq(hessian + mu * np.diag(weights), -gradient, rcond=None)[0]
+        step_norm = float(np.sqrt(np.sum(weights * step ** 2)))
+        point_norm = float(np.sqrt(np.sum(weights * z ** 2)))
         predicted = -(2.0 * gradient @ step + step @ hessian @ step)
-        trial = evaluate(z + step, True)
+        trial = evaluate(z + step, not cheap)
         nfev += 1
         actual = cost - trial.cost if np.isfinite(trial.cost) else -np.inf
         ratio = actual / predicted if predicted > 0.0 else -1.0
         if ratio > 1e-4:
             z = z + step
+            if cheap:
+                trial = evaluate(z, True)
+                nfev += 1
             current = trial
+            cheap = False
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3)
             growth = 2.0
             if (abs(actual) <= ftol * cost and predicted <= ftol * cost) \
                     or step_norm <= xtol * point_norm:
-                return z, current, nfev, True
+                return z, current, nfev, True, mu
         else:
+            cheap = True
             mu *= growth
             growth *= 2.0
             if step_norm <= xtol * point_norm or mu > 1e16:
-                return z, current, nfev, True
-    return z, current, nfev, False
+                return z, current, nfev, True, mu
+    return z, current, nfev, False, mu

@@ -333,16 +333,17 @@ def normal_kernel(a, da, forcing, gscale, regs, reg_col, reg_row, reg_factor, or
     trajectory, store : when ``store``, ``trajectory[k, r, 0]`` gets ``x_r[k]`` and
         ``trajectory[k, r, 1 + j]`` gets ``S_rj[k]`` (shape N x n x (m + 1)).
 
-    Returns ``(hessian, gradient, cost, sums_of_squares, blocks)``: ``J^T J`` (m x m),
-    ``J^T r`` (m), ``sum r^2`` (weighted), ``sum e_c^2`` per channel (unweighted) and the
-    score sums per block (n_blocks x m).
+    Returns ``(hessian, gradient, cost, sums_of_squares, blocks)`` per output channel ``c``
+    (so that a change of the weights only rescales them): ``J_c^T J_c`` (n x m x m),
+    ``J_c^T r_c`` (n x m), ``sum r^2`` (weighted, all channels), ``sum e_c^2`` (unweighted,
+    n) and the score sums per block (n_blocks x n x m).
     """
     n_samples, n = forcing.shape
     m = da.shape[0]
     n_blocks = (n_samples + block_size - 1) // block_size
-    hessian = np.zeros((m, m))
-    gradient = np.zeros(m)
-    blocks = np.zeros((n_blocks, m))
+    hessian = np.zeros((n, m, m))
+    gradient = np.zeros((n, m))
+    blocks = np.zeros((n_blocks, n, m))
     sums = np.zeros(n)
     cost = 0.0
     ad, gamma = discretise(a, n, dt)
@@ -406,10 +407,10 @@ def normal_kernel(a, da, forcing, gscale, regs, reg_col, reg_row, reg_factor, or
                     rj = row[c, j]
                     if rj == 0.0:
                         continue
-                    gradient[j] += rj * rc
-                    blocks[block, j] += rj * rc
+                    gradient[c, j] += rj * rc
+                    blocks[block, c, j] += rj * rc
                     for i in range(j, m):
-                        hessian[j, i] += rj * row[c, i]
+                        hessian[c, j, i] += rj * row[c, i]
         if store:
             for r in range(n):
                 trajectory[k, r, 0] = x[r]
@@ -499,7 +500,8 @@ def normal_kernel(a, da, forcing, gscale, regs, reg_col, reg_row, reg_factor, or
             _event_step(a, n, x, forcing[k], dt, friction_pos, friction_neg, new)
         for column in range(n):
             x[column] = new[column]
-    for j in range(m):
-        for i in range(j):
-            hessian[j, i] = hessian[i, j]
+    for c in range(n):
+        for j in range(m):
+            for i in range(j):
+                hessian[c, j, i] = hessian[c, i, j]
     return hessian, gradient, cost, sums, blocks
