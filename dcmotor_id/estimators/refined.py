@@ -550,7 +550,9 @@ def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gto
 
     MINPACK's ``lmder`` criteria on the normal equations alone (it never sees the ``2N x p``
     Jacobian): the step ``(H + mu D) dz = -g`` with ``D`` the largest diagonal of ``H`` seen
-    (scale invariance), the damping adapted by the gain ratio (Nielsen's rule), convergence
+    (scale invariance), the damping lowered by the gain ratio of an accepted step (Nielsen's
+    rule) and raised tenfold after a rejected one (the cost has kinks where an event crosses a
+    sample instant: a quadratic model is trusted less), convergence
     when the relative cost reduction, actual and predicted, is below ``ftol``, the scaled step
     below ``xtol`` of the scaled point, or the largest cosine between the residual and a
     column of the Jacobian below ``gtol``.  After a rejected step the next trial is simulated
@@ -568,7 +570,6 @@ def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gto
                        + _MISFIT)
     scale = np.maximum(np.diag(current.hessian), 0.0)
     mu = 1e-3 if damping is None else damping
-    growth = 2.0
     cheap = False
     while nfev < max(int(max_evaluations), 2):
         hessian, gradient, cost = current.hessian, current.gradient, current.cost
@@ -600,14 +601,12 @@ def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gto
             current = trial
             cheap = False
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3)
-            growth = 2.0
             if (abs(actual) <= ftol * cost and predicted <= ftol * cost) \
                     or step_norm <= xtol * point_norm:
                 return z, current, nfev, True, mu
         else:
             cheap = True
-            mu *= growth
-            growth *= 2.0
+            mu *= 10.0
             if step_norm <= xtol * point_norm or mu > 1e16:
                 return z, current, nfev, True, mu
     return z, current, nfev, False, mu
