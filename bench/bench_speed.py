@@ -66,13 +66,15 @@ cpu = time.process_time()
 result = identify(prepare_records([record]), discover=sys.argv[2] == 'default')
 call_cpu = time.process_time() - cpu
 call = time.perf_counter() - loaded
-again = None
+again = again_cpu = None
 if len(sys.argv) > 3:
     begin = time.perf_counter()
+    cpu = time.process_time()
     identify(prepare_records([record]), discover=sys.argv[2] == 'default')
     again = time.perf_counter() - begin
+    again_cpu = time.process_time() - cpu
 print(json.dumps({'call_s': call, 'call_cpu_s': call_cpu, 'setup_s': loaded - start,
-                  'rss_before': before, 'again_s': again,
+                  'rss_before': before, 'again_s': again, 'again_cpu_s': again_cpu,
                   'parameters': result.parameters, 'stderr': result.stderr}))
 """
 
@@ -183,8 +185,10 @@ def measure_size(duration_s, rate_hz, directory, args):
     path = os.path.join(directory, f'record_{duration_s:g}s_{rate_hz:g}Hz.npz')
     n = make_data(duration_s, rate_hz, path)
     here = environment_for(ROOT)
-    contenders = [('new, default', [sys.executable, '-c', _CHILD, path, 'default'], here),
-                  ('new, no discovery', [sys.executable, '-c', _CHILD, path, 'no'], here)]
+    contenders = [('new, no discovery', [sys.executable, '-c', _CHILD, path, 'no'], here)]
+    if n <= args.default_max_samples:
+        contenders.insert(0, ('new, default', [sys.executable, '-c', _CHILD, path, 'default'],
+                              here))
     if args.previous and n <= args.previous_max_samples:
         old = environment_for(args.previous)
         contenders.append(('previous, default',
@@ -245,21 +249,23 @@ def cold_start(directory):
     make_data(60.0, 1000.0, path)
     with tempfile.TemporaryDirectory() as cache:
         env = environment_for(ROOT, cache)
-        begin = time.perf_counter()
-        subprocess.run([sys.executable, '-m', 'dcmotor_id.warmup', '--quiet'], env=env,
-                       check=True)
-        warm_up_s = time.perf_counter() - begin
+        with tempfile.TemporaryFile() as sink:
+            process = subprocess.Popen([sys.executable, '-m', 'dcmotor_id.warmup', '--quiet'],
+                                       env=env, stdout=sink)
+            _, _, usage = os.wait4(process.pid, 0)
+        warm_up_cpu = usage.ru_utime + usage.ru_stime
         runs = [run_reaped([sys.executable, '-c', _CHILD, path, 'default', 'again'], env)
                 for _ in range(4)]
     first, later = runs[0], runs[1:]
     return [
-        ['warm-up (python -m dcmotor_id.warmup, empty cache)', f'{warm_up_s:.2f}', '', ''],
+        ['warm-up (python -m dcmotor_id.warmup, empty cache)', f'{warm_up_cpu:.2f}', '', ''],
         ['first whole process after the warm-up', f'{first["cpu_s"]:.2f}',
-         f'{first["call_s"]:.2f}', f'{first["again_s"]:.2f}'],
+         f'{first["call_cpu_s"]:.2f}', f'{first["again_cpu_s"]:.2f}'],
         ['later whole processes (median of 3)', f'{_median([r["cpu_s"] for r in later]):.2f}',
-         f'{_median([r["call_s"] for r in later]):.2f}',
-         f'{_median([r["again_s"] for r in later]):.2f}'],
-    ], first['call_s'] / _median([r['again_s'] for r in runs])
+         f'{_median([r["call_cpu_s"] for r in later]):.2f}',
+         f'{_median([r["again_cpu_s"] for r in later]):.2f}'],
+    ], (first['cpu_s'] / _median([r['cpu_s'] for r in later]),
+        first['call_cpu_s'] / _median([r['again_cpu_s'] for r in runs]))
 
 
 def main():
@@ -274,6 +280,8 @@ def main():
     parser.add_argument('--previous-both-max-samples', type=int, default=600_000,
                         help='largest record the previous path also runs without discovery')
     parser.add_argument('--plain-max-samples', type=int, default=600_000)
+    parser.add_argument('--default-max-samples', type=int, default=10 ** 9,
+                        help='largest record the new path runs with discovery (default: all)')
     parser.add_argument('--skip-cold', action='store_true')
     parser.add_argument('--plain-child', help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -293,7 +301,7 @@ def main():
             n, runs = measure_size(duration, rate, directory, args)
             rows += size_rows(duration, rate, n, runs)
             growth.append((n, _median([r['call_cpu_s'] for r in runs['new, no discovery']]),
-                           _median([r['call_cpu_s'] for r in runs['new, default']])))
+                           _median([r['call_cpu_s'] for r in runs.get('new, default', [])])))
             print('\n'.join(lines + [markdown_table(_HEADER, rows)]), file=sys.stderr,
                   flush=True)
         cold_rows, cold_ratio = (None, None) if args.skip_cold else cold_start(directory)
@@ -307,15 +315,20 @@ def main():
         sizes = np.log([g[0] for g in growth])
         lines.append('')
         for column, label in ((1, 'no discovery'), (2, 'default')):
-            slope = np.polyfit(sizes, np.log([g[column] for g in growth]), 1)[0]
+            known = [(size, g[column]) for size, g in zip(sizes, growth) if np.isfinite(g[column])]
+            if len(known) < 2:
+                continue
+            slope = np.polyfit([k[0] for k in known], np.log([k[1] for k in known]), 1)[0]
             lines.append(f'Growth of the CPU time of the identify call ({label}), least-squares '
-                         f'slope of log time on log N over {growth[0][0]:,} to '
-                         f'{growth[-1][0]:,} samples: N^{slope:.2f}.')
+                         f'slope of log time on log N over {len(known)} sizes up to '
+                         f'{np.exp(known[-1][0]):,.0f} samples: N^{slope:.2f}.')
     if cold_rows:
         lines += ['', 'Cold start (60 s @ 1 kHz, default):', '',
-                  markdown_table(['what', 'process cpu [s]', 'first identify call [s]',
-                                  'second call in the same process [s]'], cold_rows), '',
-                  f'First call after the warm-up / a warm call: {cold_ratio:.2f}.']
+                  markdown_table(['what', 'process cpu [s]', 'first identify call, cpu [s]',
+                                  'second call in the same process, cpu [s]'], cold_rows), '',
+                  f'First whole process after the warm-up / later ones: {cold_ratio[0]:.2f} '
+                  f'(CPU); first identify call of a process / a second call in it: '
+                  f'{cold_ratio[1]:.2f} (CPU: loading the cached kernels).']
     print('\n'.join(lines))
 
 
