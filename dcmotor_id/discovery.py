@@ -33,7 +33,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg import qr
 
 from dcmotor_id.effects import SensorDelay, torque_spread, VOCABULARY
 from dcmotor_id.errors import DcMotorIdError
@@ -519,6 +518,7 @@ class DiscoveryLoop:
     def _projector(matrix):
         if matrix.shape[1] == 0:
             return None
+        from scipy.linalg import qr  # lazily: only a search round needs it (import time)
         q, r, _ = qr(matrix, mode='economic', pivoting=True)
         keep = np.abs(np.diag(r)) > 1e-10 * max(abs(r[0, 0]), 1e-300)
         return q[:, keep]
