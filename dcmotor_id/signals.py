@@ -4,16 +4,13 @@ Signal processing of measured records: low-pass smoothing, noise level, derivati
 The one home of the filters the rest of the package applies to measured signals: the
 regressors of the effects, the excitation checks, the start-point search and the position to
 speed conversion all call these.  Every function takes numpy arrays, returns new arrays or
-floats and never modifies its input.  Filters are zero-phase Butterworth low-passes computed
-exactly as :func:`scipy.signal.butter` (``output='sos'``) and :func:`scipy.signal.sosfiltfilt`
-compute them (same design, pairing, odd extension and initial conditions; test_signals.py
-checks them against scipy to round-off).  Written here because importing :mod:`scipy.signal`
-costs most of a second, more than the identification of a minute of data.
+floats and never modifies its input.  Filters are scipy's zero-phase Butterworth
+(:func:`scipy.signal.sosfiltfilt`), imported lazily so that importing the package does not pay
+for :mod:`scipy.signal`.
 """
 
 from __future__ import annotations
 
-from numba import njit
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -42,89 +39,13 @@ def low_pass(values: ArrayLike, cutoff_fraction: float, order: int = 4) -> Float
         The filtered signal; a copy of the input when it is too short to filter.
 
     """
+    from scipy.signal import butter, sosfiltfilt
+
     values = np.asarray(values, dtype=float)
     if values.shape[0] < MIN_FILTER_SAMPLES:
         return values.copy()
-    if order % 2:
-        # Odd orders pair a first-order section as scipy does in its own way: ask scipy.
-        from scipy.signal import butter, sosfiltfilt
-        return np.asarray(sosfiltfilt(butter(order, 2.0 * cutoff_fraction, output='sos'),
-                                      values), dtype=float)
-    return _sosfiltfilt(butter_sos(order, 2.0 * cutoff_fraction), values)
-
-
-def butter_sos(order: int, cutoff: float) -> FloatArray:
-    """
-    Digital Butterworth low-pass as second-order sections, as ``scipy.signal.butter`` designs it.
-
-    Parameters
-    ----------
-    order : int
-        Filter order (even).
-    cutoff : float
-        Cut-off as a fraction of the Nyquist frequency (0 < cutoff < 1).
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(order / 2, 6)`` rows ``[b0, b1, b2, 1, a1, a2]``, the poles nearest the unit
-        circle last and the gain in the first section (scipy's ``nearest`` pairing).
-
-    """
-    if order % 2 or order < 2:
-        raise ValueError('butter_sos designs even orders only')
-    # Analog prototype, pre-warped cut-off (fs = 2), bilinear transform: scipy's iirfilter.
-    poles = -np.exp(1j * np.pi * np.arange(-order + 1, order, 2) / (2 * order))
-    warped = 4.0 * np.tan(np.pi * cutoff / 2.0)
-    poles = warped * poles
-    gain = warped ** order * np.real(1.0 / np.prod(4.0 - poles))
-    digital = (4.0 + poles) / (4.0 - poles)
-    # Conjugate pairs (zeros all at -1), the pair nearest to the unit circle last.
-    upper = sorted(digital[digital.imag > 0], key=lambda pole: abs(1.0 - abs(pole)),
-                   reverse=True)
-    sos = np.array([[1.0, 2.0, 1.0, 1.0, -2.0 * pole.real,
-                     pole.real * pole.real + pole.imag * pole.imag] for pole in upper])
-    sos[0, :3] *= gain
-    return sos
-
-
-@njit(cache=True)
-def _sosfilt(sos, values, initial):
-    """Filter with second-order sections (transposed direct form II), as scipy's sosfilt."""
-    n_sections = sos.shape[0]
-    state = initial.copy()
-    out = np.empty_like(values)
-    for k in range(values.shape[0]):
-        x = values[k]
-        for section in range(n_sections):
-            y = sos[section, 0] * x + state[section, 0]
-            state[section, 0] = sos[section, 1] * x - sos[section, 4] * y + state[section, 1]
-            state[section, 1] = sos[section, 2] * x - sos[section, 5] * y
-            x = y
-        out[k] = x
-    return out
-
-
-def _sosfiltfilt(sos: FloatArray, values: FloatArray) -> FloatArray:
-    """Forward-backward filter with odd extension and steady-state initial conditions."""
-    n_sections = sos.shape[0]
-    taps = 2 * n_sections + 1 - min(int(np.sum(sos[:, 2] == 0)), int(np.sum(sos[:, 5] == 0)))
-    edge = 3 * taps
-    if values.shape[0] <= edge:
-        raise ValueError(f'the signal must be longer than {edge} samples to be filtered')
-    extended = np.concatenate((2 * values[0] - values[edge:0:-1], values,
-                               2 * values[-1] - values[-2:-(edge + 2):-1]))
-    initial = np.empty((n_sections, 2))
-    scale = 1.0
-    for section in range(n_sections):
-        b, a = sos[section, :3], sos[section, 3:]
-        # scipy's lfilter_zi: (I - companion(a)^T) zi = b[1:] - a[1:] b[0]
-        system = np.array([[1.0 + a[1], -1.0], [a[2], 1.0]])
-        initial[section] = scale * np.linalg.solve(system, b[1:] - a[1:] * b[0])
-        scale *= b.sum() / a.sum()
-    forward = _sosfilt(sos, extended, initial * extended[0])
-    backward = _sosfilt(sos, forward[::-1].copy(), initial * forward[-1])
-    return backward[::-1][edge:-edge].copy()
+    sos = butter(order, 2.0 * cutoff_fraction, output='sos')
+    return np.asarray(sosfiltfilt(sos, values), dtype=float)
 
 
 def smooth(values: ArrayLike, sample_period_s: float | None = None) -> FloatArray:

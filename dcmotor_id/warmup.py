@@ -6,10 +6,10 @@ The kernels are compiled with ``cache=True``: the first process that calls one c
 processes load it.  ``python -m dcmotor_id.warmup`` (the Makefile's install rule) runs a tiny
 simulation and identification through the public entry points, on synthetic data, so that
 every kernel is compiled for the argument types the CLI and the nodes use (the identify steps
-compile the fit's sensitivity kernel, :func:`dcmotor_id.simulation.sensitivity.normal_kernel`,
-and the filter of :mod:`dcmotor_id.signals`).  It goes through the command line and the public
-classes only, not the kernels' names, so it keeps covering them wherever they live.  Measured
-in ``bench/bench_cold_start.py`` and ``bench/bench_speed.py`` (cold start).
+compile the fit's sensitivity kernel, :func:`dcmotor_id.simulation.sensitivity.normal_kernel`).
+It goes through the command line and the public classes only, not the kernels' names, so it
+keeps covering them wherever they live.  Measured in ``bench/bench_cold_start.py`` and
+``bench/bench_speed.py`` (cold start).
 """
 
 from __future__ import annotations
