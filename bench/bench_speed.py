@@ -1,97 +1,123 @@
 """
-Benchmark 4: time to identify a 60 s record at 1 kHz with the default method.
+Benchmark 4: time, growth and memory of identification, against a plain fit and the old path.
 
-Data: motor 2 of Table 1, the ``paper`` excitation (30 s of the 0.5 Hz 110 V sine, then 30 s of
-the 1 Hz 43 V sawtooth) at 1 kHz, exact simulation, 1 % white noise on current and speed.
+Data: motor 2 of Table 1, the ``paper`` excitation (the 0.5 Hz 110 V sine for the first half,
+the 1 Hz 43 V sawtooth for the second), exact simulation, 1 % white noise on current and speed,
+at each ``duration@rate`` of ``--sizes``.  Every measurement is a whole process (a fresh
+interpreter: import, load the record from ``.npz``, identify), timed by the operating system
+(``os.wait4``: user + system CPU seconds and the peak resident memory of that process) and by
+the wall clock; the child also reports the time of the call and its own memory before it.
 
-Timed, in this order:
+Contenders, run in turn (A B C A B C ...) so that a drift of the machine's speed hits all:
 
-* **cold, empty numba cache**: a fresh interpreter with ``NUMBA_CACHE_DIR`` pointing to an empty
-  directory (the kernels are compiled), import and one :func:`~dcmotor_id.identify.identify`;
-* **cold, warm cache**: a fresh interpreter with the package's on-disk numba cache (the usual
-  first call of a user): import and one call;
-* **warm**: :func:`~dcmotor_id.identify.identify` with ``discover=False`` in this process, the
-  median of several calls (the path ``dcmotor-id identify --no-discover`` takes after reading
-  the CSV: checks, fit with standard errors, simulation errors); the effect discovery of the
-  default CLI call (another feature, on top of the method) is timed separately;
+* **new**: this checkout's :func:`~dcmotor_id.identify.identify`, default (effect discovery
+  on) and ``discover=False``;
+* **previous**: the same call from another checkout (``--previous DIR``, e.g. a
+  ``git worktree add /tmp/prev 21c2dec``), run with its own ``PYTHONPATH`` after a warm-up
+  run that compiles its kernels;
 * **plain**: :func:`scipy.optimize.least_squares` with its defaults (``trf``, ``2-point``
-  Jacobian, ``x_scale=1``) on the output error of a straightforward ZOH simulation written in
-  Python: ``Ad = expm(A dT)`` and ``Gamma = A^-1 (Ad - I)`` once per evaluation, then one
-  matrix-vector update per sample with the Coulomb term ``-Mc sgn(w[k])`` held over the sample
-  (no location of speed reversals inside a sample).  Residuals are the current and speed errors
-  divided by each signal's standard deviation; the unknowns are the six parameters and the
-  initial state, started from the refined method's own start point.  It runs once, in the
-  same process, after the warm timing.
+  Jacobian) on the output error of a straightforward ZOH simulation written in Python
+  (``Ad = expm(A dT)``, ``Gamma = A^-1 (Ad - I)``, one update per sample with the Coulomb
+  term ``-Mc sgn(w[k])`` held over the sample), started from the refined method's own start
+  point (its search is inside the timed process); up to ``--plain-max-samples``.
 
-Usage: ``.venv/bin/python bench/bench_speed.py [--repeats N] [--skip-plain]``
+Also measured: the cold start (a fresh numba cache filled by ``python -m dcmotor_id.warmup``,
+then the first whole process against the following ones) and the growth exponent of the
+call's CPU time with the number of samples.
+
+Usage: ``.venv/bin/python bench/bench_speed.py [--sizes 60@1000,600@1000] [--repeats N]
+[--previous DIR] [--plain-max-samples N] [--previous-max-samples N]``
 """
 
 import argparse
+import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
 
-from common import command_line, environment, markdown_table, pct, PHYSICAL_NAMES
+from common import command_line, environment, markdown_table, PHYSICAL_NAMES
 import numpy as np
 from scipy.linalg import expm
-from scipy.optimize import least_squares
 
-from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.excitation import add_sensor_noise, make_excitation
-from dcmotor_id.identify import identify, prepare_records
 from dcmotor_id.model import PAPER_MOTORS, relative_errors_pct
-from dcmotor_id.records import Record
 from dcmotor_id.simulation import simulate_motor
 
-DURATION_S = 60.0
-SAMPLE_PERIOD_S = 1e-3
 NOISE = 0.01
 MOTOR = 'paper2'
-TARGET_S = 1.0
+DEFAULT_SIZES = '60@1000,600@1000,3600@1000,600@10000,3600@10000'
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
 
 _CHILD = """
-import sys
-import time
+import json, resource, sys, time
 start = time.perf_counter()
 import numpy as np
 from dcmotor_id.identify import identify, prepare_records
 from dcmotor_id.records import Record
-imported = time.perf_counter()
 data = np.load(sys.argv[1])
 record = Record(data['t'], data['current'], data['voltage'], data['speed'])
+del data
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 loaded = time.perf_counter()
-identify(prepare_records([record]), discover=False)
-print(imported - start, time.perf_counter() - loaded)
+cpu = time.process_time()
+result = identify(prepare_records([record]), discover=sys.argv[2] == 'default')
+call_cpu = time.process_time() - cpu
+call = time.perf_counter() - loaded
+again = again_cpu = None
+if len(sys.argv) > 3:
+    begin = time.perf_counter()
+    cpu = time.process_time()
+    identify(prepare_records([record]), discover=sys.argv[2] == 'default')
+    again = time.perf_counter() - begin
+    again_cpu = time.process_time() - cpu
+print(json.dumps({'call_s': call, 'call_cpu_s': call_cpu, 'setup_s': loaded - start,
+                  'rss_before': before, 'again_s': again, 'again_cpu_s': again_cpu,
+                  'parameters': result.parameters, 'stderr': result.stderr}))
 """
 
 
-def make_data(seed=0):
-    """Simulate the 60 s record at 1 kHz of motor 2 with 1 % noise, prepared as the CLI would."""
+def make_data(duration_s, rate_hz, path, seed=0):
+    """Simulate the record of one size and save it as ``.npz``; return the sample count."""
     params = PAPER_MOTORS[MOTOR]
-    t, voltage = make_excitation('paper', DURATION_S, SAMPLE_PERIOD_S)
-    current, speed = simulate_motor(params, voltage, SAMPLE_PERIOD_S)
+    dt = 1.0 / rate_hz
+    t, voltage = make_excitation('paper', duration_s, dt)
+    current, speed = simulate_motor(params, voltage, dt)
     rng = np.random.default_rng(seed)
-    record = Record(t, add_sensor_noise(current, NOISE, rng), voltage,
-                    add_sensor_noise(speed, NOISE, rng), source='speed-benchmark')
-    return prepare_records([record])
+    np.savez(path, t=t, current=add_sensor_noise(current, NOISE, rng), voltage=voltage,
+             speed=add_sensor_noise(speed, NOISE, rng))
+    return len(t)
 
 
-def cold_call(records, cache_dir=None):
-    """Import and one identify() in a fresh interpreter; return (import_s, first_call_s)."""
+def run_reaped(argv, env):
+    """Run one whole process reaping it with ``os.wait4`` (CPU time, peak memory)."""
+    load = os.getloadavg()[0]
+    begin = time.perf_counter()
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        process = subprocess.Popen(argv, env=env, stdout=out, stderr=err)
+        _, status, usage = os.wait4(process.pid, 0)
+        process.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - begin
+        out.seek(0)
+        err.seek(0)
+        text, error = out.read().decode(), err.read().decode()
+    if process.returncode != 0:
+        raise RuntimeError(f'{argv[:3]} failed: {error[-2000:]}')
+    report = json.loads(text.strip().splitlines()[-1])
+    report.update(wall_s=wall, cpu_s=usage.ru_utime + usage.ru_stime,
+                  peak_bytes=usage.ru_maxrss * 1024, load=load)
+    return report
+
+
+def environment_for(path, cache_dir=None):
+    """Environment of a child that imports ``dcmotor_id`` from ``path``."""
     env = dict(os.environ)
+    env['PYTHONPATH'] = path
     if cache_dir is not None:
         env['NUMBA_CACHE_DIR'] = cache_dir
-    record = records[0]
-    with tempfile.TemporaryDirectory() as directory:
-        path = os.path.join(directory, 'record.npz')
-        np.savez(path, t=record.time_s, current=record.current, voltage=record.voltage,
-                 speed=record.speed)
-        output = subprocess.run([sys.executable, '-c', _CHILD, path], env=env, check=True,
-                                capture_output=True, text=True).stdout
-    import_s, call_s = (float(value) for value in output.split())
-    return import_s, call_s
+    return env
 
 
 def plain_simulate(theta, voltage, sample_period_s):
@@ -115,8 +141,16 @@ def plain_simulate(theta, voltage, sample_period_s):
     return current, speed
 
 
-def plain_fit(record, start):
-    """Scipy least_squares with defaults on the plain output error; return (result, time)."""
+def plain_child(path):
+    """Child process of the plain fit: start search, least_squares; print its JSON line."""
+    from scipy.optimize import least_squares
+
+    from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
+    from dcmotor_id.records import Record
+    begin = time.perf_counter()
+    data = np.load(path)
+    record = Record(data['t'], data['current'], data['voltage'], data['speed'])
+    start = RefinedEstimator()._start(OutputErrorModel([record]))
     spread_i, spread_w = np.std(record.current), np.std(record.speed)
     dt = record.sample_period_s
 
@@ -127,90 +161,179 @@ def plain_fit(record, start):
 
     x0 = np.array([start[name] for name in PHYSICAL_NAMES]
                   + [record.current[0], record.speed[0]])
-    begin = time.perf_counter()
     with np.errstate(all='ignore'):
         result = least_squares(residual, x0)
-    return result, time.perf_counter() - begin
+    print(json.dumps({'call_s': time.perf_counter() - begin, 'nfev': int(result.nfev),
+                      'status': int(result.status),
+                      'parameters': dict(zip(PHYSICAL_NAMES, result.x[:6].tolist()))}))
 
 
-def _median_time(function, repeats):
-    times = []
+def max_error_pct(parameters):
+    """Largest relative error of the six physical parameters [%] and its name."""
+    errors = relative_errors_pct({name: parameters[name] for name in PHYSICAL_NAMES},
+                                 PAPER_MOTORS[MOTOR].as_dict(), list(PHYSICAL_NAMES))
+    name = max(errors, key=errors.get)
+    return errors[name], name
+
+
+def _median(values):
+    return float(np.median(values)) if values else float('nan')
+
+
+def measure_size(duration_s, rate_hz, directory, args):
+    """Interleaved runs of every contender on one size; return a dict of lists of reports."""
+    path = os.path.join(directory, f'record_{duration_s:g}s_{rate_hz:g}Hz.npz')
+    n = make_data(duration_s, rate_hz, path)
+    here = environment_for(ROOT)
+    contenders = [('new, no discovery', [sys.executable, '-c', _CHILD, path, 'no'], here)]
+    if n <= args.default_max_samples:
+        contenders.insert(0, ('new, default', [sys.executable, '-c', _CHILD, path, 'default'],
+                              here))
+    if args.previous and n <= args.previous_max_samples:
+        old = environment_for(args.previous)
+        contenders.append(('previous, default',
+                           [sys.executable, '-c', _CHILD, path, 'default'], old))
+        if n <= args.previous_both_max_samples:
+            contenders.append(('previous, no discovery',
+                               [sys.executable, '-c', _CHILD, path, 'no'], old))
+    if n <= args.plain_max_samples:
+        contenders.append(('plain scipy least_squares',
+                           [sys.executable, os.path.abspath(__file__), '--plain-child', path],
+                           here))
+    repeats = args.repeats if n <= 100_000 else 1
+    runs = {name: [] for name, _, _ in contenders}
     for _ in range(repeats):
-        begin = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - begin)
-    return float(np.median(times))
+        for name, argv, env in contenders:
+            runs[name].append(run_reaped(argv, env))
+            print(f'# {duration_s:g} s @ {rate_hz:g} Hz {name}: cpu '
+                  f'{runs[name][-1]["cpu_s"]:.2f} s, wall {runs[name][-1]["wall_s"]:.2f} s, '
+                  f'peak {runs[name][-1]["peak_bytes"] / 2 ** 20:.0f} MiB', file=sys.stderr,
+                  flush=True)
+    os.remove(path)
+    return n, runs
 
 
-def run(repeats, skip_plain):
-    """Time the default method (cold and warm) and the plain fit; return the report."""
-    lines = [f'Command: `{command_line()}`  ', f'Machine: {environment()}; load average '
-             f'{os.getloadavg()[0]:.2f} at the start', '']
-    params = PAPER_MOTORS[MOTOR]
-    records = make_data()
-    with tempfile.TemporaryDirectory() as empty_cache:
-        compile_import, compile_call = cold_call(records, empty_cache)
-    cold_import, cold_call_s = cold_call(records)
-    identify(records, discover=False)
-    warm = []
-    for _ in range(repeats):
-        begin = time.perf_counter()
-        result = identify(records, discover=False).as_dict()
-        warm.append(time.perf_counter() - begin)
-    warm_s = float(np.median(warm))
-    with_discovery = []
-    for _ in range(3):
-        begin = time.perf_counter()
-        identify(records)
-        with_discovery.append(time.perf_counter() - begin)
-    refined_err = relative_errors_pct(result['parameters'], params.as_dict(),
-                                      list(PHYSICAL_NAMES))
-    rows = [
-        ['default (refined), cold: empty numba cache', f'{compile_call:.2f}',
-         f'import {compile_import:.2f} s; the call includes compiling the kernels'],
-        ['default (refined), cold: warm numba cache (first call)', f'{cold_call_s:.2f}',
-         f'import {cold_import:.2f} s; the call includes loading the cached kernels'],
-        [f'default (refined), warm: median of {repeats}', f'{warm_s:.2f}',
-         f'min {min(warm):.2f} s, max {max(warm):.2f} s; largest error '
-         f'{pct(max(refined_err.values()))} %'],
-        ['identify with effect discovery (the CLI without --no-discover), warm',
-         f'{np.median(with_discovery):.2f}', 'median of 3; not part of the target'],
-    ]
-    verdict = f'warm {warm_s:.2f} s against the target of {TARGET_S:g} s: ' + (
-        'met' if warm_s <= TARGET_S else 'NOT met')
-    model = OutputErrorModel(records)
-    truth = params.as_dict(derived=False)
-    kernel_s = _median_time(lambda: model.simulate(truth, 0, np.zeros(2)), 21)
-    plain_sim_s = _median_time(lambda: plain_simulate(
-        list(truth.values()) + [0.0, 0.0], records[0].voltage, SAMPLE_PERIOD_S), 5)
-    rows.append(['one simulation of the record: exact hybrid kernel / plain Python loop',
-                 f'{kernel_s:.4f} / {plain_sim_s:.3f}', 'median; what one residual costs'])
-    if not skip_plain:
-        start = RefinedEstimator()._start(model)
-        plain, plain_s = plain_fit(records[0], start)
-        plain_values = dict(zip(PHYSICAL_NAMES, plain.x[:6]))
-        plain_err = relative_errors_pct(plain_values, params.as_dict(), list(PHYSICAL_NAMES))
-        rows.append(['plain scipy least_squares (trf, 2-point, Python ZOH)', f'{plain_s:.1f}',
-                     f'{plain.nfev} evaluations + {plain.njev} Jacobians, status '
-                     f'{plain.status}; largest error {pct(max(plain_err.values()))} % '
-                     f'({max(plain_err, key=plain_err.get)})'])
-        verdict += f'; plain / default = {plain_s / warm_s:.0f}x'
-    lines.append(f'{DURATION_S:g} s at {1 / SAMPLE_PERIOD_S:g} Hz ({len(records[0])} samples), '
-                 f'motor 2, `paper` excitation, {NOISE * 100:g} % noise.')
-    lines.append('')
-    lines.append(markdown_table(['what', 'time [s]', 'notes'], rows))
-    lines.append('')
-    lines.append(verdict + '.')
-    return '\n'.join(lines)
+def size_rows(duration_s, rate_hz, n, runs):
+    """Rows of the results table for one size (medians; ratios pair by pair)."""
+    rows = []
+    peer = runs.get('plain scipy least_squares')
+    previous = runs.get('previous, default')
+    for name, reports in runs.items():
+        cpu = _median([r['cpu_s'] for r in reports])
+        wall = _median([r['wall_s'] for r in reports])
+        peak = _median([r['peak_bytes'] for r in reports])
+        error, which = max_error_pct(reports[-1]['parameters'])
+        notes = []
+        if 'rss_before' in reports[-1]:
+            extra = (peak - reports[-1]['rss_before']) / n
+            notes.append(f'{extra:.0f} B/sample beyond the loaded record')
+        if name == 'new, default' and peer:
+            notes.append('cpu / plain {:.2f}'.format(_median(
+                [a['cpu_s'] / b['cpu_s'] for a, b in zip(reports, peer)])))
+        if name == 'new, default' and previous:
+            notes.append('cpu / previous {:.2f}'.format(_median(
+                [a['cpu_s'] / b['cpu_s'] for a, b in zip(reports, previous)])))
+        if name == 'plain scipy least_squares':
+            notes.append(f'{reports[-1]["nfev"]} evaluations, status {reports[-1]["status"]}')
+        loads = ', '.join(f'{r["load"]:.1f}' for r in reports)
+        rows.append([f'{duration_s:g} s @ {rate_hz / 1000:g} kHz ({n:,})', name,
+                     f'{len(reports)}', f'{cpu:.2f}', f'{wall:.2f}',
+                     f'{peak / 2 ** 20:.0f}', f'{error:.3f} ({which})', loads,
+                     '; '.join(notes)])
+    return rows
+
+
+def cold_start(directory):
+    """Warm-up into an empty numba cache, then the first whole process against later ones."""
+    path = os.path.join(directory, 'cold.npz')
+    make_data(60.0, 1000.0, path)
+    with tempfile.TemporaryDirectory() as cache:
+        env = environment_for(ROOT, cache)
+        with tempfile.TemporaryFile() as sink:
+            process = subprocess.Popen([sys.executable, '-m', 'dcmotor_id.warmup', '--quiet'],
+                                       env=env, stdout=sink)
+            _, _, usage = os.wait4(process.pid, 0)
+        warm_up_cpu = usage.ru_utime + usage.ru_stime
+        runs = [run_reaped([sys.executable, '-c', _CHILD, path, 'default', 'again'], env)
+                for _ in range(4)]
+    first, later = runs[0], runs[1:]
+    return [
+        ['warm-up (python -m dcmotor_id.warmup, empty cache)', f'{warm_up_cpu:.2f}', '', ''],
+        ['first whole process after the warm-up', f'{first["cpu_s"]:.2f}',
+         f'{first["call_cpu_s"]:.2f}', f'{first["again_cpu_s"]:.2f}'],
+        ['later whole processes (median of 3)', f'{_median([r["cpu_s"] for r in later]):.2f}',
+         f'{_median([r["call_cpu_s"] for r in later]):.2f}',
+         f'{_median([r["again_cpu_s"] for r in later]):.2f}'],
+    ], (first['cpu_s'] / _median([r['cpu_s'] for r in later]),
+        first['call_cpu_s'] / _median([r['again_cpu_s'] for r in runs]))
 
 
 def main():
-    """Parse the options and print the report."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--repeats', type=int, default=11, help='warm calls timed')
-    parser.add_argument('--skip-plain', action='store_true', help='skip the plain fit')
+    """Parse the options, run the measurements and print the report."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    parser.add_argument('--sizes', default=DEFAULT_SIZES,
+                        help='comma-separated duration_s@rate_Hz (default: %(default)s)')
+    parser.add_argument('--repeats', type=int, default=3,
+                        help='interleaved rounds for records up to 100k samples')
+    parser.add_argument('--previous', help='checkout of the previous version (PYTHONPATH)')
+    parser.add_argument('--previous-max-samples', type=int, default=6_000_000)
+    parser.add_argument('--previous-both-max-samples', type=int, default=600_000,
+                        help='largest record the previous path also runs without discovery')
+    parser.add_argument('--plain-max-samples', type=int, default=600_000)
+    parser.add_argument('--default-max-samples', type=int, default=10 ** 9,
+                        help='largest record the new path runs with discovery (default: all)')
+    parser.add_argument('--skip-cold', action='store_true')
+    parser.add_argument('--plain-child', help=argparse.SUPPRESS)
     args = parser.parse_args()
-    print(run(args.repeats, args.skip_plain))
+    if args.plain_child:
+        plain_child(args.plain_child)
+        return
+    lines = [f'Command: `{command_line()}`  ', f'Machine: {environment()}; load average '
+             f'{os.getloadavg()[0]:.2f} at the start', '']
+    if args.previous and args.sizes:
+        # Compile the previous checkout's kernels first (its own cache, not timed).
+        subprocess.run([sys.executable, '-m', 'dcmotor_id.warmup', '--quiet'],
+                       env=environment_for(args.previous), check=True)
+    rows, growth = [], []
+    with tempfile.TemporaryDirectory() as directory:
+        for item in filter(None, args.sizes.split(',')):
+            duration, rate = (float(value) for value in item.split('@'))
+            n, runs = measure_size(duration, rate, directory, args)
+            rows += size_rows(duration, rate, n, runs)
+            growth.append((n, _median([r['call_cpu_s'] for r in runs['new, no discovery']]),
+                           _median([r['call_cpu_s'] for r in runs.get('new, default', [])])))
+            print('\n'.join(lines + [markdown_table(_HEADER, rows)]), file=sys.stderr,
+                  flush=True)
+        cold_rows, cold_ratio = (None, None) if args.skip_cold else cold_start(directory)
+    lines.append(f'Motor 2, `paper` excitation, {NOISE * 100:g} % noise; whole processes '
+                 '(import, load the record, identify); cpu = user + system seconds of the '
+                 'process (os.wait4), median over the interleaved rounds; load = the 1-minute '
+                 'load average when each run started (the machine has 2 cores).')
+    lines.append('')
+    lines.append(markdown_table(_HEADER, rows))
+    if len(growth) > 1:
+        sizes = np.log([g[0] for g in growth])
+        lines.append('')
+        for column, label in ((1, 'no discovery'), (2, 'default')):
+            known = [(size, g[column]) for size, g in zip(sizes, growth) if np.isfinite(g[column])]
+            if len(known) < 2:
+                continue
+            slope = np.polyfit([k[0] for k in known], np.log([k[1] for k in known]), 1)[0]
+            lines.append(f'Growth of the CPU time of the identify call ({label}), least-squares '
+                         f'slope of log time on log N over {len(known)} sizes up to '
+                         f'{np.exp(known[-1][0]):,.0f} samples: N^{slope:.2f}.')
+    if cold_rows:
+        lines += ['', 'Cold start (60 s @ 1 kHz, default):', '',
+                  markdown_table(['what', 'process cpu [s]', 'first identify call, cpu [s]',
+                                  'second call in the same process, cpu [s]'], cold_rows), '',
+                  f'First whole process after the warm-up / later ones: {cold_ratio[0]:.2f} '
+                  f'(CPU); first identify call of a process / a second call in it: '
+                  f'{cold_ratio[1]:.2f} (CPU: loading the cached kernels).']
+    print('\n'.join(lines))
+
+
+_HEADER = ['record', 'path', 'runs', 'cpu [s]', 'wall [s]', 'peak [MiB]',
+           'max error [%]', 'load', 'notes']
 
 
 if __name__ == '__main__':

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg import qr
 
 from dcmotor_id.effects import SensorDelay, torque_spread, VOCABULARY
 from dcmotor_id.errors import DcMotorIdError
@@ -314,15 +313,22 @@ class DiscoveryLoop:
                                 quasi_static=self.quasi_static, **options)
 
     def fit(self, structure: Structure, start: dict | None = None, initial: dict | None = None,
-            max_nfev: int = 100) -> Fit:
-        """Fit a structure on the training parts and simulate the whole records."""
+            max_nfev: int = 100,
+            initial_states: Sequence[Sequence[float]] | None = None) -> Fit:
+        """
+        Fit a structure on the training parts and simulate the whole records.
+
+        ``initial_states`` (one per record, e.g. of an earlier fit) warm-start the fit's
+        initial states; the training parts start where the records do.
+        """
         records = structure.transformed(self.records)
         stops = self._stops(records)
         base = start or {}
         terms = _with_initial(structure.terms(records, base, self.torque_constant, initial),
                               initial or {})
         train = [rec.slice(0, stop) for rec, stop in zip(records, stops)]
-        estimator = self._estimator(max_nfev=max_nfev, initial=start or None)
+        estimator = self._estimator(max_nfev=max_nfev, initial=start or None,
+                                    initial_states=initial_states)
         if not start and terms:
             raise ValueError('a structure with effects needs a start point')
         estimate = estimator.fit(train, torque_constant=self.torque_constant,
@@ -519,6 +525,7 @@ class DiscoveryLoop:
     def _projector(matrix):
         if matrix.shape[1] == 0:
             return None
+        from scipy.linalg import qr  # lazily: only a search round needs it (import time)
         q, r, _ = qr(matrix, mode='economic', pivoting=True)
         keep = np.abs(np.diag(r)) > 1e-10 * max(abs(r[0, 0]), 1e-300)
         return q[:, keep]
@@ -572,7 +579,8 @@ class DiscoveryLoop:
         try:
             with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
                 return self.fit(structure, start=self._base(current), initial=initial,
-                                max_nfev=CANDIDATE_MAX_NFEV)
+                                max_nfev=CANDIDATE_MAX_NFEV,
+                                initial_states=current.estimate.initial_states)
         except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             return None
 
@@ -661,11 +669,23 @@ class DiscoveryLoop:
         return fitted
 
     # ------------------------------------------------------------------ the loop
-    def run(self) -> DiscoveryResult:
-        """Run the loop, refit the base and final structures on all the data; return it."""
+    def run(self, estimate: Estimate | None = None) -> DiscoveryResult:
+        """
+        Run the loop, refit the base and final structures on all the data; return it.
+
+        ``estimate``, the base model already fitted on all of the records (same model: mode,
+        quasi-static armature), warm-starts the base fit on the training parts and is reused
+        when no effect is added.
+        """
         if self.progress is not None:
             self.progress.set_stage('discovery: base model on the training parts')
-        base = self.fit(Structure())
+        if estimate is None:
+            base = self.fit(Structure())
+        else:
+            start = {name: float(estimate.parameters[name])
+                     for name in parameter_names(self.mechanical_only)
+                     if name in estimate.parameters}
+            base = self.fit(Structure(), start=start, initial_states=estimate.initial_states)
         current = base
         steps = []
         analysis_before = self.analyse(base)
@@ -696,8 +716,12 @@ class DiscoveryLoop:
                 raise TimeBudgetExceeded('no time left for the all-data refit')
             if self.progress is not None:
                 self.progress.set_stage('discovery: final refit on all the data')
-            records, terms, estimate = self.refit_all(current)
-            base_estimate = self.refit_all(base)[2] if len(current.structure) else estimate
+            if len(current.structure) == 0 and estimate is not None:
+                # The base model on all of the data is the one given: no refit.
+                records, terms, base_estimate = list(self.records), (), estimate
+            else:
+                records, terms, estimate = self.refit_all(current)
+                base_estimate = self.refit_all(base)[2] if len(current.structure) else estimate
         except TimeBudgetExceeded:
             # The training-part fits are what there is: report them, said so in the result.
             out_of_time = True
@@ -788,6 +812,7 @@ class DiscoveryLoop:
         """Refit a structure on all the data (no hold-out), from the training values."""
         return refit_all_data(fitted.structure, self.records, self.torque_constant,
                               fitted.values, self._base(fitted), progress=self.progress,
+                              initial_states=fitted.estimate.initial_states,
                               initial_state=self.initial_state,
                               quasi_static=self.quasi_static)
 

@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import signal
 
 #: Names accepted by :func:`make_excitation` (and the CLI's ``--excitation``).
 EXCITATION_KINDS = ('sine', 'sawtooth', 'prbs', 'chirp', 'multisine', 'paper')
@@ -64,6 +63,9 @@ def make_excitation(kind: str, duration_s: float, sample_period_s: float,
         Sample times [s] and voltage [V].
 
     """
+    # Imported here: scipy.signal takes most of a second to import, and identifying (the
+    # CLI's usual path) never generates an excitation.
+    from scipy import signal
     t = sample_times(duration_s, sample_period_s)
     if kind not in EXCITATION_KINDS:
         raise ValueError(f'unknown excitation {kind!r}; choose one of '

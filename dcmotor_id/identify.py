@@ -436,7 +436,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
                                     time.monotonic() + HOPELESS_DISCOVERY_S)
         try:
             found, discovery_info = _run_discovery(records, torque_constant, estimator,
-                                                   vocabulary, progress, initial_state, quasi)
+                                                   vocabulary, progress, initial_state, quasi,
+                                                   estimate)
         finally:
             progress.deadline = deadline
         if found is not None and found.out_of_time:
@@ -760,7 +761,7 @@ def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, 
 
 
 def _run_discovery(records, torque_constant, estimator, vocabulary, progress, initial_state,
-                   quasi_static=False):
+                   quasi_static=False, estimate=None):
     """Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``."""
     if not supports_discovery(estimator):
         return None, {'skipped': f'effect discovery needs the refined method (the '
@@ -769,7 +770,7 @@ def _run_discovery(records, torque_constant, estimator, vocabulary, progress, in
     try:
         found = DiscoveryLoop(records, torque_constant, vocabulary=vocabulary,
                               progress=progress, initial_state=initial_state,
-                              quasi_static=quasi_static).run()
+                              quasi_static=quasi_static).run(estimate)
         _check_physical(found.estimate)
     except TimeBudgetExceeded:
         return None, {'skipped': f'the time budget ({progress.max_time_s:g} s) ran out '

@@ -14,7 +14,7 @@ The tools of :func:`dcmotor_id.identify.identify`, the discovery loop
   of the identified model, minus the next measurement; it localises errors in time and is
   insensitive to slow drifts of the simulation.
 * **Whiteness**: the Ljung-Box portmanteau test on the autocorrelation (chi-square with as
-  many degrees of freedom as lags, :func:`scipy.stats.chi2`), and the share of the residual
+  many degrees of freedom as lags, :func:`scipy.special.chdtrc`), and the share of the residual
   that an autoregressive predictor explains from the residual's own past (a size, where the
   test gives only a significance).
 * **Cross-correlation** with the inputs and with each candidate effect's regressor, with the
@@ -30,7 +30,7 @@ from typing import Any, Mapping, Protocol, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2, norm
+from scipy.special import chdtrc, ndtri
 
 from dcmotor_id.signals import noise_std
 from dcmotor_id.simulation import zoh_matrices
@@ -157,7 +157,7 @@ def model_errors(model: SimulatedModel, values: Mapping[str, float],
 
 def confidence_band(n_samples: int, level: float = 1.0 - ALPHA) -> float:
     """Half-width of the two-sided band of a white sequence's correlation at ``level``."""
-    return float(norm.ppf(0.5 + 0.5 * level) / np.sqrt(max(n_samples, 1)))
+    return float(ndtri(0.5 + 0.5 * level) / np.sqrt(max(n_samples, 1)))
 
 
 def autocorrelation(values: ArrayLike, max_lag: int = DEFAULT_LAGS,
@@ -227,7 +227,7 @@ def ljung_box(values: ArrayLike, lags: int = DEFAULT_LAGS,
     lags = int(min(lags, max(n // 5, 1)))
     rho = autocorrelation(values, lags)[1:]
     statistic = float(n * (n + 2) * np.sum(rho ** 2 / (n - np.arange(1, lags + 1))))
-    p_value = float(chi2.sf(statistic, lags))
+    p_value = float(chdtrc(lags, statistic))
     return {'statistic': statistic, 'p_value': p_value, 'lags': lags,
             'white': bool(p_value >= alpha)}
 

@@ -5,9 +5,11 @@ The kernels are compiled with ``cache=True``: the first process that calls one c
 (6-10 s in all) and writes the machine code next to the source (``__pycache__``); later
 processes load it.  ``python -m dcmotor_id.warmup`` (the Makefile's install rule) runs a tiny
 simulation and identification through the public entry points, on synthetic data, so that
-every kernel is compiled for the argument types the CLI and the nodes use.  It goes through
-the command line and the public classes only, not the kernels' names, so it keeps covering
-them wherever they live.  Measured in ``bench/bench_cold_start.py``.
+every kernel is compiled for the argument types the CLI and the nodes use (the identify steps
+compile the fit's sensitivity kernel, :func:`dcmotor_id.simulation.sensitivity.normal_kernel`).
+It goes through the command line and the public classes only, not the kernels' names, so it
+keeps covering them wherever they live.  Measured in ``bench/bench_cold_start.py`` and
+``bench/bench_speed.py`` (cold start).
 """
 
 from __future__ import annotations

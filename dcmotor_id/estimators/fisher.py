@@ -13,11 +13,14 @@ smallest standard errors achievable.  ``theta`` holds the physical parameters of
 default, the initial state of every record (the refined estimator estimates it too, so the
 bound that applies to it treats the initial states as nuisance parameters).
 
-The sensitivities ``S`` are central differences of :class:`OutputErrorModel` simulations (the
-exact hybrid ZOH solution): the outputs are smooth in the parameters between speed reversals
-and continuous through them, so a relative step of ``1e-6`` gives the derivatives to about
-six digits, far more than a bound needs.  In mechanical-only mode the measured current is the
-model's input and is taken as noise-free.
+The information is accumulated by the analytic-sensitivity kernel of the fit
+(:mod:`dcmotor_id.estimators.normal_equations`: the sensitivities propagated beside the exact
+hybrid ZOH solution, exact through speed reversals and stick phases, never stored), the same
+accumulation that gives the refined estimator its standard errors.  Model variants that kernel
+does not cover (effects held over sub-steps) fall back to central differences of
+:class:`OutputErrorModel` simulations with a relative step of ``1e-6`` (the outputs are smooth
+in the parameters between events and continuous through them: about six digits).  In
+mechanical-only mode the measured current is the model's input and is taken as noise-free.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from numpy.typing import ArrayLike
 
 from dcmotor_id.estimators.base import ExogenousTerm
 from dcmotor_id.estimators.jacobian import jacobian
+from dcmotor_id.estimators.normal_equations import NormalEquations
 from dcmotor_id.estimators.refined import OutputErrorModel
 from dcmotor_id.model import derived_stderr, MotorParameters, NON_NEGATIVE_NAMES
 
@@ -155,12 +159,37 @@ def fisher_information(model: OutputErrorModel, values: Mapping[str, float],
 
     """
     sigma = _noise_table(noise_std, len(model.records), model.outputs)
+    if NormalEquations.supports(model):
+        return _accumulated_information(model, values, initial_states, sigma,
+                                        include_initial_states)
     names, sensitivities = output_sensitivities(model, values, initial_states,
                                                 include_initial_states)
     information = np.zeros((len(names), len(names)))
     for index, per_channel in enumerate(sensitivities):
         for channel, matrix in per_channel.items():
             information += matrix.T @ matrix / sigma[index][channel] ** 2
+    return names, information
+
+
+def _accumulated_information(model, values, initial_states, sigma, include_initial_states):
+    """Fisher information from the analytic kernel's ``J^T J`` (weighted by ``1/sigma``)."""
+    equations = NormalEquations(model)
+    states = [np.asarray(state, dtype=float) for state in initial_states]
+    if len(states) != len(model.records):
+        raise ValueError('one initial state per record is needed')
+    n_shared = equations.n_shared
+    size = n_shared + equations.n_state * len(states)
+    information = np.zeros((size, size))
+    for index, state in enumerate(states):
+        weights = [1.0 / sigma[index][channel] for channel in model.outputs]
+        columns = equations.columns(index)
+        information[np.ix_(columns, columns)] += equations.record(values, index, state,
+                                                                  weights).hessian
+    names = list(equations.names)
+    if not include_initial_states:
+        return names, information[:n_shared, :n_shared]
+    names += [f'x0[{index}].{channel}' for index in range(len(states))
+              for channel in model.outputs]
     return names, information
 
 

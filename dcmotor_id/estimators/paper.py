@@ -24,7 +24,6 @@ from __future__ import annotations
 from typing import Any, Callable, Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from dcmotor_id.errors import FitError
 from dcmotor_id.estimators.base import Estimate, ExogenousTerm
@@ -43,6 +42,7 @@ def _train_neuron(inputs, target):
     def jacobian(weights):
         return scaled / np.sqrt(target.shape[0])
 
+    from scipy.optimize import least_squares  # lazily: a second of import for the CLI
     result = least_squares(residual, np.zeros(inputs.shape[1]), jac=jacobian, method='lm',
                            xtol=1e-15, ftol=1e-15, gtol=1e-15)
     if not np.all(np.isfinite(result.x)):

@@ -27,11 +27,11 @@ from __future__ import annotations
 from typing import Any, Callable, cast, Mapping, Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from dcmotor_id.errors import FitError
 from dcmotor_id.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.estimators.jacobian import jacobian
+from dcmotor_id.estimators.normal_equations import NormalEquations
 from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.uncertainty import block_scores
 from dcmotor_id.model import (derived_stderr, derived_values, make_admissible, MotorParameters,
@@ -49,6 +49,10 @@ _MISFIT = ('the motor model does not reproduce the data. Check that the columns 
 _CHANNELS = ('voltage', 'torque', 'current', 'speed', 'state')
 #: Sub-steps per sample when state-dependent effects are simulated.
 STATE_OVERSAMPLE = 2
+#: Samples the start-point search looks at, at most (windows spread over longer records).
+START_SAMPLES = 250_000
+#: Windows per record of the start-point search on long records.
+START_WINDOWS = 5
 
 
 class OutputErrorModel:
@@ -199,6 +203,20 @@ class OutputErrorModel:
         return getattr(self.records[index], channel)
 
 
+def _windows(records, total):
+    """Cut :data:`START_WINDOWS` evenly spread windows of ``total`` samples in all."""
+    per_record = max(total // len(records), 1)
+    windows = []
+    for rec in records:
+        if len(rec) <= per_record:
+            windows.append(rec)
+            continue
+        width = max(per_record // START_WINDOWS, 1)
+        starts = np.linspace(0, len(rec) - width, START_WINDOWS).astype(int)
+        windows.extend(rec.slice(int(start), int(start) + width) for start in starts)
+    return windows
+
+
 def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004)):
     """Continuous-time least squares on low-pass filtered signals, one estimate per cut-off."""
     mechanical_only = torque_constant is not None
@@ -251,6 +269,36 @@ def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004
     return candidates
 
 
+class _Pass:
+    """
+    One evaluation of the fit at a point ``z``: cost and (optionally) normal equations.
+
+    ``hessian``, ``gradient`` and ``blocks`` are in the fit's coordinates ``z``; ``sums`` are
+    the unweighted residual sums of squares per record and channel.  An analytic pass keeps
+    its per-channel sums (``parts``), so :meth:`reweighted` gives the same pass under new noise
+    weights without simulating again.
+    """
+
+    def __init__(self, cost, hessian=None, gradient=None, sums=None, blocks=None,
+                 block_record=None, parts=None):
+        self.cost = cost
+        self.hessian = hessian
+        self.gradient = gradient
+        self.sums = sums
+        self.blocks = blocks
+        self.block_record = block_record
+        self.parts = parts
+
+    def reweighted(self, noise, outputs):
+        """Return this pass under the noise levels ``noise`` (None: simulate again)."""
+        if self.parts is None or self.hessian is None:
+            return None
+        equations, results, old, chain = self.parts
+        new = [np.array([1.0 / level[channel] for channel in outputs]) for level in noise]
+        return _assemble(equations, results, new, chain,
+                         [(w / w_old) ** 2 for w, w_old in zip(new, old)])
+
+
 class RefinedEstimator:
     """
     Exact output-error estimator with noise-weighted channels and standard errors.
@@ -258,7 +306,8 @@ class RefinedEstimator:
     Parameters
     ----------
     max_nfev : int
-        Bound on Jacobian evaluations per least-squares pass.
+        Bound on the evaluations (simulations, with or without sensitivities) per
+        least-squares pass.
     reweight_passes : int
         Passes re-estimating each channel's noise level (2 gives the ML weighting).
     initial : dict, optional
@@ -271,6 +320,9 @@ class RefinedEstimator:
     progress : callable, optional
         Called with ``(iteration, cost)`` at every evaluation of the fit
         (:class:`dcmotor_id.progress.Progress`; it may raise to stop the fit).
+    initial_states : sequence, optional
+        Start of every record's initial state (a warm start, e.g. from an earlier fit of the
+        same records); default: the first measured samples.  Ignored when pinned.
 
     """
 
@@ -281,7 +333,8 @@ class RefinedEstimator:
     def __init__(self, max_nfev: int = 100, reweight_passes: int = 2,
                  initial: Mapping[str, float] | None = None, quasi_static: bool = False,
                  initial_state: str = 'estimate',
-                 progress: Callable[..., None] | None = None) -> None:
+                 progress: Callable[..., None] | None = None,
+                 initial_states: Sequence[Sequence[float]] | None = None) -> None:
         if initial_state not in ('estimate', 'measured'):
             raise ValueError(f'initial_state must be estimate or measured, not {initial_state}')
         self.max_nfev = max_nfev
@@ -290,6 +343,7 @@ class RefinedEstimator:
         self.quasi_static = quasi_static
         self.initial_state = initial_state
         self.progress = progress
+        self.initial_states = initial_states
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
@@ -308,12 +362,15 @@ class RefinedEstimator:
         start += [term.initial / term.scale for term in model.terms]
         pinned = (np.array([[float(getattr(rec, channel)[0]) for channel in model.outputs]
                             for rec in records]) if self.initial_state == 'measured' else None)
-        for rec in records if pinned is None else ():
-            for channel in model.outputs:
+        warm = self.initial_states if self.initial_states is not None and len(
+            self.initial_states) == len(records) else None
+        for index, rec in enumerate(records if pinned is None else ()):
+            for position, channel in enumerate(model.outputs):
                 values = getattr(rec, channel)
                 scale = max(float(np.std(values)), 1e-9)
                 magnitudes.append(scale)
-                start.append(float(values[0]) / scale)
+                first = float(values[0]) if warm is None else float(warm[index][position])
+                start.append(first / scale)
         scales = np.array(magnitudes)
         z0 = np.array(start)
         # Noise level per record and channel (records may come from different sensors or
@@ -323,16 +380,24 @@ class RefinedEstimator:
             [getattr(rec, channel) for rec in records]))), 1e-12) for channel in model.outputs}
         noise = [{channel: 0.01 * pooled[channel] for channel in model.outputs}
                  for _ in records]
+        analytic = NormalEquations.supports(model)
+        equations = NormalEquations(model) if analytic else None
 
         def unpack(z):
             theta = z * scales
-            theta[:n_base] = np.exp(z[:n_base])
+            with np.errstate(over='ignore'):  # a wild step: an infinite cost, rejected
+                theta[:n_base] = np.exp(z[:n_base])
             values = dict(zip(names, theta[:len(names)]))
             states = (theta[len(names):].reshape(len(records), n_state) if pinned is None
                       else pinned)
             return values, states, theta
 
-        def residual(z):
+        def chain_of(theta):
+            chain = scales.copy()
+            chain[:n_base] = theta[:n_base]
+            return chain
+
+        def residual(z, noise):
             values, states, _ = unpack(z)
             parts = []
             for index in range(len(records)):
@@ -344,46 +409,68 @@ class RefinedEstimator:
                 self.progress(cost=float(sum(part @ part for part in parts)))
             return np.concatenate(parts)
 
+        def evaluate(z, noise, with_sens):
+            values, states, theta = unpack(z)
+            if not np.all(np.isfinite(theta)):
+                return _Pass(np.inf)
+            try:
+                with np.errstate(all='ignore'):
+                    if analytic:
+                        result = _analytic_pass(equations, values, states, noise,
+                                                chain_of(theta), with_sens, model.outputs)
+                        if self.progress is not None:
+                            # The numeric pass reports every simulation (in ``residual``).
+                            self.progress(cost=float(result.cost))
+                        return result
+                    return _numeric_pass(lambda point: residual(point, noise), z, model,
+                                         noise, with_sens)
+            except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
+                # A parameter ran to zero or infinity on the way (the simulation kernels raise
+                # on a division by zero): the data do not fit this model.
+                raise FitError(f'the output-error fit diverged ({error}): ' + _MISFIT) from None
+
         # Tolerances of 1e-8 leave the parameters within 1e-3 of a standard error of the
         # converged optimum (noise-free: round-off); tighter ones only add iterations spent in
         # the weakly determined initial-state directions of a record that starts at rest.
         z = z0
         total_nfev = 0
+        converged = True
+        current = None
+        damping = None
         for _ in range(max(1, self.reweight_passes)):
-            try:
-                with np.errstate(all='ignore'):
-                    result = least_squares(residual, z, method='lm', xtol=1e-8, ftol=1e-8,
-                                           gtol=1e-8, max_nfev=self.max_nfev * (z.shape[0] + 1))
-            except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
-                # A parameter ran to zero or infinity on the way (the simulation kernels raise
-                # on a division by zero): the data do not fit this model.
-                raise FitError(f'the output-error fit diverged ({error}): ' + _MISFIT) from None
-            total_nfev += result.nfev
-            if not np.all(np.isfinite(result.x)):
+            z, current, nfev, converged, damping = _levenberg_marquardt(
+                lambda point, with_sens: evaluate(point, noise, with_sens), z, self.max_nfev,
+                current=current, damping=damping)
+            total_nfev += nfev
+            if not np.all(np.isfinite(z)):
                 raise FitError('the output-error fit diverged (non-finite parameters): ' + _MISFIT)
-            z = result.x
-            values, states, _ = unpack(z)
-            noise = []
-            for index in range(len(records)):
-                out = model.simulate(values, index, states[index])
-                noise.append({channel: max(float(np.sqrt(np.mean(
-                    (out[channel] - model.measured(index, channel)) ** 2))),
-                    1e-13 * pooled[channel]) for channel in model.outputs})
-        if result.status <= 0:
-            raise FitError(f'the output-error fit did not converge ({result.message})')
+            noise = [{channel: max(float(np.sqrt(current.sums[index][position] / len(rec))),
+                                   1e-13 * pooled[channel])
+                      for position, channel in enumerate(model.outputs)}
+                     for index, rec in enumerate(records)]
+            # The next pass (and the covariance) starts from this point under the new weights:
+            # an analytic pass is rescaled channel by channel, others are simulated again.
+            current = current.reweighted(noise, model.outputs)
+        if not converged:
+            # Mostly a fit wandering towards a degenerate motor (parameters running to zero or
+            # infinity): the data do not fit the model.
+            raise FitError('the output-error fit did not converge (the number of function '
+                           'evaluations is exceeded): ' + _MISFIT)
         values, states, theta = unpack(z)
         degenerate = [name for name in model.base_names if not np.isfinite(values[name])
                       or (name in POSITIVE_NAMES and not 1e-200 < values[name] < 1e200)]
         if degenerate:
             raise FitError(f'the output-error fit diverged ({", ".join(degenerate)} went to zero '
                            'or infinity): ' + _MISFIT)
-        final = residual(z)
-        jac = jacobian(residual, z, 1e-6 * np.maximum(np.abs(z), 1e-3))
-        dof = max(final.shape[0] - z.shape[0], 1)
-        s2 = float(final @ final) / dof
-        cov_z = s2 * np.linalg.pinv(jac.T @ jac)
-        chain = scales.copy()
-        chain[:n_base] = theta[:n_base]
+        final = current
+        if final is None:
+            final = evaluate(z, noise, True)
+            total_nfev += 1
+        n_residuals = sum(len(rec) for rec in records) * n_state
+        dof = max(n_residuals - z.shape[0], 1)
+        s2 = float(final.cost) / dof
+        cov_z = s2 * np.linalg.pinv(final.hessian)
+        chain = chain_of(theta)
         covariance = cov_z * np.outer(chain, chain)
         stderr_all = np.sqrt(np.maximum(np.diag(covariance), 0.0))
         parameters = {name: float(values[name]) for name in names}
@@ -403,12 +490,15 @@ class RefinedEstimator:
             'covariance': covariance[:len(names), :len(names)].tolist(),
             'names': names,
             'quasi_static': model.quasi_static,
-            # What the data-based covariance needs (dcmotor_id.estimators.uncertainty): J^T J
-            # and the score sums over blocks of samples, in the fit's coordinates z, and
-            # d theta / d z.
-            'normal_matrix': jac.T @ jac,
+            'sensitivities': 'analytic' if analytic else 'finite differences',
+            # What the data-based covariance needs (dcmotor_id.estimators.uncertainty): the
+            # fit's normal equations in its internal coordinates z (theta = chain * dz locally)
+            # at the optimum, with the final noise weights: J^T J, the score sums J^T r over
+            # blocks of samples and the record of each block.
+            'normal_matrix': final.hessian,
+            'block_scores': final.blocks,
+            'block_record': final.block_record,
             'chain': chain,
-            **block_scores(final, jac, [len(rec) for rec in records], n_state),
         }
         return Estimate(self.name, parameters, stderr,
                         [tuple(float(v) for v in row) for row in states], info)
@@ -418,6 +508,11 @@ class RefinedEstimator:
         if self.initial is not None:
             return {name: float(self.initial[name]) for name in model.base_names}
         records, constant = model.records, model.torque_constant
+        if not model.terms and sum(len(rec) for rec in records) > START_SAMPLES:
+            # A start point needs seconds of data, not hours: windows spread over each record
+            # keep the search's time and memory bounded (the fit itself uses every sample).
+            records = _windows(records, START_SAMPLES)
+            model = OutputErrorModel(records, constant, quasi_static=model.quasi_static)
         candidates = _svf_candidates(records, constant)
         try:
             paper = PaperEstimator().fit(records, torque_constant=constant).parameters
@@ -447,3 +542,146 @@ class RefinedEstimator:
             raise FitError('no admissible start point for the output-error fit: the data do '
                            'not look like a DC motor (check signs and units of the columns)')
         return best
+
+
+def _analytic_pass(equations, values, states, noise, chain, with_sens, outputs):
+    """Accumulate the normal equations of every record with the analytic sensitivities."""
+    weights = [np.array([1.0 / level[channel] for channel in outputs]) for level in noise]
+    results = [equations.record(values, index, state, weights[index], with_sens)
+               for index, state in enumerate(states)]
+    if not with_sens:
+        cost = float(sum(result.sums @ w ** 2 for result, w in zip(results, weights)))
+        return _Pass(cost, sums=[result.sums for result in results])
+    return _assemble(equations, results, weights, chain, [np.ones_like(w) for w in weights])
+
+
+def _assemble(equations, results, weights, chain, factors):
+    """
+    Sum the records' per-channel normal equations into one pass in ``z`` coordinates.
+
+    ``factors[record][channel]`` rescales each channel's sums (the ratio of the squared new
+    and old weights when the noise levels were re-estimated); ``weights`` are the new ones.
+    ``chain`` (``d theta / d z``) has one entry per column of ``z``: the shared parameters,
+    then the records' initial states unless they are pinned.
+    """
+    size = equations.n_shared + equations.n_state * len(results)
+    hessian = np.zeros((size, size))
+    gradient = np.zeros(size)
+    blocks, block_record = [], []
+    cost = 0.0
+    for index, (result, factor) in enumerate(zip(results, factors)):
+        by_hessian, by_gradient, by_blocks = result.by_channel
+        columns = equations.columns(index)
+        hessian[np.ix_(columns, columns)] += np.tensordot(factor, by_hessian, axes=1)
+        gradient[columns] += factor @ by_gradient
+        full = np.zeros((by_blocks.shape[0], size))
+        full[:, columns] = np.tensordot(by_blocks, factor, axes=([1], [0]))
+        blocks.append(full)
+        block_record.append(np.full(by_blocks.shape[0], index))
+        cost += float(result.sums @ weights[index] ** 2)
+    # Pinned initial states (``initial_state='measured'``) are not in ``z``: ``chain`` covers
+    # the shared parameters only, and the states' columns are dropped.
+    keep = len(chain)
+    return _Pass(cost, hessian[:keep, :keep] * np.outer(chain, chain), gradient[:keep] * chain,
+                 [result.sums for result in results], np.vstack(blocks)[:, :keep] * chain,
+                 np.concatenate(block_record), (equations, results, weights, chain))
+
+
+def _numeric_pass(residual, z, model, noise, with_sens):
+    """
+    Accumulate the same sums by forward differences of the simulation (for other models).
+
+    Effects simulated on sub-steps (held over half-samples) and other model variants: the
+    residual and its Jacobian are materialised, as a least-squares solver would.
+    """
+    r = residual(z)
+    cost = float(r @ r)
+    if not np.isfinite(cost):
+        return _Pass(np.inf)
+    jac = None
+    if with_sens:
+        steps = np.sqrt(np.finfo(float).eps) * np.maximum(np.abs(z), 1.0)
+        jac = jacobian(residual, z, steps, central=False, f0=r)
+    sums = []
+    position = 0
+    for index, rec in enumerate(model.records):
+        per_channel = np.zeros(len(model.outputs))
+        for channel, name in enumerate(model.outputs):
+            part = slice(position, position + len(rec))
+            per_channel[channel] = float(r[part] @ r[part]) * noise[index][name] ** 2
+            position += len(rec)
+        sums.append(per_channel)
+    if jac is None:
+        return _Pass(cost, sums=sums)
+    scores = block_scores(r, jac, [len(rec) for rec in model.records], len(model.outputs))
+    return _Pass(cost, jac.T @ jac, jac.T @ r, sums, scores['block_scores'],
+                 scores['block_record'])
+
+
+def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8,
+                         current=None, damping=None):
+    """
+    Levenberg-Marquardt on the accumulated normal equations.
+
+    MINPACK's ``lmder`` criteria on the normal equations alone (it never sees the ``2N x p``
+    Jacobian): the step ``(H + mu D) dz = -g`` with ``D`` the largest diagonal of ``H`` seen
+    (scale invariance), the damping lowered by the gain ratio of an accepted step (Nielsen's
+    rule) and raised tenfold after a rejected one (the cost has kinks where an event crosses a
+    sample instant: a quadratic model is trusted less), convergence
+    when the relative cost reduction, actual and predicted, is below ``ftol``, the scaled step
+    below ``xtol`` of the scaled point, or the largest cosine between the residual and a
+    column of the Jacobian below ``gtol``.  After a rejected step the next trial is simulated
+    without sensitivities (a fifth of the cost) and only an accepted one with them.
+
+    Returns ``(z, pass, evaluations, converged, damping)``; ``current`` (the pass at ``z``)
+    and ``damping`` continue an earlier run (a reweighted pass starts from its optimum).
+    """
+    nfev = 0
+    if current is None:
+        current = evaluate(z, True)
+        nfev += 1
+    if not np.isfinite(current.cost):
+        raise FitError('the output-error fit diverged (non-finite residuals at the start): '
+                       + _MISFIT)
+    scale = np.maximum(np.diag(current.hessian), 0.0)
+    mu = 1e-3 if damping is None else damping
+    cheap = False
+    while nfev < max(int(max_evaluations), 2):
+        hessian, gradient, cost = current.hessian, current.gradient, current.cost
+        diagonal = np.diag(hessian)
+        scale = np.maximum(scale, diagonal)
+        weights = np.where(scale > 0.0, scale, 1.0)
+        column_norms = np.sqrt(np.maximum(diagonal, 0.0))
+        if cost <= 0.0:
+            return z, current, nfev, True, mu
+        cosines = np.abs(gradient) / np.where(column_norms > 0.0, column_norms, np.inf)
+        if float(np.max(cosines, initial=0.0)) / np.sqrt(cost) <= gtol:
+            return z, current, nfev, True, mu
+        try:
+            step = np.linalg.solve(hessian + mu * np.diag(weights), -gradient)
+        except np.linalg.LinAlgError:
+            step = np.linalg.lstsq(hessian + mu * np.diag(weights), -gradient, rcond=None)[0]
+        step_norm = float(np.sqrt(np.sum(weights * step ** 2)))
+        point_norm = float(np.sqrt(np.sum(weights * z ** 2)))
+        predicted = -(2.0 * gradient @ step + step @ hessian @ step)
+        trial = evaluate(z + step, not cheap)
+        nfev += 1
+        actual = cost - trial.cost if np.isfinite(trial.cost) else -np.inf
+        ratio = actual / predicted if predicted > 0.0 else -1.0
+        if ratio > 1e-4:
+            z = z + step
+            if cheap:
+                trial = evaluate(z, True)
+                nfev += 1
+            current = trial
+            cheap = False
+            mu *= max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3)
+            if (abs(actual) <= ftol * cost and predicted <= ftol * cost) \
+                    or step_norm <= xtol * point_norm:
+                return z, current, nfev, True, mu
+        else:
+            cheap = True
+            mu *= 10.0
+            if step_norm <= xtol * point_norm or mu > 1e16:
+                return z, current, nfev, True, mu
+    return z, current, nfev, False, mu

@@ -43,6 +43,12 @@ METHOD = ('max(Gauss-Newton, sandwich with batch-means score covariance over 8, 
 MIN_BLOCK_SAMPLES = 4
 
 
+def block_edges(length: int, fine_blocks: int = FINE_BLOCKS) -> np.ndarray:
+    """Return the sample edges of a record's fine blocks (``count + 1`` increasing indices)."""
+    count = max(min(fine_blocks, int(length) // MIN_BLOCK_SAMPLES), 1)
+    return np.linspace(0, int(length), count + 1).round().astype(np.int64)
+
+
 def block_scores(residual: np.ndarray, jac: np.ndarray, record_lengths: Sequence[int],
                  n_outputs: int, fine_blocks: int = FINE_BLOCKS) -> dict[str, np.ndarray]:
     """
@@ -75,10 +81,9 @@ def block_scores(residual: np.ndarray, jac: np.ndarray, record_lengths: Sequence
             rows = slice(position, position + length)
             g += jac[rows] * residual[rows, None]
             position += length
-        count = max(min(fine_blocks, length // MIN_BLOCK_SAMPLES), 1)
-        edges = np.linspace(0, length, count + 1).round().astype(int)
+        edges = block_edges(length, fine_blocks)
         scores.append(np.add.reduceat(g, edges[:-1], axis=0))
-        owner.extend([index] * count)
+        owner.extend([index] * (len(edges) - 1))
     return {'block_scores': np.vstack(scores) if scores else np.zeros((0, jac.shape[1])),
             'block_record': np.array(owner, dtype=int)}
 
