@@ -20,7 +20,7 @@ from launch_ros.actions import Node
 
 
 def generate_launch_description():
-    """Describe sim_motor and identifier, sharing the sample topics."""
+    """Describe sim_motor, identifier and (with exciter:=true) the exciter."""
     config = os.path.join(get_package_share_directory('dcmotor_id'), 'config')
     transport = LaunchConfiguration('transport')
     identifier_input = PythonExpression(["'batch' if '", transport,

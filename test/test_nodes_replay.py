@@ -64,7 +64,7 @@ def test_parameter_file_documents_every_parameter_with_its_type(ros, node_class,
             f'{key} has no comment in {path}'
 
 
-def test_launch_file_starts_both_nodes_with_their_parameter_files():
+def test_launch_file_starts_the_nodes_with_their_parameter_files():
     path = os.path.join(ROOT, 'launch', 'dcmotor_id.launch.py')
     with open(path) as stream:
         tree = ast.parse(stream.read())
@@ -72,9 +72,14 @@ def test_launch_file_starts_both_nodes_with_their_parameter_files():
              and getattr(node.func, 'id', '') == 'Node']
     executables = {kw.value.value for call in calls for kw in call.keywords
                    if kw.arg == 'executable'}
-    assert executables == {'sim_motor', 'identifier'}
+    assert executables == {'sim_motor', 'identifier', 'exciter'}
+    # The exciter (issue 13) starts only with exciter:=true; the other two always.
+    conditional = {kw.value.value for call in calls for kw in call.keywords
+                   if kw.arg == 'executable'
+                   and any(other.arg == 'condition' for other in call.keywords)}
+    assert conditional == {'exciter'}
     strings = {node.value for node in ast.walk(tree) if isinstance(node, ast.Constant)}
-    assert {'sim_motor.yaml', 'identifier.yaml', 'dcmotor_id'} <= strings
+    assert {'sim_motor.yaml', 'identifier.yaml', 'exciter.yaml', 'dcmotor_id'} <= strings
     assert any(name == 'generate_launch_description' for name in
                (node.name for node in tree.body if isinstance(node, ast.FunctionDef)))
 
