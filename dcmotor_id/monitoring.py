@@ -363,6 +363,19 @@ class OnlineMonitor:
         """Declare a gap in the samples."""
         self.estimator.break_continuity()
 
+    def feed(self, run: Any, electrical: bool = True) -> str:
+        """
+        Feed a run of aligned samples (:class:`dcmotor_id.windowing.Run`); return :meth:`update`.
+
+        A run ``after_gap`` breaks the continuity first; its columns are voltage, current and
+        speed. Without ``electrical`` (mechanical-only input, no voltage) nothing is estimated.
+        """
+        if run.after_gap:
+            self.break_continuity()
+        if not electrical:
+            return ''
+        return self.update(run.values[:, 0], run.values[:, 1], run.values[:, 2])
+
     def identified(self, result: Mapping[str, Any]) -> bool:
         """Take an ``~/identify`` result as the baseline if the mode says so; return whether."""
         if self.detector is None or self.baseline_mode not in ('auto', 'identify'):

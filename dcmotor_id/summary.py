@@ -4,7 +4,8 @@ The text summary of an identification result: the CLI's table, the node's line a
 One result (the dict of :func:`dcmotor_id.identify.identify`) is rendered three ways, all from
 here: :func:`format_table` for ``dcmotor-id identify``, :func:`format_line` for the answer of
 the identifier node's ``~/identify``, and :func:`result_key_values` (and
-:func:`online_key_values` for the online estimate) for its ``DiagnosticStatus`` messages.
+:func:`online_key_values` and :func:`online_text` for the online estimate) for its
+``DiagnosticStatus`` messages.
 Key-values carry numbers at full precision (:func:`format_value`), the texts at a few digits.
 """
 
@@ -207,3 +208,33 @@ def online_key_values(estimate: Any, alarms: Sequence[tuple[str, str]] = ()) -> 
                                                                math.nan))),
             ('fit_cpu_s', format_value(estimate.fit_cpu_s))]
     return pairs + list(alarms)
+
+
+def paper_status(result: Mapping[str, Any]) -> tuple[str, str, KeyValues] | None:
+    """
+    Return the level, message and key-values of the ``paper method`` status of a result.
+
+    The paper method's parameters (:func:`parameter_key_values`) when it ran, a ``WARN``
+    saying why when it failed, None when it was not asked for.
+    """
+    paper = result.get('paper')
+    if isinstance(paper, dict):
+        return ('OK', 'paper method on the same windows (comparison)',
+                parameter_key_values(paper['parameters']))
+    if paper is not None:
+        return 'WARN', f'paper method failed: {paper}', []
+    return None
+
+
+def online_text(estimate: Any, condition: str = '', alarmed: bool = False) -> str:
+    """
+    Render an online estimate as the message of ``~/online_parameters``.
+
+    ``converged after <n> samples`` (or ``not converged ...``), the estimate's ``status`` in
+    parentheses when it has one, and, when ``alarmed``, the ``condition`` message of the
+    change alarms (:meth:`dcmotor_id.monitoring.OnlineMonitor.condition`).
+    """
+    return (('converged' if estimate.converged else 'not converged') +
+            f' after {estimate.n_updates} samples' +
+            (f' ({estimate.status})' if estimate.status else '') +
+            (f'; {condition}' if alarmed else ''))

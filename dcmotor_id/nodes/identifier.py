@@ -4,7 +4,8 @@ The ``identifier`` node's ROS wiring: subscriptions, ``~/identify``, parameters,
 It aligns a drive's streams (:mod:`dcmotor_id.streams`), cuts them into windows
 (:mod:`dcmotor_id.windowing`) recorded as bags, and identifies on request off the executor
 (:mod:`dcmotor_id.nodes.worker`); its texts come from :mod:`dcmotor_id.summary` and its
-parameters are :class:`dcmotor_id.nodes.settings.IdentifierSettings`.
+parameters are :class:`dcmotor_id.nodes.settings.IdentifierSettings`; what went wrong with the
+input is counted and said by :class:`dcmotor_id.input_health.InputHealth`.
 
 Inputs (relative names; remap them globally, the messages are taken in bulk by the processing
 timer through :class:`~dcmotor_id.nodes.common.BulkInput`), by ``input``:
@@ -35,7 +36,6 @@ separate process (``identify_in_subprocess``); a second call meanwhile is refuse
 
 from __future__ import annotations
 
-from collections import Counter
 from functools import partial
 import threading
 import time
@@ -54,6 +54,7 @@ from std_srvs.srv import Trigger
 
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.formats.batch import decode_batch
+from dcmotor_id.input_health import InputHealth
 from dcmotor_id.monitoring import LEVELS, monitor_from_settings
 from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters,
                                      run, sample_qos)
@@ -61,8 +62,8 @@ from dcmotor_id.nodes.settings import IdentifierSettings
 from dcmotor_id.nodes.worker import FitProcess, WindowRecorder
 from dcmotor_id.records import MIN_SAMPLES
 from dcmotor_id.streams import SampleInbox, StreamAligner
-from dcmotor_id.summary import (online_key_values, parameter_key_values, result_key_values,
-                                RESULT_KEYS)
+from dcmotor_id.summary import (online_key_values, online_text, paper_status,
+                                result_key_values, RESULT_KEYS)
 from dcmotor_id.windowing import WindowCutter
 
 __all__ = ['Identifier', 'LATCHED', 'main', 'RESULT_KEYS']
@@ -92,13 +93,10 @@ class Identifier(Node):
                                    settings.min_window_s, min_samples=MIN_SAMPLES,
                                    clock_ns=lambda: self.get_clock().now().nanoseconds,
                                    restart_samples=self.aligner.restart_samples)
-        #: malformed batches refused, by reason, and the latest refusal's text
-        self.malformed: Counter[str] = Counter()
-        self.last_malformed = ''
+        self.health = InputHealth(self.channels, self.inbox, self.aligner, self.cutter)
         # online estimate and change alarms (ROS-free: dcmotor_id.monitoring, .online)
         self.online = monitor_from_settings(settings, rate) if settings.online else None
         self.estimator = self.online.estimator if self.online is not None else None
-        self._stalled: set[str] = set()
         self._identify_busy = threading.Lock()
         self._identify_started = 0.0
         self.last_result: Optional[dict] = None
@@ -161,11 +159,7 @@ class Identifier(Node):
                                  [dim.size for dim in message.layout.dim],
                                  np.frombuffer(message.data, dtype=float))
         except DcMotorIdError as error:
-            text = str(error)
-            reason = 'bad labels' if 'labelled' in text else \
-                'times not increasing' if 'do not increase' in text else 'wrong sizes'
-            self.malformed[reason] += 1
-            self.last_malformed = text
+            self.health.refuse_batch(str(error))
             self._log('error', f'samples: {error}')
             return
         self.inbox.put_times(block[0], dict(zip(('voltage', 'current', 'speed'), block[1:])))
@@ -194,12 +188,7 @@ class Identifier(Node):
 
     def _consume(self):
         for run_ in self.cutter.add(*self.aligner.pop_ready()):
-            if self.online is None:
-                continue
-            if run_.after_gap:
-                self.online.break_continuity()
-            if not self.mechanical and self.online.update(
-                    run_.values[:, 0], run_.values[:, 1], run_.values[:, 2]):
+            if self.online is not None and self.online.feed(run_, not self.mechanical):
                 self._log('error', self.online.error)
         self._dispatch()
 
@@ -230,13 +219,7 @@ class Identifier(Node):
             windows = self.cutter.select()
             if not windows:
                 response.success = False
-                problems = self.input_problems()
-                response.message = (
-                    f'not enough data: {self.cutter.held_samples} aligned samples so far, a '
-                    f'run of at least {self.cutter.min_samples} samples without loss is '
-                    f'needed; check that the drive publishes {", ".join(self.channels)}, '
-                    'then call again' +
-                    (f'. Input so far: {"; ".join(problems)}' if problems else ''))
+                response.message = self.health.not_enough_data()
                 self._publish_failure(response.message)
                 return response
             future = Future(executor=self.executor)
@@ -248,10 +231,8 @@ class Identifier(Node):
                              name='identify', daemon=True).start()
             outcome = await future
             response.success = not isinstance(outcome, str)
-            if response.success:
-                problems = self.input_problems()
-                if problems:  # what was refused or lost is said, never a silent success
-                    outcome['summary'] += f'; input so far: {"; ".join(problems)}'
+            if response.success:  # what was refused or lost is said, never a silent success
+                outcome['summary'] = self.health.with_problems(outcome['summary'])
                 self._publish_result(outcome)
                 response.message = outcome['summary']
             else:
@@ -261,46 +242,10 @@ class Identifier(Node):
         finally:
             self._identify_busy.release()
 
-    def input_problems(self) -> list[str]:
-        """
-        Say what went wrong with the input so far, one phrase per kind (empty when nothing).
-
-        Channels never received, values refused as NaN/inf (per channel), malformed batches
-        (by reason, with the latest refusal), samples with unusable times, duplicates, lost
-        and late samples, restarts of the source, runs too short to keep.
-        """
-        stats = self.aligner.stats
-        seen = set(self.inbox.last_seen)
-        problems = []
-        missing = [channel for channel in self.channels if channel not in seen]
-        if missing and (seen or stats.invalid or self.malformed):
-            problems.append(f'nothing received on {", ".join(missing)}')
-        elif missing and not seen:
-            problems.append('nothing received yet')
-        if stats.invalid:
-            per_channel = ', '.join(f'{channel} {count}' for channel, count in
-                                    self.aligner.invalid_by_channel.items() if count)
-            problems.append(f'{stats.invalid} invalid values (NaN/inf) refused: {per_channel}')
-        if self.malformed:
-            reasons = ', '.join(f'{reason} {count}' for reason, count in
-                                sorted(self.malformed.items()))
-            problems.append(f'{sum(self.malformed.values())} malformed batches refused '
-                            f'({reasons}; latest: {self.last_malformed})')
-        if self.inbox.invalid_times:
-            problems.append(f'{self.inbox.invalid_times} samples with NaN or absurd times '
-                            'dropped')
-        for count, what in ((stats.duplicates, 'duplicate values dropped'),
-                            (stats.lost, 'samples lost (a channel never delivered them)'),
-                            (stats.late, 'values dropped as too late'),
-                            (stats.restarts, 'restarts of the source (new time origin)'),
-                            (self.cutter.discarded_samples,
-                             'samples in runs too short to keep')):
-            if count:
-                problems.append(f'{count} {what}')
-        return problems
-
-    def _status(self, what, level=DiagnosticStatus.OK, message='', pairs=()):
-        return DiagnosticStatus(level=level, name=f'{self.get_name()}: {what}',
+    def _status(self, what, level='OK', message='', pairs=()):
+        """Build a status of this node; ``level`` is a name of :data:`LEVELS`."""
+        return DiagnosticStatus(level=bytes([LEVELS.index(level)]),
+                                name=f'{self.get_name()}: {what}',
                                 hardware_id=self.get_fully_qualified_name(),
                                 message=message,
                                 values=[KeyValue(key=k, value=v) for k, v in pairs])
@@ -316,14 +261,9 @@ class Identifier(Node):
         status = self.result_status(result)
         self.parameters_pub.publish(status)
         statuses = [status]
-        paper = result.get('paper')
-        if isinstance(paper, dict):
-            statuses.append(self._status('paper method', message='paper method on the same '
-                                         'windows (comparison)',
-                                         pairs=parameter_key_values(paper['parameters'])))
-        elif paper is not None:
-            statuses.append(self._status('paper method', DiagnosticStatus.WARN,
-                                         f'paper method failed: {paper}'))
+        paper = paper_status(result)  # the paper method's result on the same windows
+        if paper is not None:
+            statuses.append(self._status('paper method', *paper))
         self._publish_diagnostics(statuses)
         if self.online is not None:
             self.online.identified(result)  # the change baseline, if monitor_baseline says so
@@ -334,7 +274,7 @@ class Identifier(Node):
     def _publish_failure(self, message):
         self.last_error = message
         self.get_logger().warning(message)
-        self._publish_diagnostics([self._status('identify', DiagnosticStatus.ERROR, message)])
+        self._publish_diagnostics([self._status('identify', 'ERROR', message)])
 
     def _publish_diagnostics(self, statuses):
         array = DiagnosticArray(status=statuses)
@@ -351,15 +291,10 @@ class Identifier(Node):
         assert self.online is not None, 'online is false'
         estimate, alarms = self.online.snapshot()
         level, message, pairs = self.online.condition(alarms, time.time())
-        severity = bytes([LEVELS.index(level)])
-        text = ('converged' if estimate.converged else 'not converged') + \
-            f' after {estimate.n_updates} samples' + \
-            (f' ({estimate.status})' if estimate.status else '') + \
-            (f'; {message}' if alarms else '')
-        online = self._status('online estimate', max(
-            DiagnosticStatus.OK if estimate.converged else DiagnosticStatus.WARN, severity),
-            text, online_key_values(estimate, pairs))
-        return online, self._status('condition', severity, message, pairs)
+        worst = LEVELS[max(LEVELS.index(level), 0 if estimate.converged else 1)]
+        text = online_text(estimate, message, bool(alarms))
+        online = self._status('online estimate', worst, text, online_key_values(estimate, pairs))
+        return online, self._status('condition', level, message, pairs)
 
     @guarded
     def _publish_online(self):
@@ -370,48 +305,20 @@ class Identifier(Node):
 
     @guarded
     def _health(self):
-        now = time.monotonic()
-        seen = dict(self.inbox.last_seen)
+        """Close the window when a channel stops; publish the ``streams`` status."""
         timeout_s = self.settings.stream_timeout_s
-        stopped = sorted(channel for channel in self.channels
-                         if channel in seen and now - seen[channel] > timeout_s)
-        newly = set(stopped) - self._stalled
+        stopped, newly = self.health.stopped(timeout_s)
         if newly:
-            self.get_logger().warning(f'topic(s) {", ".join(sorted(newly))} stopped (nothing '
+            self.get_logger().warning(f'topic(s) {", ".join(newly)} stopped (nothing '
                                       f'for {timeout_s:g} s); the current window '
                                       'is closed and kept')
             self.aligner.flush()
             self._consume()
             self._close_window()
-        self._stalled = set(stopped)
-        level, message = DiagnosticStatus.OK, 'receiving'
-        missing = [channel for channel in self.channels if channel not in seen]
-        if not seen:
-            level, message = DiagnosticStatus.WARN, 'no samples received yet'
-        elif stopped:
-            level, message = DiagnosticStatus.WARN, f'stopped: {", ".join(stopped)}'
-        elif missing:
-            level, message = DiagnosticStatus.WARN, f'nothing received on {", ".join(missing)}'
-        if self.malformed and level == DiagnosticStatus.OK:
-            level, message = DiagnosticStatus.WARN, 'receiving; malformed batches refused'
-        if self.recorder is not None and self.recorder.error:
-            level, message = DiagnosticStatus.ERROR, self.recorder.error
-        pairs = [(key, str(value)) for key, value in self.aligner.stats.as_dict().items()]
-        pairs += [('first_sample', str(self.aligner.first_index)),
-                  ('next_sample', str(self.aligner.next_index)),
-                  ('windows_in_memory', str(len(self.cutter.windows))),
-                  ('discarded_samples', str(self.cutter.discarded_samples)),
-                  ('missing_channels', ', '.join(missing)),
-                  ('malformed_batches', str(sum(self.malformed.values()))),
-                  ('malformed_reason', self.last_malformed),
-                  ('invalid_times', str(self.inbox.invalid_times)),
-                  ('window_restarts', str(self.cutter.restarts)),
-                  ('fit_restarts', str(self._fits.restarts)),
-                  ('problems', '; '.join(self.input_problems()))]
-        pairs += [(f'invalid.{channel}', str(count))
-                  for channel, count in self.aligner.invalid_by_channel.items()]
-        if self.recorder is not None and self.recorder.writer is not None:
-            pairs.append(('record_dir', self.recorder.writer.record_dir))
+        recorder = self.recorder
+        writer = recorder.writer if recorder is not None else None
+        level, message = self.health.status(stopped, recorder.error if recorder else None)
+        pairs = self.health.key_values(self._fits.restarts, writer.record_dir if writer else None)
         self._publish_diagnostics([self._status('streams', level, message, pairs)])
 
     # ------------------------------------------------------------------ shutdown
