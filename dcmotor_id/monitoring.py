@@ -19,6 +19,13 @@ two-sided CUSUM on ``z`` (``S+ = max(0, S+ + c (z - k))``, ``S-`` with ``-z``, d
 alarm.  Consecutive window estimates overlap, so each adds only the fraction ``c`` of new
 data it holds (time since the previous estimate over the window length).
 
+Two options serve series of separate windows (the fleet's history, :mod:`dcmotor_id.fleet`)
+and leave the node's behaviour as it is at their defaults: ``confirm`` consecutive
+observations beyond both thresholds before an alarm is raised (default 1), and a baseline
+learned from the first ``baseline_count`` observations of each quantity
+(:func:`baseline_from_observations`: their mean, with the estimates' standard errors inflated
+by the excess scatter of those observations) instead of from one converged estimate.
+
 While a window mixes data from before and after a sudden change, its fit is a compromise
 that can move other parameters far (a step of b briefly shows as Coulomb friction); such an
 estimate is not ``settled`` (:attr:`~dcmotor_id.online.OnlineEstimate.settled`) and raises
@@ -39,10 +46,13 @@ from datetime import datetime, timezone
 import math
 from typing import Any, Iterable, Mapping, Optional, Sequence
 
+import numpy as np
+
 from dcmotor_id.model import is_admissible, PARAMETER_NAMES
 from dcmotor_id.online.window import LOAD_TORQUE
 
-__all__ = ['Alarm', 'alarm_key_values', 'Baseline', 'baseline_from_result', 'ChangeDetector',
+__all__ = ['Alarm', 'alarm_key_values', 'Baseline', 'baseline_from_observations',
+           'baseline_from_result', 'ChangeDetector',
            'COPPER_ALPHA_PER_K', 'LEVELS', 'meaning', 'monitor_from_settings',
            'nominal_baseline', 'OnlineMonitor', 'WATCHED']
 
@@ -68,6 +78,10 @@ class Baseline:
         ``nominal``, ``identify`` or ``online``.
     time_s : float
         Data time at which it was taken (online) or NaN.
+    inflation : dict
+        Factor on an estimate's standard error per quantity (1 when missing): the excess
+        scatter of the observations the baseline was learned from
+        (:func:`baseline_from_observations`).
 
     """
 
@@ -75,6 +89,7 @@ class Baseline:
     stderr: dict
     source: str
     time_s: float = math.nan
+    inflation: dict = field(default_factory=dict)
 
     def value(self, name: str) -> float:
         """Return the baseline of ``name`` (load torque: 0 unless given)."""
@@ -84,6 +99,46 @@ class Baseline:
         """Return the standard error of the baseline of ``name`` (0 when unknown)."""
         value = float(self.stderr.get(name, 0.0))
         return value if math.isfinite(value) else 0.0
+
+    def factor(self, name: str) -> float:
+        """Return the factor on an estimate's standard error of ``name`` (1 unless learned)."""
+        value = float(self.inflation.get(name, 1.0))
+        return value if math.isfinite(value) and value > 0 else 1.0
+
+
+def baseline_from_observations(observations: Mapping[str, Sequence[tuple[float, float]]],
+                               source: str = 'observations',
+                               time_s: float = math.nan) -> Baseline:
+    """
+    Return the baseline learned from the first observations of each quantity.
+
+    Per quantity, the baseline is the mean of its ``(value, stderr)`` observations. Their
+    scatter beyond their standard errors (the Birge ratio, the standard deviation over the
+    root mean square standard error, when above 1 and with at least 3 observations) is
+    variation that the estimates' standard errors do not cover: it becomes the quantity's
+    :attr:`Baseline.inflation`. The baseline's standard error is the larger of the inflated
+    root mean square standard error and the scatter, over the square root of the count.
+
+    Parameters
+    ----------
+    observations : dict
+        Quantity -> its ``(value, stderr)`` observations (finite, at least one).
+    source, time_s
+        As in :class:`Baseline`.
+
+    """
+    values, stderr, inflation = {}, {}, {}
+    for name, pairs in observations.items():
+        data = np.asarray(pairs, dtype=float).reshape(-1, 2)
+        count = len(data)
+        base_values, base_errors = data[:, 0], np.maximum(data[:, 1], 0.0)
+        rms_error = float(np.sqrt(np.mean(base_errors ** 2)))
+        scatter = float(np.std(base_values, ddof=1)) if count > 1 else 0.0
+        birge = scatter / rms_error if rms_error > 0 else 1.0
+        inflation[name] = max(1.0, birge) if count >= 3 else 1.0
+        values[name] = float(np.mean(base_values))
+        stderr[name] = max(rms_error * inflation[name], scatter) / math.sqrt(count)
+    return Baseline(values, stderr, source, time_s, inflation)
 
 
 @dataclass(frozen=True)
@@ -162,6 +217,7 @@ class _Cusum:
     up_since: float = math.nan
     down_since: float = math.nan
     active: bool = False
+    run: int = 0
 
 
 @dataclass
@@ -181,6 +237,12 @@ class ChangeDetector:
         Without one, the first converged estimate on a full window becomes it.
     min_baseline_window_s : float
         Data an online estimate must rest on to become the baseline [s].
+    confirm : int
+        Consecutive observations beyond both thresholds before an alarm is raised.
+    baseline_count : int
+        When above 0 and without a baseline, learn each quantity's baseline from its first
+        ``baseline_count`` observations (:func:`baseline_from_observations`) instead of
+        taking the first converged estimate.
 
     """
 
@@ -190,14 +252,18 @@ class ChangeDetector:
     threshold: float = 5.0
     baseline: Optional[Baseline] = None
     min_baseline_window_s: float = 0.0
+    confirm: int = 1
+    baseline_count: int = 0
     alarms: list = field(default_factory=list)
     _stats: dict = field(default_factory=dict)
+    _learning: dict = field(default_factory=dict)
     _last_time_s: float = math.nan
 
     def set_baseline(self, baseline: Optional[Baseline]) -> None:
         """Compare with ``baseline`` from now on (None: learn one); restart the statistics."""
         self.baseline = baseline
         self._stats = {}
+        self._learning = {}
         self.alarms = []
 
     def update(self, estimate: Any) -> list[Alarm]:
@@ -209,7 +275,7 @@ class ChangeDetector:
         if not all(math.isfinite(values.get(name, math.nan)) for name in PARAMETER_NAMES) \
                 or not is_admissible(values):
             return self.alarms
-        if self.baseline is None:
+        if self.baseline is None and not self.baseline_count:
             if estimate.converged and estimate.window_s >= self.min_baseline_window_s - 1e-9:
                 self.set_baseline(Baseline(
                     {name: values[name] for name in PARAMETER_NAMES},
@@ -231,24 +297,63 @@ class ChangeDetector:
         alarms = []
         settled = bool(getattr(estimate, 'settled', True))
         for name in WATCHED:
-            alarm = self._step(name, quantities.get(name, math.nan),
-                               stderrs.get(name, math.nan), time_s, weight, settled)
+            alarm = self.observe(name, quantities.get(name, math.nan),
+                                 stderrs.get(name, math.nan), time_s, weight, settled)
             if alarm is not None:
                 alarms.append(alarm)
         self.alarms = alarms
         return alarms
 
-    def _step(self, name: str, value: float, stderr: float, time_s: float,
-              weight: float, settled: bool = True) -> Optional[Alarm]:
-        assert self.baseline is not None
-        stat = self._stats.setdefault(name, _Cusum())
-        base = self.baseline.value(name)
+    def compare(self, name: str, value: float, stderr: float) -> tuple[float, float]:
+        """
+        Return ``z`` and the relative change of a value of ``name`` against the baseline.
+
+        The change is relative to the baseline (load torque: to the baseline Coulomb
+        friction); both are NaN when there is nothing to compare with.
+        """
+        base = self.baseline.value(name) if self.baseline is not None else math.nan
         if not (math.isfinite(value) and math.isfinite(stderr) and math.isfinite(base)):
-            return None
-        spread = math.hypot(stderr, self.baseline.error(name))
+            return math.nan, math.nan
+        assert self.baseline is not None
+        spread = math.hypot(stderr * self.baseline.factor(name), self.baseline.error(name))
         if spread <= 0:
+            return math.nan, math.nan
+        if name == LOAD_TORQUE:
+            scale = self.baseline.value('Mc')
+            change = (value - base) / scale if scale > 0 else math.inf
+        else:
+            change = (value - base) / abs(base) if base else math.inf
+        return (value - base) / spread, change
+
+    def observe(self, name: str, value: float, stderr: float, time_s: float,
+                weight: float = 1.0, settled: bool = True) -> Optional[Alarm]:
+        """
+        Take one observation of one quantity; return its alarm or None.
+
+        Parameters
+        ----------
+        name : str
+            Quantity (:data:`WATCHED`, or any name with a baseline).
+        value, stderr : float
+            The estimate and its standard error (non-finite: ignored).
+        time_s : float
+            Its time (any unit; the alarm's ``since_s`` is in the same unit).
+        weight : float
+            Fraction of new data it holds (CUSUM step; 1 for separate windows).
+        settled : bool
+            False for a fit that mixes data from before and after a change.
+
+        """
+        if self.baseline_count and (self.baseline is None or name not in self.baseline.values):
+            self._learn(name, value, stderr, time_s)
             return None
-        z = (value - base) / spread
+        if self.baseline is None:
+            return None
+        stat = self._stats.setdefault(name, _Cusum())
+        z, change = self.compare(name, value, stderr)
+        if not math.isfinite(z):
+            return None
+        base = self.baseline.value(name)
         for side, direction in (('up', 1.0), ('down', -1.0)):
             before = getattr(stat, side)
             after = min(10.0 * self.threshold,
@@ -256,16 +361,15 @@ class ChangeDetector:
             setattr(stat, side, after)
             if after > 0 and before == 0:
                 setattr(stat, side + '_since', time_s)
-        if name == LOAD_TORQUE:
-            scale = self.baseline.value('Mc')
-            change = (value - base) / scale if scale > 0 else math.inf
-        else:
-            change = (value - base) / abs(base) if base else math.inf
         size = abs(change) * 100.0
         if not stat.active and not settled:
             return None  # a window mixing before and after a change: wait (see module text)
-        factor = 0.5 if stat.active else 1.0
-        stat.active = abs(z) >= factor * self.threshold and size >= factor * self.warn_pct
+        beyond = abs(z) >= self.threshold and size >= self.warn_pct
+        stat.run = stat.run + 1 if beyond else 0
+        if stat.active:  # hysteresis: clears below half of both thresholds
+            stat.active = abs(z) >= 0.5 * self.threshold and size >= 0.5 * self.warn_pct
+        else:
+            stat.active = beyond and stat.run >= self.confirm
         if not stat.active:
             return None
         level = 'ERROR' if size >= self.error_pct else 'WARN'
@@ -273,6 +377,20 @@ class ChangeDetector:
         if not math.isfinite(since):
             since = time_s
         return Alarm(name, level, value, base, 100.0 * change, z, since, meaning(name, change))
+
+    def _learn(self, name: str, value: float, stderr: float, time_s: float) -> None:
+        """Collect the first observations of ``name``; with enough, add its baseline."""
+        if not (math.isfinite(value) and math.isfinite(stderr)):
+            return
+        pairs = self._learning.setdefault(name, [])
+        pairs.append((value, stderr))
+        if len(pairs) < self.baseline_count:
+            return
+        learned = baseline_from_observations({name: pairs}, 'observations', time_s)
+        old = self.baseline
+        self.baseline = learned if old is None else Baseline(
+            {**old.values, **learned.values}, {**old.stderr, **learned.stderr}, old.source,
+            old.time_s, {**old.inflation, **learned.inflation})
 
 
 def alarm_key_values(alarms: Iterable[Alarm], baseline: Optional[Baseline],

@@ -8,9 +8,9 @@ import pytest
 
 from dcmotor_id.excitation import add_sensor_noise, make_excitation
 from dcmotor_id.model import PAPER_MOTORS, PARAMETER_NAMES
-from dcmotor_id.monitoring import (alarm_key_values, Baseline, baseline_from_result,
-                                   ChangeDetector, meaning, monitor_from_settings,
-                                   nominal_baseline, OnlineMonitor)
+from dcmotor_id.monitoring import (alarm_key_values, Baseline, baseline_from_observations,
+                                   baseline_from_result, ChangeDetector, meaning,
+                                   monitor_from_settings, nominal_baseline, OnlineMonitor)
 from dcmotor_id.nodes.settings import IdentifierSettings
 from dcmotor_id.online import (LOAD_TORQUE, OnlineEstimate, OnlineEstimator, parse_schedule,
                                simulate_scheduled, WindowEstimator)
@@ -211,3 +211,19 @@ def test_baseline_helpers_take_a_simple_namespace_estimate():
                                converged=True, time_s=1.0, window_s=10.0, effects={})
     assert detector.update(rls_like) == []
     assert all(name in PARAMETER_NAMES for name in detector._stats if name != LOAD_TORQUE)
+
+
+def test_separate_windows_learn_the_baseline_and_confirm_an_alarm():
+    # the fleet's options: baseline from the first 3 observations, 2 consecutive to alarm
+    detector = ChangeDetector(confirm=2, baseline_count=3)
+    for time_s, value in enumerate((1.0, 1.002, 0.998)):
+        assert detector.observe('Ra', value, 0.001, float(time_s)) is None
+    assert detector.baseline.source == 'observations'
+    assert detector.baseline.value('Ra') == pytest.approx(1.0)
+    assert detector.baseline.factor('Ra') == pytest.approx(2.0)  # scatter twice the stderr
+    assert detector.observe('Ra', 1.2, 0.001, 3.0) is None  # one window: not yet
+    alarm = detector.observe('Ra', 1.2, 0.001, 4.0)
+    assert (alarm.level, alarm.since_s) == ('ERROR', 3.0)
+    assert alarm.change_pct == pytest.approx(20.0)
+    learned = baseline_from_observations({'b': [(0.3, 0.01), (0.3, 0.01)]})
+    assert learned.factor('b') == 1.0 and learned.error('b') == pytest.approx(0.01 / 2 ** 0.5)

@@ -2,19 +2,18 @@
 Change alarms across a motor's windows: each parameter's trajectory against its baseline.
 
 :func:`detect_changes` is the one entry point the fleet report calls: a sequence of
-``(time, value, stderr)`` per parameter in, alarms out. It applies the rules of the
-identifier node's online alarms (the same thresholds and CUSUM change-time estimate) to the
-windows of the history; it is kept behind this one function so that it can be switched to
-the node's detector (``dcmotor_id.monitoring``) without touching the report.
+``(time, value, stderr)`` per parameter in, alarms out. The rules are those of the
+identifier node's online alarms, :class:`dcmotor_id.monitoring.ChangeDetector` (threshold in
+standard deviations, WARN and ERROR sizes, CUSUM change time, hysteresis); this module only
+adapts the history to it, with the detector's two options for separate windows: the baseline
+is learned from a parameter's first windows (``baseline_share`` of them, at least
+``min_baseline``; their mean, the later windows' standard errors inflated by the excess
+scatter of those windows) and an alarm needs ``confirm`` consecutive windows beyond both
+thresholds. An alarm, once raised, stays in the report: its "since" and "raised" are those of
+the first decision, its level the highest reached, its value the newest window's.
 
-The baseline of a parameter is the mean of its first windows (``baseline_share`` of them, at
-least ``min_baseline``). Every later window is compared with it in standard deviations of
-the difference, ``z = (value - baseline) / sqrt(s^2 + s_b^2)``, where a window's standard
-error ``s`` is inflated by the baseline's excess scatter (the Birge ratio of the baseline
-windows, when above 1: variation from one recording to the next that the fit's errors do not
-cover). A change is decided when ``|z| >= threshold`` and the change is at least ``warn_pct``
-of the baseline (``error_pct``: level ERROR) in ``confirm`` consecutive windows; its "since"
-is the start of the CUSUM excursion (drift ``drift_sigma``) that led to it.
+The appearance of effects (:func:`effect_alarms`) and the overview's change score
+(:func:`change_score`) are the fleet's own.
 """
 
 from __future__ import annotations
@@ -25,8 +24,10 @@ from typing import Iterable, Mapping, Optional, Sequence
 
 import numpy as np
 
-#: Alarm levels, as in diagnostic_msgs/DiagnosticStatus.
-LEVELS = ('OK', 'WARN', 'ERROR')
+from dcmotor_id.monitoring import ChangeDetector, LEVELS
+
+__all__ = ['Alarm', 'baseline_size', 'change_score', 'detect_changes', 'DetectorSettings',
+           'effect_alarms', 'LEVELS']
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ class Alarm:
 @dataclass(frozen=True)
 class DetectorSettings:
     """
-    Thresholds of :func:`detect_changes` (defaults: the node's online alarms).
+    Thresholds of :func:`detect_changes` (defaults: those of the node's online alarms).
 
     Attributes
     ----------
@@ -92,13 +93,18 @@ class DetectorSettings:
 
     """
 
-    threshold: float = 5.0
-    warn_pct: float = 5.0
-    error_pct: float = 15.0
-    drift_sigma: float = 3.0
+    threshold: float = ChangeDetector.threshold
+    warn_pct: float = ChangeDetector.warn_pct
+    error_pct: float = ChangeDetector.error_pct
+    drift_sigma: float = ChangeDetector.drift_sigma
     baseline_share: float = 0.1
     min_baseline: int = 2
     confirm: int = 2
+
+    def detector(self, baseline_count: int) -> ChangeDetector:
+        """Return the node's detector with these thresholds, for windows of a history."""
+        return ChangeDetector(self.warn_pct, self.error_pct, self.drift_sigma, self.threshold,
+                              confirm=self.confirm, baseline_count=baseline_count)
 
 
 def baseline_size(count: int, settings: DetectorSettings = DetectorSettings()) -> int:
@@ -108,48 +114,28 @@ def baseline_size(count: int, settings: DetectorSettings = DetectorSettings()) -
 
 def _one(name: str, points: Sequence[tuple[float, float, float]],
          settings: DetectorSettings) -> Optional[Alarm]:
-    data = np.array([point for point in points
-                     if math.isfinite(point[1]) and math.isfinite(point[2])], dtype=float)
-    if data.size == 0:
-        return None
-    data = data[np.argsort(data[:, 0], kind='stable')]
+    """Run the node's detector along one parameter's windows; return its alarm or None."""
+    data = sorted(((float(time), float(value), max(float(error), 0.0))
+                   for time, value, error in points
+                   if math.isfinite(value) and math.isfinite(error)), key=lambda item: item[0])
     size = baseline_size(len(data), settings)
     if len(data) <= size:
         return None
-    times, values, errors = data[:, 0], data[:, 1], np.maximum(data[:, 2], 0.0)
-    base_values, base_errors = values[:size], errors[:size]
-    baseline = float(np.mean(base_values))
-    rms_error = float(np.sqrt(np.mean(base_errors ** 2)))
-    scatter = float(np.std(base_values, ddof=1)) if size > 1 else 0.0
-    birge = scatter / rms_error if rms_error > 0 else 1.0
-    inflation = max(1.0, birge) if size >= 3 else 1.0
-    base_error = max(rms_error * inflation, scatter) / math.sqrt(size)
-    up = down = 0.0
-    up_since = down_since = math.nan
-    run, level, raised, since = 0, 0, math.nan, math.nan
-    for time, value, error in zip(times[size:], values[size:], errors[size:]):
-        spread = math.hypot(error * inflation, base_error)
-        z = (value - baseline) / spread if spread > 0 else math.copysign(math.inf,
-                                                                         value - baseline)
-        up, up_since = (max(0.0, up + z - settings.drift_sigma),
-                        up_since if up > 0 else time)
-        down, down_since = (max(0.0, down - z - settings.drift_sigma),
-                            down_since if down > 0 else time)
-        change = 100.0 * (value - baseline) / abs(baseline) if baseline else math.inf
-        beyond = abs(z) >= settings.threshold and abs(change) >= settings.warn_pct
-        run = run + 1 if beyond else 0
-        if run >= settings.confirm:
-            level = max(level, 2 if abs(change) >= settings.error_pct else 1)
-            if math.isnan(raised):
-                raised = time
-                since = up_since if z > 0 else down_since
-    if not level:
+    detector = settings.detector(size)
+    level, since, raised = 0, math.nan, math.nan
+    for time, value, error in data:
+        alarm = detector.observe(name, value, error, time)
+        if alarm is None:
+            continue
+        level = max(level, LEVELS.index(alarm.level))
+        if math.isnan(raised):
+            since, raised = alarm.since_s, time
+    if not level or detector.baseline is None:
         return None
-    last_spread = math.hypot(errors[-1] * inflation, base_error)
-    last_z = (values[-1] - baseline) / last_spread if last_spread > 0 else math.inf
-    return Alarm(name, LEVELS[level], float(values[-1]), baseline,
-                 100.0 * (values[-1] - baseline) / abs(baseline) if baseline else math.inf,
-                 float(last_z), float(since), float(raised))
+    _, value, error = data[-1]
+    z, change = detector.compare(name, value, error)
+    return Alarm(name, LEVELS[level], value, detector.baseline.value(name), 100.0 * change,
+                 z, since, raised)
 
 
 def detect_changes(series: Mapping[str, Sequence[tuple[float, float, float]]],
