@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import fields
 import functools
+import signal
+import subprocess
 import sys
 import time
 from typing import Any, Callable, Optional, Sequence, TypeVar
@@ -174,6 +176,17 @@ def spin_until(executor: Executor, condition: Callable[[], Any], timeout_s: floa
         if condition():
             return True
     return False
+
+
+def stop_processes(processes: Sequence[subprocess.Popen], timeout_s: float = 20.0) -> None:
+    """Stop node processes as ``ros2 launch`` does: SIGINT (reverse order), then SIGKILL."""
+    for process in reversed(processes):
+        process.send_signal(signal.SIGINT)
+    for process in processes:
+        try:
+            process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
 
 
 def run(node_class: Callable[[], Node], args: Optional[list[str]] = None,

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -24,7 +23,7 @@ from rclpy.executors import SingleThreadedExecutor
 from std_srvs.srv import Trigger
 
 from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
-from dcmotor_id.nodes.common import spin_until
+from dcmotor_id.nodes.common import spin_until, stop_processes
 from dcmotor_id.nodes.identifier import LATCHED
 
 KEYS = PARAMETER_NAMES + DERIVED_NAMES
@@ -133,13 +132,7 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
         print(f'all windows: {record_dir}   node logs: {logs.name}')
         return 0
     finally:
-        for process in processes:
-            process.send_signal(signal.SIGINT)
-        for process in processes:
-            try:
-                process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                process.kill()
+        stop_processes(processes)
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()

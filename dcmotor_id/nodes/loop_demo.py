@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -28,7 +27,7 @@ from std_srvs.srv import Trigger
 from dcmotor_id.cli import write_json
 from dcmotor_id.experiment import DEFAULT_NOISE, design_experiment
 from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
-from dcmotor_id.nodes.common import spin_until
+from dcmotor_id.nodes.common import spin_until, stop_processes
 from dcmotor_id.nodes.identifier import LATCHED
 from dcmotor_id.routines import Limits
 
@@ -156,13 +155,7 @@ def run_loop_demo(duration_s: float = 10.0, current_limit_a: float = 10.0,
         print(f'plan: {plan_file}; windows: {work_dir}/windows')
         return 0
     finally:
-        for process in reversed(processes):
-            process.send_signal(signal.SIGINT)
-        for process in processes:
-            try:
-                process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                process.kill()
+        stop_processes(processes)
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
