@@ -2,17 +2,16 @@
 
 import json
 import math
-import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
+from support import call, spinning_executor, wait_for
 
 from dcmotor_id.cli import main as cli_main
 from dcmotor_id.formats.bag import read_bag
@@ -28,26 +27,8 @@ EXPECTED_KEYS = list(RESULT_KEYS) + [f'{key}_stderr' for key in RESULT_KEYS]
 
 @pytest.fixture(scope='module')
 def ros(ros_env):
-    rclpy.init()
-    executor = SingleThreadedExecutor()
-    running = threading.Event()
-    running.set()
-    errors = []
-
-    def spin():
-        while running.is_set() and rclpy.ok():
-            try:
-                executor.spin_once(timeout_sec=0.1)
-            except Exception as error:  # a node removed while the executor waited on it
-                errors.append(error)
-
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
-    yield executor
-    running.clear()
-    thread.join(timeout=5)
-    executor.shutdown()
-    rclpy.try_shutdown()
+    with spinning_executor() as executor:
+        yield executor
 
 
 def add(executor, node):
@@ -62,27 +43,6 @@ def remove(executor, *nodes):
         if closer:
             closer()
         node.destroy_node()
-
-
-def call(node, service, timeout_s=60.0):
-    client = node.create_client(Trigger, service)
-    assert client.wait_for_service(timeout_sec=10.0)
-    future = client.call_async(Trigger.Request())
-    deadline = time.monotonic() + timeout_s
-    while not future.done() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert future.done(), f'{service} did not answer in {timeout_s} s'
-    node.destroy_client(client)
-    return future.result()
-
-
-def wait_for(condition, timeout_s, step_s=0.05):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(step_s)
-    return False
 
 
 def identifier(executor, namespace, tmp_path, **overrides):

@@ -1,14 +1,12 @@
 """The online estimate and its change alarms in a real graph: sim_motor with a schedule."""
 
-import threading
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
+from support import spinning_executor, wait_for
 
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.nodes.identifier import Identifier
@@ -21,33 +19,8 @@ TRUTH = PAPER_MOTORS['paper2']
 
 @pytest.fixture
 def ros(ros_env):
-    rclpy.init()
-    executor = SingleThreadedExecutor()
-    running = threading.Event()
-    running.set()
-
-    def spin():
-        while running.is_set() and rclpy.ok():
-            try:
-                executor.spin_once(timeout_sec=0.1)
-            except Exception:  # noqa: BLE001  (a node removed while the executor waited)
-                pass
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
-    yield executor
-    running.clear()
-    thread.join(timeout=5)
-    executor.shutdown()
-    rclpy.try_shutdown()
-
-
-def wait_for(condition, timeout_s, step_s=0.05):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(step_s)
-    return False
+    with spinning_executor() as executor:
+        yield executor
 
 
 def values_of(status):

@@ -12,6 +12,7 @@ import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from std_srvs.srv import Trigger
+from support import alive, children
 
 from dcmotor_id.formats.bag import read_bag
 from dcmotor_id.model import PAPER_MOTORS
@@ -67,29 +68,6 @@ def start(installed, name, ros_env, log_dir, *arguments):
         [str(installed / 'lib' / 'dcmotor_id' / name), '--ros-args',
          '--params-file', str(installed / 'share' / 'dcmotor_id' / 'config' / f'{name}.yaml'),
          *arguments], env=environment, stdout=log, stderr=subprocess.STDOUT)
-
-
-def children(pid):
-    """Process ids whose parent is ``pid``."""
-    found = []
-    for entry in os.listdir('/proc'):
-        if entry.isdigit():
-            try:
-                with open(f'/proc/{entry}/stat') as stream:
-                    if int(stream.read().rsplit(')', 1)[1].split()[1]) == pid:
-                        found.append(int(entry))
-            except OSError:
-                continue
-    return found
-
-
-def alive(pid):
-    """Whether a process exists and is not a zombie."""
-    try:
-        with open(f'/proc/{pid}/stat') as stream:
-            return stream.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except OSError:
-        return False
 
 
 def stop(process):

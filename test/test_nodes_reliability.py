@@ -12,17 +12,16 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
+from support import alive, call as trigger, children, spinning_executor, wait_for
 
 from dcmotor_id.excitation import make_excitation
 from dcmotor_id.formats.batch import batch_message
@@ -53,43 +52,12 @@ def batch(t, voltage, current, speed):
 
 @pytest.fixture(scope='module')
 def ros(ros_env):
-    rclpy.init()
-    executor = SingleThreadedExecutor()
-    running = threading.Event()
-    running.set()
-
-    def spin():
-        while running.is_set() and rclpy.ok():
-            try:
-                executor.spin_once(timeout_sec=0.1)
-            except Exception:  # noqa: BLE001  (a node removed while the executor waited)
-                pass
-
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
-    yield executor
-    running.clear()
-    thread.join(timeout=5)
-    executor.shutdown()
-    rclpy.try_shutdown()
+    with spinning_executor() as executor:
+        yield executor
 
 
-def wait_for(condition, timeout_s, step_s=0.05):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(step_s)
-    return False
-
-
-def call(node, service, timeout_s=120.0):
-    client = node.create_client(Trigger, service)
-    assert client.wait_for_service(timeout_sec=20.0)
-    future = client.call_async(Trigger.Request())
-    assert wait_for(future.done, timeout_s), f'{service} did not answer in {timeout_s} s'
-    node.destroy_client(client)
-    return future.result()
+def call(node, service):
+    return trigger(node, service, timeout_s=120.0, wait_s=20.0)
 
 
 @pytest.fixture
@@ -219,32 +187,6 @@ def test_windows_after_a_publisher_restart_are_not_stamped_in_the_past(graph):
 
 
 # ---------------------------------------------------------------- as processes
-def children(pid):
-    """Process ids whose parent is ``pid`` (not zombies, not multiprocessing's tracker)."""
-    found = []
-    for entry in os.listdir('/proc'):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f'/proc/{entry}/stat') as stream:
-                fields = stream.read().rsplit(')', 1)[1].split()
-            with open(f'/proc/{entry}/cmdline', 'rb') as stream:
-                command = stream.read()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != 'Z' and b'resource_tracker' not in command:
-            found.append(int(entry))
-    return found
-
-
-def alive(pid):
-    try:
-        with open(f'/proc/{pid}/stat') as stream:
-            return stream.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except OSError:
-        return False
-
-
 def start_identifier(ros_env, tmp_path, namespace, *parameters):
     environment = dict(ros_env, PYTHONUNBUFFERED='1')
     log = open(tmp_path / 'identifier.log', 'w')

@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 import pytest
+from support import children
 from test_bad_input import good_table, HEADER, write
 
 from dcmotor_id import cli
@@ -27,30 +28,6 @@ from dcmotor_id.streams import SampleInbox, StreamAligner
 from dcmotor_id.windowing import WindowCutter
 
 CHANNELS = ('voltage', 'current', 'speed')
-
-
-def children(pid):
-    """Process ids whose parent is ``pid`` (from /proc: psutil is not installed)."""
-    found = []
-    for entry in os.listdir('/proc'):
-        if entry.isdigit():
-            try:
-                with open(f'/proc/{entry}/stat') as stream:
-                    fields = stream.read().rsplit(')', 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid and fields[0] != 'Z' and not helper(int(entry)):
-                found.append(int(entry))
-    return found
-
-
-def helper(pid):
-    """Whether a process is multiprocessing's resource tracker (ends with its parent)."""
-    try:
-        with open(f'/proc/{pid}/cmdline', 'rb') as stream:
-            return b'resource_tracker' in stream.read()
-    except OSError:
-        return False
 
 
 @pytest.fixture(autouse=True)
