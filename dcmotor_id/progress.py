@@ -1,5 +1,9 @@
 """
-Progress and time budget of a long identification: a throttled one-line writer and a deadline.
+Progress and time budget of long work: a throttled status line and a deadline.
+
+:class:`StatusLine` is the one writer of a status line on stderr (redrawn in place on a
+terminal, plain lines in a log), used by the identification's :class:`Progress` and by the
+fleet job's progress (:mod:`dcmotor_id.fleet.progress`).
 
 The estimators and the discovery loop call a :class:`Progress` with what they are doing
 (stage, record, iteration, cost); it rewrites one line on a terminal (stderr by default) at
@@ -14,6 +18,59 @@ from __future__ import annotations
 import sys
 import time
 from typing import Callable, TextIO
+
+
+class StatusLine:
+    """
+    Write a status line at most every ``interval_s``.
+
+    On a terminal the line is redrawn in place; elsewhere (a pipe, a CI log) each update is a
+    plain line, identical texts not repeated.
+
+    Parameters
+    ----------
+    stream : file-like
+        Where the line goes.
+    interval_s : float
+        Least time between two writes [s] (``final`` and ``force`` writes ignore it).
+    redraw : bool or None
+        Redraw in place; None: when ``stream`` is a terminal.
+
+    """
+
+    def __init__(self, stream: TextIO, interval_s: float, redraw: bool | None = None) -> None:
+        self.stream = stream
+        if redraw is None:
+            redraw = bool(getattr(stream, 'isatty', lambda: False)())
+        self.tty = redraw
+        self.interval_s = interval_s
+        self._last = -float('inf')
+        self._shown = ''
+
+    def due(self, now: float | None = None) -> bool:
+        """Whether ``interval_s`` has passed since the last write."""
+        return (time.monotonic() if now is None else now) - self._last >= self.interval_s
+
+    def show(self, text: str, final: bool = False, force: bool = False) -> None:
+        """Write ``text`` if due (always when ``final`` or ``force``); end the line if final."""
+        now = time.monotonic()
+        if not (final or force or self.due(now)):
+            return
+        self._last = now
+        if self.tty:
+            padding = ' ' * max(0, len(self._shown) - len(text))
+            self.stream.write('\r' + text + padding + ('\n' if final else ''))
+        elif final or text != self._shown:
+            self.stream.write(text + '\n')
+        self._shown = '' if final else text
+        self.stream.flush()
+
+    def clear(self) -> None:
+        """Blank a line drawn on a terminal, so the next output starts clean."""
+        if self.tty and self._shown:
+            self.stream.write('\r' + ' ' * len(self._shown) + '\r')
+            self.stream.flush()
+        self._shown = ''
 
 
 class TimeBudgetExceeded(Exception):
@@ -57,7 +114,9 @@ class Progress:
         self.stage = ''
         self.record: str | None = None
         self._last = 0.0
-        self._width = 0
+        # (its own throttle below: interval_s and delay_s; a forced write ignores them)
+        self.line = (StatusLine(stream, 0.0, redraw=True)
+                     if self.enabled and stream is not None else None)
         self.evaluations = 0
 
     def elapsed(self) -> float:
@@ -108,11 +167,8 @@ class Progress:
             text += f'  cost {cost:.4g}'
         if self.callback is not None:
             self.callback(text)
-        if self.enabled:
-            assert self.stream is not None
-            self.stream.write('\r' + text.ljust(self._width))
-            self.stream.flush()
-            self._width = len(text)
+        if self.line is not None:
+            self.line.show(text, force=True)
 
     def __call__(self, iteration: int | None = None, cost: float | None = None) -> None:
         """Report one step (same as :meth:`update`)."""
@@ -120,11 +176,8 @@ class Progress:
 
     def close(self) -> None:
         """Clear the line (a terminal's next output starts on a clean line)."""
-        if self.enabled and self._width:
-            assert self.stream is not None
-            self.stream.write('\r' + ' ' * self._width + '\r')
-            self.stream.flush()
-            self._width = 0
+        if self.line is not None:
+            self.line.clear()
 
 
 #: No output, no deadline.

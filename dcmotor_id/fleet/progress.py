@@ -2,9 +2,9 @@
 The fleet job's progress line on stderr: bags, windows and failures.
 
 Written by hand rather than with a progress-bar library because it counts three things at
-once and must also behave in a log file: on a terminal it redraws one line at most
-``interval_s`` (0.2 s) apart; elsewhere (a pipe, a CI log) it prints a plain line every
-``interval_s`` (10 s) and a last one at the end.
+once and must also behave in a log file; the line itself is the package's one status-line
+writer (:class:`dcmotor_id.progress.StatusLine`): on a terminal redrawn at most every 0.2 s,
+elsewhere (a pipe, a CI log) a plain line every 10 s and a last one at the end.
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ from __future__ import annotations
 import sys
 import time
 from typing import Optional, TextIO
+
+from dcmotor_id.progress import StatusLine
 
 
 class Progress:
@@ -32,12 +34,11 @@ class Progress:
     def __init__(self, stream: Optional[TextIO] = None, interval_s: Optional[float] = None,
                  width: int = 24) -> None:
         self.stream = stream if stream is not None else sys.stderr
-        self.tty = bool(getattr(self.stream, 'isatty', lambda: False)())
-        self.interval_s = interval_s if interval_s is not None else (0.2 if self.tty else 10.0)
+        tty = bool(getattr(self.stream, 'isatty', lambda: False)())
+        self.status = StatusLine(self.stream, interval_s if interval_s is not None
+                                 else (0.2 if tty else 10.0))
         self.width = width
         self.started = time.monotonic()
-        self._last = -float('inf')
-        self._shown = ''
 
     def line(self, bags_done: int, bags_total: int, windows_done: int, windows_known: int,
              failures: int, planning: bool) -> str:
@@ -54,16 +55,6 @@ class Progress:
     def update(self, bags_done: int, bags_total: int, windows_done: int, windows_known: int,
                failures: int, planning: bool = False, final: bool = False) -> None:
         """Write the counts, at most every ``interval_s`` (always when ``final``)."""
-        now = time.monotonic()
-        if not final and now - self._last < self.interval_s:
-            return
-        self._last = now
-        text = self.line(bags_done, bags_total, windows_done, windows_known, failures,
-                         planning)
-        if self.tty:
-            padding = ' ' * max(0, len(self._shown) - len(text))
-            self.stream.write('\r' + text + padding + ('\n' if final else ''))
-        elif final or text != self._shown:
-            self.stream.write(text + '\n')
-        self._shown = text
-        self.stream.flush()
+        if final or self.status.due():
+            self.status.show(self.line(bags_done, bags_total, windows_done, windows_known,
+                                       failures, planning), final=final)
