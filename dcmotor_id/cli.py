@@ -198,10 +198,14 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
                        help='voltage = duty column in [-1, 1] (or 0..1 with a direction '
                             'column) times the bus voltage BUS_V')
     group.add_argument('--joint', metavar='NAME',
-                       help='bags with control_msgs/msg/DynamicJointState: the joint')
+                       help='bags with control_msgs/msg/DynamicJointState or '
+                            'sensor_msgs/msg/JointState: the joint (default: the only one)')
     group.add_argument('--interface', action='append', metavar='CHANNEL=NAME',
                        help='bags with DynamicJointState: the interface of a channel (default '
-                            'voltage, current, velocity as speed, position); repeatable')
+                            'voltage, current, velocity as speed, position); with JointState: '
+                            'its field (position, velocity, effort; default velocity as speed, '
+                            'position; the current from effort only with current=effort), the '
+                            'other channels from their Float64 topics; repeatable')
 
 
 def _cmd_validate(args):

@@ -39,6 +39,18 @@ DYNAMIC_JOINT_STATES_TOPIC = '/dynamic_joint_states'
 #: Channel -> interface name of a joint in DynamicJointState messages, by default.
 DEFAULT_INTERFACES = {'voltage': 'voltage', 'current': 'current', 'speed': 'velocity',
                       'position': 'position', 'duty': 'duty', 'direction': 'direction'}
+#: Topic of ros2_control's joint states (joint_state_broadcaster, robot drivers).
+JOINT_STATES_TOPIC = '/joint_states'
+#: Message type of :data:`JOINT_STATES_TOPIC`.
+JOINT_STATE_TYPE = 'sensor_msgs/msg/JointState'
+#: The per-joint arrays of a JointState message (what ``--interface CHANNEL=FIELD`` may name).
+JOINT_STATE_FIELDS = ('position', 'velocity', 'effort')
+#: Channel -> JointState field, by default (current from effort only when asked: effort is
+#: a torque on most robots).
+DEFAULT_JOINT_STATE_FIELDS = {'speed': 'velocity', 'position': 'position'}
+#: Header stamps further than this from the bag's time of the messages are on another clock
+#: (simulated time, a drive's own clock) and cannot be paired with Float64 topics [ns].
+MAX_CLOCK_OFFSET_NS = 1_000_000_000
 #: The first bytes of an MCAP file.
 MCAP_MAGIC = b'\x89MCAP0\r\n'
 
@@ -355,7 +367,10 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
     options : ReadOptions
         Units of the channels; for ``control_msgs/msg/DynamicJointState`` bags (topic
         :data:`DYNAMIC_JOINT_STATES_TOPIC`) the joint and the interface of each channel
-        (:func:`read_dynamic_joint_states`).
+        (:func:`read_dynamic_joint_states`); for ``sensor_msgs/msg/JointState`` bags (topic
+        :data:`JOINT_STATES_TOPIC`, read when a current or speed topic is missing or a joint
+        or an interface is named) the joint and the field of each channel, the other
+        channels from their Float64 topics (:func:`read_joint_states`).
 
     Raises
     ------
@@ -386,6 +401,16 @@ def _read_bag_si(path: PathLike, topics: Optional[Mapping[str, str]],
         if joint_topic is not None and (options.joint is not None
                                         or match_topic(names['current'], available) is None):
             record = read_dynamic_joint_states(source, joint_topic, path, options)
+            if recovery is not None:
+                _warn_recovered_record(path, recovery, record)
+            return record
+        state_topic = joint_state_topic(available)
+        if state_topic is not None and (
+                options.joint is not None or options.interfaces
+                or any(match_topic(names[channel], available) is None
+                       for channel in ('current', 'speed'))):
+            record = read_joint_states(source, state_topic, path, options, names,
+                                       sample_period_s)
             if recovery is not None:
                 _warn_recovered_record(path, recovery, record)
             return record
@@ -514,6 +539,190 @@ def read_dynamic_joint_states(source: MessageSource, topic: str, path: str,
                                          speed_counts_per_rev=None, position_unit='rad',
                                          position_counts_per_rev=None, gear_ratio=1.0),
                         source=path)
+
+
+def joint_state_topic(available: Mapping[str, str]) -> Optional[str]:
+    """Return the bag's JointState topic (``/joint_states`` or the only one), or None."""
+    topic = match_topic(JOINT_STATES_TOPIC, available)
+    if topic is not None and available[topic] == JOINT_STATE_TYPE:
+        return topic
+    typed = [name for name, kind in available.items() if kind == JOINT_STATE_TYPE]
+    return typed[0] if len(typed) == 1 else None
+
+
+def read_joint_states(source: MessageSource, topic: str, path: str,
+                      options: ReadOptions = DEFAULT_OPTIONS,
+                      topics: Optional[Mapping[str, str]] = None,
+                      sample_period_s: Optional[float] = None) -> Record:
+    """
+    Read one joint of ``sensor_msgs/msg/JointState`` messages, with Float64 topics beside.
+
+    The conventions are the identifier node's (``input: joint_state``): each message is one
+    sample at its header stamp (the bag's time when the stamp is zero); the joint is
+    ``options.joint`` (or the only one). A channel named in ``options.interfaces`` is that
+    field of the joint; any other channel comes from its ``std_msgs/msg/Float64`` topic
+    (``topics``, default :data:`BAG_TOPICS`) when the bag has one, else speed from the
+    ``velocity`` field and position from the ``position`` field. The current is read from a
+    field only when asked (``--interface current=effort``: effort is a torque on most robots).
+    Float64 topics are paired with the joint's samples by timestamp on one grid.
+
+    Parameters
+    ----------
+    source : MessageSource
+        The open bag.
+    topic : str
+        The JointState topic.
+    path : str
+        The bag, for messages.
+    options : ReadOptions
+        The joint, the field of each channel (``interfaces``: channel -> ``position``,
+        ``velocity`` or ``effort``) and the units (applied by :func:`read_bag`).
+    topics : dict, optional
+        Channel -> Float64 topic name of the channels not in the joint states.
+    sample_period_s : float, optional
+        Grid step when Float64 topics are paired [s]; default the median step.
+
+    Raises
+    ------
+    InputDataError
+        The joint is absent or ambiguous, a field asked for is not a JointState field or is
+        empty, or neither the joint states nor a topic give the current or the speed (naming
+        the option that would).
+
+    """
+    from dcmotor_id.streams import align_timestamps
+
+    names = dict(BAG_TOPICS)
+    names.update(topics or {})
+    for channel, field_name in options.interfaces.items():
+        if field_name not in JOINT_STATE_FIELDS:
+            raise InputDataError(
+                f'{path}: --interface {channel}={field_name}: {topic} is a '
+                f'{JOINT_STATE_TYPE}, whose fields are {", ".join(JOINT_STATE_FIELDS)}')
+    available = source.topics
+    float_topics: dict[str, str] = {}
+    for channel in ('voltage', 'current', 'speed'):
+        if channel in options.interfaces:
+            continue
+        name = match_topic(names[channel], available)
+        if name is None or name == topic:
+            continue
+        if available[name] != FLOAT64_TYPE:
+            raise InputDataError(f'{path}: topic {name} is {available[name]}; the {channel} '
+                                 f'topic must be {FLOAT64_TYPE}')
+        float_topics[channel] = name
+    fields = {channel: field_name for channel, field_name in DEFAULT_JOINT_STATE_FIELDS.items()
+              if channel not in float_topics}
+    fields.update(options.interfaces)
+    header_stamps, log_stamps, joint_values = _joint_state_values(
+        source, topic, path, options.joint, fields, explicit=set(options.interfaces))
+    missing = [channel for channel in ('current', 'speed')
+               if channel not in joint_values and channel not in float_topics]
+    if 'speed' in missing:
+        raise InputDataError(
+            f'{path}: no speed: the joint in {topic} has no velocity values and the bag has no '
+            f'Float64 speed topic ({names["speed"]}); take it from another field with '
+            '--interface speed=FIELD or name its topic with --speed-topic')
+    if missing:
+        listing = ', '.join(f'{name} [{kind}]' for name, kind in sorted(available.items()))
+        raise InputDataError(
+            f'{path}: no current: {topic} ({JOINT_STATE_TYPE}) gives the current only when '
+            f'asked and the bag has no Float64 current topic ({names["current"]}); it has '
+            f'{listing}. If the effort of the joint is the motor current, add --interface '
+            'current=effort (with --current-unit mA if in mA); if it is a torque in N m, add '
+            '--interface current=effort --torque-constant 1 (mechanical-only: J, b, Mc); or '
+            'name the current topic with --current-topic')
+    if not float_topics:
+        columns: dict[str, np.ndarray] = {
+            't': (header_stamps - header_stamps[0]).astype(float) * 1e-9}
+        columns.update(joint_values)
+        return build_record(columns, _si_options(options), source=path)
+    offset = np.median(header_stamps - log_stamps)
+    if abs(offset) > MAX_CLOCK_OFFSET_NS:
+        warnings.warn(
+            f'{path}: the header stamps of {topic} are {offset * 1e-9:.3g} s from the time '
+            'the bag gives its messages (another clock); its samples are paired with the '
+            'Float64 topics by the bag time instead', UserWarning, stacklevel=4)
+        header_stamps = log_stamps
+    stamps_by_channel: dict[str, np.ndarray] = {}
+    values_by_channel: dict[str, np.ndarray] = {}
+    for channel, values in joint_values.items():
+        stamps_by_channel[channel] = header_stamps
+        values_by_channel[channel] = values
+    typestore = _typestore()
+    raw: dict[str, tuple[list[int], list[bytes]]] = {channel: ([], []) for channel in float_topics}
+    by_topic = {name: channel for channel, name in float_topics.items()}
+    for name, stamp, data in source.messages(by_topic):
+        raw[by_topic[name]][0].append(stamp)
+        raw[by_topic[name]][1].append(data)
+    for channel, (stamps, payloads) in raw.items():
+        if not stamps:
+            raise InputDataError(f'{path}: topic {float_topics[channel]} has no messages')
+        stamps_by_channel[channel] = np.array(stamps, dtype=np.int64)
+        values_by_channel[channel] = _decode_float64(payloads, typestore)
+    grid, aligned = align_timestamps(stamps_by_channel, values_by_channel, sample_period_s,
+                                     source=path)
+    return build_record({'t': (grid - grid[0]).astype(float) * 1e-9, **aligned},
+                        _si_options(options), source=path)
+
+
+def _joint_state_values(source: MessageSource, topic: str, path: str, joint: Optional[str],
+                        fields: Mapping[str, str], explicit: Collection[str],
+                        ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """
+    Decode a joint's fields from JointState messages, in time order.
+
+    Returns the header stamps (the bag's time where a stamp is zero), the bag's times [ns]
+    and channel -> values. A field asked for explicitly (``explicit``) must be there in every
+    message; a default one is dropped when a message lacks it.
+    """
+    typestore = _typestore()
+    header_stamps: list[int] = []
+    log_stamps: list[int] = []
+    values: dict[str, list[float]] = {channel: [] for channel in fields}
+    for _, stamp, data in source.messages((topic,)):
+        message = typestore.deserialize_cdr(data, JOINT_STATE_TYPE)
+        names = list(message.name)
+        if joint is None:
+            if len(names) != 1:
+                raise InputDataError(f'{path}: {topic} has the joints {", ".join(names)}; '
+                                     'choose one with --joint NAME')
+            joint = names[0]
+        if joint not in names:
+            raise InputDataError(f'{path}: joint {joint!r} is not in {topic}; it has '
+                                 f'{", ".join(names) or "no joints"} (--joint NAME)')
+        index = names.index(joint)
+        for channel, field_name in list(fields.items()):
+            if channel not in values:
+                continue
+            array = getattr(message, field_name)
+            if len(array) > index:
+                values[channel].append(float(array[index]))
+            elif channel in explicit:
+                present = [name for name in JOINT_STATE_FIELDS
+                           if len(getattr(message, name)) > index]
+                raise InputDataError(
+                    f'{path}: joint {joint!r} in {topic} has no {field_name} values for the '
+                    f'{channel} (the {field_name} array of the message is empty); it has '
+                    f'{", ".join(present) or "no values"} (--interface {channel}=FIELD)')
+            else:
+                del values[channel]
+        header_ns = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+        header_stamps.append(int(header_ns) if header_ns else int(stamp))
+        log_stamps.append(int(stamp))
+    if not header_stamps:
+        raise InputDataError(f'{path}: topic {topic} has no messages')
+    order = np.argsort(np.asarray(header_stamps, dtype=np.int64), kind='stable')
+    return (np.asarray(header_stamps, dtype=np.int64)[order],
+            np.asarray(log_stamps, dtype=np.int64)[order],
+            {channel: np.asarray(items, dtype=float)[order] for channel, items in values.items()})
+
+
+def _si_options(options: ReadOptions) -> ReadOptions:
+    """Return the options that keep the values as read (:func:`read_bag` applies the units)."""
+    return replace(options, current_unit='A', speed_unit='rad/s', speed_counts_per_rev=None,
+                   position_unit='rad', position_counts_per_rev=None, gear_ratio=1.0,
+                   bus_voltage=None)
 
 
 def _warn_recovered_record(path: str, recovery: Recovery, record: Record) -> None:
