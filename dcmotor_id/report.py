@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import html
 import os
+import re
 from typing import Any, Mapping, Sequence, TYPE_CHECKING
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 import numpy as np
 
 from dcmotor_id.estimators.refined import OutputErrorModel
@@ -66,12 +68,10 @@ def _series(found, records, result):
     model = OutputErrorModel(records, result.get('torque_constant'))
     all_simulated = simulate_records(model, dict(result['parameters']), result['initial_states'])
     for rec, simulated in zip(records, all_simulated):
-        item = {'time': rec.time_s, 'stop': len(rec), 'measured': {}, 'before': {},
-                'after': {}}
-        for channel in model.outputs:
-            item['measured'][channel] = getattr(rec, channel)
-            item['before'][channel] = simulated[channel]
-            item['after'][channel] = simulated[channel]
+        # one model only: before and after are the same mapping (drawn once, as 'model')
+        same = {channel: simulated[channel] for channel in model.outputs}
+        item = {'time': rec.time_s, 'stop': len(rec), 'before': same, 'after': same,
+                'measured': {channel: getattr(rec, channel) for channel in model.outputs}}
         out.append(item)
     return out, output_channels(result['mode'] == 'mechanical')
 
@@ -88,7 +88,11 @@ def _grid(count: int, rows_each: int, width: float = 3.6, height: float = 2.1):
     """Return a figure and axes for ``count`` panels of ``rows_each`` stacked axes each."""
     columns = min(count, COLUMNS_PER_ROW)
     groups = -(-count // columns)
-    figure = Figure(figsize=(max(6.0, width * columns), height * rows_each * groups + 0.8))
+    if rows_each == 1:
+        height *= 1.3  # one channel: room for its detail
+    # few records: wider panels (a long record in a narrow panel hides its steps)
+    figure = Figure(figsize=(max(10.0 if columns < 3 else 6.0, width * columns),
+                             height * rows_each * groups + 1.2))
     axes = figure.subplots(rows_each * groups, columns, squeeze=False)
     return figure, axes, columns
 
@@ -96,11 +100,13 @@ def _grid(count: int, rows_each: int, width: float = 3.6, height: float = 2.1):
 def plot_fit(series: list[dict], outputs: Sequence[str], directory: str,
              errors: Mapping[str, Mapping[str, float | None]],
              units: Mapping[str, str] = CHANNEL_UNITS, name: str = 'fit.png',
-             labels: Sequence[str] | None = None) -> str:
+             labels: Sequence[str] | None = None,
+             scores: Sequence[str] | None = None) -> str:
     """
     Measured vs model before and after for every record (small multiples), held-out marked.
 
-    One column per record (wrapping after :data:`COLUMNS_PER_ROW`), one row per channel.
+    One column per record (wrapping after :data:`COLUMNS_PER_ROW`), one row per channel;
+    ``scores`` (one short text per record, e.g. its NRMSE) goes under the record's name.
     """
     shown = series[:MAX_RECORDS_DRAWN]
     figure, axes, columns = _grid(len(shown), len(outputs))
@@ -123,9 +129,12 @@ def plot_fit(series: list[dict], outputs: Sequence[str], directory: str,
             ax.set_ylabel(f'{channel} [{units.get(channel, "")}]', fontsize=8)
             ax.tick_params(labelsize=7)
             ax.grid(True, lw=0.3)
+            ax.xaxis.set_major_locator(MaxNLocator(5))
             if row == 0:
-                label = labels[number] if labels else f'record {number + 1}'
-                ax.set_title(os.path.basename(str(label))[-40:], fontsize=8)
+                title = _record_label(labels, number)
+                if scores and number < len(scores) and scores[number]:
+                    title += '\n' + scores[number]
+                ax.set_title(title, fontsize=8)
         axes[group * len(outputs) + len(outputs) - 1, column].set_xlabel('time [s]', fontsize=8)
     for number in range(len(shown), axes.shape[1] * (axes.shape[0] // len(outputs))):
         group, column = divmod(number, columns)
@@ -136,38 +145,79 @@ def plot_fit(series: list[dict], outputs: Sequence[str], directory: str,
     before = ', '.join(f'{c} {_pct(errors["before"].get(f"{c}_nrmse_pct"))}' for c in outputs)
     after = ', '.join(f'{c} {_pct(errors["after"].get(f"{c}_nrmse_pct"))}' for c in outputs)
     title = f'Every record: measured vs simulated (free run on the input){more}'
-    if any(errors.get('after', {}).values()):
-        title += f'. NRMSE base {before}; final {after}'
-    figure.suptitle(title, fontsize=9)
-    figure.tight_layout(rect=(0, 0, 1, 0.93))
-    figure.legend(handles, texts, loc='upper center', ncol=4, fontsize=8,
-                  bbox_to_anchor=(0.5, 0.965))
+    held_out = any(item['stop'] < len(item['time']) for item in series)
+    if any(errors.get('after', {}).values()) and held_out:
+        title += f'.\nHeld-out NRMSE base {before}; final {after}'
+    elif any(errors.get('after', {}).values()):
+        title += f'.\nNRMSE {after}'
+    _title_and_legend(figure, title, handles, texts)
     return _save(figure, directory, name)
 
 
+def _title_and_legend(figure: Figure, title: str, handles: list, texts: list[str]) -> None:
+    """Lay the panels out below a title and one legend (heights in inches, not fractions)."""
+    height = figure.get_figheight()
+    lines = title.count('\n') + 1
+    legend_top = 1.0 - (0.1 + 0.17 * lines) / height
+    # the layout first: tight_layout would reserve room for a suptitle a second time
+    figure.tight_layout(rect=(0, 0, 1, legend_top - 0.3 / height))
+    figure.suptitle(title, fontsize=9, y=1.0 - 0.05 / height, va='top')
+    if handles:
+        figure.legend(handles, texts, loc='upper center', ncol=len(texts), fontsize=8,
+                      bbox_to_anchor=(0.5, legend_top))
+
+
+def _record_label(labels: Sequence[str] | None, number: int) -> str:
+    """Return ``record N: name`` (the file name only, at most 40 characters)."""
+    if labels and number < len(labels) and labels[number]:
+        return f'record {number + 1}: {os.path.basename(str(labels[number]))[-40:]}'
+    return f'record {number + 1}'
+
+
 def _transients(values: np.ndarray, count: int, width: int) -> list[int]:
-    """Return where the ``count`` largest changes of ``values`` are, ``width`` apart."""
-    change = np.abs(np.diff(values))
+    """
+    Return where the ``count`` largest input changes are, ``width`` samples apart.
+
+    A change is measured over a tenth of the window (so a fast ramp counts as well as a
+    step, and one noisy sample does not), and only where the window fits in the record after
+    it (the window starts a fifth of its width before the change).
+    """
+    values = np.asarray(values, dtype=float)
+    lag = max(1, width // 10)
+    lead = width // 5
+    if values.size < width + lag:
+        return []
+    change = np.abs(values[lag:] - values[:-lag])
+    change[~np.isfinite(change)] = 0.0
+    change[np.arange(change.size) + lag + width - lead > values.size] = 0.0
     chosen: list[int] = []
-    for index in np.argsort(change)[::-1]:
+    for index in np.argsort(-change, kind='stable'):  # the earliest of equal changes
         if change[index] <= 0 or len(chosen) >= count:
             break
-        if all(abs(int(index) - other) >= width for other in chosen):
-            chosen.append(int(index))
+        # the first sample after the sharpest sample-to-sample change inside the span
+        step = int(index) + 1 + int(np.argmax(np.abs(np.diff(values[index:index + lag + 1]))))
+        if all(abs(step - other) >= width for other in chosen):
+            chosen.append(step)
     return sorted(chosen)
+
+
+def _transient_width(item: dict) -> int:
+    """Return the samples of a transient window: 1/25 of the record, 50 to 2000."""
+    return int(np.clip(len(item['time']) // 25, 50, 2000))
 
 
 def plot_transients(series: list[dict], outputs: Sequence[str], inputs: Sequence[np.ndarray],
                     directory: str, input_name: str,
                     units: Mapping[str, str] = CHANNEL_UNITS,
-                    name: str = 'transients.png') -> str:
+                    name: str = 'transients.png',
+                    labels: Sequence[str] | None = None) -> str:
     """Zoom on the largest input changes of every record: measured vs simulated."""
     shown = series[:MAX_RECORDS_DRAWN]
     figure = Figure(figsize=(3.6 * TRANSIENTS, 1.9 * len(outputs) * len(shown) + 0.8))
     axes = figure.subplots(len(outputs) * len(shown), TRANSIENTS, squeeze=False)
     for number, (item, values) in enumerate(zip(shown, inputs)):
         t = item['time']
-        width = int(np.clip(len(t) // 50, 20, 400))
+        width = _transient_width(item)
         starts = _transients(np.asarray(values[:len(t)], dtype=float), TRANSIENTS, width)
         for slot in range(TRANSIENTS):
             for row, channel in enumerate(outputs):
@@ -177,26 +227,33 @@ def plot_transients(series: list[dict], outputs: Sequence[str], inputs: Sequence
                     continue
                 low = max(starts[slot] - width // 5, 0)
                 part = slice(low, min(low + width, len(t)))
+                change = int(starts[slot])
                 ax.plot(t[part], item['measured'][channel][part], color=_COLOURS['measured'],
                         lw=1.4, label='measured')
                 if item['before'] is not item['after']:
                     ax.plot(t[part], item['before'][channel][part], color=_COLOURS['before'],
                             lw=0.8, ls='--', label='base model')
                 ax.plot(t[part], item['after'][channel][part], color=_COLOURS['after'],
-                        lw=0.9, label='final model')
-                ax.axvline(t[starts[slot]], color='k', lw=0.4, ls=':')
+                        lw=0.9, label='final model' if item['before'] is not item['after']
+                        else 'model')
+                ax.axvline(t[change], color='k', lw=0.9, ls=':')
                 ax.set_ylabel(f'{channel} [{units.get(channel, "")}]', fontsize=8)
                 ax.tick_params(labelsize=7)
+                ax.xaxis.set_major_locator(MaxNLocator(4))
                 ax.grid(True, lw=0.3)
                 if row == 0:
-                    ax.set_title(f'record {number + 1}: {input_name} step at '
-                                 f'{t[starts[slot]]:.4g} s', fontsize=8)
-    handles, texts = axes[0, 0].get_legend_handles_labels()
-    figure.suptitle('Transients: the largest input changes of each record (dotted line)',
-                    fontsize=9)
-    figure.tight_layout(rect=(0, 0, 1, 0.95))
-    figure.legend(handles, texts, loc='upper center', ncol=3, fontsize=8,
-                  bbox_to_anchor=(0.5, 0.975))
+                    ax.set_title(f'{_record_label(labels, number)}\n{input_name} change near '
+                                 f'{t[change]:.4g} s', fontsize=8)
+        if not starts:
+            ax = axes[number * len(outputs), 0]
+            ax.set_visible(True)
+            ax.set_axis_off()
+            ax.text(0, 0.5, f'{_record_label(labels, number)}: too short for a transient '
+                    'window', fontsize=8, transform=ax.transAxes)
+    handles, texts = next((ax.get_legend_handles_labels() for ax in axes.flat
+                           if ax.get_legend_handles_labels()[0]), ([], []))
+    _title_and_legend(figure, 'Transients: the largest input changes of each record (dotted '
+                      'line), model run free from the start of the record', handles, texts)
     return _save(figure, directory, name)
 
 
@@ -213,6 +270,10 @@ def _input(series, records, found, result):
     return ('torque input' if mechanical else name), values
 
 
+#: Channels whose residual is not tested for whiteness (an integral of the speed error).
+INTEGRATED = ('position',)
+
+
 def _acf_axis(ax, acfs: Sequence[tuple[np.ndarray, str, str]], band: float) -> None:
     """Draw autocorrelations as bars with the white band; symlog when far outside it."""
     lags = np.arange(1, len(acfs[0][0]) + 1)
@@ -221,78 +282,101 @@ def _acf_axis(ax, acfs: Sequence[tuple[np.ndarray, str, str]], band: float) -> N
         ax.bar(lags + (number - (len(acfs) - 1) / 2) * width, acf, width=width, color=colour,
                label=label, zorder=2)
     ax.axhspan(-band, band, color=_COLOURS['band'], alpha=0.8, lw=0, zorder=0,
-               label=f'99 % band (white) +-{band:.2g}')
+               label='99 % band of a white sequence')
     ax.axhline(0.0, color='k', lw=0.5)
     peak = max(float(np.max(np.abs(acf))) for acf, _, _ in acfs)
     if peak > 5 * band:
-        # far outside the band: a linear scale would flatten the band to a line
-        ax.set_yscale('symlog', linthresh=band, linscale=2.0)
-        ax.set_ylim(-1.05, 1.05)
-        marks = [value for value in (0.3, 1.0) if value > 2.5 * band]
+        # far outside the band: a linear scale would flatten the band to a line; the
+        # linear part (the band) takes as much height as one decade outside it
+        ax.set_yscale('symlog', linthresh=band, linscale=1.0)
+        ax.set_ylim(-1.1, 1.1)
+        marks = [1.0] + ([0.3] if 0.3 > 3 * band else [])
         ticks = sorted({0.0, band, -band} | set(marks) | {-value for value in marks})
         ax.set_yticks(ticks, [f'{value:.2g}' for value in ticks])
         ax.minorticks_off()
-        ax.text(0.98, 0.04, 'symlog scale: linear inside the band', transform=ax.transAxes,
-                ha='right', fontsize=7, color='0.3')
+        ax.text(0.98, 0.03, 'symlog: linear inside the band', transform=ax.transAxes,
+                ha='right', va='bottom', fontsize=7, color='0.3',
+                bbox={'facecolor': 'white', 'edgecolor': 'none', 'alpha': 0.8, 'pad': 1})
+    else:
+        top = max(peak, band) * 1.25
+        ax.set_ylim(-top, top)
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if values.size else float('nan')
 
 
 def plot_residuals(series: list[dict], outputs: Sequence[str], directory: str,
                    input_name: str, inputs: Sequence[np.ndarray], max_lag: int = DEFAULT_LAGS,
                    units: Mapping[str, str] = CHANNEL_UNITS, name: str = 'residuals.png',
-                   sides: Sequence[tuple[str, str]] = (('before', 'base'), ('after', 'final'))
-                   ) -> str:
+                   sides: Sequence[tuple[str, str]] = (('before', 'base'), ('after', 'final')),
+                   labels: Sequence[str] | None = None) -> str:
     """
     Residual of every record on its own: the residual, its autocorrelation, input correlation.
 
     Records are never joined (a join would put a jump into the residual and mix records);
-    each is analysed on its held-out part (the whole record when there is none).
+    each is analysed on its held-out part (the whole record when there is none). The
+    position residual (an integral of the speed error, never white) is drawn but not tested.
     """
     shown = series[:MAX_RECORDS_DRAWN]
-    figure = Figure(figsize=(13, 2.5 * len(outputs) * len(shown) + 0.6))
+    figure = Figure(figsize=(13, 2.4 * len(outputs) * len(shown) + 0.9))
     axes = figure.subplots(len(outputs) * len(shown), 3, squeeze=False)
     for number, (item, values) in enumerate(zip(shown, inputs)):
         stop = item['stop'] if item['stop'] < len(item['time']) else 0
         part = slice(stop, None)
         time = item['time'][part]
         driving = np.asarray(values[:len(item['time'])], dtype=float)[part]
+        label = _record_label(labels, number) + (' (held-out part)' if stop else '')
         for row, channel in enumerate(outputs):
             unit = units.get(channel, '')
             residuals = {side: item[side][channel][part] - item['measured'][channel][part]
                          for side, _ in sides}
-            ax = axes[number * len(outputs) + row, 0]
-            for side, label in sides:
-                residual = residuals[side]
-                ax.plot(time, residual, color=_COLOURS[side], lw=0.6,
-                        label=f'{label}: rms {np.sqrt(np.mean(residual ** 2)):.3g} {unit}')
+            row_axes = axes[number * len(outputs) + row]
+            ax = row_axes[0]
+            for side, text in sides:
+                ax.plot(time, residuals[side], color=_COLOURS[side], lw=0.6, label=text)
             ax.set_ylabel(f'{channel} residual [{unit}]', fontsize=8)
-            ax.set_title(f'record {number + 1}' + (' (held-out part)' if stop else ''),
-                         fontsize=8)
-            ax.legend(fontsize=7, loc='upper right')
+            rms = ', '.join(f'{text} {_rms(residuals[side]):.3g}' for side, text in sides)
             ax.grid(True, lw=0.3)
-            ax = axes[number * len(outputs) + row, 1]
+            ax.xaxis.set_major_locator(MaxNLocator(5))
+            ax.tick_params(labelsize=7)
+            if channel in INTEGRATED:
+                # hidden axes are left out of the layout; a text beside would widen it
+                for other in row_axes[1:]:
+                    other.set_visible(False)
+                ax.set_title(f'{label}\nrms {rms} {unit} (not tested for whiteness: it '
+                             'integrates the speed error)', fontsize=8, loc='left')
+                continue
+            ax.set_title(f'{label}\nrms {rms} {unit}', fontsize=8)
+            ax = row_axes[1]
             band = confidence_band(residuals[sides[-1][0]].size)
             _acf_axis(ax, [(autocorrelation(residuals[side], max_lag)[1:], _COLOURS[side],
-                            label) for side, label in sides], band)
+                            text) for side, text in sides], band)
             ax.set_ylabel('autocorrelation', fontsize=8)
-            ax.set_title(f'record {number + 1}, {channel}: whiteness', fontsize=8)
-            ax.legend(fontsize=7, loc='upper right', framealpha=0.9)
-            ax = axes[number * len(outputs) + row, 2]
-            for side, label in sides:
+            ax.set_title(f'record {number + 1}, {channel}: whiteness (band +-{band:.2g})',
+                         fontsize=8)
+            ax = row_axes[2]
+            for side, text in sides:
                 lag_axis, rho = cross_correlation(residuals[side], driving, max_lag)
                 ax.plot(lag_axis, rho, marker='o', ms=2.0, lw=0.7, color=_COLOURS[side],
-                        label=label, zorder=2)
+                        label=text, zorder=2)
             ax.axhspan(-band, band, color=_COLOURS['band'], alpha=0.8, lw=0, zorder=0)
             ax.axhline(0.0, color='k', lw=0.5)
             ax.set_ylabel(f'corr(residual, {input_name})', fontsize=8)
             ax.set_title(f'record {number + 1}, {channel} residual vs {input_name}', fontsize=8)
-            for ax in axes[number * len(outputs) + row]:
+            for ax in row_axes:
                 ax.tick_params(labelsize=7)
-    axes[-1, 0].set_xlabel('time [s]')
-    axes[-1, 1].set_xlabel('lag [samples]')
-    axes[-1, 2].set_xlabel('lag [samples]')
-    figure.suptitle('Residual (model - measured) per record: structure left = bars or dots '
-                    'outside the grey band', fontsize=10, y=1.0)
-    figure.tight_layout()
+    axes[-1, 0].set_xlabel('time [s]', fontsize=8)
+    axes[-1, 1].set_xlabel('lag [samples]', fontsize=8)
+    axes[-1, 2].set_xlabel('lag [samples]', fontsize=8)
+    handles, texts = [], []
+    for ax in axes.flat:
+        for handle, text in zip(*ax.get_legend_handles_labels()):
+            if text not in texts:
+                handles.append(handle)
+                texts.append(text)
+    _title_and_legend(figure, 'Residual (model - measured) per record: structure left = bars '
+                      'or dots outside the grey band', handles, texts)
     return _save(figure, directory, name)
 
 
@@ -342,24 +426,43 @@ def _number(value, digits=5):
     return f'{value:.{digits}g}'
 
 
+def _mentions(text: str, name: str) -> bool:
+    """Return whether ``text`` names the parameter ``name`` as a word (not the b of by)."""
+    return re.search(rf'(?<![\w.]){re.escape(name)}(?![\w])', text) is not None
+
+
+def _parameter_flags(result: Mapping[str, Any], name: str) -> list[str]:
+    """Return the flags of a parameter: not identifiable, an upper bound, warnings naming it."""
+    flags = []
+    reason = (result.get('not_identifiable') or {}).get(name)
+    if reason:
+        flags.append(f'not identifiable: {html.escape(str(reason))}')
+    if name in (result.get('upper_bounds') or {}):
+        flags.append('upper bound only')
+    numbers = [f'W{number}' for number, text in enumerate(result.get('warnings') or [], 1)
+               if _mentions(str(text), name)]
+    if numbers:
+        flags.append('see ' + ', '.join(numbers))
+    return flags
+
+
 def _parameter_rows(result):
-    flags = result.get('not_identifiable') or {}
     rows = []
     for name, value in result['parameters'].items():
         err = result['stderr'].get(name, float('nan'))
         low, high = value - Z95 * err, value + Z95 * err
         rel = abs(err / value) * 100 if value else float('nan')
-        flag = flags.get(name)
+        flags = _parameter_flags(result, name)
         rows.append([name, _number(value), _number(err, 3), f'[{_number(low)}, {_number(high)}]',
                      _number(rel, 3) + ' %', html.escape(result['units'].get(name, '')),
-                     f'<span class="flag">not identifiable: {html.escape(str(flag))}</span>'
-                     if flag else ''])
+                     f'<span class="flag">{"; ".join(flags)}</span>' if flags else ''])
     return rows
 
 
 def _flags(result: Mapping[str, Any]) -> str:
     """HTML of the warnings and non-identifiable parameters (empty when there are none)."""
-    items = [html.escape(str(text)) for text in result.get('warnings') or []]
+    items = [f'<b>W{number}</b> {html.escape(str(text))}'
+             for number, text in enumerate(result.get('warnings') or [], 1)]
     items += [f'<b>{html.escape(str(name))}</b> not identifiable: {html.escape(str(reason))}'
               for name, reason in (result.get('not_identifiable') or {}).items()]
     items += [f'record {html.escape(str(source))}: {html.escape(str(text))}'
@@ -469,14 +572,17 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
     units = dict(CHANNEL_UNITS, **(channel_units or {}))
     series, outputs = _series(found, records, result)
     errors = {'before': result['error_before'], 'after': result['error_after']}
-    images = [plot_fit(series, outputs, directory, errors, units,
-                       labels=[str(source) for source in result.get('records') or []])]
+    labels = [str(source) for source in result.get('records') or []]
+    images = [plot_fit(series, outputs, directory, errors, units, labels=labels,
+                       scores=_record_scores(result, outputs))]
     input_name, input_values = _input(series, records, found, result)
+    sides = (('after', 'model'),) if found is None else (('before', 'base'), ('after', 'final'))
     images.append(plot_residuals(series, outputs, directory, input_name, input_values,
-                                 units=units))
+                                 units=units, labels=labels, sides=sides))
     images.append(plot_steps(found, outputs, directory) if found is not None and found.steps
                   else '')
-    transients = plot_transients(series, outputs, input_values, directory, input_name, units)
+    transients = plot_transients(series, outputs, input_values, directory, input_name, units,
+                                 labels=labels)
     effects = result.get('effects', [])
     if found is None:
         reason = (result.get('discovery') or {}).get('skipped',
@@ -564,6 +670,24 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
     return path
 
 
+def _score_text(errors: Mapping[str, Any], outputs: Sequence[str], prefix: str) -> str:
+    """Return e.g. ``fit current 99 %, speed 98 %`` of one record's scores ('' if none)."""
+    values = []
+    for channel in outputs:
+        value = (errors.get('fit_pct') or {}).get(channel) if prefix == 'fit' else \
+            errors.get(f'{channel}_nrmse_pct')
+        if value is not None and np.isfinite(value):
+            values.append(f'{channel} {value:.3g} %')
+    return f'{prefix} ' + ', '.join(values) if values else ''
+
+
+def _record_scores(result: Mapping[str, Any], outputs: Sequence[str]) -> list[str]:
+    """Per record: the final model's NRMSE over the whole record (as the CLI prints it)."""
+    items = ((result.get('errors') or {}).get('records') or [])
+    return [_score_text((item.get('after') or {}).get('whole_record') or {}, outputs,
+                        'whole-record NRMSE') for item in items]
+
+
 def _errors_text(errors):
     return ', '.join(f'{key.split("_")[0]} {value:.3g} %' for key, value in errors.items()
                      if value is not None)
@@ -590,16 +714,17 @@ def _validation_parts(directory: str, validation: Validation,
     series, outputs = _validation_series(validation)
     scores = validation.as_dict()['records']
     worst = {'before': {}, 'after': {}}  # type: dict[str, dict[str, Any]]
+    labels = [str(item['source']) for item in scores]
     fit = plot_fit(series, outputs, directory, worst, units, name='validation_fit.png',
-                   labels=[item['source'] for item in scores])
+                   labels=labels, scores=[_score_text(item, outputs, 'fit') for item in scores])
     name = 'current' if validation.model.mechanical_only else 'voltage'
     inputs = [getattr(item.record, name) for item in validation.records]
-    residuals = plot_residuals(series, outputs, directory,
-                               'torque input' if name == 'current' else name, inputs,
+    shown = 'torque input' if name == 'current' else name
+    residuals = plot_residuals(series, outputs, directory, shown, inputs,
                                units=units, name='validation_residuals.png',
-                               sides=(('after', 'model'),))
-    transients = plot_transients(series, outputs, inputs, directory, name, units,
-                                 name='validation_transients.png')
+                               sides=(('after', 'model'),), labels=labels)
+    transients = plot_transients(series, outputs, inputs, directory, shown, units,
+                                 name='validation_transients.png', labels=labels)
     rows = []
     for item in scores:
         fits = item['fit_pct']

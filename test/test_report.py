@@ -78,3 +78,81 @@ def test_cli_rejects_a_bad_effect(tmp_path, capsys):
                      str(tmp_path / 'x.csv')])
     assert code == 2
     assert 'unknown effect' in capsys.readouterr().err
+
+
+def test_transients_are_the_largest_input_changes_where_they_happen():
+    from dcmotor_id.report import _transients
+
+    rng = np.random.default_rng(0)
+    values = rng.normal(0, 0.01, 5000)
+    steps = {700: 2.0, 2500: -3.0, 4000: 1.0, 4990: 5.0}  # the last one: no window after it
+    for index, size in steps.items():
+        values[index:] += size
+    # the step's first sample is where it happens; the one too near the end is left out
+    assert _transients(values, 3, 200) == [700, 2500, 4000]
+    assert _transients(values, 2, 200) == [700, 2500]
+    # equal steps: the earliest ones; steps closer than a window count once
+    values = np.zeros(3000)
+    for index in (500, 550, 1500, 2200):
+        values[index:] += 1.0
+    assert _transients(values, 3, 200) == [500, 1500, 2200]
+    assert _transients(np.zeros(100), 3, 200) == []  # shorter than a window
+
+
+def test_report_of_several_records_without_discovery_draws_one_model(tmp_path):
+    from dcmotor_id.report import _series
+
+    records = [loaded_record(duration, [make_effect('load_torque', torque_Nm=0.2)])
+               .replace(source=f'r{number}.csv')
+               for number, duration in enumerate((1.0, 2.0, 3.0))]
+    result = identify(records, discover=False).as_dict()
+    series, outputs = _series(None, records, result)
+    assert [len(item['time']) for item in series] == [len(record) for record in records]
+    assert all(item['before'] is item['after'] for item in series)  # no base/final pair
+    page = write_report(str(tmp_path), result, None, records)
+    text = open(page, encoding='utf-8').read()
+    for name in ('fit.png', 'residuals.png', 'transients.png'):
+        assert f'src="{name}"' in text
+        check_png(os.path.join(tmp_path, name))
+    # one panel column per record, and a taller residual figure per record (never joined)
+    assert imread(os.path.join(tmp_path, 'fit.png')).shape[1] > 1000
+    one = str(tmp_path / 'one')
+    write_report(one, identify(records[:1], discover=False).as_dict(), None, records[:1])
+    assert imread(os.path.join(tmp_path, 'residuals.png')).shape[0] > \
+        2.5 * imread(os.path.join(one, 'residuals.png')).shape[0]
+
+
+def test_validation_report_with_position_draws_every_figure(tmp_path):
+    from dcmotor_id.report import write_validation_report
+    from dcmotor_id.validate import model_from_dict, validate
+
+    t, voltage = make_excitation('paper', 3.0, DT)
+    current, speed, position = simulate_motor_effects(PAPER_MOTORS['paper2'], voltage, DT, [])
+    record = Record(t, current, voltage, speed, position=position, source='with_position.csv')
+    result = identify([record], discover=False).as_dict()
+    validation = validate(model_from_dict(result), [record])
+    page = write_validation_report(str(tmp_path), validation)
+    text = open(page, encoding='utf-8').read()
+    for name in ('validation_fit.png', 'validation_transients.png',
+                 'validation_residuals.png'):
+        assert f'src="{name}"' in text
+        check_png(os.path.join(tmp_path, name))
+
+
+def test_parameter_table_flags_the_warnings_that_name_a_parameter():
+    from dcmotor_id.report import _flags, _parameter_rows
+
+    result = {'parameters': {'J': 93.0, 'b': 196.0, 'Mc': 21.0, 'La': 1e-5},
+              'stderr': {'J': 0.5, 'b': 8.0, 'Mc': 0.8, 'La': 0.0},
+              'units': {'J': 'kg m^2', 'b': 'N m s/rad', 'Mc': 'N m', 'La': 'H'},
+              'warnings': ['b and Mc are correlated -0.999: determined by the data as a sum',
+                           'the model misfits far above the sensor noise'],
+              'not_identifiable': {'J': 'no acceleration in the record'},
+              'upper_bounds': {'La': 1e-5}}
+    flags = {row[0]: row[-1] for row in _parameter_rows(result)}
+    assert 'see W1' in flags['b'] and 'see W1' in flags['Mc']  # not the b of 'by'
+    assert 'not identifiable: no acceleration' in flags['J'] and 'W' not in flags['J']
+    assert 'upper bound only' in flags['La']
+    box = _flags(result)
+    assert '<b>W1</b> b and Mc' in box and '<b>W2</b> the model misfits' in box
+    assert '<b>J</b> not identifiable' in box
