@@ -18,6 +18,7 @@ A study of one data set, kept beside the package rather than in it: run
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import os
 import sys
 from typing import Any, Mapping, Sequence
@@ -307,12 +308,18 @@ def _effect_text(effect):
 
 #: Samples at the start of the validation record not scored (the benchmark's protocol).
 SCORE_SKIP_SAMPLES = 20
-#: Effects of the position-output fits: name -> (model parameter, start value, scale).
-POSITION_FIT_TERMS = {
-    'load_torque': ('torque_Nm', -3.0, 1.0),
-    'viscous_asymmetry': ('delta_Nm_s', 0.0, 10.0),
-    'coulomb_asymmetry': ('delta_Nm', 0.0, 1.0),
+#: Effects of the position-output fits: name -> ((model parameter, start value, scale), ...).
+POSITION_FIT_TERMS: dict[str, tuple[tuple[str, float, float], ...]] = {
+    'load_torque': (('torque_Nm', -3.0, 1.0),),
+    'viscous_asymmetry': (('delta_Nm_s', 0.0, 10.0),),
+    'coulomb_asymmetry': (('delta_Nm', 0.0, 1.0),),
+    'stribeck': (('excess_Nm', 2.0, 1.0), ('velocity_rad_s', 0.005, 0.002)),
+    'quadratic_drag': (('coefficient_Nm_s2', 0.0, 50.0),),
+    'cogging': (('amplitude_Nm', 0.5, 0.5), ('phase_rad', 0.0, 1.0)),
 }
+#: Ripple periods of the cogging rows [m]: a slow force along the stroke (0.5 m, twice the
+#: 0.25 m stroke) and the 58 mm period the discovery loop finds (108 cycles per 2 pi m).
+COGGING_PERIODS_M = (0.5, 2.0 * np.pi / 108.0)
 
 
 def emps_model(parameters: Mapping[str, float], gtau: float,
@@ -329,8 +336,51 @@ def idim_model(parameters: Mapping[str, float], gtau: float) -> Any:
                                           'parameters': {'torque_Nm': parameters['offset']}}])
 
 
+@dataclass(frozen=True)
+class PositionFit:
+    """
+    A position-output fit: the model and the first-order lag of the force it assumes.
+
+    Attributes
+    ----------
+    model : dcmotor_id.validate.Model
+        The rigid model with its effects.
+    input_lag_s : float
+        Time constant of a first-order lag between ``gtau * vir`` and the force on the
+        carriage (the drive's current loop), 0 for none.
+    training_rmse_m : float
+        Position RMSE of the fit on its training record [m].
+
+    """
+
+    model: Any
+    input_lag_s: float = 0.0
+    training_rmse_m: float = float('nan')
+
+    def record(self, record: Record) -> Record:
+        """Return the record as the model sees it (its input through the lag)."""
+        return lagged_input(record, self.input_lag_s)
+
+
+def lagged_input(record: Record, time_constant_s: float) -> Record:
+    """
+    Return the record with its input through a first-order lag (exact for a held input).
+
+    ``y[k+1] = a y[k] + (1 - a) u[k]``, ``a = exp(-dt / tau)``, ``y[0] = u[0]``; a time
+    constant of 0 returns the record unchanged.
+    """
+    if time_constant_s <= 0.0:
+        return record
+    a = float(np.exp(-record.sample_period_s / time_constant_s))
+    current = np.asarray(record.current, dtype=float)
+    lagged = signal.lfilter([0.0, 1.0 - a], [1.0, -a], current - current[0]) + current[0]
+    return record.replace(current=lagged)
+
+
 def position_output_fit(record: Record, gtau: float,
-                        effects: Sequence[str] = ('load_torque',)) -> Any:
+                        effects: Sequence[str] = ('load_torque',),
+                        inner: Mapping[str, Mapping[str, float]] | None = None,
+                        input_lag: bool = False) -> PositionFit:
     """
     Fit M, Fv, Fc and the effects' parameters to the measured position (output error).
 
@@ -339,41 +389,99 @@ def position_output_fit(record: Record, gtau: float,
     after the first :data:`SCORE_SKIP_SAMPLES` samples is minimised: the criterion the
     benchmark scores, unlike the speed-output fit of the package, which weights the fast speed
     changes and lets a small force bias integrate into a position drift.
+
+    Parameters
+    ----------
+    record : Record
+        The training record.
+    gtau : float
+        Drive gain [N/V].
+    effects : sequence of str
+        Effects of :data:`POSITION_FIT_TERMS` to fit.
+    inner : dict, optional
+        Fixed parameters by effect (the cogging's ``cycles_per_rev``).
+    input_lag : bool
+        Also fit a first-order lag of the force (:func:`lagged_input`).
+
     """
     from scipy.optimize import least_squares
 
     from dcmotor_id.validate import simulate
 
-    start = [95.0, 200.0, 20.0] + [POSITION_FIT_TERMS[name][1] for name in effects]
-    scale = [10.0, 20.0, 2.0] + [POSITION_FIT_TERMS[name][2] for name in effects]
+    fixed = {name: dict(values) for name, values in (inner or {}).items()}
+    specs = [(name, spec) for name in effects for spec in POSITION_FIT_TERMS[name]]
+    start = [95.0, 200.0, 20.0] + [spec[1] for _, spec in specs]
+    scale = [10.0, 20.0, 2.0] + [spec[2] for _, spec in specs]
+    if input_lag:
+        start.append(0.003)
+        scale.append(0.002)
     measured = np.asarray(record.position, dtype=float)
 
-    def model_of(values: Sequence[float]) -> Any:
+    def split(values: Sequence[float]) -> tuple[Any, float]:
         parameters = dict(zip(('M', 'Fv', 'Fc'), values[:3]))
-        terms = [{'name': name, 'parameters': {POSITION_FIT_TERMS[name][0]: float(value)}}
-                 for name, value in zip(effects, values[3:])]
-        return emps_model(parameters, gtau, terms)
+        terms: dict[str, dict[str, float]] = {name: dict(fixed.get(name, {}))
+                                              for name in effects}
+        for (name, spec), value in zip(specs, values[3:]):
+            # the Stribeck velocity enters squared: report its magnitude
+            terms[name][spec[0]] = abs(float(value)) if spec[0] == 'velocity_rad_s' else float(
+                value)
+        listing = [{'name': name, 'parameters': terms[name]} for name in effects]
+        lag = abs(float(values[-1])) if input_lag else 0.0
+        return emps_model(parameters, gtau, listing), lag
 
     def residual(values: np.ndarray) -> np.ndarray:
-        simulated = simulate(model_of(values), record, [float(record.speed[0])])
+        model, lag = split(values)
+        simulated = simulate(model, lagged_input(record, lag), [float(record.speed[0])])
         return (simulated['position'] - measured)[SCORE_SKIP_SAMPLES:]
     fitted = least_squares(residual, start, x_scale=scale, max_nfev=200)
-    return model_of(fitted.x)
+    model, lag = split(fitted.x)
+    return PositionFit(model, lag, float(np.sqrt(np.mean(fitted.fun ** 2))))
 
 
-def pulse_steps_in_input(estimation: Record, validation: Record, path: str) -> dict[str, Any]:
+def friction_by_record(record: Record, gtau: float,
+                       decimation: int = DECIMATION) -> dict[str, float]:
+    """
+    Direction-dependent IDIM-LS on one record: M, Fv+, Fv-, Fc+, Fc- (the benchmark's model).
+
+    ``gtau vir = M qdd + Fv+ qd+ + Fv- qd- + Fc+ [qd > 0] - Fc- [qd < 0]`` by the reference
+    processing of :func:`idim_ls`; the same model on two records tells how much the friction
+    differs between them (the force that drifts an open-loop simulation trained on the other).
+    """
+    speed, acceleration, keep = _idim_kinematics(record)
+    columns = np.column_stack([acceleration, speed * (speed > 0), speed * (speed < 0),
+                               (speed > 0).astype(float), -(speed < 0).astype(float)])[keep]
+    force = (gtau * record.current)[keep]
+    matrix = np.column_stack([_decimate(columns[:, j], decimation) for j in range(5)])
+    theta, *_ = np.linalg.lstsq(matrix, _decimate(force, decimation), rcond=None)
+    return dict(zip(('M', 'Fv_pos', 'Fv_neg', 'Fc_pos', 'Fc_neg'), map(float, theta)))
+
+
+def pulse_steps_in_input(estimation: Record, validation: Record, path: str,
+                         gtau: float) -> dict[str, Any]:
     """
     Where the force pulses of the validation record are: in the recorded input or not.
 
     Compares the two records' ``vir`` (the same trajectory) at the onsets of ``pulses_N``:
     a jump equal to the pulse at its onset sample means the recorded input carries it.
+    ``settled_force_difference_N``: the mean force ``gtau (vir_PULSES - vir_EMPS)`` away from
+    the pulses (pulse off, 200 ms after its last change), moving forward and backward: what
+    the two records differ by without a pulse.
     """
     pulses = np.ravel(loadmat(path)['pulses_N']).astype(float)
     onsets = np.flatnonzero(np.diff(pulses) != 0) + 1
     difference = validation.current - estimation.current
     jumps = difference[onsets] - difference[onsets - 1]
     heights = pulses[onsets] - pulses[onsets - 1]
+    # away from the pulses: pulse off and no change of the pulse in the last 200 ms
+    settled = pulses == 0
+    for onset in onsets:
+        settled[onset:onset + 200] = False
+    force = gtau * difference
+    speed = estimation.speed
     return {'pulses': int(onsets.size), 'pulse_height': float(np.max(np.abs(heights))),
+            'settled_force_difference_N': {
+                'forward': float(np.mean(force[settled & (speed > 0.01)])),
+                'backward': float(np.mean(force[settled & (speed < -0.01)]))},
             'median_jump_of_vir_at_onset': float(np.median(np.abs(jumps))),
             'max_position_difference_m': float(np.max(np.abs(validation.position
                                                              - estimation.position)))}
@@ -388,7 +496,10 @@ def emps_score(data_dir: str | None = None) -> dict[str, Any]:
     initial speed from those samples). Rows: the published IDIM-LS parameters; the
     4-parameter rigid model fitted by output error on speed (the package's criterion) and on
     position; the discovery loop's model (``identify`` on DATA_EMPS); position-output fits
-    with the asymmetric friction effects.
+    with the extensions tried (asymmetric friction, Stribeck, drag, a force periodic in
+    position, a lag of the force). A last row fits the best structure on PULSES itself: a
+    diagnosis of the difference between the two records, not a score. ``friction`` holds the
+    direction-dependent IDIM-LS of each record (:func:`friction_by_record`).
     """
     from dcmotor_id.identify import identify
     from dcmotor_id.validate import model_from_dict, validate_record
@@ -396,40 +507,68 @@ def emps_score(data_dir: str | None = None) -> dict[str, Any]:
     directory = find_data_dir(data_dir)
     estimation, gtau = load_emps(os.path.join(directory, ESTIMATION_FILE))
     validation, _ = load_emps(os.path.join(directory, VALIDATION_FILE))
-    models: list[tuple[str, Any]] = [
-        ('published IDIM-LS (M, Fv, Fc, offset)', idim_model(PUBLISHED_IDIM_LS, gtau)),
+    asymmetric = ('load_torque', 'viscous_asymmetry')
+    fits: list[tuple[str, PositionFit]] = [
+        ('published IDIM-LS (M, Fv, Fc, offset)',
+         PositionFit(idim_model(PUBLISHED_IDIM_LS, gtau))),
         ('4-parameter rigid model, output error on speed',
-         idim_model(as_idim(output_error_idim_structure(estimation, gtau).parameters), gtau)),
+         PositionFit(idim_model(as_idim(output_error_idim_structure(estimation, gtau)
+                                        .parameters), gtau))),
         ('4-parameter rigid model, output error on position',
          position_output_fit(estimation, gtau)),
     ]
     loop = identify([estimation], torque_constant=gtau)
-    models.append(('discovery loop on speed (identify, effects: '
-                   + (', '.join(e['name'] for e in loop.effects) or 'none') + ')',
-                   model_from_dict(loop.as_dict())))
-    models.append(('position output error + viscous_asymmetry',
-                   position_output_fit(estimation, gtau,
-                                       ('load_torque', 'viscous_asymmetry'))))
-    models.append(('position output error + viscous and coulomb asymmetry',
-                   position_output_fit(estimation, gtau, ('load_torque', 'viscous_asymmetry',
-                                                          'coulomb_asymmetry'))))
+    fits.append(('discovery loop on speed (identify, effects: '
+                 + (', '.join(e['name'] for e in loop.effects) or 'none') + ')',
+                 PositionFit(model_from_dict(loop.as_dict()))))
+    fits.append(('position output error + viscous_asymmetry',
+                 position_output_fit(estimation, gtau, asymmetric)))
+    fits.append(('position output error + viscous and coulomb asymmetry',
+                 position_output_fit(estimation, gtau, asymmetric + ('coulomb_asymmetry',))))
+    fits.append(('position output error + viscous_asymmetry + stribeck',
+                 position_output_fit(estimation, gtau, asymmetric + ('stribeck',))))
+    fits.append(('position output error + viscous_asymmetry + quadratic_drag',
+                 position_output_fit(estimation, gtau, asymmetric + ('quadratic_drag',))))
+    for period in COGGING_PERIODS_M:
+        fits.append((f'position output error + viscous_asymmetry + force periodic in position '
+                     f'(cogging, period {period * 1e3:.0f} mm)',
+                     position_output_fit(estimation, gtau, asymmetric + ('cogging',),
+                                         {'cogging': {'cycles_per_rev': 2 * np.pi / period}})))
+    fits.append(('position output error + viscous_asymmetry + first-order lag of the force',
+                 position_output_fit(estimation, gtau, asymmetric, input_lag=True)))
+    half = len(estimation) // 2
+    for label, part in (('first', estimation.slice(0, half)),
+                        ('second', estimation.slice(half, len(estimation)))):
+        fits.append((f'position output error + viscous_asymmetry, {label} half of DATA_EMPS '
+                     'only', position_output_fit(part, gtau, asymmetric)))
+    cogging = {'cogging': {'cycles_per_rev': 2 * np.pi / COGGING_PERIODS_M[1]}}
+    diagnoses = [
+        ('diagnosis, not a score: position output error + viscous_asymmetry fitted on PULSES',
+         position_output_fit(validation, gtau, asymmetric)),
+        ('diagnosis, not a score: + force periodic in position (58 mm) fitted on PULSES',
+         position_output_fit(validation, gtau, asymmetric + ('cogging',), cogging)),
+    ]
     rows = []
-    for label, model in models:
+    for label, fit in fits + diagnoses:
         scores = {}
         for name, record in (('estimation', estimation), ('validation', validation)):
-            item = validate_record(model, record, SCORE_SKIP_SAMPLES).scores
+            item = validate_record(fit.model, fit.record(record), SCORE_SKIP_SAMPLES).scores
             scores[name] = {'position_rmse_mm': 1e3 * item['position_rmse'],
                             'speed_nrmse_pct': item['speed_nrmse_pct'],
                             'fit_position_pct': item['fit_pct']['position']}
-        rows.append({'model': label, 'parameters': dict(model.parameters),
-                     'effects': [dict(effect) for effect in model.effects], **scores})
+        rows.append({'model': label, 'parameters': dict(fit.model.parameters),
+                     'effects': [dict(effect) for effect in fit.model.effects],
+                     'input_lag_s': fit.input_lag_s,
+                     'diagnosis': label.startswith('diagnosis'), **scores})
     return {'rows': rows, 'gtau': gtau,
+            'friction': {'estimation': friction_by_record(estimation, gtau),
+                         'validation': friction_by_record(validation, gtau)},
             'pulses': pulse_steps_in_input(estimation, validation,
-                                           os.path.join(directory, VALIDATION_FILE))}
+                                           os.path.join(directory, VALIDATION_FILE), gtau)}
 
 
 def format_score(score: Mapping[str, Any]) -> str:
-    """Markdown table of :func:`emps_score`."""
+    """Markdown tables of :func:`emps_score` (the scores, then the friction of each record)."""
     lines = ['| model (trained on DATA_EMPS) | M [kg] | Fv [N s/m] | Fc [N] | effects | '
              'PULSES position RMSE [mm] | PULSES fit position | DATA_EMPS position RMSE [mm] |',
              '|---|---|---|---|---|---|---|---|']
@@ -439,10 +578,21 @@ def format_score(score: Mapping[str, Any]) -> str:
                                                         e['parameters'].items()
                                                         if isinstance(v, float))
                             for e in row['effects']) or 'none'
+        if row.get('input_lag_s'):
+            effects += f"; force lag {row['input_lag_s'] * 1e3:.2f} ms"
         lines.append(f"| {row['model']} | {p['J']:.2f} | {p['b']:.1f} | {p['Mc']:.2f} | "
                      f"{effects} | **{row['validation']['position_rmse_mm']:.2f}** | "
                      f"{row['validation']['fit_position_pct']:.2f} % | "
                      f"{row['estimation']['position_rmse_mm']:.2f} |")
+    friction = score.get('friction')
+    if friction:
+        names = (('M', 'M [kg]'), ('Fv_pos', 'Fv+ [N s/m]'), ('Fv_neg', 'Fv- [N s/m]'),
+                 ('Fc_pos', 'Fc+ [N]'), ('Fc_neg', 'Fc- [N]'))
+        lines += ['', '| direction-dependent IDIM-LS | ' + ' | '.join(t for _, t in names)
+                  + ' |', '|---' * (len(names) + 1) + '|']
+        for key, label in (('estimation', 'DATA_EMPS'), ('validation', 'DATA_EMPS_PULSES')):
+            lines.append(f'| {label} | ' + ' | '.join(f'{friction[key][n]:.2f}'
+                                                      for n, _ in names) + ' |')
     return '\n'.join(lines)
 
 

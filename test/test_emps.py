@@ -5,10 +5,13 @@ Data: A. Janot, M. Gautier, M. Brunot, "Data Set and Reference Models of EMPS", 
 System Identification Benchmarks workshop, Eindhoven, 2019 (shared/data/emps).
 """
 
+import os
+
 import pytest
 # The study lives beside the package (studies/), importable from the repository root.
-from studies.emps import (emps_study, find_data_dir, PUBLISHED_IDIM_LS,
-                          PUBLISHED_RELATIVE_ERROR_PCT)
+from studies.emps import (emps_study, ESTIMATION_FILE, find_data_dir, friction_by_record,
+                          load_emps, PUBLISHED_IDIM_LS, PUBLISHED_RELATIVE_ERROR_PCT,
+                          VALIDATION_FILE)
 
 from dcmotor_id.errors import InputDataError
 
@@ -86,3 +89,29 @@ def test_extended_vocabulary_prefers_asymmetric_viscous_friction(study):
     assert 'load_torque' not in [effect['name'] for effect in result['effects']]
     assert study['loop_extended']['validation']['after']['speed_nrmse_pct'] < \
         study['loop']['validation']['after']['speed_nrmse_pct']
+
+
+#: The data README's direction-dependent IDIM-LS fit of DATA_EMPS.
+PUBLISHED_DIRECTIONAL = {'M': 95.1540, 'Fv_pos': 166.7061, 'Fc_pos': 20.1440,
+                         'Fv_neg': 240.4236, 'Fc_neg': 20.6277}
+
+
+def test_the_two_records_differ_in_friction():
+    """
+    The direction-dependent IDIM-LS: published values on DATA_EMPS, more friction on PULSES.
+
+    What limits the PULSES score of any model trained on DATA_EMPS (bench/emps_score_results.md).
+    """
+    estimation, gtau = load_emps(os.path.join(DATA_DIR, ESTIMATION_FILE))
+    validation, _ = load_emps(os.path.join(DATA_DIR, VALIDATION_FILE))
+    before = friction_by_record(estimation, gtau)
+    for name, published in PUBLISHED_DIRECTIONAL.items():
+        assert before[name] == pytest.approx(published, rel=0.01), name
+    after = friction_by_record(validation, gtau)
+    for direction in ('pos', 'neg'):
+        assert after[f'Fc_{direction}'] > before[f'Fc_{direction}']
+        assert after[f'Fv_{direction}'] > before[f'Fv_{direction}']
+        # about 1 N more friction at 0.1 m/s each way
+        extra = (after[f'Fc_{direction}'] - before[f'Fc_{direction}']
+                 + 0.1 * (after[f'Fv_{direction}'] - before[f'Fv_{direction}']))
+        assert 0.5 < extra < 2.0
