@@ -14,7 +14,6 @@ the package does not use, fall back to scipy.
 
 from __future__ import annotations
 
-from numba import njit
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -94,19 +93,6 @@ def butter_sos(order: int, cutoff: float) -> FloatArray:
     return sos
 
 
-@njit(cache=True)
-def _sosfilt(sos, values, state):  # pragma: no cover - compiled
-    """Run second-order sections over ``values`` in place from ``state`` (transposed form II)."""
-    for n in range(values.shape[0]):
-        current = values[n]
-        for s in range(sos.shape[0]):
-            new = sos[s, 0] * current + state[s, 0]
-            state[s, 0] = sos[s, 1] * current - sos[s, 4] * new + state[s, 1]
-            state[s, 1] = sos[s, 2] * current - sos[s, 5] * new
-            current = new
-        values[n] = current
-
-
 def _sections_zi(sos: FloatArray) -> FloatArray:
     """Steady-state section states for a unit step (``scipy.signal.sosfilt_zi``)."""
     zi = np.empty((sos.shape[0], 2))
@@ -147,10 +133,12 @@ def zero_phase(sos: FloatArray, values: ArrayLike) -> FloatArray:
     if x.shape[0] <= edge:
         raise ValueError(f'the signal must be longer than the padding ({edge} samples)')
     ext = np.concatenate((2 * x[:1] - x[edge:0:-1], x, 2 * x[-1:] - x[-2:-(edge + 2):-1]))
+    from dcmotor_id.simulation.compiled import kernel  # lazily: no import cycle
+    sosfilt = kernel('sosfilt_kernel')
     zi = _sections_zi(sos)
-    _sosfilt(sos, ext, zi * ext[0])
+    sosfilt(sos, ext, zi * ext[0])
     ext = ext[::-1].copy()
-    _sosfilt(sos, ext, zi * ext[0])
+    sosfilt(sos, ext, zi * ext[0])
     return ext[::-1][edge:-edge].copy()
 
 
