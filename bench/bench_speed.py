@@ -125,10 +125,16 @@ def run_reaped(argv, env):
     return report
 
 
+#: OPENBLAS_NUM_THREADS of every child when set (``--blas-threads``).
+BLAS_THREADS = []
+
+
 def environment_for(path, cache_dir=None):
     """Environment of a child that imports ``dcmotor_id`` from ``path``."""
     env = dict(os.environ)
     env['PYTHONPATH'] = path
+    if BLAS_THREADS:
+        env['OPENBLAS_NUM_THREADS'] = str(BLAS_THREADS[0])
     if cache_dir is not None:
         env['NUMBA_CACHE_DIR'] = cache_dir
     return env
@@ -310,11 +316,16 @@ def main():
     parser.add_argument('--default-max-samples', type=int, default=10 ** 9,
                         help='largest record the new path runs with discovery (default: all)')
     parser.add_argument('--skip-cold', action='store_true')
+    parser.add_argument('--blas-threads', type=int,
+                        help='OPENBLAS_NUM_THREADS of every child (default: not set; the new '
+                        'path limits itself to one thread during identify)')
     parser.add_argument('--plain-child', help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.plain_child:
         plain_child(args.plain_child)
         return
+    if args.blas_threads:
+        BLAS_THREADS.append(args.blas_threads)
     lines = [f'Command: `{command_line()}`  ', f'Machine: {environment()}; load average '
              f'{os.getloadavg()[0]:.2f} at the start', '']
     if args.previous and args.sizes:
