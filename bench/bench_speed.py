@@ -366,7 +366,7 @@ def main():
                                   'second call in the same process, cpu [s]'], cold_rows), '',
                   f'First whole process after the warm-up / later ones: {cold_ratio[0]:.2f} '
                   f'(CPU); first identify call of a process / a second call in it: '
-                  f'{cold_ratio[1]:.2f} (CPU: loading the cached kernels).']
+                  f'{cold_ratio[1]:.2f} (CPU: loading kernels, if any).']
     print('\n'.join(lines))
 
 
