@@ -8,8 +8,10 @@ BENCH_OUT := out/bench
 
 .PHONY: demo demo-loop demo-offline test test-fast typecheck warmup bench clean
 
-# The install also compiles the numba kernels into their on-disk cache (dcmotor_id.warmup):
-# the user's first `dcmotor-id identify` then runs as fast as the second one.
+# The install also compiles the numba kernels into their on-disk cache (dcmotor_id.warmup),
+# and the identify path's kernels ahead of time (dcmotor_id/simulation/compiled.py, needs a C
+# compiler): the user's first `dcmotor-id identify` then runs as fast as the second one, and
+# without importing numba.
 $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
@@ -18,7 +20,7 @@ $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	$(PY) -m dcmotor_id.warmup --quiet
 	touch $(STAMP)
 
-# Recompile the numba cache by hand (after editing a kernel, say).
+# Recompile the numba cache and the ahead-of-time module by hand (after editing a kernel, say).
 warmup: $(STAMP)
 	$(PY) -m dcmotor_id.warmup
 

@@ -5,8 +5,9 @@ Data: motor 2 of Table 1, the ``paper`` excitation (the 0.5 Hz 110 V sine for th
 the 1 Hz 43 V sawtooth for the second), exact simulation, 1 % white noise on current and speed,
 at each ``duration@rate`` of ``--sizes``.  Every measurement is a whole process (a fresh
 interpreter: import, load the record from ``.npz``, identify), timed by the operating system
-(``os.wait4``: user + system CPU seconds and the peak resident memory of that process) and by
-the wall clock; the child also reports the time of the call and its own memory before it.
+(``os.wait4``: user + system CPU seconds) and by the wall clock; the child reports the time
+of the call and its own peak resident memory (``VmHWM`` of ``/proc/self/status``, before the
+call and at the end: ``getrusage``'s ``ru_maxrss`` of a child starts from the parent's size).
 
 Contenders, run in turn (A B C A B C ...) so that a drift of the machine's speed hits all:
 
@@ -21,9 +22,9 @@ Contenders, run in turn (A B C A B C ...) so that a drift of the machine's speed
   term ``-Mc sgn(w[k])`` held over the sample), started from the refined method's own start
   point (its search is inside the timed process); up to ``--plain-max-samples``.
 
-Also measured: the cold start (a fresh numba cache filled by ``python -m dcmotor_id.warmup``,
-then the first whole process against the following ones) and the growth exponent of the
-call's CPU time with the number of samples.
+Also measured: the cold start (a fresh numba cache and no ahead-of-time kernels, both made by
+``python -m dcmotor_id.warmup``, then the first whole process against the following ones) and
+the growth exponent of the call's CPU time with the number of samples.
 
 Usage: ``.venv/bin/python bench/bench_speed.py [--sizes 60@1000,600@1000] [--repeats N]
 [--previous DIR] [--plain-max-samples N] [--previous-max-samples N]``
@@ -51,8 +52,18 @@ DEFAULT_SIZES = '60@1000,600@1000,3600@1000,600@10000,3600@10000'
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 
-_CHILD = """
-import json, resource, sys, time
+_HWM = """
+def hwm():
+    # Peak resident memory of this process image (not inherited from the parent across fork
+    # and exec, unlike getrusage's ru_maxrss).
+    with open('/proc/self/status') as status:
+        for line in status:
+            if line.startswith('VmHWM:'):
+                return int(line.split()[1]) * 1024
+"""
+
+_CHILD = _HWM + """
+import json, sys, time
 start = time.perf_counter()
 import numpy as np
 from dcmotor_id.identify import identify, prepare_records
@@ -60,7 +71,7 @@ from dcmotor_id.records import Record
 data = np.load(sys.argv[1])
 record = Record(data['t'], data['current'], data['voltage'], data['speed'])
 del data
-before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+before = hwm()
 loaded = time.perf_counter()
 cpu = time.process_time()
 result = identify(prepare_records([record]), discover=sys.argv[2] == 'default')
@@ -74,7 +85,8 @@ if len(sys.argv) > 3:
     again = time.perf_counter() - begin
     again_cpu = time.process_time() - cpu
 print(json.dumps({'call_s': call, 'call_cpu_s': call_cpu, 'setup_s': loaded - start,
-                  'rss_before': before, 'again_s': again, 'again_cpu_s': again_cpu,
+                  'rss_before': before, 'peak_own': hwm(), 'again_s': again,
+                  'again_cpu_s': again_cpu,
                   'parameters': result.parameters, 'stderr': result.stderr}))
 """
 
@@ -106,15 +118,23 @@ def run_reaped(argv, env):
     if process.returncode != 0:
         raise RuntimeError(f'{argv[:3]} failed: {error[-2000:]}')
     report = json.loads(text.strip().splitlines()[-1])
+    # ru_maxrss of a child starts from the parent's resident size at the fork (Linux keeps the
+    # high-water mark across exec): the child's own VmHWM is the figure when it reports one.
     report.update(wall_s=wall, cpu_s=usage.ru_utime + usage.ru_stime,
-                  peak_bytes=usage.ru_maxrss * 1024, load=load)
+                  peak_bytes=report.get('peak_own', usage.ru_maxrss * 1024), load=load)
     return report
+
+
+#: OPENBLAS_NUM_THREADS of every child when set (``--blas-threads``).
+BLAS_THREADS = []
 
 
 def environment_for(path, cache_dir=None):
     """Environment of a child that imports ``dcmotor_id`` from ``path``."""
     env = dict(os.environ)
     env['PYTHONPATH'] = path
+    if BLAS_THREADS:
+        env['OPENBLAS_NUM_THREADS'] = str(BLAS_THREADS[0])
     if cache_dir is not None:
         env['NUMBA_CACHE_DIR'] = cache_dir
     return env
@@ -163,7 +183,10 @@ def plain_child(path):
                   + [record.current[0], record.speed[0]])
     with np.errstate(all='ignore'):
         result = least_squares(residual, x0)
+    namespace: dict = {}
+    exec(_HWM, namespace)
     print(json.dumps({'call_s': time.perf_counter() - begin, 'nfev': int(result.nfev),
+                      'peak_own': namespace['hwm'](),
                       'status': int(result.status),
                       'parameters': dict(zip(PHYSICAL_NAMES, result.x[:6].tolist()))}))
 
@@ -244,9 +267,18 @@ def size_rows(duration_s, rate_hz, n, runs):
 
 
 def cold_start(directory):
-    """Warm-up into an empty numba cache, then the first whole process against later ones."""
+    """
+    Warm-up from nothing, then the first whole process against later ones.
+
+    An empty numba cache, and this checkout's ahead-of-time kernels removed first
+    (:mod:`dcmotor_id.simulation.compiled`): the warm-up compiles both again.
+    """
+    import glob
+
     path = os.path.join(directory, 'cold.npz')
     make_data(60.0, 1000.0, path)
+    for module in glob.glob(os.path.join(ROOT, 'dcmotor_id', 'simulation', '_aot_*')):
+        os.remove(module)
     with tempfile.TemporaryDirectory() as cache:
         env = environment_for(ROOT, cache)
         with tempfile.TemporaryFile() as sink:
@@ -258,7 +290,8 @@ def cold_start(directory):
                 for _ in range(4)]
     first, later = runs[0], runs[1:]
     return [
-        ['warm-up (python -m dcmotor_id.warmup, empty cache)', f'{warm_up_cpu:.2f}', '', ''],
+        ['warm-up (python -m dcmotor_id.warmup, empty cache, no ahead-of-time module)',
+         f'{warm_up_cpu:.2f}', '', ''],
         ['first whole process after the warm-up', f'{first["cpu_s"]:.2f}',
          f'{first["call_cpu_s"]:.2f}', f'{first["again_cpu_s"]:.2f}'],
         ['later whole processes (median of 3)', f'{_median([r["cpu_s"] for r in later]):.2f}',
@@ -283,11 +316,16 @@ def main():
     parser.add_argument('--default-max-samples', type=int, default=10 ** 9,
                         help='largest record the new path runs with discovery (default: all)')
     parser.add_argument('--skip-cold', action='store_true')
+    parser.add_argument('--blas-threads', type=int,
+                        help='OPENBLAS_NUM_THREADS of every child (default: not set; the new '
+                        'path limits itself to one thread during identify)')
     parser.add_argument('--plain-child', help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.plain_child:
         plain_child(args.plain_child)
         return
+    if args.blas_threads:
+        BLAS_THREADS.append(args.blas_threads)
     lines = [f'Command: `{command_line()}`  ', f'Machine: {environment()}; load average '
              f'{os.getloadavg()[0]:.2f} at the start', '']
     if args.previous and args.sizes:
@@ -328,7 +366,7 @@ def main():
                                   'second call in the same process, cpu [s]'], cold_rows), '',
                   f'First whole process after the warm-up / later ones: {cold_ratio[0]:.2f} '
                   f'(CPU); first identify call of a process / a second call in it: '
-                  f'{cold_ratio[1]:.2f} (CPU: loading the cached kernels).']
+                  f'{cold_ratio[1]:.2f} (CPU: loading kernels, if any).']
     print('\n'.join(lines))
 
 

@@ -18,6 +18,7 @@ from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.blas import single_threaded
 from dcmotor_id.discovery import DiscoveryLoop, DiscoveryResult
 from dcmotor_id.effects import VOCABULARY
 from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
@@ -324,6 +325,7 @@ def _make_estimator(method, initial_state, progress):
     return METHODS[method]()
 
 
+@single_threaded
 def identify(records: Sequence[Record], method: str = 'refined',
              torque_constant: float | None = None, discover: bool = True,
              estimator: Any = None,

@@ -14,7 +14,7 @@ The tools of :func:`dcmotor_id.identify.identify`, the discovery loop
   of the identified model, minus the next measurement; it localises errors in time and is
   insensitive to slow drifts of the simulation.
 * **Whiteness**: the Ljung-Box portmanteau test on the autocorrelation (chi-square with as
-  many degrees of freedom as lags, :func:`scipy.special.chdtrc`), and the share of the residual
+  many degrees of freedom as lags, :func:`chi_square_sf`), and the share of the residual
   that an autoregressive predictor explains from the residual's own past (a size, where the
   test gives only a significance).
 * **Cross-correlation** with the inputs and with each candidate effect's regressor, with the
@@ -26,11 +26,12 @@ arrays for plotting; none modifies its inputs.
 
 from __future__ import annotations
 
+import math
+from statistics import NormalDist
 from typing import Any, Mapping, Protocol, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.special import chdtrc, ndtri
 
 from dcmotor_id.signals import noise_std
 from dcmotor_id.simulation import zoh_matrices
@@ -157,7 +158,35 @@ def model_errors(model: SimulatedModel, values: Mapping[str, float],
 
 def confidence_band(n_samples: int, level: float = 1.0 - ALPHA) -> float:
     """Half-width of the two-sided band of a white sequence's correlation at ``level``."""
-    return float(ndtri(0.5 + 0.5 * level) / np.sqrt(max(n_samples, 1)))
+    return float(NormalDist().inv_cdf(0.5 + 0.5 * level) / np.sqrt(max(n_samples, 1)))
+
+
+def chi_square_sf(dof: int, statistic: float) -> float:
+    """
+    Survival function of the chi-square distribution with an integer number of degrees of freedom.
+
+    The closed forms of the regularised upper incomplete gamma function ``Q(dof / 2, x / 2)``
+    (a finite sum of Poisson terms, plus ``erfc`` for an odd ``dof``), each term taken in
+    logarithms so that neither a large statistic nor many degrees of freedom overflow: the value
+    of ``scipy.special.chdtrc`` to rounding, without importing :mod:`scipy.special` (a fifth of
+    a second of every process).
+    """
+    if dof < 1:
+        raise ValueError(f'degrees of freedom must be a positive integer, got {dof}')
+    if not statistic > 0.0:
+        return 1.0
+    if math.isinf(statistic):
+        return 0.0
+    half = 0.5 * statistic
+    log_half = math.log(half)
+    if dof % 2 == 0:
+        total = sum(math.exp(i * log_half - half - math.lgamma(i + 1.0))
+                    for i in range(dof // 2))
+    else:
+        total = math.erfc(math.sqrt(half))
+        total += sum(math.exp((i - 0.5) * log_half - half - math.lgamma(i + 0.5))
+                     for i in range(1, (dof - 1) // 2 + 1))
+    return min(total, 1.0)
 
 
 def autocorrelation(values: ArrayLike, max_lag: int = DEFAULT_LAGS,
@@ -227,7 +256,7 @@ def ljung_box(values: ArrayLike, lags: int = DEFAULT_LAGS,
     lags = int(min(lags, max(n // 5, 1)))
     rho = autocorrelation(values, lags)[1:]
     statistic = float(n * (n + 2) * np.sum(rho ** 2 / (n - np.arange(1, lags + 1))))
-    p_value = float(chdtrc(lags, statistic))
+    p_value = chi_square_sf(lags, statistic)
     return {'statistic': statistic, 'p_value': p_value, 'lags': lags,
             'white': bool(p_value >= alpha)}
 

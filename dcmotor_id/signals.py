@@ -4,9 +4,12 @@ Signal processing of measured records: low-pass smoothing, noise level, derivati
 The one home of the filters the rest of the package applies to measured signals: the
 regressors of the effects, the excitation checks, the start-point search and the position to
 speed conversion all call these.  Every function takes numpy arrays, returns new arrays or
-floats and never modifies its input.  Filters are scipy's zero-phase Butterworth
-(:func:`scipy.signal.sosfiltfilt`), imported lazily so that importing the package does not pay
-for :mod:`scipy.signal`.
+floats and never modifies its input.  Filters are zero-phase Butterworth low-passes
+computed as :func:`scipy.signal.butter` (``output='sos'``) and :func:`scipy.signal.sosfiltfilt`
+compute them (same design steps, same odd padding and initial conditions, same section
+recursion: the results agree to rounding, see test/test_signals.py), but without importing
+:mod:`scipy.signal`, which costs most of a second of every process (issue 11); odd orders, which
+the package does not use, fall back to scipy.
 """
 
 from __future__ import annotations
@@ -39,13 +42,104 @@ def low_pass(values: ArrayLike, cutoff_fraction: float, order: int = 4) -> Float
         The filtered signal; a copy of the input when it is too short to filter.
 
     """
-    from scipy.signal import butter, sosfiltfilt
-
     values = np.asarray(values, dtype=float)
     if values.shape[0] < MIN_FILTER_SAMPLES:
         return values.copy()
-    sos = butter(order, 2.0 * cutoff_fraction, output='sos')
-    return np.asarray(sosfiltfilt(sos, values), dtype=float)
+    return zero_phase(butter_sos(order, 2.0 * cutoff_fraction), values)
+
+
+def butter_sos(order: int, cutoff: float) -> FloatArray:
+    """
+    Digital Butterworth low-pass as second-order sections, as ``scipy.signal.butter`` makes it.
+
+    Parameters
+    ----------
+    order : int
+        Filter order.
+    cutoff : float
+        Cut-off as a fraction of the Nyquist frequency (0 < cutoff < 1).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(order // 2, 6)`` sections ``[b0, b1, b2, 1, a1, a2]``, the gain in the first one.
+
+    """
+    if order % 2 or order < 2:
+        from scipy.signal import butter  # odd orders: not used by the package
+        return np.asarray(butter(order, cutoff, output='sos'), dtype=float)
+    if not 0.0 < cutoff < 1.0:
+        raise ValueError(f'digital filter cut-off must lie in (0, 1), got {cutoff}')
+    # Analog prototype, pre-warped cut-off, bilinear transform at fs = 2 (scipy's steps).
+    m = np.arange(-order + 1, order, 2, dtype=float)
+    poles = -np.exp(1j * np.pi * m / (2 * order))
+    warped = 4.0 * np.tan(np.pi * cutoff / 2.0)
+    poles = warped * poles
+    gain = warped ** order
+    digital = (4.0 + poles) / (4.0 - poles)
+    gain = gain * np.real(1.0 / np.prod(4.0 - poles))
+    # One pole of each conjugate pair (scipy's _cplxreal keeps those of positive imaginary
+    # part); the sections are filled from the last, nearest the unit circle last.
+    upper = digital[digital.imag > 0]
+    upper = upper[np.lexsort((np.abs(upper.imag), upper.real))]
+    sos = np.zeros((order // 2, 6))
+    for section in range(order // 2 - 1, -1, -1):
+        worst = int(np.argmin(np.abs(1.0 - np.abs(upper))))
+        pole = upper[worst]
+        upper = np.delete(upper, worst)
+        denominator = np.real(np.convolve([1.0, -pole], [1.0, -np.conj(pole)]))
+        sos[section] = [1.0, 2.0, 1.0, *denominator]
+    sos[0, :3] *= gain
+    return sos
+
+
+def _sections_zi(sos: FloatArray) -> FloatArray:
+    """Steady-state section states for a unit step (``scipy.signal.sosfilt_zi``)."""
+    zi = np.empty((sos.shape[0], 2))
+    scale = 1.0
+    for section in range(sos.shape[0]):
+        b = sos[section, :3]
+        a = sos[section, 3:]
+        i_minus_a = np.array([[1.0 + a[1], -1.0], [a[2], 1.0]])
+        zi[section] = scale * np.linalg.solve(i_minus_a, b[1:] - a[1:] * b[0])
+        scale *= np.sum(b) / np.sum(a)
+    return zi
+
+
+def zero_phase(sos: FloatArray, values: ArrayLike) -> FloatArray:
+    """
+    Filter forward and backward with second-order sections (``scipy.signal.sosfiltfilt``).
+
+    Odd extension of ``3 (2 sections + 1)`` samples at both ends (fewer when sections are of
+    first order), the steady-state initial conditions scaled by the first sample of each pass.
+
+    Parameters
+    ----------
+    sos : numpy.ndarray
+        Sections, as :func:`butter_sos` returns them.
+    values : array_like
+        The signal (one dimension).
+
+    Returns
+    -------
+    numpy.ndarray
+        The filtered signal, a new array.
+
+    """
+    sos = np.ascontiguousarray(sos, dtype=float)
+    x = np.asarray(values, dtype=float)
+    taps = 2 * sos.shape[0] + 1 - min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum()))
+    edge = 3 * taps
+    if x.shape[0] <= edge:
+        raise ValueError(f'the signal must be longer than the padding ({edge} samples)')
+    ext = np.concatenate((2 * x[:1] - x[edge:0:-1], x, 2 * x[-1:] - x[-2:-(edge + 2):-1]))
+    from dcmotor_id.simulation.compiled import kernel  # lazily: no import cycle
+    sosfilt = kernel('sosfilt_kernel')
+    zi = _sections_zi(sos)
+    sosfilt(sos, ext, zi * ext[0])
+    ext = ext[::-1].copy()
+    sosfilt(sos, ext, zi * ext[0])
+    return ext[::-1][edge:-edge].copy()
 
 
 def smooth(values: ArrayLike, sample_period_s: float | None = None) -> FloatArray:
@@ -113,12 +207,10 @@ def speed_from_position(position: ArrayLike, sample_period_s: float,
         Speed [rad/s] (or [m/s]).
 
     """
-    from scipy.signal import butter, sosfiltfilt
-
     position = np.asarray(position, dtype=float)
     fs = 1.0 / sample_period_s
     cutoff = min(0.1 * fs, 100.0) if cutoff_hz is None else float(cutoff_hz)
     if not 0 < cutoff < 0.5 * fs:
         raise ValueError(f'cut-off {cutoff} Hz must lie between 0 and the Nyquist {0.5 * fs} Hz')
-    sos = butter(order, cutoff, fs=fs, output='sos')
-    return central_differences(sosfiltfilt(sos, position), sample_period_s)
+    sos = butter_sos(order, cutoff / (0.5 * fs))
+    return central_differences(zero_phase(sos, position), sample_period_s)

@@ -19,7 +19,6 @@ import os
 from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from dcmotor_id.effects import make_effect
 from dcmotor_id.errors import InputDataError
@@ -267,6 +266,7 @@ def estimate_initial_state(model: Model, record: Record, samples: int = INIT_SAM
         simulated = simulate(model, part, state)
         return np.concatenate([(simulated[channel] - measured[channel][:n]) / scale
                                for channel, scale in zip(channels, scales)])
+    from scipy.optimize import least_squares  # lazily: identify imports this module too
     x_scale = np.array(scales)
     fitted = least_squares(residual, np.array(start), x_scale=x_scale, max_nfev=60)
     return np.asarray(fitted.x, dtype=float)

@@ -191,3 +191,15 @@ def test_unreversed_speed_is_identified_partially_naming_mc():
     result = identify([record], discover=False)
     assert set(result.not_identifiable) >= {'Mc', 'load_torque'}
     assert result.combined['friction_torque_Nm']['of'] == ['Mc', 'load_torque']
+
+
+def test_identify_runs_with_one_blas_thread_and_restores_the_count():
+    from dcmotor_id.blas import _openblas, single_threaded
+    control = _openblas()
+    if control is None:
+        pytest.skip("numpy's BLAS is not the bundled OpenBLAS")
+    get, put = control
+    before = int(get())
+    seen = single_threaded(lambda: int(get()))()
+    assert seen == 1
+    assert int(get()) == before

@@ -321,13 +321,18 @@ def fit_arguments(table):
 
 
 def test_a_fit_over_its_time_limit_is_killed_and_the_next_one_works(table):
+    from dcmotor_id.excitation import make_excitation
     from dcmotor_id.nodes.worker import FitProcess, FitTimeout
+    from test_bad_input import simulate
+    # Ten minutes at 1 kHz: a fit of a second or more, well over the limit (3 s of data fit
+    # in about 0.1 s).
+    long = simulate(make_excitation('paper', 600.0, 1e-3)[1])
     fits = FitProcess(True, timeout_s=0.3)
     try:
         assert spin(lambda: fits.pid is not None, 30.0)
         first = fits.pid
         with pytest.raises(FitTimeout, match='identify_timeout_s = 0.3 s'):
-            fits.run(*fit_arguments(table))
+            fits.run(*fit_arguments(long))
         assert not os.path.exists(f'/proc/{first}') or first not in children(os.getpid())
         assert fits.pid != first and fits.restarts == 1
         fits.timeout_s = None

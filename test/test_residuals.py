@@ -115,3 +115,16 @@ def test_analyse_channel_reports_json_ready_evidence():
     assert not structured['ljung_box']['white']
     assert structured['inputs']['voltage']['outside']
     assert structured['predictable_fraction'] > 0.9
+
+
+def test_chi_square_survival_matches_scipy():
+    from scipy.special import chdtrc
+
+    from dcmotor_id.residuals import chi_square_sf
+    for dof in (1, 2, 3, 10, 25, 26, 99, 400):
+        for statistic in (1e-6, 0.5, dof * 0.3, dof * 1.0, dof + 3.0 * np.sqrt(2.0 * dof),
+                          dof * 5.0, 1e3, 1e5, 1e9):
+            expected = chdtrc(dof, statistic)
+            assert chi_square_sf(dof, statistic) == pytest.approx(expected, rel=1e-12,
+                                                                  abs=1e-300)
+    assert chi_square_sf(5, 0.0) == 1.0

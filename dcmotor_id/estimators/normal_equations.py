@@ -23,7 +23,7 @@ import numpy as np
 
 from dcmotor_id.estimators.base import StateTerm
 from dcmotor_id.estimators.uncertainty import block_edges
-from dcmotor_id.simulation.sensitivity import normal_kernel
+from dcmotor_id.simulation.compiled import kernel
 
 _NO_REGS = np.zeros((0, 1))
 _NO_INDEX = np.zeros(0, dtype=np.int64)
@@ -203,7 +203,7 @@ class NormalEquations:
                     for channel in model.outputs]
         edges = block_edges(len(rec))
         trajectory = np.empty((len(rec), n, m + 1)) if store else _NO_TRAJECTORY
-        hessian, gradient, cost, sums, blocks = normal_kernel(
+        hessian, gradient, cost, sums, blocks = kernel('normal_kernel')(
             np.ascontiguousarray(a), da, forcing, gscale, regs, reg_col, reg_row, reg_factor,
             oregs, oreg_col, oreg_chan, oreg_value, friction_pos, friction_neg, dfric_pos,
             dfric_neg, np.asarray(initial_state, dtype=float), s_start, dt, measured[0],

@@ -7,7 +7,8 @@ the corrections of shared/paper/ERRATA.md; weights named by the input they multi
     N1: i(k+1) = w1 u(k) + w2 w(k) + w3 i(k)
     N2: w(k+1) = v1 i(k) + v2 w(k) + v3 sgn(w(k))
 
-each trained with Levenberg-Marquardt on the mean squared one-step error (eq. 25).  The
+each trained with Levenberg-Marquardt on the mean squared one-step error (eq. 25); for a
+linear neuron that minimiser is the least-squares solution, computed directly.  The
 physical parameters follow from the weights (eqs. 13-15, 22-24)::
 
     CPhi = -w2/w1, Ta = dT/(1-w3), Ka = w1/(1-w3), Ra = 1/Ka, La = Ta Ra
@@ -32,22 +33,20 @@ from dcmotor_id.model import derived_stderr, derived_values, MECHANICAL_NAMES, P
 
 
 def _train_neuron(inputs, target):
-    """Levenberg-Marquardt on the MSE of a linear neuron; return weights and covariance."""
+    """
+    Train a linear neuron on its mean squared error; return weights and covariance.
+
+    The paper trains with Levenberg-Marquardt; on a linear neuron the error is quadratic in
+    the weights and LM converges to its least-squares minimiser, computed here directly (on
+    the inputs scaled to unit spread, as before), which gives the weights LM gave to 1e-12
+    without importing :mod:`scipy.optimize` on the identify path (issue 11).
+    """
     scale = np.maximum(np.std(inputs, axis=0), 1e-300)
     scaled = inputs / scale
-
-    def residual(weights):
-        return (scaled @ weights - target) / np.sqrt(target.shape[0])
-
-    def jacobian(weights):
-        return scaled / np.sqrt(target.shape[0])
-
-    from scipy.optimize import least_squares  # lazily: a second of import for the CLI
-    result = least_squares(residual, np.zeros(inputs.shape[1]), jac=jacobian, method='lm',
-                           xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    if not np.all(np.isfinite(result.x)):
+    solution = np.linalg.lstsq(scaled, target, rcond=None)[0]
+    if not np.all(np.isfinite(solution)):
         raise FitError('the paper method failed: a neuron weight is not finite')
-    weights = result.x / scale
+    weights = solution / scale
     dof = max(target.shape[0] - inputs.shape[1], 1)
     sigma2 = np.sum((inputs @ weights - target) ** 2) / dof
     try:

@@ -5,7 +5,9 @@ The package splits by concept: :mod:`~dcmotor_id.simulation.kernels` (the numba 
 kernels), :mod:`~dcmotor_id.simulation.motor` (motor- and shaft-level simulation, the
 real-time stepper), :mod:`~dcmotor_id.simulation.coefficients` (:class:`MotorEffects`, the
 typed coefficients of the effects and how they combine) and
-:mod:`~dcmotor_id.simulation.scenarios` (standard simulated experiments).  Every public name is
+:mod:`~dcmotor_id.simulation.scenarios` (standard simulated experiments);
+:mod:`~dcmotor_id.simulation.compiled` hands the kernels to their callers (ahead-of-time machine
+code when the set-up built it, else numba's JIT).  Every public name is
 importable from here.
 """
 

@@ -14,7 +14,10 @@ The entry points are :func:`simulate_kernel` (linear part and Coulomb friction, 
 :class:`~dcmotor_id.simulation.coefficients.MotorEffects`, read by field name, held over
 sub-steps) and :func:`discretise` (the exact ZOH matrices).  A sample costs tens of
 nanoseconds, which is what makes output-error fitting fast.  Arrays only: the motor-level
-functions in :mod:`dcmotor_id.simulation.motor` build them.
+functions in :mod:`dcmotor_id.simulation.motor` build them.  :func:`sosfilt_kernel` is the
+recursion of the zero-phase filter of :mod:`dcmotor_id.signals`.  The callers take the kernels
+through :func:`dcmotor_id.simulation.compiled.kernel` (ahead-of-time machine code when the
+set-up built it).
 """
 
 import math
@@ -491,3 +494,16 @@ def effects_kernel(a0, n, forcing, coulomb, inertia, inductance, effects, x_star
             states[k + 1, column] = x[column]
         angles[k + 1] = theta
     return states, angles
+
+
+@njit(cache=True)
+def sosfilt_kernel(sos, values, state):  # pragma: no cover - compiled
+    """Run second-order sections over ``values`` in place from ``state`` (transposed form II)."""
+    for n in range(values.shape[0]):
+        current = values[n]
+        for s in range(sos.shape[0]):
+            new = sos[s, 0] * current + state[s, 0]
+            state[s, 0] = sos[s, 1] * current - sos[s, 4] * new + state[s, 1]
+            state[s, 1] = sos[s, 2] * current - sos[s, 5] * new
+            current = new
+        values[n] = current

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike
 
 from dcmotor_id.model import MotorParameters, state_matrix
 from dcmotor_id.simulation.coefficients import combine_effects, EffectsLike
-from dcmotor_id.simulation.kernels import discretise, effects_kernel, simulate_kernel
+from dcmotor_id.simulation.compiled import kernel
 
 
 @dataclass(frozen=True)
@@ -67,9 +67,10 @@ class HybridSystem:
         """
         forcing = np.ascontiguousarray(forcing, dtype=float)
         a_matrix = np.ascontiguousarray(self.a_matrix, dtype=float)
-        return simulate_kernel(a_matrix, forcing, float(self.friction_pos),
-                               float(self.friction_neg), np.asarray(x0, dtype=float),
-                               float(sample_period_s))
+        return kernel('simulate_kernel')(a_matrix, forcing, float(self.friction_pos),
+                                         float(self.friction_neg),
+                                         np.ascontiguousarray(x0, dtype=float),
+                                         float(sample_period_s))
 
 
 def motor_system(params: MotorParameters) -> HybridSystem:
@@ -207,7 +208,7 @@ def simulate_motor_effects(params: MotorParameters, voltage: ArrayLike, sample_p
     """
     spec = combine_effects(effects)
     forcing = motor_forcing(params, voltage, extra_voltage, extra_torque)
-    states, angles = effects_kernel(
+    states, angles = kernel('effects_kernel')(
         np.ascontiguousarray(state_matrix(params)), 2, forcing, float(params.Mc),
         float(params.J), float(params.La), spec,
         np.asarray(initial_state, dtype=float), float(initial_angle_rad),
@@ -229,7 +230,7 @@ def simulate_mechanical_effects(inertia: float, viscous: float, coulomb: float,
     """
     spec = combine_effects(effects)
     torque = np.asarray(torque, dtype=float)
-    states, angles = effects_kernel(
+    states, angles = kernel('effects_kernel')(
         np.array([[-viscous / inertia]]), 1, np.ascontiguousarray((torque / inertia)[:, None]),
         float(coulomb), float(inertia), 1.0, spec,
         np.array([initial_speed], dtype=float), float(initial_angle_rad),
@@ -283,7 +284,7 @@ class MotorStepper:
         if self.effects is None:
             self.state = self._system.simulate(forcing, self.state, self.sample_period_s)[-1]
             return float(self.state[0]), float(self.state[1])
-        states, angles = effects_kernel(
+        states, angles = kernel('effects_kernel')(
             self._a_matrix, 2, forcing, float(self.params.Mc), float(self.params.J),
             float(self.params.La), self.effects, self.state, self.angle_rad,
             self.sample_period_s, self.oversample, self.time_s)
@@ -317,4 +318,4 @@ def zoh_matrices(a_matrix: ArrayLike, sample_period_s: float) -> tuple[np.ndarra
 
     """
     a_matrix = np.ascontiguousarray(np.atleast_2d(np.asarray(a_matrix, dtype=float)))
-    return discretise(a_matrix, a_matrix.shape[0], float(sample_period_s))
+    return kernel('discretise')(a_matrix, a_matrix.shape[0], float(sample_period_s))
