@@ -12,41 +12,54 @@ Why this design (bench/online_results.md has the numbers):
   that noise (b 88 % off at 1 % noise); a recursive instrumental-variable or prediction-error
   method would be consistent too, but neither reaches the maximum-likelihood spread nor has
   standard errors as simple to make honest, and the refit is cheap enough (below).
-* **Honest standard errors.**  They are the fit's Gauss-Newton ones (the offline noise
-  benchmark: 0.81-1.19 times the empirical spread), floored at :data:`STDERR_FLOOR_REL` of
-  the value (the solver's tolerance, which dominates without noise).
-* **Cost.**  A warm-started refit of 20 s at 1 kHz takes 0.1-0.3 s of CPU.  Refits run every
+* **Honest standard errors.**  They are the fit's Gauss-Newton ones, floored at
+  :data:`STDERR_FLOOR_REL` of the value (the solver's tolerance, which dominates without
+  noise).  Over hundreds of draws the RMS of error over reported standard error is 0.9-1.1
+  per parameter; the figures of 20 draws scatter more (the spread of 20 draws is known to
+  +-16 %, and a badly excited window, motor 1 under the paper's excitation after 10 s, makes
+  the standard error itself vary from draw to draw).  A warm start at the optimum once left
+  them 10x too large at 0.1 % noise (fixed in the fit's reweighting).
+* **Cost.**  A warm-started refit of 30 s at 1 kHz takes 0.1-0.5 s of CPU.  Refits run every
   ``refit_interval_s`` of data, stretched so that they never take more than ``cpu_budget``
   of one core; buffering a sample costs nothing measurable, so the estimator keeps up at any
   sample rate (at 10 kHz the refits simply come less often).  In the node they run in a
   process of their own (:class:`RefitProcess`), so a fit never stalls the sample intake.
+* **The window.**  It grows from the start (and from a restart or a gap) up to ``window_s``
+  (30 s), then slides: after 30 s the estimate uses the same data as an offline fit of those
+  30 s and has its spread (a 20 s window: 1.2-1.6 times it).
 * **Tracking.**  The window forgets everything older than ``window_s``, so a ramp is
-  followed with a lag of about half a window.  A sudden change makes the window's fit
+  followed with a lag of a fraction of a window.  A sudden change makes the window's fit
   leave a simulation error above the noise level of the recent fits; the last
   ``restart_s`` are then fitted alone and, if the model holds there, the window restarts
   from them (a change-adaptive window), so a step is tracked within seconds rather than a
-  window (bench: tracking lag).
+  window (bench: tracking lag).  A change too small to raise the simulation error (a load
+  torque of 0.7 % of the drive torque) is followed with a lag of about a window.
 * **A load torque.**  With speeds of both signs in the window, a constant torque on the
   shaft (``load_torque_Nm``, as the ``load_torque`` effect) is estimated as well; a drive
   turning one way only cannot tell it from Coulomb friction, and it is left out then.
 
-The estimate is *converged* when the last fit succeeded, is recent, gives a physical motor,
-every parameter's relative standard error is below ``converged_rel_stderr``, the simulation
-error is within its statistical fluctuation of the noise level of the recent fits
-(:data:`CONVERGED_MISMATCH_SIGMAS`) and the last two
-refits since the start or a restart agree (after a restart, a fit needs a second one to
-confirm it): each parameter moved by at most
-:data:`~dcmotor_id.online.estimate.INTERVAL_SIGMAS` standard errors of the difference of two
-estimates from overlapping windows (:func:`disagreement`).  The interval a converged estimate
-publishes is the simultaneous one of :mod:`dcmotor_id.online.estimate` (``INTERVAL_SIGMAS``
-= 3.51 standard errors: the six hold together as often as one 3-sigma interval).  Why these
-two and nothing more (bench/online_results.md): the standard errors are honest (the RMS of
-error over reported standard error is 0.9-1.1 over hundreds of draws), so a parameter beyond
-3 sigma is what six honest 3-sigma intervals give in 1-2 % of the estimates, not a defect to
-hide by inflating the errors; the simultaneous interval makes that rare (at most 0.27 %),
-and the agreement of consecutive refits makes ``converged`` false while the motor drifts
-(a window lagging behind a ramp is off by more than its errors although each fit is sound).
-A full window is not required: an estimate from a shorter window has honest, larger errors.
+The estimate is *converged* when
+
+1. the last fit succeeded and is recent, gives a physical motor and every parameter's
+   relative standard error is below ``converged_rel_stderr``;
+2. its simulation error is within the statistical fluctuation of the noise level of the
+   recent fits (:data:`CONVERGED_MISMATCH_SIGMAS`): a change younger than the window shows
+   there first;
+3. it agrees with the fit before (since the start or a restart; after a restart a second fit
+   must confirm the first): no parameter moved by more than
+   :data:`~dcmotor_id.online.estimate.INTERVAL_SIGMAS` standard errors of the difference of
+   two estimates from overlapping windows (:func:`disagreement`), i.e. no drift.
+
+Its published interval is the simultaneous one (:attr:`OnlineEstimate.interval
+<dcmotor_id.online.estimate.OnlineEstimate.interval>`, ``INTERVAL_SIGMAS`` = 3.51 standard
+errors: the six hold together as often as one 3-sigma interval).  Why these and nothing more
+(bench/online_results.md): with honest standard errors a parameter beyond 3 sigma is what
+six separate 3-sigma intervals give in up to 1.6 % of the estimates, not a defect to hide by
+inflating the errors; the simultaneous interval makes that rare (at most 0.27 %).  Rules 2
+and 3 make ``converged`` false while the motor changes (a window lagging behind a ramp is
+off by more than its errors although each fit is sound); what no rule can see is a change
+younger than about one refit (bench: converged checks while tracking).  A full window is not
+required: a shorter window's estimate has honest, larger errors and says so.
 """
 
 from __future__ import annotations
