@@ -247,6 +247,18 @@ def test_window_estimator_estimates_a_load_torque():
     assert estimate.parameters['Mc'] == pytest.approx(params.Mc, rel=1e-4)
 
 
+def test_the_window_grows_from_the_start_up_to_window_s():
+    voltage, current, speed = paper2_data(6.0)
+    estimator = WindowEstimator(1e-3, window_s=4.0, refit_interval_s=1.0, cpu_budget=1.0)
+    lengths = []
+    for start in range(0, voltage.size, 1000):
+        part = slice(start, start + 1000)
+        estimator.update(voltage[part], current[part], speed[part])
+        lengths.append(estimator.estimate().window_s)
+    assert lengths[1:] == pytest.approx([2.0, 3.0, 4.0, 4.0, 4.0])
+    assert np.isnan(lengths[0])  # less than min_window_s (2 s): no fit yet
+
+
 def test_window_estimator_survives_gaps_nan_and_bad_data():
     params = PAPER_MOTORS['paper2']
     voltage, current, speed = paper2_data(8.0)

@@ -3,8 +3,8 @@ What every online estimator reports: the :class:`OnlineEstimate` snapshot and co
 
 The published interval of a parameter is ``value +- INTERVAL_SIGMAS * stderr``
 (:attr:`OnlineEstimate.interval`): a *simultaneous* interval for the six parameters.  Six
-separate 3-sigma intervals miss at least one true value in about 1.6 % of honest estimates
-(bench/online_results.md measured 1.9 %); with :data:`INTERVAL_SIGMAS` (Sidak: each interval
+separate 3-sigma intervals miss at least one true value in up to 1.6 % of honest estimates
+(bench/online_results.md: 1.6-1.9 %); with :data:`INTERVAL_SIGMAS` (Sidak: each interval
 at the confidence level whose sixth power is that of one 3-sigma interval, 99.73 %) all six
 hold together at least as often as one 3-sigma interval does.  The standard errors themselves
 are not inflated.

@@ -24,9 +24,11 @@ Why this design (bench/online_results.md has the numbers):
   of one core; buffering a sample costs nothing measurable, so the estimator keeps up at any
   sample rate (at 10 kHz the refits simply come less often).  In the node they run in a
   process of their own (:class:`RefitProcess`), so a fit never stalls the sample intake.
-* **The window.**  It grows from the start (and from a restart or a gap) up to ``window_s``
-  (30 s), then slides: after 30 s the estimate uses the same data as an offline fit of those
-  30 s and has its spread (a 20 s window: 1.2-1.6 times it).
+* **The window.**  It grows from the start (and from a restart after a change) up to
+  ``window_s`` (30 s), then slides: after 30 s the estimate uses the same data as an offline
+  fit of those 30 s and has its spread (a 20 s window: 1.2-1.6 times it).  A gap (lost
+  samples, :meth:`WindowEstimator.break_continuity`) does not shorten it: the runs on either
+  side are fitted together, each from its own initial state.
 * **Tracking.**  The window forgets everything older than ``window_s``, so a ramp is
   followed with a lag of a fraction of a window.  A sudden change makes the window's fit
   leave a simulation error above the noise level of the recent fits; the last
@@ -334,8 +336,8 @@ class WindowEstimator:
     sample_period_s : float
         Sample period of the data fed in [s].
     window_s : float
-        Longest window fitted [s]: the window grows from the start (and from a restart or a
-        gap) up to this length, then slides.
+        Longest window fitted [s]: the window grows from the start (and from a restart after
+        a change) up to this length, then slides; gaps do not shorten it.
     refit_interval_s : float
         Data time between refits [s] (stretched to respect ``cpu_budget``).
     min_window_s : float
