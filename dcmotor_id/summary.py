@@ -17,6 +17,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from dcmotor_id.model import DERIVED_NAMES, PARAMETER_NAMES, UNITS
+from dcmotor_id.online.estimate import INTERVAL_SIGMAS
 
 #: Keys of the result, in order.
 RESULT_KEYS = PARAMETER_NAMES + DERIVED_NAMES
@@ -184,9 +185,10 @@ def online_key_values(estimate: Any, alarms: Sequence[tuple[str, str]] = ()) -> 
     (``true``/``false``), ``innovation_rms_current_A``, ``innovation_rms_speed_rad_s`` and
     ``n_updates``; then, for an :class:`~dcmotor_id.online.OnlineEstimate`, ``method``,
     ``status`` (why not converged), ``time_s`` and ``window_s`` (the data behind the
-    estimate), ``load_torque_Nm`` and ``load_torque_Nm_stderr`` (nan when not estimated) and
-    ``fit_cpu_s``; last the key-values of the change alarms ``alarms``
-    (:func:`dcmotor_id.monitoring.alarm_key_values`).
+    estimate), ``load_torque_Nm`` and ``load_torque_Nm_stderr`` (nan when not estimated),
+    ``fit_cpu_s`` and ``interval_sigmas`` (the published interval is ``value +-
+    interval_sigmas * stderr``, simultaneous for the six parameters); last the key-values of
+    the change alarms ``alarms`` (:func:`dcmotor_id.monitoring.alarm_key_values`).
     """
     pairs = [(key, format_value(estimate.parameters[key])) for key in RESULT_KEYS]
     pairs += [(f'{key}_stderr', format_value(estimate.stderr[key])) for key in RESULT_KEYS]
@@ -206,7 +208,8 @@ def online_key_values(estimate: Any, alarms: Sequence[tuple[str, str]] = ()) -> 
             ('load_torque_Nm', format_value(effects.get('load_torque_Nm', math.nan))),
             ('load_torque_Nm_stderr', format_value(effects.get('load_torque_Nm_stderr',
                                                                math.nan))),
-            ('fit_cpu_s', format_value(estimate.fit_cpu_s))]
+            ('fit_cpu_s', format_value(estimate.fit_cpu_s)),
+            ('interval_sigmas', format_value(INTERVAL_SIGMAS))]
     return pairs + list(alarms)
 
 

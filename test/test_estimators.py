@@ -91,6 +91,20 @@ def test_refined_within_a_few_stderr_under_noise():
         assert estimate.info['noise_std'][channel] == pytest.approx(added, rel=0.05)
 
 
+def test_refined_stderr_does_not_depend_on_the_start():
+    """A fit warm-started at its optimum reports the standard errors of the cold fit."""
+    # the noise-level passes reweight a pass that took no step: at 0.1 % noise the first
+    # pass's guess (1 % of the spread) once stayed in J^T J and made the stderr 10x too large
+    record = motor_record('prbs', duration_s=10.0, noise=0.001, seed=0)
+    cold = RefinedEstimator().fit([record])
+    warm = RefinedEstimator(initial={name: cold.parameters[name]
+                                     for name in PARAMETER_NAMES}).fit([record])
+    for name in PARAMETER_NAMES:
+        assert warm.stderr[name] == pytest.approx(cold.stderr[name], rel=0.02), name
+        assert warm.parameters[name] == pytest.approx(cold.parameters[name],
+                                                      abs=0.01 * cold.stderr[name]), name
+
+
 def test_paper_method_is_biased_by_noise_where_refined_is_not():
     records = paper_records(MOTOR, 0.003, seed=5, duration_s=2.0)
     paper = relative_errors(PaperEstimator([0], [1]).fit(records).parameters)

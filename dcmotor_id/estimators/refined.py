@@ -293,10 +293,15 @@ class _Pass:
         """Return this pass under the noise levels ``noise`` (None: simulate again)."""
         if self.parts is None or self.hessian is None:
             return None
-        equations, results, old, chain = self.parts
+        # ``base``: the weights the records' sums were computed with, not those of a pass
+        # reweighted before (rescaling relative to those left J^T J in the first pass's
+        # weights when a pass took no step, e.g. warm-started at the optimum: the standard
+        # errors were off by the ratio of the first pass's noise guess, 1 % of the spread, to
+        # the real noise, 10x too large at 0.1 % noise)
+        equations, results, base, chain = self.parts
         new = [np.array([1.0 / level[channel] for channel in outputs]) for level in noise]
         return _assemble(equations, results, new, chain,
-                         [(w / w_old) ** 2 for w, w_old in zip(new, old)])
+                         [(w / w_base) ** 2 for w, w_base in zip(new, base)], base)
 
 
 class RefinedEstimator:
@@ -555,12 +560,13 @@ def _analytic_pass(equations, values, states, noise, chain, with_sens, outputs):
     return _assemble(equations, results, weights, chain, [np.ones_like(w) for w in weights])
 
 
-def _assemble(equations, results, weights, chain, factors):
+def _assemble(equations, results, weights, chain, factors, base=None):
     """
     Sum the records' per-channel normal equations into one pass in ``z`` coordinates.
 
     ``factors[record][channel]`` rescales each channel's sums (the ratio of the squared new
-    and old weights when the noise levels were re-estimated); ``weights`` are the new ones.
+    and old weights when the noise levels were re-estimated); ``weights`` are the new ones,
+    ``base`` the ones the records' sums were computed with (default ``weights``).
     ``chain`` (``d theta / d z``) has one entry per column of ``z``: the shared parameters,
     then the records' initial states unless they are pinned.
     """
@@ -584,7 +590,8 @@ def _assemble(equations, results, weights, chain, factors):
     keep = len(chain)
     return _Pass(cost, hessian[:keep, :keep] * np.outer(chain, chain), gradient[:keep] * chain,
                  [result.sums for result in results], np.vstack(blocks)[:, :keep] * chain,
-                 np.concatenate(block_record), (equations, results, weights, chain))
+                 np.concatenate(block_record),
+                 (equations, results, weights if base is None else base, chain))
 
 
 def _numeric_pass(residual, z, model, noise, with_sens):

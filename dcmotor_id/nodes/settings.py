@@ -69,7 +69,8 @@ class IdentifierSettings:
     online_method: str = parameter('window', 'window: exact output-error refits of a sliding '
                                    'window (noise-consistent); rls: the old recursive least '
                                    'squares (biased by noise)', choices=('window', 'rls'))
-    online_window_s: float = parameter(20.0, 'window of the online refits [s]', 0.1)
+    online_window_s: float = parameter(30.0, 'longest window of the online refits (it grows '
+                                       'from the start up to this) [s]', 0.1)
     online_refit_interval_s: float = parameter(2.0, 'data time between online refits [s]', 0.01)
     online_cpu_budget: float = parameter(0.08, 'largest fraction of one core the online refits '
                                          'may take (the interval stretches)', 1e-3, 1.0)

@@ -12,18 +12,21 @@ Online identification (no ROS here): estimators that run while the drive runs.
 Change detection on the estimates is :mod:`dcmotor_id.monitoring`.
 """
 
-from dcmotor_id.online.estimate import is_converged, NAMES, OnlineEstimate
+from dcmotor_id.online.estimate import (INTERVAL_SIGMAS, is_converged, NAMES, OnlineEstimate,
+                                        simultaneous_sigmas)
 from dcmotor_id.online.rls import log2x2, OnlineEstimator, physical_from_discrete, RlsEstimator
 from dcmotor_id.online.schedule import (Change, ParameterSchedule, parse_schedule,
                                         simulate_scheduled)
-from dcmotor_id.online.window import (LOAD_TORQUE, refit_window, RefitJob, RefitOutcome,
-                                      RefitProcess, WindowEstimator)
+from dcmotor_id.online.window import (disagreement, LOAD_TORQUE, refit_window, RefitJob,
+                                      RefitOutcome, RefitProcess, WindowEstimator)
 
 __all__ = [
-    'Change', 'is_converged', 'LOAD_TORQUE', 'log2x2', 'make_estimator', 'NAMES',
+    'Change', 'disagreement', 'INTERVAL_SIGMAS', 'is_converged', 'LOAD_TORQUE', 'log2x2',
+    'make_estimator', 'NAMES',
     'OnlineEstimate', 'OnlineEstimator', 'parse_schedule', 'ParameterSchedule',
     'METHODS', 'physical_from_discrete', 'RefitJob', 'RefitOutcome', 'RefitProcess',
-    'refit_window', 'RlsEstimator', 'simulate_scheduled', 'WindowEstimator',
+    'refit_window', 'RlsEstimator', 'simulate_scheduled', 'simultaneous_sigmas',
+    'WindowEstimator',
 ]
 
 #: Online methods by name (the node's ``online_method``).
