@@ -9,7 +9,7 @@ Writing produces a Jazzy (version 9) MCAP bag atomically: a temporary name, then
 
 from __future__ import annotations
 
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 import io
@@ -479,6 +479,19 @@ def register_from_bag(typestore: Any, source: MessageSource, msgtype: str, path:
                              f'parsed ({error})') from None
 
 
+def _choose_joint(names: Sequence[str], joint: Optional[str], topic: str, path: str) -> str:
+    """Return the joint to read: ``joint``, or the message's only one (else a clear error)."""
+    if joint is None:
+        if len(names) != 1:
+            raise InputDataError(f'{path}: {topic} has the joints {", ".join(names)}; '
+                                 'choose one with --joint NAME')
+        return names[0]
+    if joint not in names:
+        raise InputDataError(f'{path}: joint {joint!r} is not in {topic}; it has '
+                             f'{", ".join(names) or "no joints"} (--joint NAME)')
+    return joint
+
+
 def read_dynamic_joint_states(source: MessageSource, topic: str, path: str,
                               options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     """
@@ -506,14 +519,7 @@ def read_dynamic_joint_states(source: MessageSource, topic: str, path: str,
     for _, stamp, data in source.messages((topic,)):
         message = typestore.deserialize_cdr(data, msgtype)
         names = list(message.joint_names)
-        if joint is None:
-            if len(names) != 1:
-                raise InputDataError(f'{path}: {topic} has the joints {", ".join(names)}; '
-                                     'choose one with --joint NAME')
-            joint = names[0]
-        if joint not in names:
-            raise InputDataError(f'{path}: joint {joint!r} is not in {topic}; it has '
-                                 f'{", ".join(names) or "no joints"} (--joint NAME)')
+        joint = _choose_joint(names, joint, topic, path)
         entry = message.interface_values[names.index(joint)]
         available = dict(zip(entry.interface_names, entry.values))
         for channel, name in list(interfaces.items()):
@@ -683,14 +689,7 @@ def _joint_state_values(source: MessageSource, topic: str, path: str, joint: Opt
     for _, stamp, data in source.messages((topic,)):
         message = typestore.deserialize_cdr(data, JOINT_STATE_TYPE)
         names = list(message.name)
-        if joint is None:
-            if len(names) != 1:
-                raise InputDataError(f'{path}: {topic} has the joints {", ".join(names)}; '
-                                     'choose one with --joint NAME')
-            joint = names[0]
-        if joint not in names:
-            raise InputDataError(f'{path}: joint {joint!r} is not in {topic}; it has '
-                                 f'{", ".join(names) or "no joints"} (--joint NAME)')
+        joint = _choose_joint(names, joint, topic, path)
         index = names.index(joint)
         for channel, field_name in list(fields.items()):
             if channel not in values:
