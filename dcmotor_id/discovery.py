@@ -41,8 +41,9 @@ from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.model import parameter_names
 from dcmotor_id.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.residuals import (ALPHA, analyse_channel, channel_errors, ChannelErrors,
-                                  DEFAULT_LAGS, model_errors, one_step_error, output_channels,
-                                  residual_nrmse_pct, simulate_records)
+                                  correlation_summary, DEFAULT_LAGS, model_errors,
+                                  one_step_error, output_channels, residual_nrmse_pct,
+                                  simulate_records)
 
 if TYPE_CHECKING:
     from dcmotor_id.effects import Effect
@@ -130,9 +131,14 @@ def _with_initial(terms, values):
 
 
 def _part(arrays, stops, part):
-    """Concatenate the training (``train``) or held-out (``heldout``) part of per-record arrays."""
-    return np.concatenate([values[:stop] if part == 'train' else values[stop:]
-                           for values, stop in zip(arrays, stops)])
+    """
+    Concatenate the training (``train``) or held-out (``heldout``) part of per-record arrays.
+
+    A single record's part is a view (no copy): callers only read it.
+    """
+    pieces = [values[:stop] if part == 'train' else values[stop:]
+              for values, stop in zip(arrays, stops)]
+    return pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
 
 
 @dataclass
@@ -165,8 +171,10 @@ class Fit:
 
     def channel_residual(self, channel: str, part: str) -> np.ndarray:
         """Model minus measurement of one channel on a part, concatenated."""
-        return _part([sim[channel] - getattr(rec, channel)
-                      for rec, sim in zip(self.records, self.simulated)], self.stops, part)
+        pieces = [(sim[channel][:stop] - getattr(rec, channel)[:stop]) if part == 'train' else
+                  (sim[channel][stop:] - getattr(rec, channel)[stop:])
+                  for rec, sim, stop in zip(self.records, self.simulated, self.stops)]
+        return pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
 
     def errors(self, outputs: Sequence[str], part: str = 'heldout') -> ChannelErrors:
         """``{current_nrmse_pct, speed_nrmse_pct}`` on a part (current None if no output)."""
@@ -363,7 +371,7 @@ class DiscoveryLoop:
         return {name: _part([getattr(rec, name) for rec in fitted.records], fitted.stops, part)}
 
     def _candidate_regressors(self, fitted, part):
-        regressors = {}
+        """Yield ``(effect name, regressor on the part)``, one candidate at a time."""
         base = fitted.values
         for cls in self.candidates:
             if cls.TRANSFORM:
@@ -376,9 +384,10 @@ class DiscoveryLoop:
             if not terms:
                 continue
             joined = _part(terms[0].regressors, fitted.stops, part)
+            del terms
             if np.std(joined) > 0:
-                regressors[cls.name] = joined
-        return regressors
+                yield cls.name, joined
+            del joined
 
     def analyse(self, fitted: Fit, part: str = 'heldout') -> dict[str, dict[str, Any]]:
         """
@@ -387,16 +396,24 @@ class DiscoveryLoop:
         Each channel's :func:`~dcmotor_id.residuals.analyse_channel` of the output error, plus
         ``one_step_nrmse_pct``, the one-step prediction error on the same part (None when the
         structure has an effect the one-step model does not represent).  The loop decides on
-        the output error alone; the one-step error is reported beside it.
+        the output error alone; the one-step error is reported beside it.  The candidates'
+        regressors are built and correlated one at a time (memory: one regressor at once).
         """
         inputs = self._inputs(fitted, part)
-        regressors = self._candidate_regressors(fitted, part)
         one_step = self.one_step_errors(fitted, part)
+        residuals = {channel: fitted.channel_residual(channel, part) for channel in self.outputs}
         analysis = {}
         for channel in self.outputs:
             analysis[channel] = analyse_channel(
-                fitted.channel_residual(channel, part), fitted.channel_measured(channel, part),
-                inputs, regressors, self.max_lag, self.alpha)
+                residuals[channel], fitted.channel_measured(channel, part), inputs, None,
+                self.max_lag, self.alpha)
+        del inputs
+        level = 1.0 - self.alpha
+        for name, regressor in self._candidate_regressors(fitted, part):
+            for channel in self.outputs:
+                analysis[channel]['regressors'][name] = correlation_summary(
+                    residuals[channel], regressor, self.max_lag, level)
+        for channel in self.outputs:
             analysis[channel]['one_step_nrmse_pct'] = one_step.get(channel)
         return analysis
 

@@ -837,22 +837,26 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     mechanical_only = torque_constant is not None
     outputs = output_channels(mechanical_only)
     prepared = found.records if found is not None else list(records)
-    whole = {}
+    whole: dict[str, list] = {}
     for label, estimate, record_terms in (('before', base, ()), ('after', final, terms)):
         quasi = bool(estimate.info.get('quasi_static'))
         source = records if label == 'before' else prepared
         model = OutputErrorModel(source, torque_constant, record_terms, quasi)
-        with np.errstate(all='ignore'):
-            whole[label] = simulate_records(model, estimate.parameters, estimate.initial_states)
+        whole[label] = []
+        # One record's simulation at a time, dropped once measured (memory).
+        for index, state in enumerate(estimate.initial_states):
+            with np.errstate(all='ignore'):
+                simulated = model.simulate(estimate.parameters, index,
+                                           np.array(state, dtype=float))
+            whole[label].append(_part_metrics(
+                simulated, {c: getattr(source[index], c) for c in outputs}, outputs))
+            del simulated
     items = []
     notes = []
     for index, rec in enumerate(records):
         item: dict[str, Any] = {'source': rec.source, 'samples': len(rec)}
         for label in ('before', 'after'):
-            source = records if label == 'before' else prepared
-            item[label] = {'whole_record': _part_metrics(
-                whole[label][index], {c: getattr(source[index], c) for c in outputs}, outputs),
-                'heldout': None}
+            item[label] = {'whole_record': whole[label][index], 'heldout': None}
         if found is not None:
             stop = found.final.stops[index]
             speed = np.asarray(rec.speed, dtype=float)

@@ -44,6 +44,10 @@ ALPHA = 0.01
 AR_ORDER = 10
 #: Channels whose simulation error is reported, in the order of the JSON results.
 ERROR_CHANNELS = ('current', 'speed')
+#: Samples per block of :func:`one_step_error` (bounds its temporaries).
+ONE_STEP_BLOCK = 1 << 16
+#: Rows per block of the autoregressive predictor's QR (:func:`predictable_fraction`).
+PREDICTOR_BLOCK = 1 << 15
 
 FloatArray = NDArray[np.float64]
 #: ``{current_nrmse_pct, speed_nrmse_pct}``: a value in percent, or None (no such output, or
@@ -95,8 +99,14 @@ def simulation_error_pct(simulated: ArrayLike, measured: ArrayLike) -> float | N
     constant measurement, or a simulation that diverged).
     """
     measured = np.asarray(measured, dtype=float)
-    value = residual_nrmse_pct(np.asarray(simulated, dtype=float) - measured, measured)
-    return value if value is not None and np.isfinite(value) else None
+    # residual_nrmse_pct's arithmetic, squaring the difference in place (one N-sized array).
+    spread = float(np.std(measured))
+    if not spread > 0:
+        return None
+    squared = np.asarray(simulated, dtype=float) - measured
+    np.multiply(squared, squared, out=squared)
+    value = float(np.sqrt(np.mean(squared))) / spread * 100.0
+    return value if np.isfinite(value) else None
 
 
 def channel_errors(simulated: Mapping[str, ArrayLike], measured: Mapping[str, ArrayLike],
@@ -148,12 +158,18 @@ def model_errors(model: SimulatedModel, values: Mapping[str, float],
 
     """
     simulated = simulate_records(model, values, initial_states)
-    return channel_errors(
-        {channel: np.concatenate([out[channel] for out in simulated])
-         for channel in model.outputs},
-        {channel: np.concatenate([getattr(rec, channel) for rec in model.records])
-         for channel in model.outputs},
-        model.outputs)
+    errors: ChannelErrors = {error_key(channel): None for channel in ERROR_CHANNELS}
+    for channel in model.outputs:
+        # One channel at a time, the simulation dropped once used (memory).
+        errors[error_key(channel)] = simulation_error_pct(
+            _joined([out.pop(channel) for out in simulated]),
+            _joined([getattr(rec, channel) for rec in model.records]))
+    return errors
+
+
+def _joined(arrays: Sequence[FloatArray]) -> FloatArray:
+    """Concatenate arrays; a single one is returned as it is (no copy)."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
 
 
 def confidence_band(n_samples: int, level: float = 1.0 - ALPHA) -> float:
@@ -192,7 +208,10 @@ def chi_square_sf(dof: int, statistic: float) -> float:
 def autocorrelation(values: ArrayLike, max_lag: int = DEFAULT_LAGS,
                     centred: bool = False) -> FloatArray:
     """
-    Normalised autocorrelation ``rho[0..max_lag]`` (``rho[0] = 1``), by FFT.
+    Normalised autocorrelation ``rho[0..max_lag]`` (``rho[0] = 1``).
+
+    Computed lag by lag in the time domain (``max_lag + 1`` dot products): no padded FFT
+    arrays several times the record's size.
 
     A model residual must be zero-mean white noise, so by default the mean is *not* removed:
     a bias (a constant error) then shows as correlation at every lag instead of passing the
@@ -201,10 +220,9 @@ def autocorrelation(values: ArrayLike, max_lag: int = DEFAULT_LAGS,
     x = np.asarray(values, dtype=float)
     if centred:
         x = x - np.mean(x)
-    n = x.shape[0]
-    size = 1 << int(np.ceil(np.log2(2 * n)))
-    spectrum = np.fft.rfft(x, size)
-    acov = np.fft.irfft(spectrum * np.conj(spectrum), size)[:max_lag + 1]
+    # As many lags as the (zero-padded, circular) correlation of 2^k >= 2 N samples has.
+    size = 1 << int(np.ceil(np.log2(2 * x.shape[0])))
+    acov = np.array([_lagged_dot(x, x, lag) for lag in range(min(max_lag + 1, size))])
     if acov[0] <= 0:
         return np.zeros(max_lag + 1)
     return acov / acov[0]
@@ -214,6 +232,8 @@ def cross_correlation(x: ArrayLike, y: ArrayLike,
                       max_lag: int = DEFAULT_LAGS) -> tuple[NDArray[np.int_], FloatArray]:
     """
     Normalised cross-correlation ``rho[tau] = corr(x[k + tau], y[k])`` for ``|tau| <= L``.
+
+    Computed lag by lag in the time domain (``2 L + 1`` dot products, no FFT arrays).
 
     Returns
     -------
@@ -226,15 +246,22 @@ def cross_correlation(x: ArrayLike, y: ArrayLike,
     y_array = np.asarray(y, dtype=float)
     x_array = x_array - np.mean(x_array)
     y_array = y_array - np.mean(y_array)
-    n = x_array.shape[0]
     scale = np.sqrt(np.sum(x_array * x_array) * np.sum(y_array * y_array))
     lags = np.arange(-max_lag, max_lag + 1)
     if scale <= 0:
         return lags, np.zeros(lags.shape[0])
-    size = 1 << int(np.ceil(np.log2(2 * n)))
-    full = np.fft.irfft(np.fft.rfft(x_array, size) * np.conj(np.fft.rfft(y_array, size)), size)
-    rho = np.concatenate([full[size - max_lag:], full[:max_lag + 1]]) / scale
+    rho = np.array([_lagged_dot(x_array, y_array, int(lag)) for lag in lags]) / scale
     return lags, rho
+
+
+def _lagged_dot(x: FloatArray, y: FloatArray, lag: int) -> float:
+    """Return ``sum_k x[k + lag] y[k]`` over the overlap (zero beyond the length)."""
+    n = x.shape[0]
+    if abs(lag) >= n:
+        return 0.0
+    if lag >= 0:
+        return float(x[lag:] @ y[:n - lag])
+    return float(x[:n + lag] @ y[-lag:])
 
 
 def ljung_box(values: ArrayLike, lags: int = DEFAULT_LAGS,
@@ -272,14 +299,21 @@ def predictable_fraction(values: ArrayLike, order: int = AR_ORDER) -> float:
     n = x.shape[0]
     if n <= 4 * order:
         return 0.0
-    past = np.column_stack([x[order - lag:n - lag] for lag in range(1, order + 1)])
     target = x[order:]
     total = float(target @ target)
     if total <= 0:
         return 0.0
-    coefficients = np.linalg.lstsq(past, target, rcond=None)[0]
-    error = target - past @ coefficients
-    return float(max(0.0, 1.0 - (error @ error) / total))
+    # The least-squares residual of the target on its past is the last diagonal element of
+    # R in the QR factorisation of [past | target]; R is accumulated block by block (the
+    # rows of the past are built a block at a time, never the N x order matrix).
+    r_factor = np.zeros((0, order + 1))
+    for first in range(order, n, PREDICTOR_BLOCK):
+        last = min(first + PREDICTOR_BLOCK, n)
+        block = np.column_stack([x[first - lag:last - lag] for lag in range(1, order + 1)] +
+                                [x[first:last]])
+        r_factor = np.asarray(np.linalg.qr(np.vstack([r_factor, block]), mode='r'))
+    error = float(r_factor[order, order]) ** 2 if r_factor.shape[0] > order else 0.0
+    return float(max(0.0, 1.0 - error / total))
 
 
 def correlation_summary(residual: ArrayLike, signal: ArrayLike, max_lag: int = DEFAULT_LAGS,
@@ -387,22 +421,47 @@ def one_step_error(values: Mapping[str, float], record: Any,
     """
     n = len(record)
     dt = record.sample_period_s
-    zeros = np.zeros(n)
-    torque = zeros if torque_extra is None else np.asarray(torque_extra, dtype=float)
-    speed_meas = record.speed - (zeros if speed_offset is None else speed_offset)
+    if torque_constant is not None:
+        ad, gamma = zoh_matrices([[-values['b'] / values['J']]], dt)
+    else:
+        a_matrix = np.array([[-values['Ra'] / values['La'], -values['CPhi'] / values['La']],
+                             [values['CPhi'] / values['J'], -values['b'] / values['J']]])
+        ad, gamma = zoh_matrices(a_matrix, dt)
+    channels = ('speed',) if torque_constant is not None else ('current', 'speed')
+    out = {channel: np.empty(max(n - 1, 0)) for channel in channels}
+    # Blocks of samples (each block overlapping the next by one): the temporaries stay a few
+    # MB whatever the record's length; every element is computed as over the whole record.
+    for first in range(0, max(n - 1, 0), ONE_STEP_BLOCK):
+        last = min(first + ONE_STEP_BLOCK, n - 1) + 1
+        block = _one_step_block(values, record, torque_constant, ad, gamma, first, last,
+                                voltage_extra, torque_extra, current_offset, speed_offset,
+                                coulomb_delta)
+        for channel in channels:
+            out[channel][first:last - 1] = block[channel]
+    return out
+
+
+def _one_step_block(values, record, torque_constant, ad, gamma, first, last, voltage_extra,
+                    torque_extra, current_offset, speed_offset, coulomb_delta):
+    """One-step errors of samples ``first..last - 2`` (:func:`one_step_error` on a block)."""
+    def part(values_or_none):
+        return None if values_or_none is None else \
+            np.asarray(values_or_none, dtype=float)[first:last]
+    zeros = np.zeros(last - first)
+    torque_extra, speed_offset = part(torque_extra), part(speed_offset)
+    torque = zeros if torque_extra is None else torque_extra
+    speed_meas = record.speed[first:last] - (zeros if speed_offset is None else speed_offset)
     sign = np.sign(speed_meas)
     friction = np.where(sign > 0, values['Mc'] + coulomb_delta,
                         values['Mc'] - coulomb_delta) * sign
     if torque_constant is not None:
-        ad, gamma = zoh_matrices([[-values['b'] / values['J']]], dt)
-        drive = (torque_constant * record.current + torque - friction) / values['J']
+        drive = (torque_constant * record.current[first:last] + torque - friction) / values['J']
         predicted = ad[0, 0] * speed_meas[:-1] + gamma[0, 0] * drive[:-1]
         return {'speed': predicted - speed_meas[1:]}
-    current_meas = record.current - (zeros if current_offset is None else current_offset)
-    voltage = record.voltage + (zeros if voltage_extra is None else voltage_extra)
-    a_matrix = np.array([[-values['Ra'] / values['La'], -values['CPhi'] / values['La']],
-                         [values['CPhi'] / values['J'], -values['b'] / values['J']]])
-    ad, gamma = zoh_matrices(a_matrix, dt)
+    current_offset, voltage_extra = part(current_offset), part(voltage_extra)
+    current_meas = record.current[first:last] - \
+        (zeros if current_offset is None else current_offset)
+    voltage = record.voltage[first:last] + (zeros if voltage_extra is None else voltage_extra)
     state = np.vstack([current_meas[:-1], speed_meas[:-1]])
     forcing = np.vstack([voltage[:-1] / values['La'],
                          (torque[:-1] - friction[:-1]) / values['J']])

@@ -159,7 +159,8 @@ def noise_std(values: ArrayLike) -> float:
     if values.shape[0] < 5:
         return 0.0
     second = np.diff(values, 2)
-    mad = np.median(np.abs(second - np.median(second)))
+    second -= np.median(second)  # in place: one N-sized temporary
+    mad = np.median(np.abs(second, out=second))
     return float(mad / 0.6745 / np.sqrt(6.0))
 
 

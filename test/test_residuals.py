@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from dcmotor_id import residuals
 from dcmotor_id.excitation import make_excitation
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.records import Record
@@ -32,6 +33,19 @@ def test_autocorrelation_matches_the_direct_sum():
     direct = np.array([np.sum(centred[:x.size - k] * centred[k:])
                        for k in range(11)]) / np.sum(centred ** 2)
     assert np.allclose(autocorrelation(x, 10, centred=True), direct, atol=1e-12)
+
+
+def test_cross_correlation_matches_the_direct_sum():
+    x = RNG.normal(size=300) + 0.5
+    y = RNG.normal(size=300) - 0.2
+    xc, yc = x - x.mean(), y - y.mean()
+    n = x.size
+    direct = [np.sum(xc[tau:] * yc[:n - tau]) if tau >= 0 else np.sum(xc[:n + tau] * yc[-tau:])
+              for tau in range(-7, 8)]
+    lags, rho = cross_correlation(x, y, 7)
+    assert np.array_equal(lags, np.arange(-7, 8))
+    assert np.allclose(rho, np.array(direct) / np.sqrt(np.sum(xc ** 2) * np.sum(yc ** 2)),
+                       atol=1e-13)
 
 
 def test_cross_correlation_finds_the_lag_with_its_sign():
@@ -67,6 +81,35 @@ def test_predictable_fraction_is_a_size():
     assert predictable_fraction(RNG.normal(size=5000)) < 0.01
     assert predictable_fraction(ar1(5000, 0.8, RNG)) == pytest.approx(0.64, abs=0.05)
     assert predictable_fraction(np.sin(np.arange(3000) * 0.01)) > 0.99
+
+
+def test_predictable_fraction_in_blocks_is_the_least_squares_fit(monkeypatch):
+    x = ar1(4000, 0.6, RNG) + 0.2
+    order = residuals.AR_ORDER
+    past = np.column_stack([x[order - lag:x.size - lag] for lag in range(1, order + 1)])
+    target = x[order:]
+    error = target - past @ np.linalg.lstsq(past, target, rcond=None)[0]
+    expected = 1.0 - (error @ error) / (target @ target)
+    monkeypatch.setattr(residuals, 'PREDICTOR_BLOCK', 333)  # many blocks, a short last one
+    assert predictable_fraction(x) == pytest.approx(expected, rel=1e-10)
+
+
+def test_one_step_error_in_blocks_equals_one_block(monkeypatch):
+    params = PAPER_MOTORS['paper2'].as_dict()
+    n = 2500
+    t = np.arange(n) * 1e-3
+    record = Record(t, RNG.normal(size=n), 50.0 * np.sin(t * 7.0), RNG.normal(size=n) * 10.0)
+    extras = {'voltage_extra': RNG.normal(size=n), 'torque_extra': RNG.normal(size=n),
+              'current_offset': RNG.normal(size=n), 'speed_offset': RNG.normal(size=n)}
+    whole = one_step_error(params, record, coulomb_delta=0.1, **extras)
+    whole_mechanical = one_step_error(params, record, 0.5, **extras)
+    monkeypatch.setattr(residuals, 'ONE_STEP_BLOCK', 97)
+    blocks = one_step_error(params, record, coulomb_delta=0.1, **extras)
+    blocks_mechanical = one_step_error(params, record, 0.5, **extras)
+    for channel in ('current', 'speed'):
+        assert blocks[channel].shape == (n - 1,)
+        assert np.array_equal(blocks[channel], whole[channel])
+    assert np.array_equal(blocks_mechanical['speed'], whole_mechanical['speed'])
 
 
 def test_noise_estimate_on_a_smooth_signal():
