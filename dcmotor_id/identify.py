@@ -666,14 +666,21 @@ def _structure_shift(base: Estimate, parameters: dict[str, float],
                 stderr[name] > 0:
             ratio = abs(parameters[name] - base.parameters[name]) / stderr[name]
             if ratio > 3.0:
-                moved[name] = (100.0 * (parameters[name] / base.parameters[name] - 1.0), ratio)
+                moved[name] = (_relative_change(parameters[name], base.parameters[name]), ratio)
     if not moved:
         return None
-    listing = ', '.join(f'{name} {change:+.3g} % ({ratio:.0f} stderr)'
+    listing = ', '.join(f'{name} {change} ({ratio:.0f} stderr)'
                         for name, (change, ratio) in moved.items())
     return (f'the effects found move the base parameters beyond their standard errors ({listing}'
             '): the structure matters more than the noise here, and the standard errors do not '
             'cover the choice of structure; compare with --no-discover')
+
+
+def _relative_change(value: float, base: float) -> str:
+    """Change from ``base`` to ``value`` in percent, or absolute when the base is zero."""
+    if base == 0.0 or not np.isfinite(base):
+        return f'{base:.3g} -> {value:.3g}'
+    return f'{100.0 * (value / base - 1.0):+.3g} %'
 
 
 def _names(records):
