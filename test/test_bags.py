@@ -253,8 +253,13 @@ DYNAMIC_JOINT_STATE_MSG = ('std_msgs/Header header\nstring[] joint_names\n'
                            'control_msgs/InterfaceValue[] interface_values\n')
 
 
-def write_dynamic_joint_states(path, stamps_ns, joints):
-    """Write /dynamic_joint_states with a control_msgs definition registered for writing."""
+def write_dynamic_joint_states(path, stamps_ns, joints, floats=None, latency_ns=0):
+    """
+    Write /dynamic_joint_states with a control_msgs definition registered for writing.
+
+    ``floats``: topic -> values written as Float64 beside, logged with a jitter of up to
+    0.1 ms; the joint states are logged ``latency_ns`` after their header stamps.
+    """
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import get_typestore, get_types_from_msg, Stores
 
@@ -267,6 +272,10 @@ def write_dynamic_joint_states(path, stamps_ns, joints):
     writer.open()
     connection = writer.add_connection('/dynamic_joint_states',
                                        'control_msgs/msg/DynamicJointState', typestore=store)
+    float_connections = {topic: writer.add_connection(topic, 'std_msgs/msg/Float64',
+                                                      typestore=store)
+                         for topic in (floats or {})}
+    rng = np.random.default_rng(2)
     for row, stamp in enumerate(stamps_ns):
         values = [types['control_msgs/msg/InterfaceValue'](
             interface_names=list(channels), values=np.array([channels[n][row] for n in channels]))
@@ -277,8 +286,12 @@ def write_dynamic_joint_states(path, stamps_ns, joints):
             frame_id='')
         message = types['control_msgs/msg/DynamicJointState'](
             header=header, joint_names=list(joints), interface_values=values)
-        writer.write(connection, int(stamp),
+        writer.write(connection, int(stamp) + latency_ns,
                      store.serialize_cdr(message, 'control_msgs/msg/DynamicJointState'))
+        for topic, values in (floats or {}).items():
+            writer.write(float_connections[topic], int(stamp) + int(rng.integers(0, 100_000)),
+                         store.serialize_cdr(types['std_msgs/msg/Float64'](data=values[row]),
+                                             'std_msgs/msg/Float64'))
     writer.close()
 
 
@@ -307,3 +320,54 @@ def test_dynamic_joint_states_with_the_bags_own_definitions(tmp_path):
     with pytest.raises(InputDataError, match="no interface 'amps'"):
         read_record(str(bag), options=ReadOptions(joint='wheel',
                                                   interfaces={'current': 'amps'}))
+
+
+def test_dynamic_joint_states_with_a_float64_voltage_identify_the_motor(tmp_path, capsys):
+    """Current and velocity as interfaces, the voltage command logged as Float64 beside."""
+    from dcmotor_id.formats import read_record
+
+    stamps, channels = motor_samples(8.0)
+    bag = tmp_path / 'robot'
+    write_dynamic_joint_states(bag, stamps, {'wheel': {'current': channels['current'],
+                                                       'velocity': channels['speed']}},
+                               floats={'/voltage': channels['voltage']}, latency_ns=300_000)
+    record = read_record(str(bag))
+    assert len(record) == stamps.size
+    for name, values in channels.items():
+        np.testing.assert_array_equal(getattr(record, name), values)
+    out = tmp_path / 'result.json'
+    code = cli_main(['identify', str(bag), '--no-discover', '--quiet', '--json', str(out)])
+    assert code == 0, capsys.readouterr().err
+    truth = PAPER_MOTORS['paper2'].as_dict()
+    assert json.loads(out.read_text())['parameters'] == pytest.approx(truth, rel=0.02)
+
+
+def test_dynamic_joint_states_missing_channel_names_it_and_the_options(tmp_path, capsys):
+    from dcmotor_id.formats import read_record
+    from dcmotor_id.formats.mapping import ReadOptions
+
+    stamps, channels = motor_samples(0.5)
+    bag = tmp_path / 'robot'
+    write_dynamic_joint_states(bag, stamps, {'wheel': {'voltage': channels['voltage'],
+                                                       'velocity': channels['speed']}},
+                               floats={'/drive/i': channels['current']})
+    with pytest.raises(InputDataError, match=r"no current: joint 'wheel' in "
+                                             r"/dynamic_joint_states has no 'current' interface "
+                                             r'\(it has voltage, velocity\).*--interface '
+                                             r'current=NAME.*--current-topic'):
+        read_record(str(bag))
+    assert cli_main(['identify', str(bag), '--no-discover', '--quiet']) == 2
+    assert '/drive/i [std_msgs/msg/Float64]' in capsys.readouterr().err
+    # following the advice: the current from its topic, the rest from the joint
+    record = read_record(str(bag), topics={'current': '/drive/i'})
+    np.testing.assert_array_equal(record.current, channels['current'])
+    np.testing.assert_array_equal(record.voltage, channels['voltage'])
+    with pytest.raises(InputDataError, match=r"joint 'wheel' has no interface 'rate' for the "
+                                             r'speed; it has voltage, velocity'):
+        read_record(str(bag), options=ReadOptions(interfaces={'speed': 'rate'}))
+    still = tmp_path / 'still'
+    write_dynamic_joint_states(still, stamps, {'wheel': {'current': channels['current'],
+                                                         'position': channels['speed']}})
+    with pytest.raises(InputDataError, match=r"no speed: .*no 'velocity' interface.*"
+                                             r'--speed-topic'):
+        read_record(str(still))

@@ -366,11 +366,12 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
         Grid step [s]; default the median step of the timestamps.
     options : ReadOptions
         Units of the channels; for ``control_msgs/msg/DynamicJointState`` bags (topic
-        :data:`DYNAMIC_JOINT_STATES_TOPIC`) the joint and the interface of each channel
-        (:func:`read_dynamic_joint_states`); for ``sensor_msgs/msg/JointState`` bags (topic
-        :data:`JOINT_STATES_TOPIC`, read when a current or speed topic is missing or a joint
-        or an interface is named) the joint and the field of each channel, the other
-        channels from their Float64 topics (:func:`read_joint_states`).
+        :data:`DYNAMIC_JOINT_STATES_TOPIC`) the joint and the interface of each channel, a
+        channel without one from its Float64 topic (:func:`read_dynamic_joint_states`); for
+        ``sensor_msgs/msg/JointState`` bags (topic :data:`JOINT_STATES_TOPIC`, read when a
+        current or speed topic is missing or a joint or an interface is named) the joint and
+        the field of each channel, the other channels from their Float64 topics
+        (:func:`read_joint_states`).
 
     Raises
     ------
@@ -398,13 +399,15 @@ def _read_bag_si(path: PathLike, topics: Optional[Mapping[str, str]],
         available = source.topics
         recovery = source.recovery
         joint_topic = match_topic(DYNAMIC_JOINT_STATES_TOPIC, available)
-        if joint_topic is not None and (options.joint is not None
-                                        or match_topic(names['current'], available) is None):
-            record = read_dynamic_joint_states(source, joint_topic, path, options)
+        state_topic = joint_state_topic(available)
+        if joint_topic is not None and (
+                options.joint is not None or match_topic(names['current'], available) is None
+                or (state_topic is None and match_topic(names['speed'], available) is None)):
+            record = read_dynamic_joint_states(source, joint_topic, path, options, names,
+                                               sample_period_s)
             if recovery is not None:
                 _warn_recovered_record(path, recovery, record)
             return record
-        state_topic = joint_state_topic(available)
         if state_topic is not None and (
                 options.joint is not None or options.interfaces
                 or any(match_topic(names[channel], available) is None
@@ -493,35 +496,101 @@ def _choose_joint(names: Sequence[str], joint: Optional[str], topic: str, path: 
 
 
 def read_dynamic_joint_states(source: MessageSource, topic: str, path: str,
-                              options: ReadOptions = DEFAULT_OPTIONS) -> Record:
+                              options: ReadOptions = DEFAULT_OPTIONS,
+                              topics: Optional[Mapping[str, str]] = None,
+                              sample_period_s: Optional[float] = None) -> Record:
     """
-    Read one joint of ``control_msgs/msg/DynamicJointState`` messages as a record.
+    Read one joint of ``control_msgs/msg/DynamicJointState`` messages, Float64 topics beside.
 
     Each message is one sample, timed by its header stamp (the bag's time when the stamp is
     zero). The joint is ``options.joint`` (or the only one); channel ``c`` is the interface
     ``options.interfaces[c]``, by default :data:`DEFAULT_INTERFACES` (``voltage``,
-    ``current``, ``velocity`` as speed, ``position``).
+    ``current``, ``velocity`` as speed, ``position``). A voltage, current or speed the joint
+    has no interface for comes from its ``std_msgs/msg/Float64`` topic (``topics``, default
+    :data:`BAG_TOPICS`) when the bag has one, paired with the joint's samples by timestamp on
+    one grid (as :func:`read_joint_states` does).
+
+    Parameters
+    ----------
+    source : MessageSource
+        The open bag.
+    topic : str
+        The DynamicJointState topic.
+    path : str
+        The bag, for messages.
+    options : ReadOptions
+        The joint, the interface of each channel and the units (the current, speed and
+        position units are applied by :func:`read_bag`, the duty here).
+    topics : dict, optional
+        Channel -> Float64 topic name of the channels the joint has no interface for.
+    sample_period_s : float, optional
+        Grid step when Float64 topics are paired [s]; default the median step.
 
     Raises
     ------
     InputDataError
-        The joint or an asked-for interface is absent (naming what the messages have).
+        The joint or an asked-for interface is absent (naming what the messages have), or
+        neither the joint nor a Float64 topic gives the current or the speed (naming the
+        options that would).
 
+    """
+    names = dict(BAG_TOPICS)
+    names.update(topics or {})
+    header_stamps, log_stamps, joint_values, joint, present = _dynamic_joint_state_values(
+        source, topic, path, options)
+    wanted = [channel for channel in ('voltage', 'current', 'speed')
+              if channel not in joint_values
+              and not (channel == 'voltage' and options.bus_voltage is not None)]
+    float_topics = _float64_topics(source.topics, names, wanted, topic, path)
+    for channel in ('speed', 'current'):
+        if channel in joint_values or channel in float_topics:
+            continue
+        interface = DEFAULT_INTERFACES[channel]  # one asked for has raised already
+        listing = ', '.join(f'{name} [{kind}]' for name, kind in sorted(source.topics.items()))
+        hint = (' (e.g. --interface current=effort, with --torque-constant 1 if the effort is '
+                'a torque in N m: mechanical-only)' if channel == 'current' else '')
+        raise InputDataError(
+            f'{path}: no {channel}: joint {joint!r} in {topic} has no {interface!r} interface '
+            f'(it has {", ".join(present) or "none"}) and the bag has no Float64 {channel} '
+            f'topic ({names[channel]}); it has {listing}. Name the interface with --interface '
+            f'{channel}=NAME{hint} or the topic with --{channel}-topic')
+    columns = _pair_with_float64(source, topic, path, header_stamps, log_stamps, joint_values,
+                                 float_topics, sample_period_s)
+    return build_record(columns, replace(options, current_unit='A', speed_unit='rad/s',
+                                         speed_counts_per_rev=None, position_unit='rad',
+                                         position_counts_per_rev=None, gear_ratio=1.0),
+                        source=path)
+
+
+def _dynamic_joint_state_values(source: MessageSource, topic: str, path: str,
+                                options: ReadOptions,
+                                ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], str,
+                                           list[str]]:
+    """
+    Decode a joint's interfaces from DynamicJointState messages, in time order.
+
+    Returns the header stamps (the bag's time where a stamp is zero), the bag's times [ns],
+    channel -> values, the joint and the interface names of its last message. An interface
+    asked for in ``options.interfaces`` must be there in every message; a default one is
+    dropped when a message lacks it.
     """
     msgtype = source.topics[topic]
     typestore = _typestore()
     register_from_bag(typestore, source, msgtype, path)
     interfaces = dict(DEFAULT_INTERFACES)
     interfaces.update(options.interfaces)
-    stamps: list[int] = []
+    header_stamps: list[int] = []
+    log_stamps: list[int] = []
     values: dict[str, list[float]] = {channel: [] for channel in interfaces}
     joint = options.joint
+    present: list[str] = []
     for _, stamp, data in source.messages((topic,)):
         message = typestore.deserialize_cdr(data, msgtype)
         names = list(message.joint_names)
         joint = _choose_joint(names, joint, topic, path)
         entry = message.interface_values[names.index(joint)]
         available = dict(zip(entry.interface_names, entry.values))
+        present = list(available)
         for channel, name in list(interfaces.items()):
             if name in available:
                 values[channel].append(float(available[name]))
@@ -533,18 +602,82 @@ def read_dynamic_joint_states(source: MessageSource, topic: str, path: str,
                 del interfaces[channel]
                 values.pop(channel)
         header_ns = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
-        stamps.append(int(header_ns) if header_ns else int(stamp))
-    if not stamps:
+        header_stamps.append(int(header_ns) if header_ns else int(stamp))
+        log_stamps.append(int(stamp))
+    if not header_stamps or joint is None:
         raise InputDataError(f'{path}: topic {topic} has no messages')
-    order = np.argsort(np.asarray(stamps, dtype=np.int64), kind='stable')
-    times = np.asarray(stamps, dtype=np.int64)[order]
-    columns: dict[str, np.ndarray] = {'t': (times - times[0]).astype(float) * 1e-9}
-    for channel, items in values.items():
-        columns[channel] = np.asarray(items, dtype=float)[order]
-    return build_record(columns, replace(options, current_unit='A', speed_unit='rad/s',
-                                         speed_counts_per_rev=None, position_unit='rad',
-                                         position_counts_per_rev=None, gear_ratio=1.0),
-                        source=path)
+    order = np.argsort(np.asarray(header_stamps, dtype=np.int64), kind='stable')
+    return (np.asarray(header_stamps, dtype=np.int64)[order],
+            np.asarray(log_stamps, dtype=np.int64)[order],
+            {channel: np.asarray(items, dtype=float)[order] for channel, items in values.items()},
+            joint, present)
+
+
+def _float64_topics(available: Mapping[str, str], names: Mapping[str, str],
+                    channels: Collection[str], own_topic: str, path: str) -> dict[str, str]:
+    """
+    Return channel -> ``std_msgs/msg/Float64`` topic of those ``channels`` the bag has.
+
+    ``names`` gives each channel's topic name (a relative name matches any namespace); the
+    joint states' own topic never counts. A topic of another type is refused.
+    """
+    float_topics: dict[str, str] = {}
+    for channel in channels:
+        name = match_topic(names[channel], available)
+        if name is None or name == own_topic:
+            continue
+        if available[name] != FLOAT64_TYPE:
+            raise InputDataError(f'{path}: topic {name} is {available[name]}; the {channel} '
+                                 f'topic must be {FLOAT64_TYPE}')
+        float_topics[channel] = name
+    return float_topics
+
+
+def _pair_with_float64(source: MessageSource, topic: str, path: str,
+                       header_stamps: np.ndarray, log_stamps: np.ndarray,
+                       joint_values: Mapping[str, np.ndarray], float_topics: Mapping[str, str],
+                       sample_period_s: Optional[float]) -> dict[str, np.ndarray]:
+    """
+    Pair a joint's samples with Float64 topics by timestamp on one grid; return the columns.
+
+    The joint's samples (from ``topic``) are timed by their header stamps, or by the bag's
+    times when the header stamps are on another clock (with a warning). Without Float64
+    topics the columns are the joint's own, at its header stamps. ``t`` is in s from the
+    first sample.
+    """
+    from dcmotor_id.streams import align_timestamps
+
+    if not float_topics:
+        columns: dict[str, np.ndarray] = {
+            't': (header_stamps - header_stamps[0]).astype(float) * 1e-9}
+        columns.update(joint_values)
+        return columns
+    offset = np.median(header_stamps - log_stamps)
+    if abs(offset) > MAX_CLOCK_OFFSET_NS:
+        warnings.warn(
+            f'{path}: the header stamps of {topic} are {offset * 1e-9:.3g} s from the time '
+            'the bag gives its messages (another clock); its samples are paired with the '
+            'Float64 topics by the bag time instead', UserWarning, stacklevel=5)
+        header_stamps = log_stamps
+    stamps_by_channel: dict[str, np.ndarray] = {}
+    values_by_channel: dict[str, np.ndarray] = {}
+    for channel, values in joint_values.items():
+        stamps_by_channel[channel] = header_stamps
+        values_by_channel[channel] = values
+    typestore = _typestore()
+    raw: dict[str, tuple[list[int], list[bytes]]] = {channel: ([], []) for channel in float_topics}
+    by_topic = {name: channel for channel, name in float_topics.items()}
+    for name, stamp, data in source.messages(by_topic):
+        raw[by_topic[name]][0].append(stamp)
+        raw[by_topic[name]][1].append(data)
+    for channel, (stamps, payloads) in raw.items():
+        if not stamps:
+            raise InputDataError(f'{path}: topic {float_topics[channel]} has no messages')
+        stamps_by_channel[channel] = np.array(stamps, dtype=np.int64)
+        values_by_channel[channel] = _decode_float64(payloads, typestore)
+    grid, aligned = align_timestamps(stamps_by_channel, values_by_channel, sample_period_s,
+                                     source=path)
+    return {'t': (grid - grid[0]).astype(float) * 1e-9, **aligned}
 
 
 def joint_state_topic(available: Mapping[str, str]) -> Optional[str]:
@@ -596,8 +729,6 @@ def read_joint_states(source: MessageSource, topic: str, path: str,
         the option that would).
 
     """
-    from dcmotor_id.streams import align_timestamps
-
     names = dict(BAG_TOPICS)
     names.update(topics or {})
     for channel, field_name in options.interfaces.items():
@@ -605,18 +736,9 @@ def read_joint_states(source: MessageSource, topic: str, path: str,
             raise InputDataError(
                 f'{path}: --interface {channel}={field_name}: {topic} is a '
                 f'{JOINT_STATE_TYPE}, whose fields are {", ".join(JOINT_STATE_FIELDS)}')
-    available = source.topics
-    float_topics: dict[str, str] = {}
-    for channel in ('voltage', 'current', 'speed'):
-        if channel in options.interfaces:
-            continue
-        name = match_topic(names[channel], available)
-        if name is None or name == topic:
-            continue
-        if available[name] != FLOAT64_TYPE:
-            raise InputDataError(f'{path}: topic {name} is {available[name]}; the {channel} '
-                                 f'topic must be {FLOAT64_TYPE}')
-        float_topics[channel] = name
+    float_topics = _float64_topics(
+        source.topics, names, [channel for channel in ('voltage', 'current', 'speed')
+                               if channel not in options.interfaces], topic, path)
     fields = {channel: field_name for channel, field_name in DEFAULT_JOINT_STATE_FIELDS.items()
               if channel not in float_topics}
     fields.update(options.interfaces)
@@ -630,7 +752,7 @@ def read_joint_states(source: MessageSource, topic: str, path: str,
             f'Float64 speed topic ({names["speed"]}); take it from another field with '
             '--interface speed=FIELD or name its topic with --speed-topic')
     if missing:
-        listing = ', '.join(f'{name} [{kind}]' for name, kind in sorted(available.items()))
+        listing = ', '.join(f'{name} [{kind}]' for name, kind in sorted(source.topics.items()))
         raise InputDataError(
             f'{path}: no current: {topic} ({JOINT_STATE_TYPE}) gives the current only when '
             f'asked and the bag has no Float64 current topic ({names["current"]}); it has '
@@ -638,38 +760,9 @@ def read_joint_states(source: MessageSource, topic: str, path: str,
             'current=effort (with --current-unit mA if in mA); if it is a torque in N m, add '
             '--interface current=effort --torque-constant 1 (mechanical-only: J, b, Mc); or '
             'name the current topic with --current-topic')
-    if not float_topics:
-        columns: dict[str, np.ndarray] = {
-            't': (header_stamps - header_stamps[0]).astype(float) * 1e-9}
-        columns.update(joint_values)
-        return build_record(columns, _si_options(options), source=path)
-    offset = np.median(header_stamps - log_stamps)
-    if abs(offset) > MAX_CLOCK_OFFSET_NS:
-        warnings.warn(
-            f'{path}: the header stamps of {topic} are {offset * 1e-9:.3g} s from the time '
-            'the bag gives its messages (another clock); its samples are paired with the '
-            'Float64 topics by the bag time instead', UserWarning, stacklevel=4)
-        header_stamps = log_stamps
-    stamps_by_channel: dict[str, np.ndarray] = {}
-    values_by_channel: dict[str, np.ndarray] = {}
-    for channel, values in joint_values.items():
-        stamps_by_channel[channel] = header_stamps
-        values_by_channel[channel] = values
-    typestore = _typestore()
-    raw: dict[str, tuple[list[int], list[bytes]]] = {channel: ([], []) for channel in float_topics}
-    by_topic = {name: channel for channel, name in float_topics.items()}
-    for name, stamp, data in source.messages(by_topic):
-        raw[by_topic[name]][0].append(stamp)
-        raw[by_topic[name]][1].append(data)
-    for channel, (stamps, payloads) in raw.items():
-        if not stamps:
-            raise InputDataError(f'{path}: topic {float_topics[channel]} has no messages')
-        stamps_by_channel[channel] = np.array(stamps, dtype=np.int64)
-        values_by_channel[channel] = _decode_float64(payloads, typestore)
-    grid, aligned = align_timestamps(stamps_by_channel, values_by_channel, sample_period_s,
-                                     source=path)
-    return build_record({'t': (grid - grid[0]).astype(float) * 1e-9, **aligned},
-                        _si_options(options), source=path)
+    columns = _pair_with_float64(source, topic, path, header_stamps, log_stamps, joint_values,
+                                 float_topics, sample_period_s)
+    return build_record(columns, _si_options(options), source=path)
 
 
 def _joint_state_values(source: MessageSource, topic: str, path: str, joint: Optional[str],
