@@ -122,6 +122,8 @@ def scenario_rows(name, make, seeds):
 
 def emps_rows():
     """EMPS (real data): identified vs the published IDIM-LS values, split-half spread."""
+    if ROOT not in sys.path:
+        sys.path.insert(0, ROOT)  # studies/ is beside the package, not installed with it
     try:
         from studies.emps import ESTIMATION_FILE, find_data_dir, load_emps, PUBLISHED_IDIM_LS
         directory = find_data_dir(None)
