@@ -15,9 +15,10 @@ BENCH_OUT := out/bench
 $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r requirements.txt
+	@echo "installing the dependencies into $(VENV) (a few minutes on a fresh machine; pip shows each package)"
+	$(PY) -m pip install --progress-bar off -r requirements.txt
 	$(PY) -m pip install --quiet --no-deps -e .
-	$(PY) -m dcmotor_id.warmup --quiet
+	$(PY) -m dcmotor_id.warmup
 	touch $(STAMP)
 
 # Recompile the numba cache and the ahead-of-time module by hand (after editing a kernel, say).

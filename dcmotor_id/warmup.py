@@ -126,6 +126,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      description='compile and cache the numba kernels')
     parser.add_argument('--quiet', action='store_true', help='print nothing on success')
     args = parser.parse_args(argv)
+    if not args.quiet:
+        print('warm-up: compiling the numba kernels into their cache and the ahead-of-time '
+              'module (once; about half a minute) ...', flush=True)
     # The CLI's own tables are not the point here.
     with tempfile.TemporaryDirectory(prefix='dcmotor-id-warmup-') as directory, \
             open(os.devnull, 'w', encoding='utf-8') as devnull, \
