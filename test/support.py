@@ -118,3 +118,13 @@ def motor_samples(duration_s=10.0, sample_period_s=1e-3, noise=(0.01, 0.02), see
     speed = speed + rng.normal(0, noise[1], speed.size)
     stamps = START_NS + np.arange(voltage.size, dtype=np.int64) * int(round(sample_period_s * 1e9))
     return stamps, {'voltage': voltage, 'current': current, 'speed': speed}
+
+
+def remove_nodes(executor, *nodes):
+    """Remove ``nodes`` from ``executor``, close those that have ``close`` and destroy them."""
+    for node in nodes:
+        executor.remove_node(node)
+        closer = getattr(node, 'close', None)
+        if closer:
+            closer()
+        node.destroy_node()
