@@ -605,9 +605,7 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
         verdict_class = 'verdict warn'
     where = '' if found is None else \
         f', on the held-out last {found.holdout_fraction * 100:.0f} % of each record'
-    parts = [f'<!DOCTYPE html><html><head><meta charset="utf-8"><title>dcmotor_id report'
-             f'</title><style>{_STYLE}</style></head><body>',
-             f'<h1>{html.escape(title)}</h1>',
+    parts = [f'<h1>{html.escape(title)}</h1>',
              f'<p>{len(result["records"])} record(s): '
              f'{html.escape(", ".join(str(r) for r in result["records"]))}; '
              f'{result["n_samples"]} samples, dt {result["sample_period_s"]:.6g} s; mode '
@@ -663,10 +661,16 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
                          f'fit; the loop stopped because {html.escape(found.reason)}.</p>')
     if validation is not None:
         parts += _validation_parts(directory, validation, units)
-    parts.append('</body></html>')
-    path = os.path.join(directory, 'index.html')
+    return _write_page(directory, 'index.html', 'dcmotor_id report', parts)
+
+
+def _write_page(directory: str, name: str, title: str, parts: list[str]) -> str:
+    """Write the page of body ``parts`` to ``directory/name`` (its head: ``title``, the style)."""
+    head = (f'<!DOCTYPE html><html><head><meta charset="utf-8"><title>{title}</title>'
+            f'<style>{_STYLE}</style></head><body>')
+    path = os.path.join(directory, name)
     with open(path, 'w', encoding='utf-8') as stream:
-        stream.write('\n'.join(parts))
+        stream.write('\n'.join([head] + parts + ['</body></html>']))
     return path
 
 
@@ -755,14 +759,8 @@ def write_validation_report(directory: str, validation: Validation,
     parameters = ', '.join(f'{name} = {_number(value)}' for name, value
                            in model.parameters.items())
     effects = ', '.join(effect['name'] for effect in model.effects) or 'none'
-    parts = [f'<!DOCTYPE html><html><head><meta charset="utf-8"><title>dcmotor_id '
-             f'validation</title><style>{_STYLE}</style></head><body>',
-             f'<h1>{html.escape(title)}</h1>',
+    parts = [f'<h1>{html.escape(title)}</h1>',
              f'<p>Model ({html.escape(model.mode)}): {html.escape(parameters)}; effects: '
              f'{html.escape(effects)}.</p>']
     parts += _validation_parts(directory, validation, units)
-    parts.append('</body></html>')
-    path = os.path.join(directory, 'validation.html')
-    with open(path, 'w', encoding='utf-8') as stream:
-        stream.write('\n'.join(parts))
-    return path
+    return _write_page(directory, 'validation.html', 'dcmotor_id validation', parts)

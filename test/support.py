@@ -5,6 +5,15 @@ import os
 import threading
 import time
 
+import numpy as np
+
+from dcmotor_id.excitation import make_excitation
+from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.simulation import simulate_motor
+
+#: Bag time of the first sample of :func:`motor_samples` [ns].
+START_NS = 1_700_000_000_000_000_000
+
 
 def children(pid):
     """
@@ -93,3 +102,29 @@ def call(node, service, timeout_s=60.0, wait_s=10.0):
     assert wait_for(future.done, timeout_s, 0.01), f'{service} did not answer in {timeout_s} s'
     node.destroy_client(client)
     return future.result()
+
+
+def motor_samples(duration_s=10.0, sample_period_s=1e-3, noise=(0.01, 0.02), seed=0):
+    """
+    Return the sample stamps [ns] and noisy channels of paper2 under the paper excitation.
+
+    ``noise``: standard deviations of the current [A] and speed [rad/s] noise; the stamps
+    start at :data:`START_NS`.
+    """
+    _, voltage = make_excitation('paper', duration_s, sample_period_s)
+    current, speed = simulate_motor(PAPER_MOTORS['paper2'], voltage, sample_period_s)
+    rng = np.random.default_rng(seed)
+    current = current + rng.normal(0, noise[0], current.size)
+    speed = speed + rng.normal(0, noise[1], speed.size)
+    stamps = START_NS + np.arange(voltage.size, dtype=np.int64) * int(round(sample_period_s * 1e9))
+    return stamps, {'voltage': voltage, 'current': current, 'speed': speed}
+
+
+def remove_nodes(executor, *nodes):
+    """Remove ``nodes`` from ``executor``, close those that have ``close`` and destroy them."""
+    for node in nodes:
+        executor.remove_node(node)
+        closer = getattr(node, 'close', None)
+        if closer:
+            closer()
+        node.destroy_node()

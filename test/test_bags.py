@@ -11,27 +11,14 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
+from support import motor_samples
 
 from dcmotor_id.cli import main as cli_main
 from dcmotor_id.errors import InputDataError
-from dcmotor_id.excitation import make_excitation
 from dcmotor_id.formats.bag import load_messages, read_bag, TruncatedBagWarning, write_bag
 from dcmotor_id.identify import identify, prepare_records
 from dcmotor_id.model import PAPER_MOTORS
 from dcmotor_id.recording import WindowBagWriter
-from dcmotor_id.simulation import simulate_motor
-
-START_NS = 1_700_000_000_000_000_000
-
-
-def motor_samples(duration_s=10.0, sample_period_s=1e-3, noise=(0.01, 0.02), seed=0):
-    _, voltage = make_excitation('paper', duration_s, sample_period_s)
-    current, speed = simulate_motor(PAPER_MOTORS['paper2'], voltage, sample_period_s)
-    rng = np.random.default_rng(seed)
-    current = current + rng.normal(0, noise[0], current.size)
-    speed = speed + rng.normal(0, noise[1], speed.size)
-    stamps = START_NS + np.arange(voltage.size) * int(round(sample_period_s * 1e9))
-    return stamps, {'voltage': voltage, 'current': current, 'speed': speed}
 
 
 @pytest.mark.parametrize('batch_samples', [0, 250])

@@ -6,31 +6,23 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
+from support import motor_samples, START_NS
 
 from dcmotor_id.cli import main as cli_main
 from dcmotor_id.errors import InputDataError
-from dcmotor_id.excitation import make_excitation
 from dcmotor_id.formats import read_record
 from dcmotor_id.formats.mapping import ReadOptions
 from dcmotor_id.model import PAPER_MOTORS
-from dcmotor_id.simulation import simulate_motor
 
-START_NS = 1_700_000_000_000_000_000
 PERIOD_NS = 1_000_000
 TRUTH = PAPER_MOTORS['paper2']
 
 
 def simulated(duration_s=8.0, seed=0):
     """Return a noisy simulated record of paper2 (SI) and its sample stamps [ns]."""
-    _, voltage = make_excitation('paper', duration_s, PERIOD_NS * 1e-9)
-    current, speed = simulate_motor(TRUTH, voltage, PERIOD_NS * 1e-9)
-    rng = np.random.default_rng(seed)
-    current = current + rng.normal(0, 0.01, current.size)
-    speed = speed + rng.normal(0, 0.02, speed.size)
-    position = np.cumsum(speed) * PERIOD_NS * 1e-9
-    stamps = START_NS + np.arange(voltage.size, dtype=np.int64) * PERIOD_NS
-    return stamps, {'voltage': voltage, 'current': current, 'speed': speed,
-                    'position': position}
+    stamps, channels = motor_samples(duration_s, PERIOD_NS * 1e-9, seed=seed)
+    channels['position'] = np.cumsum(channels['speed']) * PERIOD_NS * 1e-9
+    return stamps, channels
 
 
 def write_joint_state_bag(path, stamps, joints, floats=None, latency_ns=300_000, seed=1,

@@ -11,7 +11,7 @@ import rclpy
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
-from support import call, spinning_executor, wait_for
+from support import call, remove_nodes, spinning_executor, wait_for
 
 from dcmotor_id.cli import main as cli_main
 from dcmotor_id.formats.bag import read_bag
@@ -34,15 +34,6 @@ def ros(ros_env):
 def add(executor, node):
     executor.add_node(node)
     return node
-
-
-def remove(executor, *nodes):
-    for node in nodes:
-        executor.remove_node(node)
-        closer = getattr(node, 'close', None)
-        if closer:
-            closer()
-        node.destroy_node()
 
 
 def identifier(executor, namespace, tmp_path, **overrides):
@@ -76,12 +67,12 @@ def identified(ros, tmp_path_factory):
     assert wait_for(lambda: latched, 10.0)
     assert wait_for(lambda: online, 5.0)
     # stop the drive: the other tests share this executor
-    remove(ros, sim)
+    remove_nodes(ros, sim)
     ros.remove_node(ident)
     yield {'sim': sim, 'ident': ident, 'first': first, 'stats': stats,
            'concurrent': [f.result() for f in results], 'latched': latched[-1],
            'diagnostics': diagnostics, 'online': online, 'tmp_path': tmp_path}
-    remove(ros, late, probe)
+    remove_nodes(ros, late, probe)
     ident.close()
     ident.destroy_node()
 
@@ -156,7 +147,7 @@ def test_identify_before_any_data_fails_clearly(ros, tmp_path):
     response = call(probe, 'identifier/identify')
     assert not response.success
     assert 'not enough data' in response.message and 'voltage, current, speed' in response.message
-    remove(ros, probe, ident)
+    remove_nodes(ros, probe, ident)
 
 
 def test_nan_payloads_and_a_stopped_topic_leave_the_node_alive(ros, tmp_path):
@@ -183,7 +174,7 @@ def test_nan_payloads_and_a_stopped_topic_leave_the_node_alive(ros, tmp_path):
     assert not response.success and 'not enough data' in response.message
     stats = ident.aligner.stats
     assert stats.lost + stats.unmatched_at_start == 500 and ident.cutter.discarded_samples > 0
-    remove(ros, feeder, ident)
+    remove_nodes(ros, feeder, ident)
 
 
 def test_lost_late_and_reordered_messages_land_on_their_samples(ros, tmp_path):
@@ -245,4 +236,4 @@ def test_unwritable_or_full_record_dir_is_reported_and_identify_still_works(ros,
     assert 'not recorded' in response.message
     record_error = ident.recorder.error
     assert record_error and ('cannot record' in record_error or 'free' in record_error)
-    remove(ros, probe, sim, ident)
+    remove_nodes(ros, probe, sim, ident)

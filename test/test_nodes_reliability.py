@@ -21,7 +21,8 @@ import rclpy
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
-from support import alive, call as trigger, children, spinning_executor, wait_for
+from support import (alive, call as trigger, children, remove_nodes, spinning_executor,
+                     wait_for)
 
 from dcmotor_id.excitation import make_excitation
 from dcmotor_id.formats.batch import batch_message
@@ -79,12 +80,7 @@ def graph(ros, tmp_path):
         return ident, probe
 
     yield make
-    for node in made:
-        ros.remove_node(node)
-        closer = getattr(node, 'close', None)
-        if closer:
-            closer()
-        node.destroy_node()
+    remove_nodes(ros, *made)
 
 
 def publish(probe, topic, messages, message_type=Float64MultiArray):

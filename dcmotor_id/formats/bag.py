@@ -439,18 +439,7 @@ def _read_bag_si(path: PathLike, topics: Optional[Mapping[str, str]],
             if available[topic] != FLOAT64_TYPE:
                 raise InputDataError(f'{path}: topic {topic} is {available[topic]}; the '
                                      f'{channel} topic must be {FLOAT64_TYPE}')
-        raw: dict[str, tuple[list[int], list[bytes]]] = {channel: ([], []) for channel in chosen}
-        by_topic = {topic: channel for channel, topic in chosen.items()}
-        for topic, stamp, data in source.messages(by_topic):
-            stamps, payloads = raw[by_topic[topic]]
-            stamps.append(stamp)
-            payloads.append(data)
-    stamps_by_channel, values_by_channel = {}, {}
-    for channel, (stamps, payloads) in raw.items():
-        if not stamps:
-            raise InputDataError(f'{path}: topic {chosen[channel]} has no messages')
-        stamps_by_channel[channel] = np.array(stamps, dtype=np.int64)
-        values_by_channel[channel] = _decode_float64(payloads, typestore)
+        stamps_by_channel, values_by_channel = _read_float64(source, chosen, typestore, path)
     grid, values = align_timestamps(stamps_by_channel, values_by_channel, sample_period_s,
                                     source=path)
     record = record_from_stamps(grid, values, source=path)
@@ -664,17 +653,9 @@ def _pair_with_float64(source: MessageSource, topic: str, path: str,
     for channel, values in joint_values.items():
         stamps_by_channel[channel] = header_stamps
         values_by_channel[channel] = values
-    typestore = _typestore()
-    raw: dict[str, tuple[list[int], list[bytes]]] = {channel: ([], []) for channel in float_topics}
-    by_topic = {name: channel for channel, name in float_topics.items()}
-    for name, stamp, data in source.messages(by_topic):
-        raw[by_topic[name]][0].append(stamp)
-        raw[by_topic[name]][1].append(data)
-    for channel, (stamps, payloads) in raw.items():
-        if not stamps:
-            raise InputDataError(f'{path}: topic {float_topics[channel]} has no messages')
-        stamps_by_channel[channel] = np.array(stamps, dtype=np.int64)
-        values_by_channel[channel] = _decode_float64(payloads, typestore)
+    float_stamps, float_values = _read_float64(source, float_topics, _typestore(), path)
+    stamps_by_channel.update(float_stamps)
+    values_by_channel.update(float_values)
     grid, aligned = align_timestamps(stamps_by_channel, values_by_channel, sample_period_s,
                                      source=path)
     return {'t': (grid - grid[0]).astype(float) * 1e-9, **aligned}
@@ -820,6 +801,28 @@ def _si_options(options: ReadOptions) -> ReadOptions:
 def _warn_recovered_record(path: str, recovery: Recovery, record: Record) -> None:
     _warn_recovered(path, recovery, f'{len(record)} samples ({recovery.messages} messages)',
                     len(record) * record.sample_period_s, stacklevel=4)
+
+
+def _read_float64(source: MessageSource, topics: Mapping[str, str], typestore: Any,
+                  path: str) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """
+    Read ``std_msgs/msg/Float64`` topics; return each channel's bag times [ns] and values.
+
+    ``topics`` maps channel -> topic; a topic without messages is refused.
+    """
+    raw: dict[str, tuple[list[int], list[bytes]]] = {channel: ([], []) for channel in topics}
+    by_topic = {topic: channel for channel, topic in topics.items()}
+    for topic, stamp, data in source.messages(by_topic):
+        stamps, payloads = raw[by_topic[topic]]
+        stamps.append(stamp)
+        payloads.append(data)
+    stamps_by_channel, values_by_channel = {}, {}
+    for channel, (stamps, payloads) in raw.items():
+        if not stamps:
+            raise InputDataError(f'{path}: topic {topics[channel]} has no messages')
+        stamps_by_channel[channel] = np.array(stamps, dtype=np.int64)
+        values_by_channel[channel] = _decode_float64(payloads, typestore)
+    return stamps_by_channel, values_by_channel
 
 
 def _decode_float64(payloads: list[bytes], typestore: Any) -> np.ndarray:

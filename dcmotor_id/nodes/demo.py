@@ -15,11 +15,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from typing import Optional
+from typing import IO, Optional, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
@@ -42,14 +43,30 @@ def _executable(name):
     return path
 
 
-def _values(status):
+def status_values(status: DiagnosticStatus) -> dict[str, str]:
+    """Return the key-value pairs of a diagnostic status as a dict."""
     return {kv.key: kv.value for kv in status.values}
+
+
+def local_ros_domain() -> None:
+    """Keep a demo's discovery on this host, in a domain of its own (unless set already)."""
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+
+
+def close_demo(processes: Sequence[subprocess.Popen], executor: Executor, node: Node,
+               logs: IO[str]) -> None:
+    """End a demo: stop its node processes, its executor and node, rclpy; close the log."""
+    stop_processes(processes)
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown()
+    logs.close()
 
 
 def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
     """Run the demo; return the exit code."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+    local_ros_domain()
     record_dir = record_dir or os.path.join(tempfile.gettempdir(), 'dcmotor_id_demo',
                                             time.strftime('%Y%m%d-%H%M%S'))
     truth = PAPER_MOTORS['paper2'].as_dict()
@@ -85,7 +102,7 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
         while time.monotonic() - start < record_s:
             spin_until(executor, lambda: False, 2.0)
             if online:
-                values = _values(online[-1])
+                values = status_values(online[-1])
                 print(f'  {time.monotonic() - start:4.0f} s  online: Ra={float(values["Ra"]):.4g}'
                       f' La={float(values["La"]):.4g} CPhi={float(values["CPhi"]):.4g} '
                       f'J={float(values["J"]):.4g}  converged={values["converged"]}',
@@ -100,13 +117,13 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
             print(f'identification failed: {response.message}')
             return 1
         spin_until(executor, lambda: latched, 10.0)
-        identified = _values(latched[-1])
+        identified = status_values(latched[-1])
         paper = {}
         for array in diagnostics:
             for status in array.status:
                 if status.name.endswith('paper method') and status.values:
-                    paper = _values(status)
-        estimate = _values(online[-1]) if online else {}
+                    paper = status_values(status)
+        estimate = status_values(online[-1]) if online else {}
         print()
         print(f'{"":<6}{"truth":>12}' + ''.join(
             f'{name:>13}{"err %":>9}' for name in ('identified', 'paper', 'online')))
@@ -132,11 +149,7 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
         print(f'all windows: {record_dir}   node logs: {logs.name}')
         return 0
     finally:
-        stop_processes(processes)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-        logs.close()
+        close_demo(processes, executor, node, logs)
 
 
 def main(argv: Optional[list[str]] = None) -> int:

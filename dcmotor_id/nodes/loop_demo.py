@@ -27,7 +27,8 @@ from std_srvs.srv import Trigger
 from dcmotor_id.cli import write_json
 from dcmotor_id.experiment import DEFAULT_NOISE, design_experiment
 from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
-from dcmotor_id.nodes.common import spin_until, stop_processes
+from dcmotor_id.nodes.common import spin_until
+from dcmotor_id.nodes.demo import close_demo, local_ros_domain, status_values
 from dcmotor_id.nodes.identifier import LATCHED
 from dcmotor_id.routines import Limits
 
@@ -44,10 +45,6 @@ def _node_command(name: str, *arguments: str) -> list[str]:
     return command + ['--ros-args', *files, *arguments]
 
 
-def _values(status: DiagnosticStatus) -> dict[str, str]:
-    return {kv.key: kv.value for kv in status.values}
-
-
 def _call(node: Any, executor: Any, name: str, timeout_s: float) -> Optional[Any]:
     client = node.create_client(Trigger, name)
     if not client.wait_for_service(timeout_sec=60.0):
@@ -59,8 +56,7 @@ def _call(node: Any, executor: Any, name: str, timeout_s: float) -> Optional[Any
 def run_loop_demo(duration_s: float = 10.0, current_limit_a: float = 10.0,
                   work_dir: Optional[str] = None) -> int:
     """Run the demo; return the exit code."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+    local_ros_domain()
     work_dir = work_dir or os.path.join(tempfile.gettempdir(), 'dcmotor_id_loop',
                                         time.strftime('%Y%m%d-%H%M%S'))
     os.makedirs(work_dir, exist_ok=True)
@@ -95,7 +91,7 @@ def run_loop_demo(duration_s: float = 10.0, current_limit_a: float = 10.0,
     latched: list[DiagnosticStatus] = []
 
     def on_diagnostics(message: DiagnosticArray) -> None:
-        states.extend(_values(status) for status in message.status
+        states.extend(status_values(status) for status in message.status
                       if status.name.endswith('excitation'))
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 50)
     node.create_subscription(DiagnosticStatus, '/identifier/parameters', latched.append,
@@ -138,7 +134,7 @@ def run_loop_demo(duration_s: float = 10.0, current_limit_a: float = 10.0,
         if not spin_until(executor, lambda: latched, 10.0):
             print('no /identifier/parameters')
             return 1
-        found = {key: float(value) for key, value in _values(latched[-1]).items()}
+        found = {key: float(value) for key, value in status_values(latched[-1]).items()}
         truth = motor.as_dict()
         print()
         print(f'{"":<6}{"truth":>11}{"identified":>13}{"error":>11}{"expected se":>13}'
@@ -155,11 +151,7 @@ def run_loop_demo(duration_s: float = 10.0, current_limit_a: float = 10.0,
         print(f'plan: {plan_file}; windows: {work_dir}/windows')
         return 0
     finally:
-        stop_processes(processes)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-        logs.close()
+        close_demo(processes, executor, node, logs)
 
 
 def main(argv: Optional[list[str]] = None) -> int:
