@@ -32,8 +32,9 @@ import math
 from numba import njit
 import numpy as np
 
-from dcmotor_id.simulation.kernels import (_dip_time, _drive, _event_step, _flow_state, _root,
-                                           _slip_sign, _speed_slope, discretise)
+from dcmotor_id.simulation.kernels import (_dip_time, _drive, _event_step, _flow_state,
+                                           _forcing, _initial_sign, _root, _slip_sign,
+                                           _speed_slope, _stuck_time, discretise)
 
 
 @njit(cache=True)
@@ -215,22 +216,10 @@ def _event_step_sens(a, da, n, x, s, g, dg, duration, friction_pos, friction_neg
     x0 = x[0]
     x1 = x[1] if n == 2 else 0.0
     remaining = duration
-    w = x1 if n == 2 else x0
-    if w > 0.0:
-        sign = 1
-    elif w < 0.0:
-        sign = -1
-    else:
-        sign = _slip_sign(_drive(a, n, x0, g), friction_pos, friction_neg)
+    sign = _initial_sign(a, n, x0, x1, g, friction_pos, friction_neg)
     for _ in range(8):
         if sign != 0:
-            f0 = g[0]
-            f1 = g[1] if n == 2 else 0.0
-            friction = friction_pos if sign > 0 else -friction_neg
-            if n == 2:
-                f1 -= friction
-            else:
-                f0 -= friction
+            f0, f1 = _forcing(g, n, sign, friction_pos, friction_neg)
             fv[0] = f0
             if n == 2:
                 fv[1] = f1
@@ -285,20 +274,13 @@ def _event_step_sens(a, da, n, x, s, g, dg, duration, friction_pos, friction_neg
             for j in range(m):
                 sc[0, j] = 0.0
             break
-        _flow_state(a, 1, x0, 0.0, g[0], 0.0, remaining, out)
-        drive_end = _drive(a, n, out[0], g)
-        sign = _slip_sign(drive_end, friction_pos, friction_neg)
-        if sign == 0:
-            _stuck_sens(a, da, x0, g[0], sc, dg, remaining)
-            x0 = out[0]
-            break
-        limit = friction_pos if sign > 0 else -friction_neg
-        t_break = _root(a, n, x0, 0.0, g[0], 0.0, remaining, True, g, limit)
-        _stuck_sens(a, da, x0, g[0], sc, dg, t_break)
-        _flow_state(a, 1, x0, 0.0, g[0], 0.0, t_break, out)
+        sign, t_stuck = _stuck_time(a, n, x0, g, remaining, friction_pos, friction_neg, out)
+        _stuck_sens(a, da, x0, g[0], sc, dg, t_stuck)
         x0 = out[0]
+        if sign == 0:
+            break
         x1 = 0.0
-        remaining -= t_break
+        remaining -= t_stuck
         if remaining <= 0.0:
             break
     new[0] = x0
