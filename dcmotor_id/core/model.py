@@ -132,7 +132,15 @@ def parameter_names(mechanical_only: bool) -> tuple[str, ...]:
 
 
 def derived_values(values: Mapping[str, float]) -> dict[str, float]:
-    """Return the derived parameters ``Ka = 1/Ra`` and ``Ta = La/Ra`` of a values mapping."""
+    """
+    Return the derived parameters ``Ka = 1/Ra`` [1/Ohm] and ``Ta = La/Ra`` [s].
+
+    Examples
+    --------
+    >>> derived_values({'Ra': 2.0, 'La': 0.01})
+    {'Ka': 0.5, 'Ta': 0.005}
+
+    """
     ra, la = values['Ra'], values['La']
     return {'Ka': 1.0 / ra, 'Ta': la / ra}
 
