@@ -1,13 +1,11 @@
 """
 Online estimation under sensor noise, tracking of changes, change alarms and cost.
 
-The identifier node's online estimators on simulated drives (exact simulation at 1 kHz):
-``window`` (:class:`dcmotor_id.streaming.online.WindowEstimator`, the default: exact output-error
-refits
-of a window growing from the start up to 30 s, warm-started) and the old ``rls``
+The identifier node's online estimators on simulated drives (exact simulation at 1 kHz): ``window``
+(:class:`dcmotor_id.streaming.online.WindowEstimator`, the default: exact output-error refits of a
+window growing from the start up to 30 s, warm-started) and the old ``rls``
 (:class:`dcmotor_id.streaming.online.RlsEstimator`, recursive least squares with a 10 s memory),
-side
-by side on the same runs.
+side by side on the same runs.
 
 1. Accuracy: the paper's motors 1 and 2, excitations ``paper``, ``prbs`` and ``multisine``
    (30 s), white noise of 0, 0.1, 1 and 3 % of each signal's standard deviation on current

@@ -22,9 +22,8 @@ The parameters travel in these forms, each for a reason:
   :attr:`~dcmotor_id.identification.estimators.base.Estimate.parameters` is such a mapping with the
   derived
   values (:func:`derived_values`) added.
-* :class:`~dcmotor_id.simulation.MotorEffects`: what the simulator needs to reproduce effects
-  (its own coefficients, combined from the effects of :mod:`dcmotor_id.identification.effects`,
-  whose
+* :class:`~dcmotor_id.simulation.MotorEffects`: what the simulator needs to reproduce effects (its
+  own coefficients, combined from the effects of :mod:`dcmotor_id.identification.effects`, whose
   ``parameters`` are the effect's parameters as reported in JSON).
 
 The hybrid (stick-slip) solution lives in :mod:`dcmotor_id.simulation`.

@@ -26,12 +26,10 @@ learned from the first ``baseline_count`` observations of each quantity
 (:func:`baseline_from_observations`: their mean, with the estimates' standard errors inflated
 by the excess scatter of those observations) instead of from one converged estimate.
 
-While a window mixes data from before and after a sudden change, its fit is a compromise
-that can move other parameters far (a step of b briefly shows as Coulomb friction); such an
-estimate is not ``settled`` (:attr:`~dcmotor_id.streaming.online.OnlineEstimate.settled`) and
-raises
-no new alarm until the window restarts after the change or the mismatch has lasted half a
-window (a slow drift).
+While a window mixes data from before and after a sudden change, its fit is a compromise that can
+move other parameters far (a step of b briefly shows as Coulomb friction); such an estimate is not
+``settled`` (:attr:`~dcmotor_id.streaming.online.OnlineEstimate.settled`) and raises no new alarm
+until the window restarts after the change or the mismatch has lasted half a window (a slow drift).
 
 Where physics allows, the alarm says what the change probably is: a copper winding's
 resistance rises by :data:`COPPER_ALPHA_PER_K` per kelvin, so ``Ra +18 %`` reads "winding
