@@ -433,11 +433,25 @@ def validate_fits(ds: DataSet, model_json: str, names: list[str], work: str) -> 
         return {'error': run['message'] or f'exit {run["rc"]}'}
     with open(out) as stream:
         records = json.load(stream)['records']
+    if len(records) != len(names):
+        return {'error': f'{len(records)} results for {len(names)} records'}
     fits = {}
     for name, record in zip(names, records):
         value = record['fit_pct'].get(ds.output)
         fits[name] = float('nan') if value is None else float(value)
     return fits
+
+
+def validate_groups(ds: DataSet, model_json: str, groups: dict[str, list[str]],
+                    work: str) -> dict[str, dict]:
+    """Validate on the records of every group in one run; return the fits by group."""
+    names = list(dict.fromkeys(name for members in groups.values() for name in members))
+    if not names:
+        return {}
+    fits = validate_fits(ds, model_json, names, work)
+    if 'error' in fits:
+        return dict.fromkeys(groups, fits)
+    return {group: {name: fits[name] for name in members} for group, members in groups.items()}
 
 
 def simulate(theta: np.ndarray, rec: Rec, position: bool) -> np.ndarray:
@@ -592,8 +606,7 @@ def evaluate(ds: DataSet, job: Job, work: str) -> dict[str, Any]:
         with open(out) as stream:
             row['result'] = json.load(stream)
         row['values'], row['stderr'] = tool_values(row['result'])
-        row['validate'] = {group: validate_fits(ds, out, names, work)
-                           for group, names in job.heldout.items()}
+        row['validate'] = validate_groups(ds, out, job.heldout, work)
     row['peer'] = peer_fit(recs, row['direction'] == 'both', ds.output == 'position')
     row['peer_validate'] = _peer_validation(ds, job, row['peer'])
     log(f'{ds.name} {job.label}: exit {run["rc"]} in {run["wall"]:.1f} s '
@@ -625,7 +638,7 @@ def with_error(value: Optional[float], ref: Optional[float]) -> str:
 def warning_kind(text: str) -> str:
     """Return the kind of a warning: its first words, without file names and numbers."""
     text = re.sub(r'^\S+\.(?:mat|csv): ', '', shorten(text))
-    words = [word for word in re.split(r'[\s(]+', text) if not re.search(r'\d', word)]
+    words = [word for word in re.split(r'[\s()]+', text) if not re.search(r'\d', word)]
     return ' '.join(words[:5]).rstrip(':,;')
 
 
@@ -897,20 +910,21 @@ def goal_honest(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
 
 
 def goal_time(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
-    """Every identify run of up to 300k samples under 30 s (wall clock)."""
+    """Every identify run of up to 300k samples under 30 s (wall clock, and CPU beside)."""
     runs = [row for row in rows if row['samples'] <= 300_000]
-    slow = [f'{row["ds"].name} {row_label(row)} ({row["samples"]} samples): '
-            f'{row["run"]["wall"]:.1f} s (CPU {row["run"]["cpu"]:.1f} s)'
-            for row in runs if row['run']['wall'] >= 30.0]
-    longest = max(runs, key=lambda row: row['run']['wall'], default=None)
-    details = [f'{len(runs) - len(slow)}/{len(runs)} runs under 30 s'
-               + ('' if not slow else ': slow: ' + '; '.join(slow))]
-    if slow and all(row['run']['cpu'] < 30.0 for row in runs if row['run']['wall'] >= 30.0):
-        details.append('every slow run took under 30 s of CPU: the load of the machine')
-    if longest is not None:
-        details.append(f'longest: {longest["ds"].name} {row_label(longest)}, '
-                       f'{longest["run"]["wall"]:.1f} s wall, {longest["run"]["cpu"]:.1f} s CPU')
-    return ('met' if runs and not slow else 'not met'), details
+    slow = [row for row in runs if row['run']['wall'] >= 30.0]
+    slow_cpu = [row for row in slow if row['run']['cpu'] >= 30.0]
+    details = [f'{len(runs) - len(slow)}/{len(runs)} runs under 30 s of wall-clock time, '
+               f'{len(runs) - len(slow_cpu)}/{len(runs)} under 30 s of CPU']
+    details += [f'slow: {row["ds"].name} {row_label(row)} ({row["samples"]} samples): '
+                f'{row["run"]["wall"]:.1f} s (CPU {row["run"]["cpu"]:.1f} s)' for row in slow]
+    if not runs:
+        return 'not run', details
+    if not slow:
+        return 'met', details
+    if not slow_cpu:
+        return 'met on CPU time, not met on wall-clock time (load of the machine)', details
+    return 'not met', details
 
 
 GOALS = (
