@@ -600,8 +600,9 @@ def evaluate(ds: DataSet, job: Job, work: str) -> dict[str, Any]:
     out = os.path.join(work, f'{ds.name}_{re.sub(r"[^A-Za-z0-9.]+", "_", job.label)}.json')
     run = run_cli(['identify', *[rec.path for rec in recs], *ds.reading,
                    '--torque-constant', f'{ds.torque_constant:.6g}', '--json', out])
-    row = {'ds': ds, 'job': job, 'run': run, 'samples': sum(len(rec.t) for rec in recs),
-           'direction': job_direction(ds, job), 'validate': {}, 'result': None}
+    row: dict[str, Any] = {'ds': ds, 'job': job, 'run': run,
+                           'samples': sum(len(rec.t) for rec in recs),
+                           'direction': job_direction(ds, job), 'validate': {}, 'result': None}
     if run['rc'] == 0 and os.path.isfile(out):
         with open(out) as stream:
             row['result'] = json.load(stream)
@@ -757,12 +758,12 @@ def markdown(header: tuple[str, ...], rows: list[list[str]]) -> list[str]:
 
 
 def max_z(entries: list[tuple[Optional[float], Optional[float]]]) -> Optional[float]:
-    """Largest ``|a - b| / sqrt(sa^2 + sb^2)`` over pairs of (value, stderr); None if none."""
+    """Largest ``|a - b| / sqrt(sa^2 + sb^2)`` over the pairs with both known; None if none."""
+    known = [(float(a), float(s)) for a, s in entries if a is not None and s is not None
+             and np.isfinite([a, s]).all()]
     zs = []
-    for i, (a, sa) in enumerate(entries):
-        for b, sb in entries[i + 1:]:
-            if None in (a, b, sa, sb) or not np.isfinite([a, b, sa, sb]).all():
-                continue
+    for i, (a, sa) in enumerate(known):
+        for b, sb in known[i + 1:]:
             zs.append(abs(a - b) / math.hypot(sa, sb) if (sa or sb) else math.inf)
     return max(zs) if zs else None
 
@@ -891,7 +892,8 @@ def goal_honest(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
     """No refusal where the peer is plausible; nothing > 2x off without a warning."""
     refused = [f'{row["ds"].name} {row_label(row)}: {row["run"]["message"][:80]}'
                for row in rows if row['result'] is None and peer_plausible(row)]
-    silent, said = [], []
+    silent: list[str] = []
+    said: list[str] = []
     for row in rows:
         if row['result'] is None:
             continue
