@@ -1012,6 +1012,12 @@ def data_set_lines(ds: DataSet, rows: list[dict[str, Any]]) -> list[str]:
     return lines + ['', '### Refusals and warnings, text', ''] + text_lines(rows) + ['']
 
 
+def cpu_seconds() -> float:
+    """Return the CPU seconds of this process and of the processes it ran."""
+    return sum(usage.ru_utime + usage.ru_stime for usage in (
+        resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)))
+
+
 def code_version() -> str:
     """Return the commit of this checkout (and whether the package has local changes)."""
     def git(*args: str) -> str:
@@ -1086,7 +1092,7 @@ def report(args: argparse.Namespace, sets: list[DataSet], rows: list[dict[str, A
              f'{numpy.__version__}, scipy {scipy.__version__}; load average (1, 5, 15 min) at '
              f'the start {", ".join(f"{v:.2f}" for v in load)}, at the end '
              f'{", ".join(f"{v:.2f}" for v in end)}  ',
-             f'Run time: {time.perf_counter() - START:.0f} s'
+             f'Run time: {time.perf_counter() - START:.0f} s wall clock, {cpu_seconds():.0f} s CPU'
              + (' (--quick)' if args.quick else ''), '']
     lines += [f'- {text}' for text in skipped] + ([''] if skipped else [])
     lines += goal_lines(rows) + finding_lines(sets) + [LEGEND, '']
