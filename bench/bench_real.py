@@ -115,6 +115,7 @@ class Repository:
     """Files of a public repository: a work tree, or a bare clone read at a named commit."""
 
     def __init__(self, path: str, commit: str, cache: str) -> None:
+        # cache: where the files of a bare clone are written (one directory per repository)
         self.path, self.commit, self.cache = path, commit, cache
         if not os.path.isdir(path):
             raise SystemExit(f'{path}: no such directory (see the set-up in bench_real.py)')
@@ -154,7 +155,7 @@ class Repository:
         """Return a local path of a file (read from the bare clone into the cache)."""
         if not self.bare:
             return os.path.join(self.path, name)
-        target = os.path.join(self.cache, os.path.basename(self.path.rstrip('/')), name)
+        target = os.path.join(self.cache, name)
         if not os.path.exists(target):
             os.makedirs(os.path.dirname(target), exist_ok=True)
             with open(target, 'wb') as stream:
@@ -212,7 +213,7 @@ def _hsm150_jobs(names: list[str], quick: bool) -> list[Job]:
 
 def hsm150_set(path: str, cache: str, quick: bool) -> DataSet:
     """Return the HSM150 servo data set (the original .mat files, read as recorded)."""
-    repo = Repository(path, HSM150_COMMIT, cache)
+    repo = Repository(path, HSM150_COMMIT, os.path.join(cache, 'HSM150-data'))
     records = _hsm150_records(repo)
     reading = ['--column', 't=data:1', '--column', 'current=data:7', '--column',
                'speed=data:4']
@@ -325,7 +326,7 @@ def _mech467_findings(repo: Repository, cache: str, stems: dict[str, list[str]],
 
 def mech467_set(path: str, cache: str, quick: bool) -> DataSet:
     """Return the UBC MECH 467 ball-screw lab, Group 2 (CSVs converted from the .mat files)."""
-    repo = Repository(path, MECH467_COMMIT, cache)
+    repo = Repository(path, MECH467_COMMIT, os.path.join(cache, 'mech467'))
     stems = _mech467_stems(repo, quick)
     records = _mech467_records(repo, cache, stems)
     k = MECH467_K * MECH467_GAIN
