@@ -170,16 +170,21 @@ class Identifier(Node):
     def _on_joint_state(self, message):
         names, joint = list(message.name), self.settings.joint_name
         if joint and joint not in names:
-            self._log('error', f'joint_states has no joint {joint!r} (has {names})')
+            self._refuse_joint_state(f'no joint {joint!r} (has {names})')
             return
         position = names.index(joint) if joint else 0
         if len(message.velocity) <= position or len(message.effort) <= position:
-            self._log('error', 'joint_states lacks velocity or effort for the joint')
+            self._refuse_joint_state(f'{len(message.velocity)} velocities and '
+                                     f'{len(message.effort)} efforts for joint {position}')
             return
         stamp = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
         index = self.inbox.index_of_stamp(stamp)
         self.inbox.put('current', index, self.settings.effort_scale * message.effort[position])
         self.inbox.put('speed', index, message.velocity[position])
+
+    def _refuse_joint_state(self, why):
+        self.health.refuse_joint_state(why)
+        self._log('error', f'joint_states refused: {why}')
 
     # ------------------------------------------------------------------ processing
     @guarded
