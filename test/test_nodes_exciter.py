@@ -245,7 +245,7 @@ class Bench:
             self.publishers[name].publish(Float64(data=value))
 
     def client(self, service, depth=1000):
-        """A client whose response reader keeps every answer of a burst (see the README)."""
+        """Return a client whose response reader keeps every answer of a burst (README)."""
         client = self.feeder.create_client(Trigger, service, qos_profile=QoSProfile(depth=depth))
         assert client.wait_for_service(timeout_sec=20.0)
         return client

@@ -299,7 +299,7 @@ def test_replay_executable_refuses_a_hostile_bag_without_running_it(ros_env, tmp
 
 def mixed_bag(path, samples=50, broken=()):
     """
-    A drive's bag as recorded with ``-a``: measurements beside a 200 V ``voltage_command``.
+    Write a drive's bag as recorded with ``-a``: measurements and a 200 V voltage_command.
 
     Also a topic with an invalid name, and ``/current`` payloads truncated at ``broken``.
     """

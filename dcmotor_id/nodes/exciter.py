@@ -15,8 +15,8 @@ its own) had no finite sample for ``stale_timeout_s`` (at the next command tick;
 the node is shut down or receives SIGINT or SIGTERM.  ``~/stop`` has a callback group of its
 own and the command tick another: neither waits behind ``~/start`` (which reads
 ``plan_file``), and a burst of calls is queued (:data:`~dcmotor_id.nodes.common.SERVICE_QOS`),
-so that every call is answered.  ``exciter --plan [plan options]`` prints an experiment plan without starting ROS
-(the same as ``dcmotor-id plan``).
+so that every call is answered.  ``exciter --plan [plan options]`` prints an experiment plan
+without starting ROS (the same as ``dcmotor-id plan``).
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from typing import Any, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
-from rclpy.duration import Duration
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
