@@ -351,13 +351,13 @@ class ExcitationSession:
         for channel, limit, unit in (('current', self.limits.current_a, 'A'),
                                      ('speed', self.limits.speed_rad_s, 'rad/s'),
                                      ('voltage', self.limits.voltage_v, 'V')):
-            values = arrays.get(channel)
-            if values is None or not values.size:
+            measured = arrays.get(channel)
+            if measured is None or not measured.size:
                 continue
             if channel in self.not_finite:
                 self.stop(f'{channel} is not finite (NaN or inf)', 'stopped-by-limit')
                 return True
-            peak = float(np.max(np.abs(values)))
+            peak = float(np.max(np.abs(measured)))
             self.peaks[channel] = max(self.peaks[channel], peak)
             # the voltage is measured after the command: tolerate rounding, not more
             tolerance = 1e-6 * limit if channel == 'voltage' else 0.0

@@ -187,7 +187,7 @@ class Replay(Node):
             raise ValueError('parameter bag is empty: give the bag to play, e.g. '
                              '--ros-args -p bag:=/path/to/window_000001_...')
         try:
-            every = {}
+            every: dict[str, bool] = {}
             self.topics, self.messages = load_bag(
                 self.bag, lambda topic: every.setdefault(topic, True) and
                 (is_measurement(topic) or topic in self.extra_topics))
