@@ -296,3 +296,30 @@ def test_bad_joint_states_are_said_and_the_node_lives_on(graph):
     for phrase in ('not enough data', '2 malformed joint_states refused',
                    'invalid values (NaN/inf) refused: current 1, speed 1'):
         assert phrase in response.message, (phrase, response.message)
+
+
+def test_sim_motor_survives_an_absurd_command_and_says_so(ros):
+    """A command of 1.7e308 V overflows the simulated state: reset to rest, said, and on."""
+    from dcmotor_id.formats.batch import decode_batch_message
+    from dcmotor_id.nodes.sim_motor import SimMotor
+
+    sim = SimMotor(namespace='huge', parameter_overrides=[
+        Parameter('use_voltage_command', value=True), Parameter('transport', value='batch')])
+    probe = rclpy.create_node('probe', namespace='huge')
+    received = []
+    probe.create_subscription(Float64MultiArray, 'samples', lambda message: received.append(
+        decode_batch_message(message)), 100)
+    for node in (sim, probe):
+        ros.add_node(node)
+    try:
+        command = probe.create_publisher(Float64, 'voltage_command', 10)
+        assert wait_for(lambda: command.get_subscription_count() > 0, 20.0)
+        command.publish(Float64(data=1.7e308))
+        assert wait_for(lambda: sim.overflows > 0, 20.0)
+        command.publish(Float64(data=0.0))
+        assert wait_for(lambda: sim._command == 0.0, 10.0)
+        seen = len(received)
+        assert wait_for(lambda: len(received) > seen + 5, 20.0)
+        assert np.all(np.isfinite(received[-1][1:]))  # the motor is simulated again
+    finally:
+        remove_nodes(ros, sim, probe)
