@@ -95,6 +95,8 @@ class Graph:
 
     def start_routine(self):
         """Start once measurements flow; wait until the drive follows a non-zero command."""
+        # the first sim_motor of a fresh install compiles its kernels: slow on a busy machine
+        assert spin_until(self.executor, lambda: self.voltage, 180.0), self.log('sim_motor')
         deadline = time.monotonic() + 30.0
         while True:
             response = self.call()
@@ -210,12 +212,21 @@ class Bench:
         values.update(parameters)
         self.exciter = Exciter(parameter_overrides=[Parameter(key, value=value)
                                                     for key, value in values.items()])
-        self.sent = []  # (monotonic time, value) of every command the exciter published
-        publish = self.exciter.publish_command
+        # (time, value) of every command the exciter published, at the time it decided on
+        # it (its latest now_s(): ticks, starts and stops run under its lock), so that a
+        # thread preempted between deciding and publishing does not blur the count
+        self.sent = []
+        publish, now_s = self.exciter.publish_command, self.exciter.now_s
+        decided = [now_s()]
+
+        def now():
+            decided[0] = now_s()
+            return decided[0]
 
         def record(value):
-            self.sent.append((time.monotonic(), value))
+            self.sent.append((decided[0], value))
             publish(value)
+        self.exciter.now_s = now
         self.exciter.publish_command = record
         self.feeder = rclpy.create_node('feeder')
         self.feeding = {'current': 0.5, 'speed': 1.0}  # channel -> value; absent: silent
