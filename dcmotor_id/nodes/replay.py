@@ -186,11 +186,14 @@ class Replay(Node):
         if not self.bag:
             raise ValueError('parameter bag is empty: give the bag to play, e.g. '
                              '--ros-args -p bag:=/path/to/window_000001_...')
+        every: list[str] = []  # every topic of the bag, in its order
+
+        def wanted(topic: str) -> bool:
+            if topic not in every:
+                every.append(topic)
+            return is_measurement(topic) or topic in self.extra_topics
         try:
-            every: dict[str, bool] = {}
-            self.topics, self.messages = load_bag(
-                self.bag, lambda topic: every.setdefault(topic, True) and
-                (is_measurement(topic) or topic in self.extra_topics))
+            self.topics, self.messages = load_bag(self.bag, wanted)
         except UnsupportedMessageType as error:
             raise ValueError(f'cannot play the bag {self.bag}: {error}') from None
         except Exception as error:  # noqa: BLE001  (rosbags raises several types)
@@ -203,7 +206,8 @@ class Replay(Node):
         if not self.messages:
             raise ValueError(f'the bag {self.bag} holds no message to play (measurement '
                              f'topics: any named {", ".join(MEASUREMENTS)}; its topics: '
-                             f'{", ".join(every) or "none"}); name others in extra_topics')
+                             f'{", ".join(map(str, every)) or "none"}); name others in '
+                             'extra_topics')
         qos = QoSProfile(depth=depth)
         self._topic_publishers = {
             topic: self.create_publisher(message_class(self.topics[topic], topic), name, qos)
@@ -217,7 +221,7 @@ class Replay(Node):
         self.get_logger().info(f'playing {len(self.messages)} messages of '
                                f'{", ".join(self.topics)} from {self.bag}')
 
-    def _say_what_is_left_out(self, every: Mapping[str, bool]) -> None:
+    def _say_what_is_left_out(self, every: list[str]) -> None:
         skipped = [topic for topic in every if topic not in self.topics]
         for topic in skipped:
             invalid = name_problem(topic)
