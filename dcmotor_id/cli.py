@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import os
 import platform
+import stat
 import sys
 import tempfile
 import traceback
@@ -25,6 +27,7 @@ from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excit
 from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS
 from dcmotor_id.formats.csv import write_csv
+from dcmotor_id.formats.paths import check_input_path, kind_of, same_file
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
                                         POSITION_UNITS, ReadOptions, SPEED_UNITS)
 from dcmotor_id.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES, METHODS,
@@ -63,13 +66,16 @@ def _nearest_existing(path: str) -> str:
     return path
 
 
-def check_output_path(path: str, option: str, directory: bool = False) -> None:
+def check_output_path(path: str, option: str, directory: bool = False,
+                      inputs: Sequence[str] = ()) -> None:
     """
     Refuse an output path that cannot be written, before any work is done.
 
-    A file option (``--json``) must not name a directory; for both kinds, the nearest
-    existing ancestor must be a directory in which a file can be created (tried with a
-    temporary file, which also catches read-only file systems and running as root).
+    A file option (``--json``) must not name a directory, and may only replace a regular file
+    that is not one of the ``inputs`` (never a symlink, a device, a FIFO nor a recording);
+    for both kinds, the nearest existing ancestor must be a directory in which a file can be
+    created (tried with a temporary file, which also catches read-only file systems and
+    running as root).
 
     Raises
     ------
@@ -78,6 +84,8 @@ def check_output_path(path: str, option: str, directory: bool = False) -> None:
 
     """
     target = os.path.abspath(path)
+    if not directory:
+        _check_replaceable(path, option, inputs)
     if not directory and (os.path.isdir(target) or path.endswith(os.sep)):
         raise InputDataError(f'{option} {path}: is a directory; give a file name, e.g. '
                              f'{os.path.join(path, "result.json")}')
@@ -98,6 +106,27 @@ def check_output_path(path: str, option: str, directory: bool = False) -> None:
                              f'({error.strerror or error}); choose a writable place') from None
 
 
+def _check_replaceable(path: str, option: str, inputs: Sequence[str] = ()) -> None:
+    """Refuse an output file that exists and is not a regular file, or is an input."""
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return
+    if stat.S_ISLNK(mode):
+        raise InputDataError(f'{option} {path}: is a symbolic link (to '
+                             f'{os.readlink(path)}); it is not replaced: give the path of a '
+                             'new or regular file')
+    if stat.S_ISDIR(mode):
+        return  # refused as a directory by the caller
+    if not stat.S_ISREG(mode):
+        raise InputDataError(f'{option} {path}: is {kind_of(mode)}, not a regular file; it is '
+                             'not replaced: give the path of a new or regular file')
+    twin = same_file(path, inputs)
+    if twin is not None:
+        raise InputDataError(f'{option} {path}: is the input {twin}; writing there would '
+                             'destroy the recording: give another file name')
+
+
 def write_json(path: str, result: Mapping[str, Any]) -> None:
     """
     Write the result as strict JSON, atomically.
@@ -106,6 +135,7 @@ def write_json(path: str, result: Mapping[str, Any]) -> None:
     runs never share one), then is renamed into place: a reader sees the old file or the whole
     new one, never a torn one.
     """
+    _check_replaceable(path, 'the output')
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
     handle, temporary = tempfile.mkstemp(dir=directory, suffix='.partial',
@@ -124,7 +154,7 @@ def write_json(path: str, result: Mapping[str, Any]) -> None:
 def _cmd_identify(args):
     # Every output place is checked first: a fit of minutes is never lost to a typo.
     if args.json:
-        check_output_path(args.json, '--json')
+        check_output_path(args.json, '--json', inputs=args.files)
     if args.report:
         check_output_path(args.report, '--report', directory=True)
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
@@ -210,8 +240,9 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
 
 def _cmd_validate(args):
     from dcmotor_id.validate import format_validation, load_model, validate
+    check_input_path(args.model, 'model ')
     if args.json:
-        check_output_path(args.json, '--json')
+        check_output_path(args.json, '--json', inputs=[args.model, *args.files])
     if args.report:
         check_output_path(args.report, '--report', directory=True)
     model = load_model(args.model)
@@ -232,6 +263,7 @@ def _cmd_validate(args):
 
 
 def _cmd_simulate(args):
+    check_output_path(args.out, '--out')
     params = PAPER_MOTORS[args.motor]
     t, voltage = make_excitation(args.excitation, args.duration, args.sample_period,
                                  amplitude_v=args.amplitude, frequency_hz=args.frequency,
@@ -261,6 +293,12 @@ def _cmd_simulate(args):
 def _cmd_design(args):
     from dcmotor_id import design as control_design
     from dcmotor_id.export import write_exports
+    check_input_path(args.result, 'RESULT.json ')
+    if args.json:
+        check_output_path(args.json, '--json', inputs=[args.result])
+    for option, place in (('--report', args.report), ('--export', args.export)):
+        if place:
+            check_output_path(place, option, directory=True)
     result = control_design.load_result(args.result)
     motor = control_design.motor_from_result(result, args.gear_ratio, args.output_shaft)
     options = control_design.DesignOptions(args.current_bandwidth, args.speed_bandwidth,
@@ -288,6 +326,10 @@ def _cmd_demo(args):
 def _cmd_plan(args):
     from dcmotor_id.experiment import DEFAULT_NOISE, design_experiment, load_prior
     from dcmotor_id.routines import Limits
+    if os.path.exists(args.prior) or os.path.islink(args.prior):
+        check_input_path(args.prior, '--prior ')
+    if args.json:
+        check_output_path(args.json, '--json', inputs=[args.prior])
     prior, noise = load_prior(args.prior)
     noise = dict(noise or DEFAULT_NOISE)
     noise.update({key: value for key, value in (('current', args.noise_current),
@@ -309,10 +351,14 @@ def _cmd_plan(args):
 def _cmd_fleet(args):
     from dcmotor_id.fleet import FleetOptions, run_fleet
     from dcmotor_id.fleet.progress import Progress
+    for path in args.paths:
+        check_input_path(path, 'fleet input ', directory=True)
+    check_output_path(args.history, '--history', directory=True)
     options = FleetOptions(args.motor_from, args.torque_constant, not args.no_discover,
                            args.window_s, args.min_window_s)
     summary = run_fleet(args.paths, args.history, options, scheduler=args.scheduler,
                         workers=args.workers, force=args.force,
+                        retry_errors=not args.no_retry_errors,
                         progress=None if args.quiet else Progress())
     print(summary.text())
     return 0
@@ -320,6 +366,8 @@ def _cmd_fleet(args):
 
 def _cmd_fleet_report(args):
     from dcmotor_id.fleet.report import write_fleet_report
+    check_input_path(args.history, 'HISTORY_DIR ', directory=True)
+    check_output_path(args.out, '--out', directory=True)
     print(f'report: {write_fleet_report(args.history, args.out)}')
     return 0
 
@@ -344,6 +392,9 @@ def _add_fleet_commands(commands):
     fleet.add_argument('--no-discover', action='store_true', help='skip effect discovery')
     fleet.add_argument('--force', action='store_true',
                        help='identify recordings already in the history again')
+    fleet.add_argument('--no-retry-errors', action='store_true',
+                       help='skip recordings whose rows in the history are errors (default: '
+                            'identify them again, they may have been repaired)')
     fleet.add_argument('--window-s', type=_positive, default=10.0, metavar='S',
                        help='window length [s] (default 10, as the identifier node)')
     fleet.add_argument('--min-window-s', type=_positive, metavar='S',
@@ -519,6 +570,33 @@ _ENVIRONMENT_HINTS = (
 )
 
 
+#: What to do about an error of the operating system, by errno.
+_OS_HINTS = {
+    errno.EACCES: 'permission denied: make it readable/writable for this user (chmod) or '
+                  'choose another place',
+    errno.EPERM: 'operation not permitted: choose another place or run as its owner',
+    errno.EEXIST: 'already exists and is in the way: remove it or choose another name',
+    errno.ENOENT: 'no such file or directory: check the path',
+    errno.ENOSPC: 'no space left on the device: free space or write elsewhere',
+    errno.EROFS: 'the file system is read-only: write elsewhere',
+    errno.ENOTDIR: 'a part of the path is a file, not a directory: check the path',
+    errno.EISDIR: 'is a directory: give a file',
+    errno.ELOOP: 'a symbolic link loop: give the real path',
+    errno.ENAMETOOLONG: 'the name is too long: choose a shorter path',
+}
+
+
+def os_error_message(error: OSError) -> str:
+    """Return an error of the operating system as a sentence naming the path and the fix."""
+    where = error.filename if error.filename is not None else ''
+    if error.filename2 is not None:
+        where = f'{where} -> {error.filename2}'
+    hint = _OS_HINTS.get(error.errno or 0)
+    if hint is None:
+        hint = f'{error.strerror or error}: check the path and the machine'
+    return f'{where}: {hint}' if where else hint
+
+
 def _bug_report(error: BaseException) -> str:
     """Return a short report of an unexpected exception: where it happened and versions."""
     frames = traceback.extract_tb(error.__traceback__)
@@ -548,7 +626,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'dcmotor-id: error: {error}', file=sys.stderr)
         return 2
     except OSError as error:
-        print(f'dcmotor-id: error: {error}', file=sys.stderr)
+        print(f'dcmotor-id: error: {os_error_message(error)}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print('dcmotor-id: interrupted', file=sys.stderr)
