@@ -17,6 +17,7 @@ import stat
 import sys
 import tempfile
 import traceback
+import warnings
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -25,7 +26,7 @@ from dcmotor_id.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.errors import DcMotorIdError, InputDataError
 from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excitation, quantise
 from dcmotor_id.formats import read_records
-from dcmotor_id.formats.bag import BAG_TOPICS
+from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.paths import check_input_path, kind_of, same_file
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
@@ -33,7 +34,7 @@ from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assig
 from dcmotor_id.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES, METHODS,
                                  prepare_records)
 from dcmotor_id.model import PAPER_MOTORS
-from dcmotor_id.progress import terminal_progress
+from dcmotor_id.progress import terminal_progress, TimeBudgetExceeded
 from dcmotor_id.records import Record
 from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 from dcmotor_id.summary import format_table
@@ -43,6 +44,30 @@ def load_records(paths: Sequence[str], topics: Mapping[str, str] | None = None,
                  options: ReadOptions | None = None) -> list[Record]:
     """Read every input path (CSV, .mat, rosbag2 directories, .mcap or .db3 files)."""
     return read_records(paths, topics=topics, options=options or ReadOptions())
+
+
+def load_records_reporting_loss(paths: Sequence[str], topics: Mapping[str, str] | None = None,
+                                options: ReadOptions | None = None
+                                ) -> tuple[list[Record], list[str]]:
+    """
+    Read the inputs as :func:`load_records`; return them and what was lost reading them.
+
+    A truncated or damaged bag is read as far as it can be; each loss (samples or messages,
+    of which topic, where) is printed as a warning on stderr and returned, for the result's
+    ``warnings`` and ``data_loss``.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always', TruncatedBagWarning)
+        warnings.simplefilter('always', DamagedBagWarning)
+        records = load_records(paths, topics, options)
+    loss = []
+    for item in caught:
+        if issubclass(item.category, (TruncatedBagWarning, DamagedBagWarning)):
+            loss.append(str(item.message))
+            print(f'dcmotor-id: warning: {item.message}', file=sys.stderr)
+        else:
+            warnings.showwarning(item.message, item.category, item.filename, item.lineno)
+    return records, list(dict.fromkeys(loss))
 
 
 def _json_safe(value):
@@ -160,8 +185,8 @@ def _cmd_identify(args):
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
     options = reading_options(args)
-    records = prepare_records(load_records(args.files, topics, options), args.torque_constant,
-                              args.resample, args.speed_cutoff)
+    loaded, loss = load_records_reporting_loss(args.files, topics, options)
+    records = prepare_records(loaded, args.torque_constant, args.resample, args.speed_cutoff)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
     progress = terminal_progress(args.max_time, quiet=args.quiet)
     try:
@@ -169,9 +194,16 @@ def _cmd_identify(args):
                               torque_constant=args.torque_constant,
                               discover=not args.no_discover, vocabulary=vocabulary,
                               progress=progress, initial_state=args.initial_state)
+    except TimeBudgetExceeded:
+        raise InputDataError(f'--max-time {args.max_time:g}: no fit finished within the time '
+                             'budget; give more time (e.g. --max-time 60), or shorten or '
+                             'decimate the records') from None
     finally:
         progress.close()
     result = identified.as_dict()
+    if loss:
+        result['warnings'] = loss + list(result.get('warnings') or [])
+        result['data_loss'] = loss
     if options.gear_ratio != 1.0:
         result['gear_ratio'] = options.gear_ratio
         result['output_shaft'] = output_shaft(result['parameters'], options.gear_ratio)
@@ -248,11 +280,15 @@ def _cmd_validate(args):
     model = load_model(args.model)
     options = reading_options(args)
     records = []
-    for record in load_records(args.files, options=options):
+    loaded, loss = load_records_reporting_loss(args.files, options=options)
+    for record in loaded:
         mechanical = model.torque_constant if model.mechanical_only else None
         records += prepare_records([record], mechanical, args.resample, args.speed_cutoff)
     validation = validate(model, records, args.init_samples, options.position_factor)
     result = validation.as_dict()
+    if loss:
+        result['warnings'] = loss + list(result.get('warnings') or [])
+        result['data_loss'] = loss
     if args.json:
         write_json(args.json, result)
     if args.report:

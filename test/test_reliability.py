@@ -349,3 +349,219 @@ def spin(condition, timeout_s):
             return True
         time.sleep(0.05)
     return False
+
+
+# ================================================================ issue 21: round 3 attacks
+def run_command(capsys, *args):
+    """Run any ``dcmotor-id`` command in-process; return exit code, stdout, stderr."""
+    code = cli.main([*map(str, args)])
+    captured = capsys.readouterr()
+    assert 'Traceback' not in captured.err + captured.out
+    return code, captured.out, captured.err
+
+
+def refused(capsys, *args, phrases=()):
+    """Assert exit 2 with a one-line ``dcmotor-id: error:`` naming every phrase."""
+    code, out, err = run_command(capsys, *args)
+    assert code == 2, (out, err)
+    assert err.startswith('dcmotor-id: error: '), err
+    for phrase in phrases:
+        assert phrase in err, (phrase, err)
+    return err
+
+
+# ---------------------------------------------------------------- 1. hangs
+HANG_SCRIPT = '''
+import time
+import numpy as np
+from dcmotor_id.excitation import make_excitation
+from dcmotor_id.model import MotorParameters
+from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
+from dcmotor_id.effects import parse_effect
+_, voltage = make_excitation('paper', 0.2, 1e-3)
+for cphi in (1e9, 4.6e23):
+    motor = MotorParameters(Ra=1e-300, La=0.016, CPhi=cphi, J=0.0315, b=0.3, Mc=1.0)
+    current, speed = simulate_motor(motor, voltage, 1e-3)
+    assert not np.isfinite(current[1:]).any(), current
+    current, speed, _ = simulate_motor_effects(motor, voltage, 1e-3,
+                                               [parse_effect('load_torque:torque_Nm=0.1')])
+    assert not np.isfinite(current[1:]).any(), current
+print('ended')
+'''
+
+
+def test_absurd_trial_motors_end_at_once_in_the_compiled_kernels():
+    """Ra = 0, CPhi = 4.6e23 (a wandering fit's trial point) spun for hours in _dip_time."""
+    completed = subprocess.run([sys.executable, '-c', HANG_SCRIPT], capture_output=True,
+                               text=True, timeout=240)
+    assert completed.returncode == 0 and 'ended' in completed.stdout, completed.stderr
+
+
+def test_the_normal_equations_of_an_absurd_trial_are_a_failed_step():
+    from dcmotor_id.simulation.kernels import MAX_TURN_CHUNKS, too_fast
+    a = np.array([[0.0, -4.6e23 / 0.016], [4.6e23 / 0.0315, -0.3 / 0.0315]])
+    assert too_fast(a, 2, 1e-3)
+    paper = np.array([[-1.6 / 0.016, -0.7 / 0.016], [0.7 / 0.0315, -0.3 / 0.0315]])
+    assert not too_fast(paper, 2, 1e-3) and MAX_TURN_CHUNKS >= 100
+
+
+def fifo(tmp_path, name='pipe.csv'):
+    path = tmp_path / name
+    os.mkfifo(path)
+    return path
+
+
+def loop(tmp_path, name='loop.csv'):
+    path = tmp_path / name
+    os.symlink(path, path)
+    return path
+
+
+@pytest.mark.parametrize('command', [
+    ['identify'], ['validate', 'MODEL'], ['design'], ['plan', '--prior'],
+    ['fleet', '--history', 'HISTORY']])
+@pytest.mark.parametrize('special, phrase', [
+    ('fifo', 'is a FIFO (named pipe), not a regular file'),
+    ('/dev/zero', 'is a character device, not a regular file'),
+    ('loop', 'is a symbolic link loop'),
+])
+def test_special_files_as_inputs_are_refused_by_name_without_blocking(
+        tmp_path, command, special, phrase):
+    target = {'fifo': lambda: fifo(tmp_path), 'loop': lambda: loop(tmp_path)}.get(
+        special, lambda: special)()
+    model = tmp_path / 'model.json'
+    model.write_text(json.dumps({'parameters': {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7,
+                                                'J': 0.0315, 'b': 0.3, 'Mc': 1.0}}))
+    args = [str(model) if item == 'MODEL' else str(tmp_path / 'h') if item == 'HISTORY'
+            else item for item in command] + [target]
+    completed = run_process(*args, timeout_s=120)
+    assert completed.returncode == 2, completed.stderr
+    assert str(target) in completed.stderr and phrase in completed.stderr, completed.stderr
+    assert 'no such file' not in completed.stderr
+
+
+def test_a_special_model_file_is_refused_by_name(tmp_path, capsys):
+    refused(capsys, 'validate', loop(tmp_path, 'm.json'), tmp_path / 'x.csv',
+            phrases=['m.json: is a symbolic link loop'])
+
+
+def test_a_special_file_inside_a_bag_directory_is_refused(tmp_path, capsys):
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    (bag / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+    os.mkfifo(bag / 'bag_0.mcap')
+    refused(capsys, 'identify', bag, phrases=['bag_0.mcap: is a FIFO'])
+
+
+# ---------------------------------------------------------------- 3. data lost or corrupted
+@pytest.mark.parametrize('make', ['symlink', 'device', 'input'])
+def test_json_never_replaces_a_link_a_device_or_an_input(table, tmp_path, capsys, monkeypatch,
+                                                         make):
+    monkeypatch.setattr(cli, 'identify', lambda *a, **k: pytest.fail('the fit ran'))
+    data = write(tmp_path / 'good.csv', HEADER, table)
+    before = open(data, 'rb').read()
+    if make == 'symlink':
+        (tmp_path / 'elsewhere.json').write_text('{"keep": 1}')
+        os.symlink(tmp_path / 'elsewhere.json', tmp_path / 'r.json')
+        target, phrase = tmp_path / 'r.json', 'is a symbolic link'
+    elif make == 'device':
+        target, phrase = '/dev/null', 'is a character device, not a regular file'
+    else:
+        target, phrase = data, 'is the input'
+    err = refused(capsys, 'identify', data, '--json', target, phrases=[str(target), phrase])
+    assert 'give' in err
+    assert open(data, 'rb').read() == before
+    if make == 'symlink':
+        assert os.path.islink(tmp_path / 'r.json')
+        assert (tmp_path / 'elsewhere.json').read_text() == '{"keep": 1}'
+
+
+def test_design_and_plan_check_their_outputs_before_the_work(tmp_path, capsys, monkeypatch):
+    from dcmotor_id import design as control_design
+    from dcmotor_id import experiment
+    model = tmp_path / 'model.json'
+    model.write_text(json.dumps({'parameters': {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7,
+                                                'J': 0.0315, 'b': 0.3, 'Mc': 1.0},
+                                 'mode': 'full'}))
+    monkeypatch.setattr(control_design, 'design', lambda *a: pytest.fail('designed'))
+    monkeypatch.setattr(experiment, 'design_experiment', lambda *a: pytest.fail('planned'))
+    os.symlink(tmp_path / 'x', tmp_path / 'link.json')
+    refused(capsys, 'design', model, '--json', model, phrases=['is the input'])
+    refused(capsys, 'design', model, '--json', tmp_path / 'link.json',
+            phrases=['is a symbolic link'])
+    (tmp_path / 'file').write_text('x')
+    refused(capsys, 'design', model, '--export', tmp_path / 'file',
+            phrases=['--export', 'is not a directory'])
+    refused(capsys, 'plan', '--prior', model, '--json', model, phrases=['is the input'])
+    refused(capsys, 'plan', '--json', '/dev/null', phrases=['character device'])
+    assert json.loads(model.read_text())['mode'] == 'full'
+
+
+def test_the_same_recording_twice_is_refused(table, tmp_path, capsys):
+    data = write(tmp_path / 'good.csv', HEADER, table)
+    os.link(data, tmp_path / 'hard.csv')
+    refused(capsys, 'identify', data, data, phrases=['given twice'])
+    refused(capsys, 'identify', data, tmp_path / 'hard.csv', phrases=['the same file as'])
+
+
+def damaged_bag(tmp_path, at):
+    from dcmotor_id.formats.bag import write_bag
+    from support import motor_samples
+    stamps, channels = motor_samples(6.0)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    mcap = tmp_path / 'bag' / 'bag.mcap'
+    data = bytearray(mcap.read_bytes())
+    position = int(len(data) * at)
+    data[position:position + 16] = b'\xff' * 16
+    mcap.write_bytes(bytes(data))
+    return tmp_path / 'bag'
+
+
+def test_a_damaged_mcap_reports_the_lost_samples_in_the_json(tmp_path, capsys):
+    bag = damaged_bag(tmp_path, 0.4)   # a message of /current overwritten mid-file
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', bag, '--no-discover', '--json', out)
+    assert code == 0, err
+    assert 'dcmotor-id: warning: ' in err and 'the bag is damaged' in err
+    result = json.loads(out.read_text())
+    loss = result['data_loss']
+    assert loss and '1 of 6000 messages of /current lost' in loss[0]
+    assert 'after t = ' in loss[0] and loss[0] in result['warnings']
+
+
+def test_a_bag_damaged_before_its_first_message_is_refused_saying_so(tmp_path, capsys):
+    bag = damaged_bag(tmp_path, 0.2)
+    refused(capsys, 'identify', bag, phrases=['has no messages that could be read',
+                                              'the bag is damaged', 'reading stopped',
+                                              'repair'])
+
+
+def test_fleet_marks_the_rows_of_a_damaged_bag(tmp_path):
+    from dcmotor_id.fleet.sources import Source
+    from dcmotor_id.fleet.tasks import FleetOptions, identify_window, read_windows
+    bag = damaged_bag(tmp_path, 0.4)
+    windows = read_windows(Source(str(bag), str(tmp_path), 'bag'), FleetOptions(
+        discover=False, window_s=3.0))
+    assert windows.data_loss and windows.windows
+    row = identify_window(windows, 0, FleetOptions(discover=False, window_s=3.0))
+    assert '1 of 6000 messages of /current lost' in row['data_loss']
+
+
+def test_fleet_report_gives_colliding_motor_names_their_own_plots():
+    from dcmotor_id.fleet.report import unique_names
+    names = unique_names(['cell/7', 'cell_7', 'Cell_7', 'site/m1', 'other'])
+    assert len(set(names.values())) == 5 and len({n.lower() for n in names.values()}) == 5
+    assert names['site/m1'] == 'site_m1' and names['other'] == 'other'
+    assert names['cell/7'].startswith('cell_7-') and names['cell_7'].startswith('cell_7-')
+
+
+def test_a_garbage_part_file_in_the_history_is_skipped_and_named(tmp_path, capsys):
+    from dcmotor_id.fleet.history import read_history, result_row, write_rows
+    row = dict(result_row({'parameters': {'Ra': 1.0}, 'method': 'refined'}), motor_id='m',
+               source_bag='/a', run_id='r1')
+    write_rows(str(tmp_path), [row], 'r1')
+    (tmp_path / 'part-garbage.parquet').write_bytes(b'PAR1 not really' * 10)
+    table = read_history(str(tmp_path))
+    assert table.num_rows == 1
+    err = capsys.readouterr().err
+    assert 'part-garbage.parquet: not a readable fleet history file' in err and 'skipped' in err

@@ -238,15 +238,15 @@ def unique_names(motor_ids: Sequence[str]) -> dict[str, str]:
     """
     Map motor ids to file and anchor names that never collide.
 
-    An id that is already a safe name and unique (ignoring case: file systems that fold
-    case) keeps it; any other gets a digest of the id appended, so ``cell/7`` and ``cell_7``
-    get two plots, not one.
+    The safe name of an id (``site/m1`` -> ``site_m1``) is kept while no other id shares it,
+    ignoring case (file systems that fold case); the ids that share one each get a digest of
+    the id appended, so ``cell/7`` and ``cell_7`` get two plots, not one.
     """
     safe = {motor: _safe_name(motor) for motor in motor_ids}
     folded: dict[str, int] = {}
     for name in safe.values():
         folded[name.lower()] = folded.get(name.lower(), 0) + 1
-    return {motor: name if name == motor and folded[name.lower()] == 1 else
+    return {motor: name if folded[name.lower()] == 1 else
             f'{name}-{hashlib.sha1(motor.encode()).hexdigest()[:8]}'
             for motor, name in safe.items()}
 

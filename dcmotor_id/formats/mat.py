@@ -30,10 +30,15 @@ def _is_hdf5(path: PathLike) -> bool:
 
 def _load_v5(path: PathLike) -> Callable[[str], Any]:
     from scipy.io import loadmat
+    if os.path.getsize(path) == 0:
+        raise InputDataError(f'{path}: the file is empty; give a MATLAB file with the record')
     try:
         data = loadmat(path)
-    except (ValueError, TypeError, OSError, NotImplementedError) as error:
-        raise InputDataError(f'{path}: not a readable MATLAB file ({error})') from None
+    except MemoryError:
+        raise
+    except Exception as error:  # noqa: BLE001  (MatReadError, ValueError, zlib, struct ...)
+        raise InputDataError(f'{path}: not a readable MATLAB file ({error}); it is damaged or '
+                             'truncated: save it again in MATLAB') from None
     variables = {key: value for key, value in data.items() if not key.startswith('__')}
 
     def get(name: str) -> Any:
@@ -49,7 +54,11 @@ def _load_v73(path: PathLike) -> tuple[Callable[[str], Any], Any]:
         raise InputDataError(
             f'{path}: a MATLAB v7.3 (HDF5) file; reading it needs h5py: pip install h5py, or '
             "save the file as version 5 in MATLAB (save(..., '-v7'))") from None
-    handle = h5py.File(path, 'r')
+    try:
+        handle = h5py.File(path, 'r')
+    except Exception as error:  # noqa: BLE001  (OSError, ValueError of a damaged HDF5 file)
+        raise InputDataError(f'{path}: not a readable MATLAB v7.3 (HDF5) file ({error}); it is '
+                             'damaged or truncated: save it again in MATLAB') from None
 
     def get(name: str) -> Any:
         if name not in handle:
