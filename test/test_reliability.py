@@ -565,3 +565,113 @@ def test_a_garbage_part_file_in_the_history_is_skipped_and_named(tmp_path, capsy
     assert table.num_rows == 1
     err = capsys.readouterr().err
     assert 'part-garbage.parquet: not a readable fleet history file' in err and 'skipped' in err
+
+
+# ---------------------------------------------------------------- 5. internal errors
+def model_file(tmp_path, name='model.json', **changes):
+    parameters = {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7, 'J': 0.0315, 'b': 0.3, 'Mc': 1.0}
+    effects = changes.pop('effects', [])
+    parameters.update(changes)
+    path = tmp_path / name
+    path.write_text(json.dumps({'parameters': parameters, 'mode': 'full', 'effects': effects}))
+    return path
+
+
+@pytest.mark.parametrize('changes, phrases', [
+    ({'effects': [{'name': 'load_torque', 'parameters': {'torque_Nm': 'abc'}}]},
+     ['parameter torque_Nm is "abc", not a finite number']),
+    ({'J': 1e-300}, ['cannot be simulated on this record', 'mechanical 1.65e-300 s']),
+    ({'J': True}, ['parameter J is True']),
+])
+def test_validate_refuses_bad_model_files_by_name(table, tmp_path, capsys, changes, phrases):
+    data = write(tmp_path / 'good.csv', HEADER, table)
+    refused(capsys, 'validate', model_file(tmp_path, **changes), data, phrases=phrases)
+
+
+def test_validate_on_a_record_of_1000_s_steps_ends_with_a_message(table, tmp_path, capsys):
+    rows = table[:200].copy()
+    rows[:, 0] *= 1e6
+    data = write(tmp_path / 'slow.csv', HEADER, rows)
+    refused(capsys, 'validate', model_file(tmp_path), data,
+            phrases=['sample period 1e+03 s', 'time column'])
+
+
+def test_a_tiny_time_budget_is_a_message_not_a_bug(table, tmp_path, capsys):
+    data = write(tmp_path / 'good.csv', HEADER, table)
+    refused(capsys, 'identify', data, '--max-time', '1e-9',
+            phrases=['--max-time 1e-09', 'give more time'])
+
+
+@pytest.mark.parametrize('content, phrase', [
+    (b'', 'the file is empty'),
+    (b'MATLAB 5.0 MAT-file' + b' ' * 100 + b'\x00\x01IM' + b'\x0e\x00\x00\x00\xff\xff\x00',
+     'not a readable MATLAB file'),
+])
+def test_empty_and_truncated_mat_files_are_refused(tmp_path, capsys, content, phrase):
+    path = tmp_path / 'x.mat'
+    path.write_bytes(content)
+    refused(capsys, 'identify', path, phrases=[str(path), phrase])
+
+
+@pytest.mark.parametrize('payload', [b'', b'\x00\x01\x00\x00\x01', b'\xff' * 3])
+def test_malformed_cdr_payloads_end_as_a_message(tmp_path, capsys, payload):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    path = tmp_path / 'bag'
+    with Writer(path, version=9) as writer:
+        topics = {name: writer.add_connection(f'/{name}', 'std_msgs/msg/Float64',
+                                              typestore=typestore)
+                  for name in ('voltage', 'current', 'speed')}
+        good = typestore.serialize_cdr(typestore.types['std_msgs/msg/Float64'](data=1.0),
+                                       'std_msgs/msg/Float64')
+        for k in range(50):
+            for name, connection in topics.items():
+                data = payload if name == 'current' and k % 2 else good
+                writer.write(connection, 10 ** 9 + k * 10 ** 6, bytes(data))
+    code, _, err = run_command(capsys, 'identify', path, '--no-discover')
+    assert code == 2 and 'not valid std_msgs/msg/Float64' in err, err
+    assert '/current' in err and '25 of 50 messages' in err
+
+
+def test_a_batch_topic_with_garbage_payloads_is_refused_naming_it(tmp_path, capsys):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores
+    from dcmotor_id.formats.batch import BATCH_TYPE
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    path = tmp_path / 'bag'
+    with Writer(path, version=9) as writer:
+        connection = writer.add_connection('/samples', BATCH_TYPE, typestore=typestore)
+        writer.write(connection, 10 ** 9, b'\x00\x01\x00\x00' + b'\xff' * 40)
+    refused(capsys, 'identify', path, phrases=['/samples', 'not a valid', 're-record'])
+
+
+def test_os_errors_name_the_path_and_the_fix(tmp_path):
+    error = PermissionError(13, 'Permission denied', str(tmp_path / 'x.json'))
+    text = cli.os_error_message(error)
+    assert str(tmp_path / 'x.json') in text and 'chmod' in text and 'Errno' not in text
+    text = cli.os_error_message(FileExistsError(17, 'File exists', 'out'))
+    assert text.startswith('out: ') and 'remove it or choose another name' in text
+
+
+@pytest.mark.parametrize('parameters, phrase', [
+    ({'Ra': True}, 'Ra = true (a bool, not a number)'),
+    ({'Ra': None, 'La': None, 'CPhi': None}, 'Ra = null'),
+    ({'La': '0.016'}, 'La = "0.016" (a str, not a number)'),
+])
+def test_design_refuses_mistyped_and_nan_electrical_parameters(tmp_path, capsys, parameters,
+                                                                phrase):
+    values = {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7, 'J': 0.0315, 'b': 0.3, 'Mc': 1.0}
+    values.update(parameters)
+    path = tmp_path / 'result.json'
+    path.write_text(json.dumps({'parameters': values, 'mode': 'full'}))
+    refused(capsys, 'design', path, phrases=[phrase, 'Identify the motor again'])
+
+
+def test_design_says_which_design_it_makes(tmp_path, capsys):
+    path = tmp_path / 'result.json'
+    path.write_text(json.dumps({'parameters': {'J': 0.0315, 'b': 0.3, 'Mc': 1.0},
+                                'mode': 'mechanical', 'torque_constant': 0.7}))
+    code, out, err = run_command(capsys, 'design', path)
+    assert code == 0, err
+    assert 'mode mechanical (speed loop only, on an ideal torque source' in out

@@ -416,8 +416,8 @@ class RefinedEstimator:
 
         def evaluate(z, noise, with_sens):
             values, states, theta = unpack(z)
-            if not np.all(np.isfinite(theta)) or _absurd(values, model.base_names):
-                return _Pass(np.inf)  # a failed step: the LM raises its damping
+            if not np.all(np.isfinite(theta)):
+                return _Pass(np.inf)
             try:
                 with np.errstate(all='ignore'):
                     if analytic:
@@ -547,11 +547,6 @@ class RefinedEstimator:
             raise FitError('no admissible start point for the output-error fit: the data do '
                            'not look like a DC motor (check signs and units of the columns)')
         return best
-
-
-def _absurd(values, names):
-    """Whether a trial point has a positive parameter beyond any motor (a failed LM step)."""
-    return any(name in POSITIVE_NAMES and not 1e-200 < values[name] < 1e200 for name in names)
 
 
 def _analytic_pass(equations, values, states, noise, chain, with_sens, outputs):
