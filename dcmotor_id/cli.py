@@ -26,6 +26,7 @@ from dcmotor_id.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.errors import DcMotorIdError, InputDataError
 from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excitation, quantise
 from dcmotor_id.formats import read_records
+from dcmotor_id.formats.budget import check_budget, DEFAULT_BUDGET_BYTES, set_memory_budget
 from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.paths import check_input_path, kind_of, same_file
@@ -231,6 +232,7 @@ def _cmd_identify(args):
 
 def reading_options(args: argparse.Namespace) -> ReadOptions:
     """Return the :class:`ReadOptions` of the reading options (identify, validate)."""
+    set_memory_budget(args.memory_budget * 1e9)
     return ReadOptions(
         columns=parse_assignments(args.column, '--column'), current_unit=args.current_unit,
         speed_unit=args.speed_unit, speed_counts_per_rev=args.speed_counts_per_rev,
@@ -268,6 +270,13 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
                             'its field (position, velocity, effort; default velocity as speed, '
                             'position; the current from effort only with current=effort), the '
                             'other channels from their Float64 topics; repeatable')
+    _add_memory_budget(group)
+
+
+def _add_memory_budget(group: Any) -> None:
+    group.add_argument('--memory-budget', type=_positive, default=DEFAULT_BUDGET_BYTES / 1e9,
+                       metavar='GB', help='largest allocation a file may ask for, estimated '
+                       'before reading (default %(default)g GB); larger files are refused')
 
 
 def _cmd_validate(args):
@@ -366,6 +375,11 @@ def _cmd_plan(args):
         check_input_path(args.prior, '--prior ')
     if args.json:
         check_output_path(args.json, '--json', inputs=[args.prior])
+    set_memory_budget(args.memory_budget * 1e9)
+    samples = args.duration / args.sample_period
+    check_budget(PLAN_BYTES_PER_SAMPLE * samples, f'--duration {args.duration:g}',
+                 f'{samples:.3g} samples at --sample-period {args.sample_period:g} s',
+                 'else give a shorter --duration or a longer --sample-period')
     prior, noise = load_prior(args.prior)
     noise = dict(noise or DEFAULT_NOISE)
     noise.update({key: value for key, value in (('current', args.noise_current),
@@ -382,6 +396,10 @@ def _cmd_plan(args):
         write_json(args.json, plan.as_dict())
         print(f'plan written to {args.json} (exciter -p plan_file:={args.json})')
     return 0
+
+
+#: Peak memory of ``plan`` per simulated sample [bytes] (measured: 190 B, rounded up).
+PLAN_BYTES_PER_SAMPLE = 200.0
 
 
 def _cmd_fleet(args):
@@ -584,6 +602,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help='share of the current/speed limits the simulation may reach')
     plan.add_argument('--seed', type=int, default=0)
     plan.add_argument('--json', metavar='OUT', help='write the plan here (exciter plan_file)')
+    _add_memory_budget(plan)
     plan.set_defaults(handler=_cmd_plan)
 
     demo = commands.add_parser('demo', help='simulate motor 2 and identify it with both methods')

@@ -22,6 +22,7 @@ import warnings
 import numpy as np
 
 from dcmotor_id.errors import InputDataError
+from dcmotor_id.formats.budget import check_budget
 from dcmotor_id.formats.batch import (BATCH_CHANNELS, batch_message, BATCH_TYPE, BatchTypes,
                                       decode_batch_message)
 from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
@@ -142,26 +143,41 @@ class _RosbagsSource:
         for connection in connections:
             declared[connection.topic] = declared.get(connection.topic, 0) + int(
                 getattr(connection, 'msgcount', 0) or 0)
-        counts = dict.fromkeys(declared, 0)
-        first = last = None
+        seen: dict[str, list[int]] = {topic: [] for topic in declared}
         stopped = ''
         try:
             for connection, stamp, data in self._reader.messages(connections=connections):
-                counts[connection.topic] += 1
-                first = int(stamp) if first is None else first
-                last = int(stamp)
+                seen[connection.topic].append(int(stamp))
                 yield connection.topic, int(stamp), bytes(data)
         except Exception as error:  # noqa: BLE001  (rosbags raises anything on damaged bytes)
             stopped = f'reading stopped ({type(error).__name__}: {error}); '
-        lost = {topic: declared[topic] - counts[topic] for topic in declared
-                if declared[topic] > counts[topic]}
+        lost = {topic: declared[topic] - len(seen[topic]) for topic in declared
+                if declared[topic] > len(seen[topic])}
         if stopped or lost:
-            where = ('after t = %.3f s of the recording' % ((last - first) * 1e-9)
-                     if first is not None and last is not None else 'before the first message')
-            self.damage.append(
-                f'the bag is damaged: {stopped}' + ', '.join(
-                    f'{count} of {declared[topic]} messages of {topic} lost'
-                    for topic, count in sorted(lost.items())) + f' ({where})')
+            starts = [stamps[0] for stamps in seen.values() if stamps]
+            origin = min(starts) if starts else 0
+            self.damage.append(f'the bag is damaged: {stopped}' + ', '.join(
+                f'{count} of {declared[topic]} messages of {topic} lost '
+                f'({_gaps(seen[topic], origin)})' for topic, count in sorted(lost.items())))
+
+
+def _gaps(stamps: list[int], origin: int, shown: int = 3) -> str:
+    """Say where a topic's messages are missing: its widest gaps, in s from ``origin``."""
+    if not stamps:
+        return 'none of them could be read'
+    times = np.asarray(stamps, dtype=np.int64)
+    if times.size < 3:
+        return f'only {times.size} read, up to t = {(times[-1] - origin) * 1e-9:.3f} s'
+    steps = np.diff(times)
+    typical = float(np.median(steps))
+    wide = np.flatnonzero(steps > 1.5 * typical)
+    if wide.size == 0:
+        return f'after t = {(times[-1] - origin) * 1e-9:.3f} s of the recording'
+    wide = wide[np.argsort(-steps[wide], kind='stable')][:shown]
+    return 'missing ' + ', '.join(
+        f'between t = {(times[k] - origin) * 1e-9:.3f} s and {(times[k + 1] - origin) * 1e-9:.3f}'
+        ' s' for k in sorted(wide)) + (' and elsewhere' if np.sum(
+            steps > 1.5 * typical) > shown else '')
 
 
 class _RecoveredSource:
@@ -267,6 +283,35 @@ def _recover_mcap(files: list[str], reason: str) -> Optional[_RecoveredSource]:
     return _RecoveredSource(topics, messages, recovery, definitions)
 
 
+def _check_mcap_budget(files: list[str]) -> None:
+    """
+    Refuse MCAP files whose chunks decompress beyond the memory budget, before reading them.
+
+    A chunk is decompressed whole (545 KB of zstd declared 3 GB): its declared uncompressed
+    size, from the summary at the end of the file, is checked against the budget, as is the
+    total of the chunks (the messages read are kept). Files without a summary (truncated)
+    are left to the recovery, which reads them whole (bounded by their size on disk).
+    """
+    from mcap.reader import SeekingReader
+    total = 0.0
+    for name in files:
+        try:
+            with open(name, 'rb') as stream:
+                summary = SeekingReader(stream).get_summary()
+        except Exception:  # noqa: BLE001, S112  (no or damaged summary: the recovery's case)
+            continue
+        if summary is None:
+            continue
+        for index in summary.chunk_indexes:
+            check_budget(float(index.uncompressed_size), name,
+                         f'a {index.compression or "uncompressed"} chunk of '
+                         f'{index.compressed_size} bytes declaring {index.uncompressed_size} '
+                         'bytes')
+            total += float(index.uncompressed_size)
+    if files:
+        check_budget(total, ', '.join(files), 'chunks totalling this many bytes')
+
+
 @contextmanager
 def open_bag(path: PathLike) -> Iterator[MessageSource]:
     """
@@ -292,6 +337,7 @@ def open_bag(path: PathLike) -> Iterator[MessageSource]:
     if not os.path.exists(path):
         raise InputDataError(f'{path}: no such file or directory; give a CSV file, a rosbag2 '
                              'directory or a .mcap file')
+    _check_mcap_budget(_mcap_files(path))
     try:
         reader = Reader(path)
         reader.open()
