@@ -22,6 +22,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from dcmotor_id.dropouts import repair_all
 from dcmotor_id.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.errors import DcMotorIdError, InputDataError
 from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excitation, quantise
@@ -187,7 +188,10 @@ def _cmd_identify(args):
               'speed': args.speed_topic, 'samples': args.samples_topic}
     options = reading_options(args)
     loaded, loss = load_records_reporting_loss(args.files, topics, options)
-    records = prepare_records(loaded, args.torque_constant, args.resample, args.speed_cutoff)
+    records, repairs = repair_all(prepare_records(loaded, args.torque_constant, args.resample,
+                                                  args.speed_cutoff))
+    for note in repairs:
+        print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
     progress = terminal_progress(args.max_time, quiet=args.quiet)
     try:
@@ -202,8 +206,9 @@ def _cmd_identify(args):
     finally:
         progress.close()
     result = identified.as_dict()
+    if loss or repairs:
+        result['warnings'] = loss + repairs + list(result.get('warnings') or [])
     if loss:
-        result['warnings'] = loss + list(result.get('warnings') or [])
         result['data_loss'] = loss
     if options.gear_ratio != 1.0:
         result['gear_ratio'] = options.gear_ratio

@@ -39,6 +39,7 @@ from dcmotor_id.records import check_record
 from dcmotor_id.residuals import (ChannelErrors, model_errors, output_channels,
                                   simulate_records, simulation_error_pct)
 from dcmotor_id.signals import noise_std, speed_from_position
+from dcmotor_id.units_check import unit_warnings
 
 if TYPE_CHECKING:
     from dcmotor_id.effects import Effect
@@ -499,6 +500,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
     warnings += [text for text in check_plausibility(final.parameters, final.stderr, records,
                                                      torque_constant)
                  if not any(text.startswith(f'{name} = ') for name in not_identifiable)]
+    warnings += unit_warnings(final.parameters, records, mechanical_only)
     if not useful(list(parameters), not_identifiable, mechanical_only):
         raise NotIdentifiableError(
             'nothing useful is identifiable from these data: '
