@@ -17,8 +17,8 @@ import stat
 import sys
 import tempfile
 import traceback
-import warnings
 from typing import Any, Mapping, Sequence
+import warnings
 
 import numpy as np
 
@@ -27,12 +27,12 @@ from dcmotor_id.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.errors import DcMotorIdError, InputDataError
 from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excitation, quantise
 from dcmotor_id.formats import read_records
-from dcmotor_id.formats.budget import check_budget, DEFAULT_BUDGET_BYTES, set_memory_budget
 from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
+from dcmotor_id.formats.budget import check_budget, DEFAULT_BUDGET_BYTES, set_memory_budget
 from dcmotor_id.formats.csv import write_csv
-from dcmotor_id.formats.paths import check_input_path, kind_of, same_file
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
                                         POSITION_UNITS, ReadOptions, SPEED_UNITS)
+from dcmotor_id.formats.paths import check_input_path, kind_of, same_file
 from dcmotor_id.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES, METHODS,
                                  prepare_records)
 from dcmotor_id.model import PAPER_MOTORS

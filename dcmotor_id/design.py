@@ -173,7 +173,7 @@ def load_result(path: str) -> dict:
 
 
 def _number(value: Any) -> float:
-    """A JSON number as a float; anything else (``true``, ``"1.6"``, null) is NaN."""
+    """Return a JSON number as a float; anything else (``true``, ``"1.6"``, null) is NaN."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return float('nan')
     return float(value)

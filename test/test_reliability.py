@@ -371,7 +371,7 @@ def refused(capsys, *args, phrases=()):
 
 
 # ---------------------------------------------------------------- 1. hangs
-HANG_SCRIPT = '''
+HANG_SCRIPT = """
 import time
 import numpy as np
 from dcmotor_id.excitation import make_excitation
@@ -387,7 +387,7 @@ for cphi in (1e9, 4.6e23):
                                                [parse_effect('load_torque:torque_Nm=0.1')])
     assert not np.isfinite(current[1:]).any(), current
 print('ended')
-'''
+"""
 
 
 def test_absurd_trial_motors_end_at_once_in_the_compiled_kernels():
@@ -662,7 +662,7 @@ def test_os_errors_name_the_path_and_the_fix(tmp_path):
     ({'La': '0.016'}, 'La = "0.016" (a str, not a number)'),
 ])
 def test_design_refuses_mistyped_and_nan_electrical_parameters(tmp_path, capsys, parameters,
-                                                                phrase):
+                                                               phrase):
     values = {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7, 'J': 0.0315, 'b': 0.3, 'Mc': 1.0}
     values.update(parameters)
     path = tmp_path / 'result.json'
@@ -677,3 +677,123 @@ def test_design_says_which_design_it_makes(tmp_path, capsys):
     code, out, err = run_command(capsys, 'design', path)
     assert code == 0, err
     assert 'mode mechanical (speed loop only, on an ideal torque source' in out
+
+
+# ---------------------------------------------------------------- 4. silent nonsense
+@pytest.mark.parametrize('column, factor, phrase, parameter, wrong', [
+    (1, 1e3, 'the voltage looks like millivolts', 'Ra', 1600.0),
+    (0, 1e3, 'the time looks like milliseconds', 'La', 16.0),
+    (2, 1e3, 'the current looks like milliamperes', 'Ra', 1.6e-3),
+])
+def test_units_off_by_1000_are_named_in_the_warnings(table, tmp_path, capsys, column, factor,
+                                                     phrase, parameter, wrong):
+    rows = table.copy()
+    rows[:, column] *= factor
+    out = tmp_path / 'r.json'
+    code, stdout, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, rows),
+                                    '--no-discover', '--json', out)
+    assert code == 0, err
+    result = json.loads(out.read_text())
+    assert result['parameters'][parameter] == pytest.approx(wrong, rel=0.01)
+    assert any(phrase in text for text in result['warnings']), result['warnings']
+    assert phrase in stdout
+
+
+def test_si_data_get_no_unit_warning(table, tmp_path, capsys):
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, table),
+                               '--no-discover', '--json', out)
+    assert code == 0, err
+    assert not any('looks like' in text for text in json.loads(out.read_text())['warnings'])
+
+
+@pytest.mark.parametrize('bad', [0.0, 1e-300])
+def test_current_dropouts_are_named_and_fitted_without(table, tmp_path, capsys, bad):
+    rows = table.copy()
+    rows[100 + 97 * np.arange(30), 2] = bad
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, rows),
+                               '--no-discover', '--json', out)
+    assert code == 0, err
+    result = json.loads(out.read_text())
+    assert result['parameters']['Ra'] == pytest.approx(1.6, rel=0.01)
+    assert not any('current limit' in text for text in result['warnings'])
+    note = [text for text in result['warnings'] if 'isolated dropout' in text]
+    assert note and 'the current has 30 isolated dropout(s) to zero' in note[0]
+    assert 'sample 100' in note[0] and 'check the sensor' in err
+
+
+def test_clean_excitations_have_no_isolated_samples():
+    from dcmotor_id.dropouts import find_isolated
+    from dcmotor_id.excitation import EXCITATION_KINDS, make_excitation
+    from test_bad_input import simulate
+    for kind in EXCITATION_KINDS:
+        rows = simulate(make_excitation(kind, 3.0, 1e-3)[1])
+        assert find_isolated(rows[:, 2], rows[:, 1]).size == 0, kind
+        assert find_isolated(rows[:, 3], rows[:, 1]).size == 0, kind
+
+
+def test_a_parquet_time_column_typed_as_timestamp_is_read_in_seconds(table, tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from dcmotor_id.formats import read_record
+    stamps = (1_700_000_000_000_000_000 + table[:, 0] * 1e9).astype(np.int64)
+    pq.write_table(pa.table({'t': pa.array(stamps, pa.timestamp('ns')),
+                             'voltage': table[:, 1], 'current': table[:, 2],
+                             'speed': table[:, 3]}), tmp_path / 'x.parquet')
+    record = read_record(tmp_path / 'x.parquet')
+    assert record.sample_period_s == pytest.approx(1e-3, rel=1e-6)
+    assert record.time_s[0] == 0.0
+
+
+# ---------------------------------------------------------------- 2. memory before allocation
+def test_a_v73_mat_declaring_3e9_values_is_refused_before_reading(tmp_path, capsys):
+    h5py = pytest.importorskip('h5py')
+    path = tmp_path / 'big.mat'
+    with h5py.File(path, 'w', userblock_size=512) as handle:
+        for name in ('t', 'voltage', 'current', 'speed'):
+            handle.create_dataset(name, shape=(1, 3_000_000_000), dtype='f8', chunks=(1, 1000),
+                                  compression='gzip')
+    assert path.stat().st_size < 100_000
+    refused(capsys, 'identify', path, phrases=[
+        "variable 't' of shape (3000000000, 1)", '24 GB', '--memory-budget'])
+
+
+def test_a_v5_mat_reads_only_the_channels(tmp_path):
+    from scipy.io import savemat
+    from dcmotor_id.formats.mat import _load_v5
+    savemat(tmp_path / 'x.mat', {'t': np.arange(10.0), 'junk': np.zeros((5, 5))})
+    get = _load_v5(tmp_path / 'x.mat', {'t'})
+    assert get('t') is not None and get('junk') is None and 'junk' in get.names
+
+
+def test_a_parquet_of_many_rows_is_refused_before_reading(tmp_path, capsys):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    t = np.arange(200_000) * 1e-3
+    pq.write_table(pa.table({'t': t, 'voltage': t, 'current': t, 'speed': t}),
+                   tmp_path / 'x.parquet')
+    refused(capsys, 'identify', tmp_path / 'x.parquet', '--memory-budget', '0.001',
+            phrases=['200000 rows of 4 columns', 'beyond the memory budget of 0.001 GB'])
+
+
+def test_a_zstd_mcap_chunk_decompressing_beyond_the_budget_is_refused(tmp_path, capsys):
+    from dcmotor_id.formats.bag import write_bag
+    from support import motor_samples
+    stamps, channels = motor_samples(2.0)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    refused(capsys, 'identify', tmp_path / 'bag', '--memory-budget', '0.0001',
+            phrases=['bag.mcap', 'chunk of', 'declaring', '--memory-budget'])
+
+
+def test_a_nul_padded_csv_is_refused_in_bounded_memory(table, tmp_path, capsys):
+    path = write(tmp_path / 'padded.csv', HEADER, table)
+    os.truncate(path, 2 * 10 ** 9)   # sparse: 2 GB of NUL bytes after the data
+    refused(capsys, 'identify', path, phrases=['a NUL byte at byte', 'remove the padding'])
+
+
+def test_plan_refuses_a_duration_beyond_the_budget_at_once(capsys):
+    started = time.monotonic()
+    refused(capsys, 'plan', '--duration', '1e6', phrases=[
+        '--duration 1e+06', '1e+09 samples', '--memory-budget', 'shorter --duration'])
+    assert time.monotonic() - started < 5

@@ -18,8 +18,8 @@ from typing import Iterable, Mapping, Optional
 from dcmotor_id.errors import InputDataError
 from dcmotor_id.formats import BAG_SUFFIXES, detect_format
 from dcmotor_id.formats.bag import FLOAT64_TYPE, PARTIAL_PREFIX
-from dcmotor_id.formats.paths import check_input_path
 from dcmotor_id.formats.batch import BATCH_TYPE
+from dcmotor_id.formats.paths import check_input_path
 
 #: Last name component of each stream of a motor, as the identifier node names them.
 CHANNEL_TOPICS = ('voltage', 'current', 'speed')

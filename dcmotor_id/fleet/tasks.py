@@ -195,6 +195,7 @@ def identify_window(bag: BagWindows, index: int, options: FleetOptions) -> dict[
     long it ran.
     """
     from dcmotor_id.fleet.history import error_row, result_row
+    from dcmotor_id.dropouts import repair_all
     from dcmotor_id.identify import identify, prepare_records
 
     window = bag.windows[index]
@@ -202,7 +203,10 @@ def identify_window(bag: BagWindows, index: int, options: FleetOptions) -> dict[
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
         try:
-            records = prepare_records([window.record], options.torque_constant)
+            records, repairs = repair_all(prepare_records([window.record],
+                                                          options.torque_constant))
+            for note in repairs:
+                warnings.warn(note)
             result = identify(records, torque_constant=options.torque_constant,
                               discover=options.discover)
             row = result_row(result.as_dict())

@@ -22,9 +22,9 @@ import warnings
 import numpy as np
 
 from dcmotor_id.errors import InputDataError
-from dcmotor_id.formats.budget import check_budget
 from dcmotor_id.formats.batch import (BATCH_CHANNELS, batch_message, BATCH_TYPE, BatchTypes,
                                       decode_batch_message)
+from dcmotor_id.formats.budget import check_budget
 from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
 from dcmotor_id.records import PathLike, Record, record_from_stamps
 

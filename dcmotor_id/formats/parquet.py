@@ -21,7 +21,7 @@ PARQUET_SUFFIXES = ('.parquet', '.pq')
 
 
 def _seconds(column: Any) -> np.ndarray:
-    """A timestamp, duration or date column as seconds from its first value (float)."""
+    """Return a timestamp, duration or date column in seconds from its first value."""
     import pyarrow
     import pyarrow.compute as pc
     nanoseconds = pc.cast(column, pyarrow.timestamp('ns') if not pyarrow.types.is_duration(
