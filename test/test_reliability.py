@@ -737,7 +737,7 @@ def test_a_parquet_time_column_typed_as_timestamp_is_read_in_seconds(table, tmp_
     import pyarrow as pa
     import pyarrow.parquet as pq
     from dcmotor_id.formats import read_record
-    stamps = (1_700_000_000_000_000_000 + table[:, 0] * 1e9).astype(np.int64)
+    stamps = 1_700_000_000_000_000_000 + np.round(table[:, 0] * 1e9).astype(np.int64)
     pq.write_table(pa.table({'t': pa.array(stamps, pa.timestamp('ns')),
                              'voltage': table[:, 1], 'current': table[:, 2],
                              'speed': table[:, 3]}), tmp_path / 'x.parquet')
