@@ -18,7 +18,7 @@ from typing import Iterable, Optional
 from dcmotor_id.errors import InputDataError
 from dcmotor_id.records import PathLike
 
-__all__ = ['check_input_path', 'check_not_special', 'kind_of', 'same_file']
+__all__ = ['check_input_path', 'kind_of', 'same_file']
 
 
 def kind_of(mode: int) -> str:
@@ -79,15 +79,6 @@ def check_input_path(path: PathLike, what: str = '', directory: bool = False) ->
         raise InputDataError(f'{what}{path}: is a directory; give a file')
     raise InputDataError(f'{what}{path}: is {kind_of(mode)}, not a regular file: it could '
                          'block or never end; copy the data to a file and give that')
-
-
-def check_not_special(path: PathLike) -> bool:
-    """Return whether ``path`` is a regular file or a directory (without raising)."""
-    try:
-        mode = os.stat(path).st_mode
-    except OSError:
-        return False
-    return stat.S_ISREG(mode) or stat.S_ISDIR(mode)
 
 
 def same_file(path: PathLike, others: Iterable[PathLike]) -> Optional[str]:
