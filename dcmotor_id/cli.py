@@ -37,9 +37,11 @@ from dcmotor_id.summary import format_table
 
 
 def load_records(paths: Sequence[str], topics: Mapping[str, str] | None = None,
-                 options: ReadOptions | None = None) -> list[Record]:
+                 options: ReadOptions | None = None,
+                 mechanical_only: bool = False) -> list[Record]:
     """Read every input path (CSV, .mat, rosbag2 directories, .mcap or .db3 files)."""
-    return read_records(paths, topics=topics, options=options or ReadOptions())
+    return read_records(paths, topics=topics, options=options or ReadOptions(),
+                        mechanical_only=mechanical_only)
 
 
 def _json_safe(value):
@@ -130,7 +132,8 @@ def _cmd_identify(args):
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
     options = reading_options(args)
-    records = prepare_records(load_records(args.files, topics, options), args.torque_constant,
+    read = load_records(args.files, topics, options, args.torque_constant is not None)
+    records = prepare_records(read, args.torque_constant,
                               args.resample, args.speed_cutoff)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
     progress = terminal_progress(args.max_time, quiet=args.quiet)
@@ -217,7 +220,8 @@ def _cmd_validate(args):
     model = load_model(args.model)
     options = reading_options(args)
     records = []
-    for record in load_records(args.files, options=options):
+    for record in load_records(args.files, options=options,
+                               mechanical_only=model.mechanical_only):
         mechanical = model.torque_constant if model.mechanical_only else None
         records += prepare_records([record], mechanical, args.resample, args.speed_cutoff)
     validation = validate(model, records, args.init_samples, options.position_factor)

@@ -26,6 +26,7 @@ from dcmotor_id.estimators.paper import PaperEstimator
 from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.estimators.uncertainty import (block_scores, robust_covariance,
                                                with_robust_stderr)
+from dcmotor_id.formats.held import restore_held
 from dcmotor_id.identifiability import (assess_excitation, at_bound, correlated_pairs,
                                         current_limit_warning, Excitation,
                                         IDENTIFIABLE_REL_STDERR, initial_state_warnings,
@@ -127,6 +128,15 @@ def check_excitation(records: Sequence[Record], mechanical_only: bool) -> Excita
 
     """
     excitation = assess_excitation(records, mechanical_only)
+    if mechanical_only and excitation.moves:
+        level = single_current_level(records)
+        if level is not None:
+            raise NotIdentifiableError(
+                f'the current is one constant level ({level:.4g} A) in every record: with a '
+                'known torque constant the speed then shows only two numbers, the mechanical '
+                'time constant J/b and the final speed (K i - Mc)/b, so J, b and Mc cannot be '
+                'separated. Record a second current level (a step between two non-zero '
+                'levels, or a step in the other direction) and give the records together')
     if not excitation.moves:
         raise NotIdentifiableError(
             'the motor never moves (speed stays within its noise): CPhi, J, b and Mc are not '
@@ -140,6 +150,31 @@ def check_excitation(records: Sequence[Record], mechanical_only: bool) -> Excita
             'identifiable and Ra cannot be separated from CPhi. Excite the motor with a '
             'changing voltage (sine, sawtooth, PRBS, chirp; see dcmotor-id simulate).')
     return excitation
+
+
+#: Samples at the start of a record a current step may take to settle.
+SETTLE_SAMPLES = 3
+
+
+def single_current_level(records: Sequence[Record]) -> float | None:
+    """
+    Return the level when every record's current is one constant value, else None.
+
+    A current held by a current-controlled drive at one level (a torque step from rest, the
+    first samples rising to it) is constant within its noise (or 2 % of the level).
+    """
+    settled = [np.asarray(rec.current, dtype=float)[SETTLE_SAMPLES:] for rec in records
+               if rec.current is not None and len(rec) > 4 * SETTLE_SAMPLES]
+    if not settled or len(settled) != len(records):
+        return None
+    joined = np.concatenate(settled)
+    level = float(np.median(joined))
+    band = max(6.0 * max(noise_std(values) for values in settled), 0.02 * abs(level))
+    smooth = np.concatenate([np.convolve(values, np.ones(9) / 9, mode='valid')
+                             for values in settled if len(values) >= 9])
+    if level == 0.0 or smooth.size == 0 or np.max(np.abs(smooth - level)) > band:
+        return None
+    return level
 
 
 def simulation_errors(estimate: Estimate, records: Sequence[Record],
@@ -387,8 +422,9 @@ def identify(records: Sequence[Record], method: str = 'refined',
                              f'{initial_state!r}')
     progress = progress if progress is not None else Progress(max_time_s)
     mechanical_only = torque_constant is not None
+    # Sensors refreshing slower than the log: fit on their real updates (said in a warning).
+    records, warnings = restore_held(list(records))
     excitation = check_excitation(records, mechanical_only)
-    warnings: list[str] = []
     not_identifiable: dict[str, str] = {}
     vocabulary = list(vocabulary or VOCABULARY)
     limited = None if mechanical_only or estimator is not None or method != 'refined' else \

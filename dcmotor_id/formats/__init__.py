@@ -48,7 +48,7 @@ def detect_format(path: PathLike) -> str:
 
 def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
                 sample_period_s: Optional[float] = None,
-                options: ReadOptions = DEFAULT_OPTIONS) -> Record:
+                options: ReadOptions = DEFAULT_OPTIONS, mechanical_only: bool = False) -> Record:
     """
     Read one record from a CSV, MATLAB or rosbag2 file, choosing the reader by the path.
 
@@ -62,6 +62,9 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
         Grid step of a bag's timestamps [s]; default their median step.
     options : ReadOptions
         Column mapping, units, duty and gear (default: standard names in SI units).
+    mechanical_only : bool
+        The record is for the mechanical-only mode (``--torque-constant``): its voltage is not
+        used, so it is not checked.
 
     Raises
     ------
@@ -72,11 +75,13 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
     """
     record = READERS[detect_format(path)](path, topics=topics, sample_period_s=sample_period_s,
                                           options=options)
-    return check_channels(record)
+    return check_channels(record, mechanical_only)
 
 
 def read_records(paths: Iterable[PathLike], *,
                  topics: Optional[Mapping[str, str]] = None,
-                 options: ReadOptions = DEFAULT_OPTIONS) -> list[Record]:
+                 options: ReadOptions = DEFAULT_OPTIONS,
+                 mechanical_only: bool = False) -> list[Record]:
     """Read every path with :func:`read_record`, in order."""
-    return [read_record(path, topics=topics, options=options) for path in paths]
+    return [read_record(path, topics=topics, options=options, mechanical_only=mechanical_only)
+            for path in paths]

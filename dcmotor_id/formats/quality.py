@@ -8,7 +8,9 @@ Three ways a channel carries no usable information although it holds numbers:
 * a **speed quantised so coarsely** (encoder pulses counted per sample) that most differences
   between consecutive samples are zero: the dynamics between the steps are invisible;
 * a **voltage that is a command never reaching the motor**: constant while the current
-  changes (a set-point, or the input of a current-controlled drive).
+  changes in a way the armature balance ``u = Ra i + La di/dt + CPhi w`` cannot explain (a
+  set-point, or the input of a current-controlled drive); a constant voltage logged from the
+  instant it was applied, the motor starting from rest, satisfies the balance and is kept.
 
 :func:`check_channels` raises :class:`~dcmotor_id.errors.InputDataError` with a message that
 names the channel, what was seen and what to do.
@@ -92,8 +94,58 @@ def quantised_speed(record: Record) -> Optional[str]:
             'a finer encoder, or log at a lower rate')
 
 
+#: Share of the voltage the back-EMF of a step response must visibly carry.
+BACK_EMF_SHARE = 0.05
+#: Residual RMS of the armature balance (of the voltage) below which a constant voltage is
+#: a step response logged from its start, not a command that never reaches the motor.
+BALANCE_RESIDUAL = 0.1
+
+
+def back_emf_balance(voltage: float, current: np.ndarray, speed: Optional[np.ndarray],
+                     sample_period_s: float) -> Optional[float]:
+    """
+    Return how well a constant voltage explains the current and speed, or None if it cannot.
+
+    The armature balance ``u = Ra i + La di/dt + CPhi w`` is fitted to the constant voltage
+    by least squares (no offset).  A step response logged from its start (the voltage applied
+    as the log began, current and speed rising from rest) satisfies it with positive Ra and
+    CPhi, and its back-EMF carries a visible share of the voltage (the current falls as the
+    speed rises); a set-point that never reaches the motor does not (a current held by a
+    current controller while the speed rises needs a back-EMF constant of zero).
+
+    Returns
+    -------
+    float or None
+        The fit's residual RMS relative to the voltage (0 is a perfect balance), or None when
+        the fitted Ra or CPhi is not positive, the back-EMF stays below
+        :data:`BACK_EMF_SHARE` of the voltage (physics rules the voltage out), or there is
+        no speed to check against.
+
+    """
+    if speed is None or voltage == 0.0:
+        return None
+    sign = np.sign(voltage)
+    current = sign * np.asarray(current, dtype=float)
+    speed = sign * np.asarray(speed, dtype=float)
+    rate = np.gradient(current, sample_period_s)
+    regressors = np.column_stack([current, rate, speed])
+    target = np.full(current.shape, abs(voltage))
+    scale = np.maximum(np.sqrt(np.mean(regressors ** 2, axis=0)), 1e-300)
+    coefficients = np.linalg.lstsq(regressors / scale, target, rcond=None)[0] / scale
+    back_emf = coefficients[2] * float(np.ptp(speed))
+    if not (coefficients[0] > 0 and back_emf > BACK_EMF_SHARE * abs(voltage)):
+        return None
+    residual = target - regressors @ coefficients
+    return float(np.sqrt(np.mean(residual ** 2)) / abs(voltage))
+
+
 def command_voltage(record: Record) -> Optional[str]:
-    """Return the message when the voltage is constant while the current changes."""
+    """
+    Return the message when the voltage is constant while current or speed change unexplained.
+
+    A constant voltage whose current and speed follow the armature balance (a step response
+    logged from the instant the voltage was applied) is usable and not refused.
+    """
     voltage, current = record.voltage, record.current
     if voltage is None or current is None or len(voltage) < MIN_CHECK_SAMPLES:
         return None
@@ -103,35 +155,59 @@ def command_voltage(record: Record) -> Optional[str]:
     if float(np.ptp(voltage)) > 1e-9 * max(level, 1e-300) and level > 0:
         return None
     spread = float(np.ptp(current))
-    if not spread > CURRENT_CHANGE * float(np.max(np.abs(current))) or spread == 0:
+    changes = spread > CURRENT_CHANGE * float(np.max(np.abs(current))) and spread > 0
+    speed = None if record.speed is None else np.asarray(record.speed, dtype=float)
+    if speed is not None and not changes:
+        # a current held constant while the speed rises: the voltage cannot be what drives it
+        speed_spread = float(np.ptp(speed))
+        changes = speed_spread > CURRENT_CHANGE * float(np.max(np.abs(speed))) and \
+            speed_spread > 0
+    if not changes:
         return None
+    period = float(np.median(np.diff(record.time_s))) if len(record) > 1 else 1.0
+    residual = back_emf_balance(float(voltage[0]), current, record.speed, period)
+    if residual is not None and residual < BALANCE_RESIDUAL:
+        return None
+    seen = ('no positive Ra with a visible back-EMF balances it' if residual is None else
+            f'the best balance leaves {100 * residual:.0f} % of it unexplained')
     return (f"{record.source or 'record'}: channel 'voltage' is constant ({voltage[0]:.6g} V) "
-            f'while the current changes ({spread:.4g} A peak to peak): it looks like a '
-            'command or set-point that never reaches the motor (e.g. the input of a '
-            'current-controlled drive). Record the armature voltage at the motor terminals '
-            '(or the PWM duty with --voltage-from-duty BUS_V), or identify the mechanical '
-            'part only with --torque-constant K')
+            f'while the current or speed changes (current {spread:.4g} A peak to peak), and '
+            'the current and '
+            f'speed do not follow it as a motor does (u = Ra i + La di/dt + CPhi w: {seen}): '
+            'it looks like a command or set-point that never reaches the motor (e.g. the '
+            'input of a current-controlled drive). Record the armature voltage at the motor '
+            'terminals (or the PWM duty with --voltage-from-duty BUS_V), or identify the '
+            'mechanical part only with --torque-constant K (the voltage column is then not '
+            'used)')
 
 
 #: The checks in the order they are applied.
 CHECKS = (pwm_sampled_current, quantised_speed, command_voltage)
 
 
-def channel_problems(record: Record) -> list[str]:
+#: Checks that do not apply in the mechanical-only mode (the voltage is not used there).
+VOLTAGE_CHECKS = (command_voltage,)
+
+
+def channel_problems(record: Record, mechanical_only: bool = False) -> list[str]:
     """
     Return the message of every unusable channel of a record (empty when all are usable).
 
     A record with NaN/inf values is left to :func:`dcmotor_id.records.check_record`, which
-    names those samples.
+    names those samples.  In the mechanical-only mode (``--torque-constant``) the voltage is
+    not used, so it is not checked.
     """
     if not all(np.all(np.isfinite(values)) for values in record.columns().values()):
         return []
-    return [message for message in (check(record) for check in CHECKS) if message]
+    checks = [check for check in CHECKS if not (mechanical_only and check in VOLTAGE_CHECKS)]
+    return [message for message in (check(record) for check in checks) if message]
 
 
-def check_channels(record: Record) -> Record:
+def check_channels(record: Record, mechanical_only: bool = False) -> Record:
     """
     Refuse a record with a channel that cannot identify the motor; return it otherwise.
+
+    ``mechanical_only`` skips the checks of the voltage (:data:`VOLTAGE_CHECKS`).
 
     Raises
     ------
@@ -139,7 +215,7 @@ def check_channels(record: Record) -> Record:
         Naming the channel, what it looks like and what to record instead.
 
     """
-    problems = channel_problems(record)
+    problems = channel_problems(record, mechanical_only)
     if problems:
         raise InputDataError('; '.join(problems))
     return record

@@ -1,0 +1,88 @@
+"""Real recordings as they come (issue 19): step tests from t = 0, held samples, refusals."""
+
+import numpy as np
+import pytest
+
+from dcmotor_id import lab_scenarios
+from dcmotor_id.cli import main as cli_main
+from dcmotor_id.errors import NotIdentifiableError
+from dcmotor_id.formats import read_record
+from dcmotor_id.formats.csv import write_csv
+from dcmotor_id.formats.held import held_channels
+from dcmotor_id.identify import identify, prepare_records
+
+
+def test_voltage_step_logged_from_its_start_is_identified(tmp_path, capsys):
+    scenario = lab_scenarios.voltage_step_from_rest()
+    path = str(tmp_path / 'step.csv')
+    write_csv(path, scenario.records[0])
+    record = read_record(path)  # refused as a command voltage before
+    result = identify(prepare_records([record]), discover=False)
+    truth = scenario.truth
+    assert result.parameters['CPhi'] == pytest.approx(truth.CPhi, rel=0.05)
+    assert result.parameters['Ra'] == pytest.approx(truth.Ra, rel=0.1)
+    assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
+
+
+def test_constant_setpoint_voltage_is_still_refused_with_a_fix_that_works(tmp_path, capsys):
+    scenario = lab_scenarios.current_steps_from_rest()
+    paths = []
+    for number, record in enumerate(scenario.records):
+        paths.append(str(tmp_path / f'step{number}.csv'))
+        write_csv(paths[-1], record)
+    assert cli_main(['identify', paths[0], '--no-discover']) == 2
+    error = capsys.readouterr().err
+    assert "channel 'voltage'" in error and '--torque-constant K' in error
+    # the fix the message names works: the voltage column is not used then
+    assert cli_main(['identify', *paths, '--no-discover', '--quiet',
+                     '--torque-constant', str(scenario.torque_constant)]) == 0
+    out = capsys.readouterr().out
+    assert 'mode: mechanical' in out
+
+
+def test_current_steps_from_rest_in_mechanical_mode():
+    scenario = lab_scenarios.current_steps_from_rest()
+    records = [read_record_from(record) for record in scenario.records]
+    prepared = prepare_records(records, scenario.torque_constant)
+    result = identify(prepared, torque_constant=scenario.torque_constant, discover=False)
+    for name in ('J', 'b', 'Mc'):
+        assert result.parameters[name] == pytest.approx(getattr(scenario.truth, name),
+                                                        rel=0.05)
+
+
+def read_record_from(record):
+    """Pass a record through the checks of reading (mechanical-only mode)."""
+    from dcmotor_id.formats.quality import check_channels
+    return check_channels(record, mechanical_only=True)
+
+
+def test_one_current_level_is_refused_saying_what_to_record():
+    scenario = lab_scenarios.current_steps_from_rest()
+    record = read_record_from(scenario.records[0])
+    with pytest.raises(NotIdentifiableError, match='second current level'):
+        identify(prepare_records([record], scenario.torque_constant),
+                 torque_constant=scenario.torque_constant, discover=False)
+
+
+def test_held_samples_are_named_and_fitted_on_the_real_updates():
+    scenario = lab_scenarios.geared_motor_held_sensors()
+    record = scenario.records[0]
+    assert set(held_channels(record)) == {'current', 'speed'}
+    result = identify(prepare_records([record]), discover=False)
+    assert any('held samples' in text and "'current'" in text and "'speed'" in text
+               for text in result.warnings)
+    truth = scenario.truth
+    for name in ('Ra', 'CPhi', 'J', 'b', 'Mc'):
+        assert result.parameters[name] == pytest.approx(getattr(truth, name), rel=0.1)
+    # La: either resolved near the truth or said not to be (held rows made it 3.6x before)
+    assert 'La' in result.not_identifiable or \
+        result.parameters['La'] == pytest.approx(truth.La, rel=0.5)
+
+
+@pytest.mark.parametrize('name', ['servo_torque_steps', 'small_motor_pwm_steps',
+                                  'hobby_motor_encoder', 'small_motor_low_rate',
+                                  'coloured_disturbance', 'directions_with_load'])
+def test_no_held_samples_seen_where_there_are_none(name):
+    scenario = lab_scenarios.SCENARIOS[name]()
+    assert all(not held_channels(record) for record in scenario.records)
+    assert np.all(np.isfinite(scenario.records[0].time_s))
