@@ -15,6 +15,7 @@ import platform
 import sys
 import tempfile
 import traceback
+import warnings
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -26,7 +27,8 @@ from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
-                                        POSITION_UNITS, ReadOptions, SPEED_UNITS)
+                                        POSITION_UNITS, ReadOptions, ReadingNote,
+                                        SPEED_UNITS)
 from dcmotor_id.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES, METHODS,
                                  prepare_records)
 from dcmotor_id.model import PAPER_MOTORS
@@ -39,9 +41,25 @@ from dcmotor_id.summary import format_table
 def load_records(paths: Sequence[str], topics: Mapping[str, str] | None = None,
                  options: ReadOptions | None = None,
                  mechanical_only: bool = False) -> list[Record]:
-    """Read every input path (CSV, .mat, rosbag2 directories, .mcap or .db3 files)."""
-    return read_records(paths, topics=topics, options=options or ReadOptions(),
-                        mechanical_only=mechanical_only)
+    """
+    Read every input path (CSV, .mat, rosbag2 directories, .mcap or .db3 files).
+
+    How a file was read when it was not as expected (a matrix transposed, a semicolon
+    dialect) is printed as a note on stderr.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always', ReadingNote)
+        records = read_records(paths, topics=topics, options=options or ReadOptions(),
+                               mechanical_only=mechanical_only)
+    shown = set()
+    for item in caught:
+        if issubclass(item.category, ReadingNote):
+            if str(item.message) not in shown:
+                print(f'dcmotor-id: note: {item.message}', file=sys.stderr)
+            shown.add(str(item.message))
+        else:
+            warnings.warn_explicit(item.message, item.category, item.filename, item.lineno)
+    return records
 
 
 def _json_safe(value):
@@ -177,7 +195,8 @@ def reading_options(args: argparse.Namespace) -> ReadOptions:
         speed_unit=args.speed_unit, speed_counts_per_rev=args.speed_counts_per_rev,
         position_unit=args.position_unit, position_counts_per_rev=args.position_counts_per_rev,
         gear_ratio=args.gear_ratio, bus_voltage=args.voltage_from_duty, joint=args.joint,
-        interfaces=parse_assignments(args.interface, '--interface'))
+        interfaces=parse_assignments(args.interface, '--interface'),
+        sample_period_s=args.sample_period)
 
 
 def _add_reading_options(command: argparse.ArgumentParser) -> None:
@@ -185,8 +204,12 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
     group = command.add_argument_group('reading recordings as they come')
     group.add_argument('--column', action='append', metavar='CHANNEL=NAME',
                        help='take a channel (t, voltage, current, speed, position, duty, '
-                            'direction) from the column NAME (.mat: VARIABLE or VARIABLE:COLUMN, '
-                            '1-based); repeatable')
+                            'direction) from the column NAME (.mat: VARIABLE, VARIABLE:COLUMN '
+                            '1-based, or STRUCT.FIELD[:COLUMN]); repeatable')
+    group.add_argument('--sample-period', type=_positive, metavar='S',
+                       help='the samples are S seconds apart: time = k*S (.mat, CSV without '
+                            'or with broken time stamps; a time column is then not used); for '
+                            'bags the grid step')
     group.add_argument('--current-unit', choices=sorted(CURRENT_UNITS), default='A')
     group.add_argument('--speed-unit', choices=sorted(SPEED_UNITS), default='rad/s')
     group.add_argument('--speed-counts-per-rev', type=_positive, metavar='N',

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.io import savemat
 
 from dcmotor_id import lab_scenarios
 from dcmotor_id.cli import main as cli_main
@@ -9,6 +10,7 @@ from dcmotor_id.errors import NotIdentifiableError
 from dcmotor_id.formats import read_record
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.held import held_channels
+from dcmotor_id.formats.mapping import ReadOptions
 from dcmotor_id.identify import identify, prepare_records
 
 
@@ -86,3 +88,71 @@ def test_no_held_samples_seen_where_there_are_none(name):
     scenario = lab_scenarios.SCENARIOS[name]()
     assert all(not held_channels(record) for record in scenario.records)
     assert np.all(np.isfinite(scenario.records[0].time_s))
+
+
+@pytest.fixture(scope='module')
+def step_record():
+    return lab_scenarios.directions_with_load().records[0].slice(0, 1500)
+
+
+def test_semicolon_decimal_comma_csv_is_read(tmp_path, step_record, capsys):
+    r = step_record
+    lines = ['t;voltage;current;speed'] + [
+        ';'.join(f'{value:.17g}'.replace('.', ',') for value in row)
+        for row in zip(r.time_s, r.voltage, r.current, r.speed)]
+    path = tmp_path / 'de.csv'
+    path.write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    read = read_record(str(path))
+    np.testing.assert_array_equal(read.speed, r.speed)
+    np.testing.assert_array_equal(read.time_s, r.time_s)
+    assert cli_main(['identify', str(path), '--no-discover', '--quiet']) == 0
+    assert 'semicolon-separated' in capsys.readouterr().err
+
+
+def test_csv_without_time_takes_the_sample_period(tmp_path, step_record, capsys):
+    r = step_record
+    path = str(tmp_path / 'no_t.csv')
+    np.savetxt(path, np.column_stack([r.voltage, r.current, r.speed]), delimiter=',',
+               header='voltage,current,speed', comments='', fmt='%.17g')
+    assert cli_main(['identify', path, '--no-discover', '--quiet']) == 2
+    assert '--sample-period S' in capsys.readouterr().err
+    options = ReadOptions(sample_period_s=float(r.sample_period_s))
+    np.testing.assert_allclose(read_record(path, options=options).time_s, r.time_s,
+                               atol=1e-12)
+
+
+def test_mat_struct_fields_channels_as_rows_and_no_time(tmp_path, step_record, capsys):
+    r = step_record
+    period = float(r.sample_period_s)
+    rows = np.vstack([r.voltage, r.current, r.speed, np.zeros(len(r))])  # 4 x N
+    path = str(tmp_path / 'lab.mat')
+    savemat(path, {'output': {'signals': {'values': rows}, 'info': 'rig 3'}})
+    mapping = ['--column', 'voltage=output.signals.values:1',
+               '--column', 'current=output.signals.values:2',
+               '--column', 'speed=output.signals.values:3']
+    assert cli_main(['identify', path, *mapping, '--no-discover', '--quiet']) == 2
+    assert '--sample-period S' in capsys.readouterr().err
+    assert cli_main(['identify', path, *mapping, '--sample-period', str(period),
+                     '--no-discover', '--quiet']) == 0
+    error = capsys.readouterr().err
+    assert 'stored as rows' in error and error.count('stored as rows') == 1
+    options = ReadOptions(columns={'voltage': 'output.signals.values:1',
+                                   'current': 'output.signals.values:2',
+                                   'speed': 'output.signals.values:3'},
+                          sample_period_s=period)
+    with pytest.warns(UserWarning, match='stored as rows'):
+        read = read_record(path, options=options)
+    np.testing.assert_array_equal(read.current, r.current)
+    assert len(read) == len(r)
+
+
+def test_mat_struct_field_names_are_listed(tmp_path, step_record, capsys):
+    r = step_record
+    path = str(tmp_path / 's.mat')
+    savemat(path, {'output': {'time': r.time_s, 'u': r.voltage, 'i': r.current,
+                              'w': r.speed}})
+    assert cli_main(['identify', path, '--no-discover', '--quiet']) == 2
+    assert 'output.time' in capsys.readouterr().err
+    assert cli_main(['identify', path, '--column', 't=output.time', '--column',
+                     'voltage=output.u', '--column', 'current=output.i', '--column',
+                     'speed=output.w', '--no-discover', '--quiet']) == 0

@@ -59,7 +59,8 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
     topics : dict, optional
         Channel -> topic name, for bags (see :func:`dcmotor_id.formats.bag.read_bag`).
     sample_period_s : float, optional
-        Grid step of a bag's timestamps [s]; default their median step.
+        Grid step of a bag's timestamps [s]; default ``options.sample_period_s``, else their
+        median step.
     options : ReadOptions
         Column mapping, units, duty and gear (default: standard names in SI units).
     mechanical_only : bool
@@ -73,6 +74,8 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
         what to do.
 
     """
+    if sample_period_s is None:
+        sample_period_s = options.sample_period_s
     record = READERS[detect_format(path)](path, topics=topics, sample_period_s=sample_period_s,
                                           options=options)
     return check_channels(record, mechanical_only)
