@@ -156,3 +156,26 @@ def test_mat_struct_field_names_are_listed(tmp_path, step_record, capsys):
     assert cli_main(['identify', path, '--column', 't=output.time', '--column',
                      'voltage=output.u', '--column', 'current=output.i', '--column',
                      'speed=output.w', '--no-discover', '--quiet']) == 0
+
+
+def test_transient_panels_centre_on_input_steps_not_noise_spikes():
+    from dcmotor_id.report import _transients
+
+    scenario = lab_scenarios.servo_torque_steps()
+    current = np.array(scenario.records[0].current)
+    rng = np.random.default_rng(1)
+    spikes = rng.choice(current.size, 40, replace=False)
+    current[spikes] += rng.choice([-3.0, 3.0], 40)  # current-sensor spikes of 3 A
+    starts = _transients(current, 3, 480)
+    steps = np.arange(1, 8) * 1500  # the current steps every 1.5 s
+    assert len(starts) == 3
+    assert all(np.min(np.abs(steps - start)) <= 2 for start in starts), starts
+
+
+def test_diverged_fit_names_what_happened():
+    from dcmotor_id.estimators.refined import _diverged, _MISFIT
+
+    text = _diverged(ZeroDivisionError())
+    assert text and 'ZeroDivisionError' in text
+    assert _diverged(ValueError('x went to inf')) == 'x went to inf'
+    assert 'two levels' in _MISFIT
