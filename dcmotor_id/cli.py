@@ -15,8 +15,8 @@ import platform
 import sys
 import tempfile
 import traceback
-import warnings
 from typing import Any, Mapping, Sequence
+import warnings
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
-                                        POSITION_UNITS, ReadOptions, ReadingNote,
+                                        POSITION_UNITS, ReadingNote, ReadOptions,
                                         SPEED_UNITS)
 from dcmotor_id.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES, METHODS,
                                  prepare_records)

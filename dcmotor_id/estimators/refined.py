@@ -55,6 +55,8 @@ def _diverged(error: BaseException) -> str:
         return text
     return (f'{type(error).__name__} in the simulation: a parameter ran to zero or infinity '
             'on the way')
+
+
 #: Channels of exogenous terms: the linear ones of :class:`ExogenousTerm` and ``state``
 #: (:class:`StateTerm`, an effect simulated exactly inside the model).
 _CHANNELS = ('voltage', 'torque', 'current', 'speed', 'state')

@@ -117,5 +117,5 @@ def restore_held(records: list[Record]) -> tuple[list[Record], list[str]]:
             f"{record.source or 'record'}: held samples in {described}: the repeated rows are "
             'not measurements, so the fit used the real updates only (the held rows '
             'interpolated between them). Log at the sensor refresh rate, or read the sensors '
-            'on the logger\'s clock, to avoid it')
+            "on the logger's clock, to avoid it")
     return out, warnings

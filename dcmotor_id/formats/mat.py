@@ -51,8 +51,8 @@ def _load_v5(path: PathLike) -> Callable[[str], Any]:
         # ``output.time``, ``data.signals.values``: fields of MATLAB structs
         value: Any = variables
         for part in name.split('.'):
-            if isinstance(value, (list, tuple)) or (isinstance(value, np.ndarray) and
-                                                      value.dtype == object):
+            array_of_structs = isinstance(value, np.ndarray) and value.dtype == object
+            if isinstance(value, (list, tuple)) or array_of_structs:
                 raise InputDataError(
                     f'{path}: {name!r}: {part!r} is a field of an array of structs; save the '
                     'signal as its own variable or as a struct of one element')
@@ -160,8 +160,8 @@ def read_mat(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
         for channel in options.wanted():
             values = _column(path, get, options.column(channel), channel)
             if values is None:
-                if channel in options.columns or (channel == 't' and
-                                                   options.sample_period_s is None):
+                timed = channel == 't' and options.sample_period_s is None
+                if channel in options.columns or timed:
                     raise InputDataError(
                         f'{path}: no variable {options.column(channel).partition(":")[0]!r} for '
                         f'{channel}; the file has {", ".join(get.names)}'  # type: ignore
