@@ -128,15 +128,6 @@ def check_excitation(records: Sequence[Record], mechanical_only: bool) -> Excita
 
     """
     excitation = assess_excitation(records, mechanical_only)
-    if mechanical_only and excitation.moves:
-        level = single_current_level(records)
-        if level is not None:
-            raise NotIdentifiableError(
-                f'the current is one constant level ({level:.4g} A) in every record: with a '
-                'known torque constant the speed then shows only two numbers, the mechanical '
-                'time constant J/b and the final speed (K i - Mc)/b, so J, b and Mc cannot be '
-                'separated. Record a second current level (a step between two non-zero '
-                'levels, or a step in the other direction) and give the records together')
     if not excitation.moves:
         raise NotIdentifiableError(
             'the motor never moves (speed stays within its noise): CPhi, J, b and Mc are not '
@@ -175,6 +166,17 @@ def single_current_level(records: Sequence[Record]) -> float | None:
     if level == 0.0 or smooth.size == 0 or np.max(np.abs(smooth - level)) > band:
         return None
     return level
+
+
+def one_level_reason(level: float, failure: str) -> str:
+    """Say why one constant current cannot separate J, b and Mc, and what to record."""
+    return (f'the current is one constant level ({level:.4g} A) in every record and the fit '
+            f'failed ({failure.split(":")[0]}): with a known torque constant a constant current '
+            'shows only two numbers in the speed, the mechanical time constant J/b and the '
+            'final speed (K i - Mc)/b; J, b and Mc are then separated only by the '
+            "current's small fluctuations, too little here. Record a second current "
+            'level (a step between two non-zero levels, or a step in the other '
+            'direction) and give the records together')
 
 
 def simulation_errors(estimate: Estimate, records: Sequence[Record],
@@ -438,6 +440,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
     progress.set_stage('base fit', _names(records))
     try:
         estimate = estimator.fit(records, torque_constant=torque_constant)
+    except FitError as error:
+        level = single_current_level(records) if mechanical_only else None
+        if level is None:
+            raise
+        raise NotIdentifiableError(one_level_reason(level, str(error))) from None
     except TimeBudgetExceeded:
         raise FitError(f'no fit finished within the time budget ({progress.max_time_s:g} s): '
                        'give more time with --max-time, or shorten or decimate the records'
