@@ -27,6 +27,7 @@ from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.estimators.uncertainty import (block_scores, robust_covariance,
                                                with_robust_stderr)
 from dcmotor_id.formats.held import restore_held
+from dcmotor_id.formats.quality import coarse_speed
 from dcmotor_id.identifiability import (assess_excitation, at_bound, correlated_pairs,
                                         current_limit_warning, Excitation,
                                         IDENTIFIABLE_REL_STDERR, initial_state_warnings,
@@ -426,6 +427,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
     mechanical_only = torque_constant is not None
     # Sensors refreshing slower than the log: fit on their real updates (said in a warning).
     records, warnings = restore_held(list(records))
+    warnings += [text for text in map(coarse_speed, records) if text]
     excitation = check_excitation(records, mechanical_only)
     not_identifiable: dict[str, str] = {}
     vocabulary = list(vocabulary or VOCABULARY)

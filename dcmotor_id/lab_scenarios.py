@@ -311,6 +311,28 @@ def current_steps_from_rest(seed: int = 0, sample_period_s: float = 1e-3,
                     note='one constant current per record from t = 0, set-point voltage logged')
 
 
+def coarse_speed_steps(seed: int = 0, sample_period_s: float = 1e-3,
+                       levels: int = 10) -> Scenario:
+    """
+    Simulate voltage steps in both directions logged with a coarse speed sensor.
+
+    The speed is rounded to steps of a tenth of its range (``levels``), as a tachometer read
+    by a coarse ADC or a low-resolution speed estimate gives; the current is fine.
+    """
+    rng = np.random.default_rng(seed)
+    truth = HOBBY_MOTOR
+    command = step_levels([0.0, 6.0, 10.0, 3.0, -4.0, -10.0, -7.0, 2.0, 8.0, 0.0, -5.0], 0.5,
+                          sample_period_s)
+    out = simulate_drive(truth, command, sample_period_s, bus_voltage_v=12.0)
+    speed = _noisy(out['speed'], 2.0, rng)
+    step = float(np.ptp(speed)) / levels
+    t = np.arange(command.shape[0]) * sample_period_s
+    record = Record(t, current=_noisy(out['current'], 0.005, rng), voltage=command,
+                    speed=np.round(speed / step) * step, source='coarse_speed_steps')
+    return Scenario('coarse_speed_steps', [record], truth,
+                    note=f'speed in steps of a {levels}th of its range')
+
+
 def hold_samples(values: np.ndarray, sample_period_s: float, refresh_s: float,
                  phase_s: float = 0.0) -> np.ndarray:
     """
@@ -367,4 +389,5 @@ SCENARIOS = {
     'voltage_step_from_rest': voltage_step_from_rest,
     'current_steps_from_rest': current_steps_from_rest,
     'geared_motor_held_sensors': geared_motor_held_sensors,
+    'coarse_speed_steps': coarse_speed_steps,
 }

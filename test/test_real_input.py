@@ -179,3 +179,31 @@ def test_diverged_fit_names_what_happened():
     assert text and 'ZeroDivisionError' in text
     assert _diverged(ValueError('x went to inf')) == 'x went to inf'
     assert 'two levels' in _MISFIT
+
+
+def test_coarse_speed_gives_what_it_can(tmp_path, capsys):
+    scenario = lab_scenarios.coarse_speed_steps()
+    path = str(tmp_path / 'coarse.csv')
+    write_csv(path, scenario.records[0])
+    record = read_record(path)  # refused on reading before
+    result = identify(prepare_records([record]), discover=False)
+    assert any("channel 'speed' is coarse" in text for text in result.warnings)
+    truth = scenario.truth
+    for name in ('Ra', 'CPhi', 'b', 'Mc'):
+        if name not in result.not_identifiable:
+            assert result.parameters[name] == pytest.approx(getattr(truth, name), rel=0.1)
+    assert 'CPhi' not in result.not_identifiable and 'b' not in result.not_identifiable
+
+
+def test_coarse_speed_in_mechanical_mode():
+    scenario = lab_scenarios.servo_torque_steps()
+    record = scenario.records[0]
+    step = float(np.ptp(record.speed)) / 10
+    coarse = record.replace(speed=np.round(record.speed / step) * step)
+    checked = read_record_from(coarse)
+    result = identify(prepare_records([checked], scenario.torque_constant),
+                      torque_constant=scenario.torque_constant, discover=False)
+    assert any('coarse' in text for text in result.warnings)
+    for name in ('J', 'b'):
+        assert result.parameters[name] == pytest.approx(getattr(scenario.truth, name),
+                                                        rel=0.1)

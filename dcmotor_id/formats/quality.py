@@ -6,7 +6,8 @@ Three ways a channel carries no usable information although it holds numbers:
 * a **current sampled inside the PWM cycle**: the ADC catches the on- or the off-phase of the
   switching, so many samples are exactly zero between non-zero neighbours (a bimodal signal);
 * a **speed quantised so coarsely** (encoder pulses counted per sample) that most differences
-  between consecutive samples are zero: the dynamics between the steps are invisible;
+  between consecutive samples are zero and it spans fewer than :data:`REFUSED_LEVELS` steps
+  (a coarse speed with more levels is kept, :func:`coarse_speed` words its warning);
 * a **voltage that is a command never reaching the motor**: constant while the current
   changes in a way the armature balance ``u = Ra i + La di/dt + CPhi w`` cannot explain (a
   set-point, or the input of a current-controlled drive); a constant voltage logged from the
@@ -29,8 +30,10 @@ from dcmotor_id.records import Record
 PWM_ZERO_FRACTION = 0.1
 #: Fraction of consecutive differences of a moving shaft exactly zero: too coarse a speed.
 QUANTISED_ZERO_FRACTION = 0.4
-#: Fewest distinct levels over the speed's range that a usable speed has.
+#: Distinct levels over the speed's range below which a speed counts as coarse (a warning).
 QUANTISED_LEVELS = 64
+#: Distinct levels below which a coarse speed is refused (nothing can be drawn from it).
+REFUSED_LEVELS = 8
 #: Relative spread of the current that counts as changing (of its largest magnitude).
 CURRENT_CHANGE = 0.1
 #: Fewest samples the checks look at.
@@ -67,8 +70,13 @@ def pwm_sampled_current(record: Record) -> Optional[str]:
             'PWM, ADC triggered by the timer) or low-pass it over a PWM period before the ADC')
 
 
-def quantised_speed(record: Record) -> Optional[str]:
-    """Return the message when the speed is quantised too coarsely to identify from."""
+def speed_steps(record: Record) -> Optional[tuple[float, float, float]]:
+    """
+    Return ``(zero share, step, levels)`` of a coarsely quantised speed, else None.
+
+    Coarse: at least :data:`QUANTISED_ZERO_FRACTION` of the differences of the moving shaft
+    are zero and the speed spans fewer than :data:`QUANTISED_LEVELS` of its steps.
+    """
     speed = record.speed
     if speed is None or len(speed) < MIN_CHECK_SAMPLES:
         return None
@@ -85,6 +93,22 @@ def quantised_speed(record: Record) -> Optional[str]:
     levels = float(np.ptp(speed)) / quantum
     if levels >= QUANTISED_LEVELS:
         return None
+    return fraction, quantum, levels
+
+
+def quantised_speed(record: Record) -> Optional[str]:
+    """
+    Return the message when the speed is quantised too coarsely to draw anything from.
+
+    Fewer than :data:`REFUSED_LEVELS` levels over its range: the steps say little more than
+    the direction.  A speed with more levels is kept (:func:`coarse_speed` words the
+    warning): its steady states carry the back-EMF constant and the friction, and the
+    current carries the dynamics.
+    """
+    found = speed_steps(record)
+    if found is None or found[2] >= REFUSED_LEVELS:
+        return None
+    fraction, quantum, levels = found
     return (f"{record.source or 'record'}: channel 'speed' is quantised so coarsely that "
             f'{100 * fraction:.0f} % of the differences between consecutive samples are zero '
             f'(steps of {quantum:.4g} rad/s, {levels:.0f} levels over its range, as encoder '
@@ -92,6 +116,20 @@ def quantised_speed(record: Record) -> Optional[str]:
             'the encoder count as the position column instead (--position-counts-per-rev N, '
             'and no speed column: speed is then derived from the whole position record), use '
             'a finer encoder, or log at a lower rate')
+
+
+def coarse_speed(record: Record) -> Optional[str]:
+    """Return the warning for a coarse speed that is still used (None if it is not coarse)."""
+    found = speed_steps(record)
+    if found is None or found[2] < REFUSED_LEVELS:
+        return None
+    fraction, quantum, levels = found
+    return (f"{record.source or 'record'}: channel 'speed' is coarse (steps of {quantum:.4g} "
+            f'rad/s, {levels:.0f} levels over its range, {100 * fraction:.0f} % of the '
+            'differences between samples zero): its steady states and the current carry the '
+            'parameters, the speed between its steps does not; parameters the data do not '
+            'determine are listed as not identifiable. A finer speed (or the encoder count '
+            'as position, --position-counts-per-rev N) identifies them better')
 
 
 #: Share of the voltage the back-EMF of a step response must visibly carry.
