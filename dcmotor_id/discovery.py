@@ -449,11 +449,11 @@ class DiscoveryLoop:
 
     def misfit(self, fitted: Fit) -> bool:
         """Whether the held-out residual is far above the sensor noise on some channel."""
-        from dcmotor_id.signals import noise_std
+        from dcmotor_id.identifiability import noise_level
 
         for channel in self.outputs:
             residual = fitted.channel_residual(channel, 'heldout')
-            noise = np.sqrt(np.mean([noise_std(getattr(rec, channel)) ** 2
+            noise = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2
                                      for rec in fitted.records]))
             if residual.shape[0] and noise > 0 and \
                     np.sqrt(np.mean(residual ** 2)) > MISFIT_FACTOR * noise:
@@ -590,16 +590,25 @@ class DiscoveryLoop:
 
     # ------------------------------------------------------------------ candidates
     def _try(self, current, cls, inner, start_terms):
+        """
+        Refit the structure with a candidate from the screen's start; return the Fit or None.
+
+        The screen's start is a linearisation at the current fit: from a poor base it can
+        overshoot so far that the refit does not converge, so a failed refit is tried once
+        more from the candidate's own neutral start (its terms at their defaults).
+        """
         structure = current.structure.plus(cls, inner)
-        initial = dict(current.values)
-        initial.update(start_terms)
-        try:
-            with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
-                return self.fit(structure, start=self._base(current), initial=initial,
-                                max_nfev=CANDIDATE_MAX_NFEV,
-                                initial_states=current.estimate.initial_states)
-        except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
-            return None
+        for terms in ((start_terms, {}) if start_terms else ({},)):
+            initial = dict(current.values)
+            initial.update(terms)
+            try:
+                with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
+                    return self.fit(structure, start=self._base(current), initial=initial,
+                                    max_nfev=CANDIDATE_MAX_NFEV,
+                                    initial_states=current.estimate.initial_states)
+            except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
+                continue
+        return None
 
     def _base(self, fitted):
         return refit_start(fitted.values, self.records, self.torque_constant)

@@ -18,8 +18,10 @@ from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.basin import bic, regression_evidence, regression_start, suspect
 from dcmotor_id.blas import single_threaded
-from dcmotor_id.discovery import DiscoveryLoop, DiscoveryResult
+from dcmotor_id.discovery import (DiscoveryLoop, DiscoveryResult, refit_all_data, refit_start,
+                                  Structure)
 from dcmotor_id.effects import VOCABULARY
 from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
 from dcmotor_id.estimators.paper import PaperEstimator
@@ -235,6 +237,10 @@ class IdentificationResult:
         ``estimate`` or ``measured``.
     elapsed_s : float
         Run time.
+    start_check : dict or None
+        The fit checked against model-free evidence (:mod:`dcmotor_id.basin`): ``evidence``
+        (the regression's values), ``doubts``, and when doubted ``second_start``, ``bic`` and
+        ``chosen``; None when not checked (pinned initial states, other estimators).
     estimate : Estimate
         The final estimate (all data).
     input_records : list of Record
@@ -270,6 +276,7 @@ class IdentificationResult:
     upper_bounds: dict[str, float] = field(default_factory=dict)
     initial_state: str = 'estimate'
     elapsed_s: float = 0.0
+    start_check: dict[str, Any] | None = None
     estimate: Estimate | None = field(repr=False, default=None)
     input_records: list[Record] = field(repr=False, default_factory=list)
     discovery_result: DiscoveryResult | None = field(repr=False, default=None)
@@ -304,6 +311,7 @@ class IdentificationResult:
             'upper_bounds': self.upper_bounds,
             'initial_state': self.initial_state,
             'elapsed_s': self.elapsed_s,
+            'start_check': self.start_check,
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out
@@ -452,6 +460,22 @@ def identify(records: Sequence[Record], method: str = 'refined',
         elif found is None and discovery_info and 'time budget' in discovery_info.get(
                 'skipped', ''):
             warnings.append(discovery_info['skipped'])
+    start_check: dict[str, Any] | None = None
+    if initial_state == 'estimate' and isinstance(estimator, RefinedEstimator):
+        found, estimate, discovery_info, start_check = _check_start(
+            records, torque_constant, quasi, discover, vocabulary, progress, estimate, found,
+            discovery_info)
+        if start_check.get('chosen') == 'second start, initial states pinned':
+            warnings.append('the fit from the default start landed where the model-free '
+                            'evidence disagrees (' + '; '.join(start_check['doubts'])
+                            + '); the result is the fit with every initial state pinned to '
+                            "the records' first samples, which explains the data better")
+        elif start_check.get('chosen', '').startswith('second start'):
+            warnings.append('the fit from the default start landed where the model-free '
+                            'evidence disagrees (' + '; '.join(start_check['doubts'])
+                            + '); the result is from a second start (the regression on the '
+                            "data, initial states pinned to the first samples while the "
+                            'effects were searched), which explains the data better')
     final, terms, fitted_records = estimate, (), list(records)
     if found is not None:
         final, terms, fitted_records = found.estimate, found.terms, found.records
@@ -544,6 +568,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
         upper_bounds=upper_bounds,
         initial_state=initial_state,
         elapsed_s=progress.elapsed(),
+        start_check=start_check,
         estimate=final,
         input_records=list(records),
         discovery_result=found,
@@ -655,6 +680,75 @@ def _identify_current_limited(records, limited, discover, vocabulary, progress, 
         not_identifiable=not_identifiable, warnings=warnings,
         upper_bounds={'La': parameters['La'], 'Ta': parameters['Ta']},
         elapsed_s=progress.elapsed())
+
+
+def _check_start(records, torque_constant, quasi, discover, vocabulary, progress, estimate,
+                 found, discovery_info):
+    """
+    Check the fit against model-free evidence; when doubted, try a second start, keep the best.
+
+    Returns ``(found, base estimate, discovery summary, start_check)``, the first three
+    replaced by the second start's when it explains all of the data better (lower BIC).
+    ``start_check`` is the JSON account (:mod:`dcmotor_id.basin`).
+    """
+    evidence = regression_evidence(records, torque_constant)
+    first = found.estimate if found is not None else estimate
+    first_records = found.records if found is not None else list(records)
+    first_terms = found.terms if found is not None else ()
+    model = OutputErrorModel(first_records, torque_constant, first_terms, quasi)
+    doubts = suspect(first, first_records, model, evidence)
+    check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
+    if not doubts:
+        return found, estimate, discovery_info, check
+    names = [name for name in parameter_names(torque_constant is not None)
+             if not (quasi and name == 'La')]
+    start = regression_start(evidence, estimate.parameters, names)
+    progress.set_stage('second start (initial states pinned)', _names(records))
+    try:
+        pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
+                                  progress=progress).fit(records, torque_constant=torque_constant)
+        _check_physical(pinned)
+        second, second_info = None, None
+        structure, values, states = Structure(), pinned.parameters, pinned.initial_states
+        if discover:
+            second, second_info = _run_discovery(
+                records, torque_constant, RefinedEstimator(), vocabulary, progress, 'measured',
+                quasi, pinned)
+            if second is not None:
+                structure = second.final.structure
+                values, states = second.estimate.parameters, second.estimate.initial_states
+        freed_records, freed_terms, freed = refit_all_data(
+            structure, records, torque_constant, values,
+            refit_start(values, records, torque_constant), progress=progress,
+            initial_states=states, initial_state='estimate', quasi_static=quasi)
+        _check_physical(freed)
+    except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
+        check['second_start'] = f'failed: {error}'
+        return found, estimate, discovery_info, check
+    noise = dict(first.info.get('noise_std', {}))
+    pinned_final = second.estimate if second is not None else pinned
+    scores = {
+        'first start': bic(first, first_records, model, noise),
+        'second start': bic(freed, freed_records, OutputErrorModel(
+            freed_records, torque_constant, freed_terms, quasi), noise),
+        'second start, initial states pinned': bic(pinned_final, freed_records, OutputErrorModel(
+            freed_records, torque_constant, freed_terms, quasi), noise)
+        - 2 * len(records) * np.log(max(sum(len(rec) for rec in records), 2)),
+    }
+    # The pinned fit has no free initial states: its BIC counts them out (above).
+    chosen = min(scores, key=lambda key: scores[key])
+    check.update({'second_start': {'effects': structure.names(),
+                                   'J': float(freed.parameters['J']),
+                                   'b': float(freed.parameters['b'])},
+                  'bic': scores, 'chosen': chosen})
+    if chosen == 'first start':
+        return found, estimate, discovery_info, check
+    final = freed if chosen == 'second start' else pinned_final
+    if second is None:
+        return None, final, discovery_info, check
+    second = replace(second, estimate=final, records=freed_records, terms=freed_terms,
+                     effects=structure.effects(final.parameters))
+    return second, pinned, second_info, check
 
 
 def _structure_shift(base: Estimate, parameters: dict[str, float],
