@@ -78,6 +78,10 @@ ONE_STEP_TERMS = {'voltage': 'voltage_extra', 'torque': 'torque_extra',
 #: Bound on the Jacobian evaluations of a candidate's refit (per parameter, as in
 #: :class:`~dcmotor_id.estimators.refined.RefinedEstimator`).
 CANDIDATE_MAX_NFEV = 30
+#: Blocks per record's held-out part of the gain's t statistic (:meth:`DiscoveryLoop.gain_t`).
+GAIN_BLOCKS = 8
+#: Least t of the held-out gain for an effect to be added.
+GAIN_T = 2.0
 
 
 class Structure:
@@ -794,17 +798,18 @@ class DiscoveryLoop:
         screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
                               key=lambda candidate: -candidate.screen_explained)
         chosen = None
-        equivalent = []
-        admissible = [candidate for candidate in refitted if not candidate.problem]
-        drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
-        if drop > 0:
-            ties = [candidate for candidate in admissible
-                    if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
-            winner = min(ties, key=lambda candidate: order[candidate.name])
-            # Refitted candidates are scored: gain and bic_delta are set.
-            if winner.gain >= self.min_gain and winner.bic_delta < 0:  # type: ignore[operator]
-                chosen = winner
-                equivalent = [candidate for candidate in ties if candidate is not winner]
+        equivalent: list[Candidate] = []
+        while chosen is None:
+            admissible = [candidate for candidate in refitted if not candidate.problem]
+            chosen, equivalent = self._choose(current, admissible, order)
+            if chosen is None:
+                break
+            doubt = self._unearned(current, chosen)
+            if doubt:
+                # Rejected, and the next best is considered in its place.
+                refitted = [replace(candidate, problem=doubt) if candidate is chosen
+                            else candidate for candidate in refitted]
+                chosen = None
         results = refitted + screened_out
         report: dict[str, Any] = {
             'error_before': current.errors(self.outputs),
@@ -818,6 +823,72 @@ class DiscoveryLoop:
             report['gain_pct'] = chosen.gain * 100.0  # type: ignore[operator]
             report['equivalent'] = [candidate.describe() for candidate in equivalent]
         return Round(results, chosen, report)
+
+    def _choose(self, current, admissible, order):
+        """The best admissible candidate when it gains enough (and its ties), else None."""
+        drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
+        if not drop > 0:
+            return None, []
+        ties = [candidate for candidate in admissible
+                if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
+        winner = min(ties, key=lambda candidate: order[candidate.name])
+        # Refitted candidates are scored: gain and bic_delta are set.
+        if winner.gain >= self.min_gain and winner.bic_delta < 0:  # type: ignore[operator]
+            return winner, [candidate for candidate in ties if candidate is not winner]
+        return None, []
+
+    def gain_t(self, current: Fit, fitted: Fit) -> float:
+        """
+        Student t of the held-out gain over contiguous blocks (its size against its noise).
+
+        Every record's held-out part is cut into :data:`GAIN_BLOCKS` blocks; the gain of a
+        block is the drop of its weighted squared residual.  A gain that a few blocks carry
+        while the others lose (a model fitting noise, or trading one stretch for another) has
+        a small t.
+        """
+        drops = []
+        for index, stop in enumerate(current.stops):
+            old = sum(((current.simulated[index][channel][stop:]
+                        - getattr(current.records[index], channel)[stop:])
+                       / self.weights[channel]) ** 2 for channel in self.outputs)
+            new = sum(((fitted.simulated[index][channel][fitted.stops[index]:]
+                        - getattr(fitted.records[index], channel)[fitted.stops[index]:])
+                       / self.weights[channel]) ** 2 for channel in self.outputs)
+            size = min(old.shape[0], new.shape[0])
+            for block in np.array_split(np.arange(size), GAIN_BLOCKS):
+                if block.shape[0]:
+                    drops.append(float(np.mean(old[block]) - np.mean(new[block])))
+        drops_array = np.array(drops)
+        if drops_array.shape[0] < 2 or not np.all(np.isfinite(drops_array)):
+            return 0.0
+        spread = float(np.std(drops_array, ddof=1)) / np.sqrt(drops_array.shape[0])
+        mean = float(np.mean(drops_array))
+        return mean / spread if spread > 0 else (np.inf if mean > 0 else 0.0)
+
+    def _unearned(self, current: Fit, candidate: Candidate) -> str | None:
+        """
+        Why a winning candidate has not earned its place on held-out data, or None.
+
+        Its held-out gain must stand out of the gain's own noise over blocks
+        (:meth:`gain_t` at least :data:`GAIN_T`); an effect beyond a physical size limit (a
+        cogging ripple larger than the Coulomb friction) needs twice that and twice the gain.
+        """
+        t = self.gain_t(current, candidate.fitted)
+        required, gain = GAIN_T, self.min_gain
+        values = candidate.fitted.values
+        size = ''
+        if candidate.name == 'cogging':
+            amplitude = float(np.hypot(values.get('cogging.sin_Nm', 0.0),
+                                       values.get('cogging.cos_Nm', 0.0)))
+            if amplitude > values.get('Mc', 0.0):
+                required, gain = 2.0 * GAIN_T, 2.0 * self.min_gain
+                size = (f' (a ripple of {amplitude:.3g} N m, larger than the Coulomb friction '
+                        f'{values.get("Mc", 0.0):.3g} N m, needs t >= {required:g} and a gain of '
+                        f'{100 * gain:.0f} %)')
+        if t >= required and candidate.gain >= gain:  # type: ignore[operator]
+            return None
+        return (f'its held-out gain ({100 * candidate.gain:.3g} %, t = {t:.2g} over '  # type: ignore[operator]
+                f'{GAIN_BLOCKS} blocks per record) does not stand out of its own noise{size}')
 
     @staticmethod
     def _candidate_report(candidate, analysis):
