@@ -431,8 +431,21 @@ def identify(records: Sequence[Record], method: str = 'refined',
                 estimate, quasi = refit, True
                 errors = simulation_errors(estimate, records, None, quasi_static=True)
     found, discovery_info = None, None
+    checkable = initial_state == 'estimate' and isinstance(estimator, RefinedEstimator)
+    start_check: dict[str, Any] | None = None
+    if checkable:
+        # A base in a wrong basin misleads the effect screen: checked before the loop.
+        found, estimate, discovery_info, start_check = _check_start(
+            records, torque_constant, quasi, discover, vocabulary, progress, estimate, None,
+            None)
+        if start_check['chosen'] == 'first start':
+            start_check = None if not start_check['doubts'] else start_check
+        else:
+            errors = simulation_errors(estimate, records, torque_constant, quasi_static=quasi)
     base_worst = max([value for value in errors.values() if value is not None] or [np.inf])
-    if discover and not base_worst <= HOPELESS_NRMSE_PCT:
+    if start_check is not None and start_check['chosen'] != 'first start':
+        pass  # the second start ran its own discovery
+    elif discover and not base_worst <= HOPELESS_NRMSE_PCT:
         # Worse than the signals' mean: a sign or unit error, which no effect explains (and
         # every candidate fit would diverge slowly); refuse below without the loop.
         discovery_info = {'skipped': f'the base model does not fit ({base_worst:.3g} % '
@@ -460,22 +473,13 @@ def identify(records: Sequence[Record], method: str = 'refined',
         elif found is None and discovery_info and 'time budget' in discovery_info.get(
                 'skipped', ''):
             warnings.append(discovery_info['skipped'])
-    start_check: dict[str, Any] | None = None
-    if initial_state == 'estimate' and isinstance(estimator, RefinedEstimator):
+    if checkable and start_check is None:
+        # The base looked sound; check where discovery led.
         found, estimate, discovery_info, start_check = _check_start(
             records, torque_constant, quasi, discover, vocabulary, progress, estimate, found,
             discovery_info)
-        if start_check.get('chosen') == 'second start, initial states pinned':
-            warnings.append('the fit from the default start landed where the model-free '
-                            'evidence disagrees (' + '; '.join(start_check['doubts'])
-                            + '); the result is the fit with every initial state pinned to '
-                            "the records' first samples, which explains the data better")
-        elif start_check.get('chosen', '').startswith('second start'):
-            warnings.append('the fit from the default start landed where the model-free '
-                            'evidence disagrees (' + '; '.join(start_check['doubts'])
-                            + '); the result is from a second start (the regression on the '
-                            "data, initial states pinned to the first samples while the "
-                            'effects were searched), which explains the data better')
+    if start_check is not None and start_check['chosen'] != 'first start':
+        warnings.append(_second_start_warning(start_check))
     final, terms, fitted_records = estimate, (), list(records)
     if found is not None:
         final, terms, fitted_records = found.estimate, found.terms, found.records
@@ -749,6 +753,17 @@ def _check_start(records, torque_constant, quasi, discover, vocabulary, progress
     second = replace(second, estimate=final, records=freed_records, terms=freed_terms,
                      effects=structure.effects(final.parameters))
     return second, pinned, second_info, check
+
+
+def _second_start_warning(check: dict[str, Any]) -> str:
+    """The warning of a result taken from the second start."""
+    how = ('the fit with every initial state pinned to the records\' first samples'
+           if check['chosen'].endswith('pinned') else
+           'from a second start (the regression on the data, initial states pinned to the '
+           'first samples while the effects were searched, then freed)')
+    return ('the fit from the default start landed where the model-free evidence disagrees ('
+            + '; '.join(check['doubts']) + f'); the result is {how}, which explains all of the '
+            'data better (BIC)')
 
 
 def _structure_shift(base: Estimate, parameters: dict[str, float],
