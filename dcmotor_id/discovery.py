@@ -181,11 +181,24 @@ class Fit:
         return pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
 
     def errors(self, outputs: Sequence[str], part: str = 'heldout') -> ChannelErrors:
-        """``{current_nrmse_pct, speed_nrmse_pct}`` on a part (current None if no output)."""
-        return channel_errors({channel: self.channel_simulated(channel, part)
-                               for channel in outputs},
-                              {channel: self.channel_measured(channel, part)
-                               for channel in outputs}, outputs)
+        """
+        ``{current_nrmse_pct, speed_nrmse_pct}`` on a part (current None if no output).
+
+        In percent of each channel's spread over the *whole* records joined: a held-out part
+        in a steady tail has a tiny spread of its own, which would make any error look huge.
+        """
+        errors = channel_errors({channel: self.channel_simulated(channel, part)
+                                 for channel in outputs},
+                                {channel: self.channel_measured(channel, part)
+                                 for channel in outputs}, outputs)
+        for channel in outputs:
+            key = f'{channel}_nrmse_pct'
+            own = float(np.std(self.channel_measured(channel, part)))
+            whole = float(np.std(np.concatenate([getattr(rec, channel)
+                                                 for rec in self.records])))
+            if errors.get(key) is not None and whole > 0:
+                errors[key] = errors[key] * own / whole  # type: ignore[literal-required]
+        return errors
 
 
 @dataclass(frozen=True, eq=False)
@@ -308,17 +321,13 @@ class DiscoveryLoop:
     # ------------------------------------------------------------------ fitting
     def _stops(self, records):
         """
-        End of every record's training part: the held-out share of its *moving* extent.
+        End of every record's training part (:func:`excited_stop`).
 
-        A record that ends at standstill (a stroke, a pulse) would otherwise hold out a part
-        where nothing happens, which cannot judge a model.
+        The held-out part carries the held-out share of the record's *excitation*, not of its
+        samples: a record that ends at standstill or in a steady-speed tail would otherwise
+        hold out a part where nothing happens, which cannot judge a model.
         """
-        stops = []
-        for rec in records:
-            first, last = moving_extent(rec.speed)
-            stop = first + (last - first) * (1.0 - self.holdout_fraction)
-            stops.append(min(max(int(round(stop)), 1), len(rec) - 1))
-        return stops
+        return [excited_stop(rec, self.holdout_fraction, self.outputs) for rec in records]
 
     def _estimator(self, **options: Any) -> RefinedEstimator:
         return RefinedEstimator(initial_state=self.initial_state, progress=self.progress,
@@ -936,6 +945,52 @@ def friction_floors(values: dict, records: Sequence[Record],
     spread = torque_spread(records, values, torque_constant)
     speed = max(float(np.std(np.concatenate([rec.speed for rec in records]))), 1e-12)
     return {'Mc': 0.02 * spread, 'b': 0.02 * spread / speed}
+
+
+#: Blocks of the excitation measure of :func:`excited_stop`.
+EXCITATION_BLOCKS = 200
+#: Bounds of the training part as shares of the moving extent (enough to fit, enough to judge).
+TRAIN_SHARE_BOUNDS = (0.4, 0.85)
+
+
+def excited_stop(record: Record, holdout_fraction: float = HOLDOUT_FRACTION,
+                 channels: Sequence[str] = ('speed',)) -> int:
+    """
+    End of a record's training part: the rest carries the held-out share of its excitation.
+
+    Within the moving extent (:func:`moving_extent`) the excitation is the change of each
+    channel's block means beyond their noise (:data:`EXCITATION_BLOCKS` blocks; standstill and
+    steady speed add nothing), each channel normalised to its total.  The training part ends
+    at the last block boundary before which at most ``1 - holdout_fraction`` of it lies,
+    within :data:`TRAIN_SHARE_BOUNDS` of the moving extent; without measurable excitation,
+    at ``1 - holdout_fraction`` of the extent.
+    """
+    from dcmotor_id.identifiability import noise_level
+
+    first, last = moving_extent(record.speed)
+    size = last - first
+    fallback = first + size * (1.0 - holdout_fraction)
+    blocks = min(EXCITATION_BLOCKS, size // 5)
+    stop = fallback
+    if blocks >= 4:
+        edges = np.linspace(0, size, blocks + 1).astype(int)
+        weight = np.zeros(blocks - 1)
+        for channel in channels:
+            values = np.asarray(getattr(record, channel), dtype=float)[first:last]
+            means = np.add.reduceat(values, edges[:-1]) / np.diff(edges)
+            floor = 4.0 * noise_level(values) * np.sqrt(2.0 / max(int(np.min(np.diff(edges))),
+                                                                  1))
+            change = np.abs(np.diff(means))
+            change[change <= floor] = 0.0
+            if change.sum() > 0:
+                weight += change / change.sum()
+        if weight.sum() > 0:
+            share = np.cumsum(weight) / weight.sum()
+            below = np.flatnonzero(share <= 1.0 - holdout_fraction)
+            stop = first + (edges[int(below[-1]) + 1] if below.shape[0] else edges[1])
+    low, high = TRAIN_SHARE_BOUNDS
+    stop = min(max(stop, first + low * size), first + high * size)
+    return min(max(int(round(stop)), 1), len(record) - 1)
 
 
 def moving_extent(speed: np.ndarray) -> tuple[int, int]:

@@ -41,6 +41,7 @@ from dcmotor_id.records import check_record
 from dcmotor_id.residuals import (ChannelErrors, model_errors, output_channels,
                                   simulate_records, simulation_error_pct)
 from dcmotor_id.signals import noise_std, speed_from_position
+from dcmotor_id.validate import operating_range
 
 if TYPE_CHECKING:
     from dcmotor_id.effects import Effect
@@ -59,6 +60,10 @@ HOPELESS_DISCOVERY_S = 3.0
 JACKKNIFE_GROUPS = 8
 #: Default time budget [s] (``--max-time``).
 DEFAULT_MAX_TIME_S = 120.0
+#: How the held-out part of every record is chosen (the JSON ``errors.heldout_choice``).
+HELDOUT_CHOICE = ('the end of each record carrying the last 30 % of its excitation (the change '
+                  'of the outputs beyond their noise; standstill and steady-speed tails add '
+                  'none), at most 60 % and at least 15 % of its motion')
 #: Choices of ``--initial-state``.
 INITIAL_STATES = ('estimate', 'measured')
 
@@ -237,6 +242,9 @@ class IdentificationResult:
         ``estimate`` or ``measured``.
     elapsed_s : float
         Run time.
+    operating_range : dict
+        Speed and current ranges and directions of the records
+        (:func:`dcmotor_id.validate.operating_range`; copied into ``model`` for ``validate``).
     start_check : dict or None
         The fit checked against model-free evidence (:mod:`dcmotor_id.basin`): ``evidence``
         (the regression's values), ``doubts``, and when doubted ``second_start``, ``bic`` and
@@ -277,6 +285,7 @@ class IdentificationResult:
     initial_state: str = 'estimate'
     elapsed_s: float = 0.0
     start_check: dict[str, Any] | None = None
+    operating_range: dict[str, Any] = field(default_factory=dict)
     estimate: Estimate | None = field(repr=False, default=None)
     input_records: list[Record] = field(repr=False, default_factory=list)
     discovery_result: DiscoveryResult | None = field(repr=False, default=None)
@@ -312,6 +321,7 @@ class IdentificationResult:
             'initial_state': self.initial_state,
             'elapsed_s': self.elapsed_s,
             'start_check': self.start_check,
+            'operating_range': self.operating_range,
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out
@@ -544,6 +554,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
                                   quasi)
     if errors_detail.get('note'):
         warnings.append(errors_detail['note'])
+    if errors_detail.get('worse_than_constant'):
+        warnings.append('on the held-out part the model predicts worse than a constant (the '
+                        "part's own mean): " + ', '.join(errors_detail['worse_than_constant'])
+                        + '; the fit may sit in a wrong basin or miss an effect: compare with '
+                        '--initial-state measured and --no-discover')
     return IdentificationResult(
         parameters=parameters,
         stderr=stderr,
@@ -573,6 +588,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
         initial_state=initial_state,
         elapsed_s=progress.elapsed(),
         start_check=start_check,
+        operating_range=operating_range(records),
         estimate=final,
         input_records=list(records),
         discovery_result=found,
@@ -899,16 +915,66 @@ def _run_discovery(records, torque_constant, estimator, vocabulary, progress, in
     return found, found.summary()
 
 
-def _part_metrics(simulated, measured, outputs):
-    """NRMSE (percent of this part's own spread) and fit % per channel of one part."""
+def _part_metrics(simulated, measured, outputs, spread=None):
+    """
+    NRMSE and fit % per channel of one part.
+
+    In percent of this part's own spread, or of ``spread`` (channel -> standard deviation,
+    e.g. over the whole record) when given.
+    """
     out: dict[str, float | None] = {}
     for channel in ('current', 'speed'):
         value = None
         if channel in outputs and measured[channel].shape[0] > 1:
-            value = simulation_error_pct(simulated[channel], measured[channel])
+            if spread is None:
+                value = simulation_error_pct(simulated[channel], measured[channel])
+            elif spread[channel] > 0:
+                residual = np.asarray(simulated[channel]) - measured[channel]
+                value = float(np.sqrt(np.mean(residual ** 2))) / spread[channel] * 100.0
+                value = value if np.isfinite(value) else None
         out[f'{channel}_nrmse_pct'] = value
         out[f'{channel}_fit_pct'] = None if value is None else 100.0 - value
     return out
+
+
+def _heldout_item(item, rec, index, found, outputs):
+    """Fill a record's held-out figures: segment, errors, constant predictor; moves or not."""
+    stop = found.final.stops[index]
+    speed = np.asarray(rec.speed, dtype=float)
+    held = speed[stop:]
+    noise = max(noise_std(speed), 1e-12)
+    moves = held.shape[0] > 5 and float(np.ptp(held)) > 10.0 * noise
+    item['heldout_samples'] = int(len(rec) - stop)
+    item['heldout_moves'] = bool(moves)
+    time_s = np.asarray(rec.time_s, dtype=float)
+    item['heldout_segments'] = [{'start_sample': int(stop), 'end_sample': int(len(rec)),
+                                 'start_s': float(time_s[stop]), 'end_s': float(time_s[-1])}]
+    if not moves:
+        return False
+    spread = {c: float(np.std(getattr(found.final.records[index], c))) for c in outputs}
+    measured = {c: getattr(found.final.records[index], c)[stop:] for c in outputs}
+    for label, fit in (('before', found.base), ('after', found.final)):
+        item[label]['heldout'] = _part_metrics(
+            {c: fit.simulated[index][c][stop:] for c in outputs}, measured, outputs, spread)
+    item['heldout_constant'] = _part_metrics(
+        {c: np.full(measured[c].shape, float(np.mean(measured[c]))) for c in outputs},
+        measured, outputs, spread)
+    return True
+
+
+def _worse_than_constant(items):
+    """Records whose final held-out error exceeds the held-out part's own mean as predictor."""
+    worse = []
+    for item in items:
+        model, constant = item['after']['heldout'], item.get('heldout_constant')
+        if not model or not constant:
+            continue
+        for key in ('current_nrmse_pct', 'speed_nrmse_pct'):
+            if model.get(key) is not None and constant.get(key) is not None and \
+                    model[key] > constant[key]:
+                worse.append(f'{item["source"] or "record"} ({key.split("_")[0]} '
+                             f'{model[key]:.3g} % against {constant[key]:.3g} %)')
+    return worse
 
 
 def _pooled(items):
@@ -940,14 +1006,20 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     MATLAB-style fit ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` = ``100 - NRMSE``, per
     channel.  ``whole_record``: the all-data fits simulated over each whole record (in-sample).
     ``heldout``: the training-part fits of the discovery loop on each record's held-out part
-    (the last share of its motion); None for a record whose held-out part does not move.
+    (the end of the record carrying the last share of its excitation,
+    :func:`~dcmotor_id.discovery.excited_stop`), in percent of the *whole record's* spread
+    (a steady tail's own spread is tiny); None for a record whose held-out part does not move.
+    ``heldout_constant`` is the same figure for the held-out part's own mean as predictor.
 
     Returns
     -------
     dict
         ``records`` (one ``{"source", "samples", "heldout_samples", "heldout_moves",
-        "before": {"whole_record", "heldout"}, "after": {...}}`` per record), ``before`` and
-        ``after`` (root mean square over records), ``heldout_fraction`` and ``note``.
+        "heldout_segments", "heldout_constant", "before": {"whole_record", "heldout"},
+        "after": {...}}`` per record), ``before`` and ``after`` (root mean square over
+        records), ``heldout_fraction``, ``heldout_choice``, ``heldout_normalisation``,
+        ``worse_than_constant`` (records whose held-out error exceeds the constant's) and
+        ``note``.
 
     """
     mechanical_only = torque_constant is not None
@@ -973,21 +1045,8 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
         item: dict[str, Any] = {'source': rec.source, 'samples': len(rec)}
         for label in ('before', 'after'):
             item[label] = {'whole_record': whole[label][index], 'heldout': None}
-        if found is not None:
-            stop = found.final.stops[index]
-            speed = np.asarray(rec.speed, dtype=float)
-            held = speed[stop:]
-            noise = max(noise_std(speed), 1e-12)
-            moves = held.shape[0] > 5 and float(np.ptp(held)) > 10.0 * noise
-            item['heldout_samples'] = int(len(rec) - stop)
-            item['heldout_moves'] = bool(moves)
-            if moves:
-                for label, fit in (('before', found.base), ('after', found.final)):
-                    item[label]['heldout'] = _part_metrics(
-                        {c: fit.simulated[index][c][stop:] for c in outputs},
-                        {c: getattr(fit.records[index], c)[stop:] for c in outputs}, outputs)
-            else:
-                notes.append(rec.source or f'record {index + 1}')
+        if found is not None and not _heldout_item(item, rec, index, found, outputs):
+            notes.append(rec.source or f'record {index + 1}')
         items.append(item)
     summary = {label: {part: _pooled([item[label][part] for item in items
                                       if item[label][part] is not None])
@@ -996,6 +1055,10 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     if notes:
         note = ('held-out part without motion (standstill), not used to judge the fit: '
                 + ', '.join(notes))
+    worse = _worse_than_constant(items)
     return {'records': items, **summary,
             'heldout_fraction': None if found is None else found.holdout_fraction,
+            'heldout_choice': None if found is None else HELDOUT_CHOICE,
+            'heldout_normalisation': 'standard deviation of the whole record',
+            'worse_than_constant': worse,
             'note': note}
