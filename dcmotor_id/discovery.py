@@ -80,6 +80,8 @@ ONE_STEP_TERMS = {'voltage': 'voltage_extra', 'torque': 'torque_extra',
 CANDIDATE_MAX_NFEV = 30
 #: Blocks per record's held-out part of the gain's t statistic (:meth:`DiscoveryLoop.gain_t`).
 GAIN_BLOCKS = 8
+#: Share of a refit's residual RMS an effect's own part of the outputs must exceed.
+OWN_PART_SHARE = 0.5
 #: Least t of the held-out gain for an effect to be added.
 GAIN_T = 2.0
 
@@ -882,6 +884,9 @@ class DiscoveryLoop:
         (:meth:`gain_t` at least :data:`GAIN_T`); an effect beyond a physical size limit (a
         cogging ripple larger than the Coulomb friction) needs twice that and twice the gain.
         """
+        small = self._below_noise(candidate)
+        if small:
+            return small
         t = self.gain_t(current, candidate.fitted)
         required, gain = GAIN_T, self.min_gain
         values = candidate.fitted.values
@@ -898,6 +903,47 @@ class DiscoveryLoop:
             return None
         return (f'its held-out gain ({100 * candidate.gain:.3g} %, t = {t:.2g} over '  # type: ignore[operator]
                 f'{GAIN_BLOCKS} blocks per record) does not stand out of its own noise{size}')
+
+    def _below_noise(self, candidate: Candidate) -> str | None:
+        """
+        Why an effect's own part of the simulated outputs is below the noise, or None.
+
+        The refit is simulated again with the effect's coefficients at zero: an effect whose
+        own contribution stays below the noise on every channel (the sensor noise, or
+        :data:`OWN_PART_SHARE` of the refit's residual RMS when larger: input noise integrated
+        by the motor, or misfit) explains no part of the signal that stands out, and a gain it
+        brings comes from moving the other parameters (extra freedom, not an effect).  Data
+        effects (delays) are not judged so.
+        """
+        from dcmotor_id.identifiability import noise_level
+
+        fitted = candidate.fitted
+        prefix = f'{candidate.name}.'
+        own = [term for term in fitted.terms if term.name.startswith(prefix)]
+        if candidate.effect.TRANSFORM or not own:
+            return None
+        values = dict(fitted.values)
+        for term in own:
+            values[term.name] = 0.0
+        model = OutputErrorModel(fitted.records, self.torque_constant, fitted.terms,
+                                 self.quasi_static)
+        without = simulate_records(model, values, fitted.estimate.initial_states)
+        sizes = {}
+        for channel in self.outputs:
+            difference = np.concatenate([sim[channel] - out[channel] for sim, out
+                                         in zip(fitted.simulated, without)])
+            sensor = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2
+                                      for rec in fitted.records]))
+            misfit = float(fitted.estimate.info.get('noise_std', {}).get(channel, 0.0))
+            noise = max(float(sensor), OWN_PART_SHARE * misfit)
+            rms = float(np.sqrt(np.mean(difference ** 2)))
+            if not (np.isfinite(rms) and rms <= noise):
+                return None
+            sizes[channel] = (rms, noise)
+        listing = ', '.join(f'{channel} {rms:.3g} against a noise of {noise:.3g}'
+                            for channel, (rms, noise) in sizes.items())
+        return (f'its own part of the simulated outputs is below the noise ({listing}): '
+                'its held-out gain comes from moving the other parameters')
 
     @staticmethod
     def _candidate_report(candidate, analysis):
@@ -949,8 +995,9 @@ def friction_floors(values: dict, records: Sequence[Record],
 
 #: Blocks of the excitation measure of :func:`excited_stop`.
 EXCITATION_BLOCKS = 200
-#: Bounds of the training part as shares of the moving extent (enough to fit, enough to judge).
-TRAIN_SHARE_BOUNDS = (0.4, 0.85)
+#: Bounds of the training part as shares of the moving extent: enough to fit (a record of
+#: two steps keeps part of the second level to train on), enough to judge.
+TRAIN_SHARE_BOUNDS = (0.6, 0.85)
 
 
 def excited_stop(record: Record, holdout_fraction: float = HOLDOUT_FRACTION,

@@ -63,7 +63,7 @@ DEFAULT_MAX_TIME_S = 120.0
 #: How the held-out part of every record is chosen (the JSON ``errors.heldout_choice``).
 HELDOUT_CHOICE = ('the end of each record carrying the last 30 % of its excitation (the change '
                   'of the outputs beyond their noise; standstill and steady-speed tails add '
-                  'none), at most 60 % and at least 15 % of its motion')
+                  'none), at most 40 % and at least 15 % of its motion')
 #: Choices of ``--initial-state``.
 INITIAL_STATES = ('estimate', 'measured')
 
@@ -556,7 +556,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
         warnings.append(errors_detail['note'])
     if errors_detail.get('worse_than_constant'):
         warnings.append('on the held-out part the model predicts worse than a constant (the '
-                        "part's own mean): " + ', '.join(errors_detail['worse_than_constant'])
+                        "record's mean): " + ', '.join(errors_detail['worse_than_constant'])
                         + '; the fit may sit in a wrong basin or miss an effect: compare with '
                         '--initial-state measured and --no-discover')
     return IdentificationResult(
@@ -957,13 +957,13 @@ def _heldout_item(item, rec, index, found, outputs):
         item[label]['heldout'] = _part_metrics(
             {c: fit.simulated[index][c][stop:] for c in outputs}, measured, outputs, spread)
     item['heldout_constant'] = _part_metrics(
-        {c: np.full(measured[c].shape, float(np.mean(measured[c]))) for c in outputs},
-        measured, outputs, spread)
+        {c: np.full(measured[c].shape, float(np.mean(getattr(found.final.records[index], c))))
+         for c in outputs}, measured, outputs, spread)
     return True
 
 
 def _worse_than_constant(items):
-    """Records whose final held-out error exceeds the held-out part's own mean as predictor."""
+    """Records whose final held-out error exceeds a constant predictor's (the record's mean)."""
     worse = []
     for item in items:
         model, constant = item['after']['heldout'], item.get('heldout_constant')
@@ -1009,7 +1009,7 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     (the end of the record carrying the last share of its excitation,
     :func:`~dcmotor_id.discovery.excited_stop`), in percent of the *whole record's* spread
     (a steady tail's own spread is tiny); None for a record whose held-out part does not move.
-    ``heldout_constant`` is the same figure for the held-out part's own mean as predictor.
+    ``heldout_constant`` is the same figure for a constant predictor (the record's mean).
 
     Returns
     -------
