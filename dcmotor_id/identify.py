@@ -951,11 +951,13 @@ def _heldout_item(item, rec, index, found, outputs):
                                  'start_s': float(time_s[stop]), 'end_s': float(time_s[-1])}]
     if not moves:
         return False
-    spread = {c: float(np.std(getattr(found.final.records[index], c))) for c in outputs}
-    measured = {c: getattr(found.final.records[index], c)[stop:] for c in outputs}
     for label, fit in (('before', found.base), ('after', found.final)):
+        # Each fit on its own records (a delay found shifts the final one's).
+        start = fit.stops[index]
+        spread = {c: float(np.std(getattr(fit.records[index], c))) for c in outputs}
+        measured = {c: getattr(fit.records[index], c)[start:] for c in outputs}
         item[label]['heldout'] = _part_metrics(
-            {c: fit.simulated[index][c][stop:] for c in outputs}, measured, outputs, spread)
+            {c: fit.simulated[index][c][start:] for c in outputs}, measured, outputs, spread)
     item['heldout_constant'] = _part_metrics(
         {c: np.full(measured[c].shape, float(np.mean(getattr(found.final.records[index], c))))
          for c in outputs}, measured, outputs, spread)
