@@ -68,15 +68,16 @@ def regression_evidence(records: Sequence[Record],
             continue
         dt = rec.sample_period_s
         keep = slice(trim, n - trim)
-        current = low_pass(rec.current, REGRESSION_CUTOFF)
-        speed = low_pass(rec.speed, REGRESSION_CUTOFF)
-        sign = low_pass(np.sign(rec.speed), REGRESSION_CUTOFF)
+        measured = np.asarray(rec.speed, dtype=float)
+        current = low_pass(np.asarray(rec.current, dtype=float), REGRESSION_CUTOFF)
+        speed = low_pass(measured, REGRESSION_CUTOFF)
+        sign = low_pass(np.sign(measured), REGRESSION_CUTOFF)
         columns = [np.gradient(speed, dt), speed, sign] + ([np.ones(n)] if offset else [])
         rows_m.append(np.column_stack(columns)[keep])
         rhs_m.append(current[keep] * (torque_constant or 1.0))
         if not mechanical_only:
             rows_e.append(np.column_stack([np.gradient(current, dt), current, speed])[keep])
-            rhs_e.append(low_pass(rec.voltage, REGRESSION_CUTOFF)[keep])
+            rhs_e.append(low_pass(np.asarray(rec.voltage, dtype=float), REGRESSION_CUTOFF)[keep])
     if not rows_m:
         return None
     try:

@@ -198,8 +198,9 @@ class Fit:
             own = float(np.std(self.channel_measured(channel, part)))
             whole = float(np.std(np.concatenate([getattr(rec, channel)
                                                  for rec in self.records])))
-            if errors.get(key) is not None and whole > 0:
-                errors[key] = errors[key] * own / whole  # type: ignore[literal-required]
+            value = errors.get(key)
+            if value is not None and whole > 0:
+                errors[key] = value * own / whole
         return errors
 
 
@@ -831,12 +832,12 @@ class DiscoveryLoop:
         if chosen is not None:
             report['added'] = chosen.describe()
             report['error_after'] = chosen.fitted.errors(self.outputs)
-            report['gain_pct'] = chosen.gain * 100.0  # type: ignore[operator]
+            report['gain_pct'] = chosen.gain * 100.0
             report['equivalent'] = [candidate.describe() for candidate in equivalent]
         return Round(results, chosen, report)
 
     def _choose(self, current, admissible, order):
-        """The best admissible candidate when it gains enough (and its ties), else None."""
+        """Return the best admissible candidate when it gains enough (and its ties), else None."""
         drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
         if not drop > 0:
             return None, []
@@ -844,7 +845,7 @@ class DiscoveryLoop:
                 if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
         winner = min(ties, key=lambda candidate: order[candidate.name])
         # Refitted candidates are scored: gain and bic_delta are set.
-        if winner.gain >= self.min_gain and winner.bic_delta < 0:  # type: ignore[operator]
+        if winner.gain >= self.min_gain and winner.bic_delta < 0:
             return winner, [candidate for candidate in ties if candidate is not winner]
         return None, []
 
@@ -857,14 +858,20 @@ class DiscoveryLoop:
         while the others lose (a model fitting noise, or trading one stretch for another) has
         a small t.
         """
+        weights = self.weights or {}
+
+        def squared(fit: Fit, index: int) -> np.ndarray:
+            start = fit.stops[index]
+            total = np.zeros(fit.simulated[index][self.outputs[0]].shape[0] - start)
+            for channel in self.outputs:
+                total += ((fit.simulated[index][channel][start:]
+                           - getattr(fit.records[index], channel)[start:])
+                          / weights.get(channel, 1.0)) ** 2
+            return total
+
         drops = []
-        for index, stop in enumerate(current.stops):
-            old = sum(((current.simulated[index][channel][stop:]
-                        - getattr(current.records[index], channel)[stop:])
-                       / self.weights[channel]) ** 2 for channel in self.outputs)
-            new = sum(((fitted.simulated[index][channel][fitted.stops[index]:]
-                        - getattr(fitted.records[index], channel)[fitted.stops[index]:])
-                       / self.weights[channel]) ** 2 for channel in self.outputs)
+        for index in range(len(current.stops)):
+            old, new = squared(current, index), squared(fitted, index)
             size = min(old.shape[0], new.shape[0])
             for block in np.array_split(np.arange(size), GAIN_BLOCKS):
                 if block.shape[0]:
@@ -899,9 +906,10 @@ class DiscoveryLoop:
                 size = (f' (a ripple of {amplitude:.3g} N m, larger than the Coulomb friction '
                         f'{values.get("Mc", 0.0):.3g} N m, needs t >= {required:g} and a gain of '
                         f'{100 * gain:.0f} %)')
-        if t >= required and candidate.gain >= gain:  # type: ignore[operator]
+        achieved = float(candidate.gain or 0.0)
+        if t >= required and achieved >= gain:
             return None
-        return (f'its held-out gain ({100 * candidate.gain:.3g} %, t = {t:.2g} over '  # type: ignore[operator]
+        return (f'its held-out gain ({100 * achieved:.3g} %, t = {t:.2g} over '
                 f'{GAIN_BLOCKS} blocks per record) does not stand out of its own noise{size}')
 
     def _below_noise(self, candidate: Candidate) -> str | None:
@@ -920,7 +928,7 @@ class DiscoveryLoop:
         fitted = candidate.fitted
         prefix = f'{candidate.name}.'
         own = [term for term in fitted.terms if term.name.startswith(prefix)]
-        if candidate.effect.TRANSFORM or not own:
+        if not own or candidate.effect.TRANSFORM:
             return None
         values = dict(fitted.values)
         for term in own:
@@ -1014,7 +1022,7 @@ def excited_stop(record: Record, holdout_fraction: float = HOLDOUT_FRACTION,
     """
     from dcmotor_id.identifiability import noise_level
 
-    first, last = moving_extent(record.speed)
+    first, last = moving_extent(np.asarray(record.speed, dtype=float))
     size = last - first
     fallback = first + size * (1.0 - holdout_fraction)
     blocks = min(EXCITATION_BLOCKS, size // 5)

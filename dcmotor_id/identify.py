@@ -772,8 +772,8 @@ def _check_start(records, torque_constant, quasi, discover, vocabulary, progress
 
 
 def _second_start_warning(check: dict[str, Any]) -> str:
-    """The warning of a result taken from the second start."""
-    how = ('the fit with every initial state pinned to the records\' first samples'
+    """Return the warning of a result taken from the second start."""
+    how = ("the fit with every initial state pinned to the records' first samples"
            if check['chosen'].endswith('pinned') else
            'from a second start (the regression on the data, initial states pinned to the '
            'first samples while the effects were searched, then freed)')
@@ -965,7 +965,7 @@ def _heldout_item(item, rec, index, found, outputs):
 
 
 def _worse_than_constant(items):
-    """Records whose final held-out error exceeds a constant predictor's (the record's mean)."""
+    """List the records whose held-out error exceeds a constant predictor's (its mean)."""
     worse = []
     for item in items:
         model, constant = item['after']['heldout'], item.get('heldout_constant')

@@ -85,7 +85,7 @@ RANGE_PERCENTILES = (1.0, 99.0)
 
 def operating_range(records: Sequence[Record]) -> dict[str, Any]:
     """
-    The range of speed and current the records cover (the model's operating range).
+    Return the range of speed and current the records cover (the model's operating range).
 
     ``speed_rad_s`` and ``current_A`` are ``[low, high]`` (the 1st and 99th percentiles over
     all records); ``directions`` lists ``positive`` and/or ``negative`` (speeds beyond a fifth
