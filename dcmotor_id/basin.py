@@ -171,11 +171,15 @@ def weighted_cost(estimate: Estimate, records: Sequence[Record], model: Any) -> 
 
 
 def bic(estimate: Estimate, records: Sequence[Record], model: Any,
-        noise: dict[str, float]) -> float:
-    """Bayesian information criterion of a fit on all of the data, under common weights."""
+        noise: dict[str, float], free_states: bool = True) -> float:
+    """
+    Bayesian information criterion of a fit on all of the data, under common weights.
+
+    ``free_states``: the initial states were fitted (they count as parameters).
+    """
     weighted = replace(estimate, info={**estimate.info, 'noise_std': noise})
     cost, count = weighted_cost(weighted, records, model)
-    k = len(estimate.parameters) + len(records) * len(model.outputs)
+    k = len(estimate.parameters) + (len(records) * len(model.outputs) if free_states else 0)
     if not np.isfinite(cost):
         return float('inf')
     return float(count * np.log(max(cost / max(count, 1), 1e-300)) + k * np.log(max(count, 2)))

@@ -490,6 +490,14 @@ def identify(records: Sequence[Record], method: str = 'refined',
             discovery_info)
     if start_check is not None and start_check['chosen'] != 'first start':
         warnings.append(_second_start_warning(start_check))
+    elif start_check is not None and start_check['doubts']:
+        outcome = start_check.get('second_start')
+        warnings.append('the fit disagrees with the model-free evidence ('
+                        + '; '.join(start_check['doubts']) + ') and a second start '
+                        + (f'could not help ({outcome})' if isinstance(outcome, str) else
+                           'explains the data no better')
+                        + ': the values may come from a wrong basin; compare with '
+                        '--initial-state measured')
     final, terms, fitted_records = estimate, (), list(records)
     if found is not None:
         final, terms, fitted_records = found.estimate, found.terms, found.records
@@ -724,50 +732,54 @@ def _check_start(records, torque_constant, quasi, discover, vocabulary, progress
              if not (quasi and name == 'La')]
     start = regression_start(evidence, estimate.parameters, names)
     progress.set_stage('second start (initial states pinned)', _names(records))
+    second, second_info, freed = None, None, None
     try:
         pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
                                   progress=progress).fit(records, torque_constant=torque_constant)
         _check_physical(pinned)
-        second, second_info = None, None
-        structure, values, states = Structure(), pinned.parameters, pinned.initial_states
-        if discover:
-            second, second_info = _run_discovery(
-                records, torque_constant, RefinedEstimator(), vocabulary, progress, 'measured',
-                quasi, pinned)
-            if second is not None:
-                structure = second.final.structure
-                values, states = second.estimate.parameters, second.estimate.initial_states
-        freed_records, freed_terms, freed = refit_all_data(
-            structure, records, torque_constant, values,
-            refit_start(values, records, torque_constant), progress=progress,
-            initial_states=states, initial_state='estimate', quasi_static=quasi)
-        _check_physical(freed)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
         check['second_start'] = f'failed: {error}'
         return found, estimate, discovery_info, check
-    noise = dict(first.info.get('noise_std', {}))
+    structure, values, states = Structure(), pinned.parameters, pinned.initial_states
+    if discover:
+        second, second_info = _run_discovery(
+            records, torque_constant, RefinedEstimator(), vocabulary, progress, 'measured',
+            quasi, pinned)
+        if second is not None:
+            structure = second.final.structure
+            values, states = second.estimate.parameters, second.estimate.initial_states
     pinned_final = second.estimate if second is not None else pinned
-    scores = {
-        'first start': bic(first, first_records, model, noise),
-        'second start': bic(freed, freed_records, OutputErrorModel(
-            freed_records, torque_constant, freed_terms, quasi), noise),
-        'second start, initial states pinned': bic(pinned_final, freed_records, OutputErrorModel(
-            freed_records, torque_constant, freed_terms, quasi), noise)
-        - 2 * len(records) * np.log(max(sum(len(rec) for rec in records), 2)),
-    }
-    # The pinned fit has no free initial states: its BIC counts them out (above).
+    second_records = structure.transformed(records)
+    second_model = OutputErrorModel(second_records, torque_constant,
+                                    second.terms if second is not None else (), quasi)
+    try:
+        freed = refit_all_data(structure, records, torque_constant, values,
+                               refit_start(values, records, torque_constant), progress=progress,
+                               initial_states=states, initial_state='estimate',
+                               quasi_static=quasi)[2]
+        _check_physical(freed)
+    except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
+        check['freed'] = f'failed: {error}'  # the pinned fit is still a candidate
+        freed = None
+    noise = dict(first.info.get('noise_std', {}))
+    scores = {'first start': bic(first, first_records, model, noise),
+              'second start, initial states pinned': bic(pinned_final, second_records,
+                                                         second_model, noise,
+                                                         free_states=False)}
+    if freed is not None:
+        scores['second start'] = bic(freed, second_records, second_model, noise)
     chosen = min(scores, key=lambda key: scores[key])
+    shown = freed if freed is not None else pinned_final
     check.update({'second_start': {'effects': structure.names(),
-                                   'J': float(freed.parameters['J']),
-                                   'b': float(freed.parameters['b'])},
+                                   'J': float(shown.parameters['J']),
+                                   'b': float(shown.parameters['b'])},
                   'bic': scores, 'chosen': chosen})
     if chosen == 'first start':
         return found, estimate, discovery_info, check
-    final = freed if chosen == 'second start' else pinned_final
+    final = freed if chosen == 'second start' and freed is not None else pinned_final
     if second is None:
         return None, final, discovery_info, check
-    second = replace(second, estimate=final, records=freed_records, terms=freed_terms,
-                     effects=structure.effects(final.parameters))
+    second = replace(second, estimate=final, effects=structure.effects(final.parameters))
     return second, pinned, second_info, check
 
 
