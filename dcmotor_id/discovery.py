@@ -82,6 +82,8 @@ CANDIDATE_MAX_NFEV = 30
 GAIN_BLOCKS = 8
 #: Share of a refit's residual RMS an effect's own part of the outputs must exceed.
 OWN_PART_SHARE = 0.5
+#: Noise levels of an effect's own part beyond which its held-out gain needs no t test.
+OWN_PART_STRONG = 3.0
 #: Least t of the held-out gain for an effect to be added.
 GAIN_T = 2.0
 
@@ -887,71 +889,75 @@ class DiscoveryLoop:
         """
         Why a winning candidate has not earned its place on held-out data, or None.
 
-        Its held-out gain must stand out of the gain's own noise over blocks
-        (:meth:`gain_t` at least :data:`GAIN_T`); an effect beyond a physical size limit (a
-        cogging ripple larger than the Coulomb friction) needs twice that and twice the gain.
+        Its own part of the simulated outputs must exceed the noise (:meth:`own_part`); unless
+        it stands far out of it (:data:`OWN_PART_STRONG` noise levels), its held-out gain must
+        stand out of the gain's own noise over blocks (:meth:`gain_t` at least
+        :data:`GAIN_T`).  An effect beyond a physical size limit (a cogging ripple larger than
+        the Coulomb friction) always needs twice that t and twice the gain.
         """
-        small = self._below_noise(candidate)
-        if small:
-            return small
-        t = self.gain_t(current, candidate.fitted)
+        own = self.own_part(candidate)
+        if own is not None and own[0] <= 1.0:
+            return (f'its own part of the simulated outputs is below the noise ({own[1]}): its '
+                    'held-out gain comes from moving the other parameters')
         required, gain = GAIN_T, self.min_gain
+        strong = own is not None and own[0] >= OWN_PART_STRONG
         values = candidate.fitted.values
         size = ''
         if candidate.name == 'cogging':
             amplitude = float(np.hypot(values.get('cogging.sin_Nm', 0.0),
                                        values.get('cogging.cos_Nm', 0.0)))
             if amplitude > values.get('Mc', 0.0):
-                required, gain = 2.0 * GAIN_T, 2.0 * self.min_gain
+                required, gain, strong = 2.0 * GAIN_T, 2.0 * self.min_gain, False
                 size = (f' (a ripple of {amplitude:.3g} N m, larger than the Coulomb friction '
                         f'{values.get("Mc", 0.0):.3g} N m, needs t >= {required:g} and a gain of '
                         f'{100 * gain:.0f} %)')
         achieved = float(candidate.gain or 0.0)
+        if strong and achieved >= gain:
+            return None
+        t = self.gain_t(current, candidate.fitted)
         if t >= required and achieved >= gain:
             return None
         return (f'its held-out gain ({100 * achieved:.3g} %, t = {t:.2g} over '
                 f'{GAIN_BLOCKS} blocks per record) does not stand out of its own noise{size}')
 
-    def _below_noise(self, candidate: Candidate) -> str | None:
+    def own_part(self, candidate: Candidate) -> tuple[float, str] | None:
         """
-        Why an effect's own part of the simulated outputs is below the noise, or None.
+        Size of an effect's own part of the simulated outputs, in noise levels, and its text.
 
-        The refit is simulated again with the effect's coefficients at zero: an effect whose
-        own contribution stays below the noise on every channel (the sensor noise, or
-        :data:`OWN_PART_SHARE` of the refit's residual RMS when larger: input noise integrated
-        by the motor, or misfit) explains no part of the signal that stands out, and a gain it
-        brings comes from moving the other parameters (extra freedom, not an effect).  Data
-        effects (delays) are not judged so.
+        The refit is simulated again with the effect's coefficients at zero; the largest
+        channel's RMS difference over its noise (the sensor noise, or :data:`OWN_PART_SHARE` of
+        the refit's residual RMS when larger: input noise integrated by the motor, or misfit).
+        An effect below one noise level explains no part of the signal that stands out: a gain
+        it brings comes from moving the other parameters (extra freedom, not an effect).  None
+        for data effects (delays), which are not judged so.
         """
         from dcmotor_id.identifiability import noise_level
 
         fitted = candidate.fitted
         prefix = f'{candidate.name}.'
-        own = [term for term in fitted.terms if term.name.startswith(prefix)]
-        if not own or candidate.effect.TRANSFORM:
+        terms = [term for term in fitted.terms if term.name.startswith(prefix)]
+        if not terms or candidate.effect.TRANSFORM:
             return None
         values = dict(fitted.values)
-        for term in own:
+        for term in terms:
             values[term.name] = 0.0
         model = OutputErrorModel(fitted.records, self.torque_constant, fitted.terms,
                                  self.quasi_static)
         without = simulate_records(model, values, fitted.estimate.initial_states)
-        sizes = {}
+        ratio, texts = 0.0, []
         for channel in self.outputs:
             difference = np.concatenate([sim[channel] - out[channel] for sim, out
                                          in zip(fitted.simulated, without)])
             sensor = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2
                                       for rec in fitted.records]))
             misfit = float(fitted.estimate.info.get('noise_std', {}).get(channel, 0.0))
-            noise = max(float(sensor), OWN_PART_SHARE * misfit)
+            noise = max(float(sensor), OWN_PART_SHARE * misfit, 1e-300)
             rms = float(np.sqrt(np.mean(difference ** 2)))
-            if not (np.isfinite(rms) and rms <= noise):
+            if not np.isfinite(rms):
                 return None
-            sizes[channel] = (rms, noise)
-        listing = ', '.join(f'{channel} {rms:.3g} against a noise of {noise:.3g}'
-                            for channel, (rms, noise) in sizes.items())
-        return (f'its own part of the simulated outputs is below the noise ({listing}): '
-                'its held-out gain comes from moving the other parameters')
+            ratio = max(ratio, rms / noise)
+            texts.append(f'{channel} {rms:.3g} against a noise of {noise:.3g}')
+        return ratio, ', '.join(texts)
 
     @staticmethod
     def _candidate_report(candidate, analysis):
