@@ -79,6 +79,14 @@ ONE_STEP_TERMS = {'voltage': 'voltage_extra', 'torque': 'torque_extra',
 #: Bound on the Jacobian evaluations of a candidate's refit (per parameter, as in
 #: :class:`~dcmotor_id.identification.estimators.refined.RefinedEstimator`).
 CANDIDATE_MAX_NFEV = 30
+#: Blocks per record's held-out part of the gain's t statistic (:meth:`DiscoveryLoop.gain_t`).
+GAIN_BLOCKS = 8
+#: Share of a refit's residual RMS an effect's own part of the outputs must exceed.
+OWN_PART_SHARE = 0.5
+#: Noise levels of an effect's own part beyond which its held-out gain needs no t test.
+OWN_PART_STRONG = 3.0
+#: Least t of the held-out gain for an effect to be added.
+GAIN_T = 2.0
 
 
 class Structure:
@@ -178,11 +186,25 @@ class Fit:
         return pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
 
     def errors(self, outputs: Sequence[str], part: str = 'heldout') -> ChannelErrors:
-        """``{current_nrmse_pct, speed_nrmse_pct}`` on a part (current None if no output)."""
-        return channel_errors({channel: self.channel_simulated(channel, part)
-                               for channel in outputs},
-                              {channel: self.channel_measured(channel, part)
-                               for channel in outputs}, outputs)
+        """
+        ``{current_nrmse_pct, speed_nrmse_pct}`` on a part (current None if no output).
+
+        In percent of each channel's spread over the *whole* records joined: a held-out part
+        in a steady tail has a tiny spread of its own, which would make any error look huge.
+        """
+        errors = channel_errors({channel: self.channel_simulated(channel, part)
+                                 for channel in outputs},
+                                {channel: self.channel_measured(channel, part)
+                                 for channel in outputs}, outputs)
+        for channel in outputs:
+            key = f'{channel}_nrmse_pct'
+            own = float(np.std(self.channel_measured(channel, part)))
+            whole = float(np.std(np.concatenate([getattr(rec, channel)
+                                                 for rec in self.records])))
+            value = errors.get(key)
+            if value is not None and whole > 0:
+                errors[key] = value * own / whole
+        return errors
 
 
 @dataclass(frozen=True, eq=False)
@@ -306,17 +328,13 @@ class DiscoveryLoop:
     # ------------------------------------------------------------------ fitting
     def _stops(self, records):
         """
-        End of every record's training part: the held-out share of its *moving* extent.
+        End of every record's training part (:func:`excited_stop`).
 
-        A record that ends at standstill (a stroke, a pulse) would otherwise hold out a part
-        where nothing happens, which cannot judge a model.
+        The held-out part carries the held-out share of the record's *excitation*, not of its
+        samples: a record that ends at standstill or in a steady-speed tail would otherwise
+        hold out a part where nothing happens, which cannot judge a model.
         """
-        stops = []
-        for rec in records:
-            first, last = moving_extent(rec.speed)
-            stop = first + (last - first) * (1.0 - self.holdout_fraction)
-            stops.append(min(max(int(round(stop)), 1), len(rec) - 1))
-        return stops
+        return [excited_stop(rec, self.holdout_fraction, self.outputs) for rec in records]
 
     def _estimator(self, **options: Any) -> RefinedEstimator:
         return RefinedEstimator(initial_state=self.initial_state, progress=self.progress,
@@ -453,11 +471,11 @@ class DiscoveryLoop:
 
     def misfit(self, fitted: Fit) -> bool:
         """Whether the held-out residual is far above the sensor noise on some channel."""
-        from dcmotor_id.signals.filters import noise_std
+        from dcmotor_id.identification.identifiability import noise_level
 
         for channel in self.outputs:
             residual = fitted.channel_residual(channel, 'heldout')
-            noise = np.sqrt(np.mean([noise_std(getattr(rec, channel)) ** 2
+            noise = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2
                                      for rec in fitted.records]))
             if residual.shape[0] and noise > 0 and \
                     np.sqrt(np.mean(residual ** 2)) > MISFIT_FACTOR * noise:
@@ -594,16 +612,25 @@ class DiscoveryLoop:
 
     # ------------------------------------------------------------------ candidates
     def _try(self, current, cls, inner, start_terms):
+        """
+        Refit the structure with a candidate from the screen's start; return the Fit or None.
+
+        The screen's start is a linearisation at the current fit: from a poor base it can
+        overshoot so far that the refit does not converge, so a failed refit is tried once
+        more from the candidate's own neutral start (its terms at their defaults).
+        """
         structure = current.structure.plus(cls, inner)
-        initial = dict(current.values)
-        initial.update(start_terms)
-        try:
-            with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
-                return self.fit(structure, start=self._base(current), initial=initial,
-                                max_nfev=CANDIDATE_MAX_NFEV,
-                                initial_states=current.estimate.initial_states)
-        except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
-            return None
+        for terms in ((start_terms, {}) if start_terms else ({},)):
+            initial = dict(current.values)
+            initial.update(terms)
+            try:
+                with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
+                    return self.fit(structure, start=self._base(current), initial=initial,
+                                    max_nfev=CANDIDATE_MAX_NFEV,
+                                    initial_states=current.estimate.initial_states)
+            except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
+                continue
+        return None
 
     def _base(self, fitted):
         return refit_start(fitted.values, self.records, self.torque_constant)
@@ -789,17 +816,18 @@ class DiscoveryLoop:
         screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
                               key=lambda candidate: -candidate.screen_explained)
         chosen = None
-        equivalent = []
-        admissible = [candidate for candidate in refitted if not candidate.problem]
-        drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
-        if drop > 0:
-            ties = [candidate for candidate in admissible
-                    if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
-            winner = min(ties, key=lambda candidate: order[candidate.name])
-            # Refitted candidates are scored: gain and bic_delta are set.
-            if winner.gain >= self.min_gain and winner.bic_delta < 0:  # type: ignore[operator]
-                chosen = winner
-                equivalent = [candidate for candidate in ties if candidate is not winner]
+        equivalent: list[Candidate] = []
+        while chosen is None:
+            admissible = [candidate for candidate in refitted if not candidate.problem]
+            chosen, equivalent = self._choose(current, admissible, order)
+            if chosen is None:
+                break
+            doubt = self._unearned(current, chosen)
+            if doubt:
+                # Rejected, and the next best is considered in its place.
+                refitted = [replace(candidate, problem=doubt) if candidate is chosen
+                            else candidate for candidate in refitted]
+                chosen = None
         results = refitted + screened_out
         report: dict[str, Any] = {
             'error_before': current.errors(self.outputs),
@@ -810,9 +838,130 @@ class DiscoveryLoop:
         if chosen is not None:
             report['added'] = chosen.describe()
             report['error_after'] = chosen.fitted.errors(self.outputs)
-            report['gain_pct'] = chosen.gain * 100.0  # type: ignore[operator]
+            report['gain_pct'] = chosen.gain * 100.0
             report['equivalent'] = [candidate.describe() for candidate in equivalent]
         return Round(results, chosen, report)
+
+    def _choose(self, current, admissible, order):
+        """Return the best admissible candidate when it gains enough (and its ties), else None."""
+        drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
+        if not drop > 0:
+            return None, []
+        ties = [candidate for candidate in admissible
+                if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
+        winner = min(ties, key=lambda candidate: order[candidate.name])
+        # Refitted candidates are scored: gain and bic_delta are set.
+        if winner.gain >= self.min_gain and winner.bic_delta < 0:
+            return winner, [candidate for candidate in ties if candidate is not winner]
+        return None, []
+
+    def gain_t(self, current: Fit, fitted: Fit) -> float:
+        """
+        Student t of the held-out gain over contiguous blocks (its size against its noise).
+
+        Every record's held-out part is cut into :data:`GAIN_BLOCKS` blocks; the gain of a
+        block is the drop of its weighted squared residual.  A gain that a few blocks carry
+        while the others lose (a model fitting noise, or trading one stretch for another) has
+        a small t.
+        """
+        weights = self.weights or {}
+
+        def squared(fit: Fit, index: int) -> np.ndarray:
+            start = fit.stops[index]
+            total = np.zeros(fit.simulated[index][self.outputs[0]].shape[0] - start)
+            for channel in self.outputs:
+                total += ((fit.simulated[index][channel][start:]
+                           - getattr(fit.records[index], channel)[start:])
+                          / weights.get(channel, 1.0)) ** 2
+            return total
+
+        drops = []
+        for index in range(len(current.stops)):
+            old, new = squared(current, index), squared(fitted, index)
+            size = min(old.shape[0], new.shape[0])
+            for block in np.array_split(np.arange(size), GAIN_BLOCKS):
+                if block.shape[0]:
+                    drops.append(float(np.mean(old[block]) - np.mean(new[block])))
+        drops_array = np.array(drops)
+        if drops_array.shape[0] < 2 or not np.all(np.isfinite(drops_array)):
+            return 0.0
+        spread = float(np.std(drops_array, ddof=1)) / np.sqrt(drops_array.shape[0])
+        mean = float(np.mean(drops_array))
+        return mean / spread if spread > 0 else (np.inf if mean > 0 else 0.0)
+
+    def _unearned(self, current: Fit, candidate: Candidate) -> str | None:
+        """
+        Why a winning candidate has not earned its place on held-out data, or None.
+
+        Its own part of the simulated outputs must exceed the noise (:meth:`own_part`); unless
+        it stands far out of it (:data:`OWN_PART_STRONG` noise levels), its held-out gain must
+        stand out of the gain's own noise over blocks (:meth:`gain_t` at least
+        :data:`GAIN_T`).  An effect beyond a physical size limit (a cogging ripple larger than
+        the Coulomb friction) always needs twice that t and twice the gain.
+        """
+        own = self.own_part(candidate)
+        if own is not None and own[0] <= 1.0:
+            return (f'its own part of the simulated outputs is below the noise ({own[1]}): its '
+                    'held-out gain comes from moving the other parameters')
+        required, gain = GAIN_T, self.min_gain
+        strong = own is not None and own[0] >= OWN_PART_STRONG
+        values = candidate.fitted.values
+        size = ''
+        if candidate.name == 'cogging':
+            amplitude = float(np.hypot(values.get('cogging.sin_Nm', 0.0),
+                                       values.get('cogging.cos_Nm', 0.0)))
+            if amplitude > values.get('Mc', 0.0):
+                required, gain, strong = 2.0 * GAIN_T, 2.0 * self.min_gain, False
+                size = (f' (a ripple of {amplitude:.3g} N m, larger than the Coulomb friction '
+                        f'{values.get("Mc", 0.0):.3g} N m, needs t >= {required:g} and a gain of '
+                        f'{100 * gain:.0f} %)')
+        achieved = float(candidate.gain or 0.0)
+        if strong and achieved >= gain:
+            return None
+        t = self.gain_t(current, candidate.fitted)
+        if t >= required and achieved >= gain:
+            return None
+        return (f'its held-out gain ({100 * achieved:.3g} %, t = {t:.2g} over '
+                f'{GAIN_BLOCKS} blocks per record) does not stand out of its own noise{size}')
+
+    def own_part(self, candidate: Candidate) -> tuple[float, str] | None:
+        """
+        Size of an effect's own part of the simulated outputs, in noise levels, and its text.
+
+        The refit is simulated again with the effect's coefficients at zero; the largest
+        channel's RMS difference over its noise (the sensor noise, or :data:`OWN_PART_SHARE` of
+        the refit's residual RMS when larger: input noise integrated by the motor, or misfit).
+        An effect below one noise level explains no part of the signal that stands out: a gain
+        it brings comes from moving the other parameters (extra freedom, not an effect).  None
+        for data effects (delays), which are not judged so.
+        """
+        from dcmotor_id.identification.identifiability import noise_level
+
+        fitted = candidate.fitted
+        prefix = f'{candidate.name}.'
+        terms = [term for term in fitted.terms if term.name.startswith(prefix)]
+        if not terms or candidate.effect.TRANSFORM:
+            return None
+        values = dict(fitted.values)
+        for term in terms:
+            values[term.name] = 0.0
+        model = OutputErrorModel(fitted.records, self.torque_constant, fitted.terms,
+                                 self.quasi_static)
+        without = simulate_records(model, values, fitted.estimate.initial_states)
+        ratio, texts = 0.0, []
+        for channel in self.outputs:
+            difference = np.concatenate([sim[channel] - out[channel] for sim, out
+                                         in zip(fitted.simulated, without)])
+            sensor = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2
+                                      for rec in fitted.records]))
+            misfit = float(fitted.estimate.info.get('noise_std', {}).get(channel, 0.0))
+            noise = max(float(sensor), OWN_PART_SHARE * misfit, 1e-300)
+            rms = float(np.sqrt(np.mean(difference ** 2)))
+            if not np.isfinite(rms):
+                return None
+            ratio = max(ratio, rms / noise)
+            texts.append(f'{channel} {rms:.3g} against a noise of {noise:.3g}')
+        return ratio, ', '.join(texts)
 
     @staticmethod
     def _candidate_report(candidate, analysis):
@@ -860,6 +1009,53 @@ def friction_floors(values: dict, records: Sequence[Record],
     spread = torque_spread(records, values, torque_constant)
     speed = max(float(np.std(np.concatenate([rec.speed for rec in records]))), 1e-12)
     return {'Mc': 0.02 * spread, 'b': 0.02 * spread / speed}
+
+
+#: Blocks of the excitation measure of :func:`excited_stop`.
+EXCITATION_BLOCKS = 200
+#: Bounds of the training part as shares of the moving extent: enough to fit (a record of
+#: two steps keeps part of the second level to train on), enough to judge.
+TRAIN_SHARE_BOUNDS = (0.6, 0.85)
+
+
+def excited_stop(record: Record, holdout_fraction: float = HOLDOUT_FRACTION,
+                 channels: Sequence[str] = ('speed',)) -> int:
+    """
+    End of a record's training part: the rest carries the held-out share of its excitation.
+
+    Within the moving extent (:func:`moving_extent`) the excitation is the change of each
+    channel's block means beyond their noise (:data:`EXCITATION_BLOCKS` blocks; standstill and
+    steady speed add nothing), each channel normalised to its total.  The training part ends
+    at the last block boundary before which at most ``1 - holdout_fraction`` of it lies,
+    within :data:`TRAIN_SHARE_BOUNDS` of the moving extent; without measurable excitation,
+    at ``1 - holdout_fraction`` of the extent.
+    """
+    from dcmotor_id.identification.identifiability import noise_level
+
+    first, last = moving_extent(np.asarray(record.speed, dtype=float))
+    size = last - first
+    fallback = first + size * (1.0 - holdout_fraction)
+    blocks = min(EXCITATION_BLOCKS, size // 5)
+    stop = fallback
+    if blocks >= 4:
+        edges = np.linspace(0, size, blocks + 1).astype(int)
+        weight = np.zeros(blocks - 1)
+        for channel in channels:
+            values = np.asarray(getattr(record, channel), dtype=float)[first:last]
+            means = np.add.reduceat(values, edges[:-1]) / np.diff(edges)
+            floor = 4.0 * noise_level(values) * np.sqrt(2.0 / max(int(np.min(np.diff(edges))),
+                                                                  1))
+            change = np.abs(np.diff(means))
+            change[change <= floor] = 0.0
+            if change.sum() > 0:
+                weight += change / change.sum()
+        if weight.sum() > 0:
+            share = np.cumsum(weight) / weight.sum()
+            below = np.flatnonzero(share <= 1.0 - holdout_fraction)
+            stop = first + (edges[int(below[-1]) + 1] if below.shape[0] else edges[1])
+    low, high = TRAIN_SHARE_BOUNDS
+    stop = min(max(stop, first + low * size), first + high * size)
+    return min(max(int(round(stop)), 1), len(record) - 1)
 
 
 def moving_extent(speed: np.ndarray) -> tuple[int, int]:

@@ -220,6 +220,23 @@ def correlated_pairs(estimate: Any, skip: Sequence[str] = ()) -> list[str]:
     return out
 
 
+def noise_level(values: np.ndarray) -> float:
+    """
+    Noise level of a channel, at least the rounding noise of a quantised signal.
+
+    :func:`~dcmotor_id.signals.filters.noise_std` reads zero on a quantised signal (its second
+    differences are mostly zero); the quantisation step ``q`` (the small end of the nonzero
+    differences between samples) gives the floor ``q / sqrt(12)``.
+    """
+    values = np.asarray(values, dtype=float)
+    level = noise_std(values)
+    steps = np.abs(np.diff(values))
+    steps = steps[steps > 0]
+    if steps.shape[0]:
+        level = max(level, float(np.percentile(steps, 5)) / np.sqrt(12.0))
+    return level
+
+
 def initial_state_warnings(estimate: Any, records: Sequence[Any],
                            outputs: Sequence[str]) -> list[str]:
     """Return warnings for estimated initial states far from the records' first samples."""
@@ -227,7 +244,7 @@ def initial_state_warnings(estimate: Any, records: Sequence[Any],
     for index, (rec, state) in enumerate(zip(records, estimate.initial_states)):
         for channel, value in zip(outputs, state):
             measured = np.asarray(getattr(rec, channel), dtype=float)
-            noise = max(noise_std(measured), 1e-12)
+            noise = max(noise_level(measured), 1e-12)
             first = float(measured[0])
             gap = abs(float(value) - first)
             if gap > INITIAL_STATE_FACTOR * noise and gap > 0.02 * float(np.ptp(measured)):
@@ -245,7 +262,7 @@ def misfit_warning(estimate: Any, records: Sequence[Any], outputs: Sequence[str]
     """Return a warning when the model misfits far above the sensor noise, else None."""
     ratios = {}
     for channel in outputs:
-        noise = np.sqrt(np.mean([noise_std(getattr(rec, channel)) ** 2 for rec in records]))
+        noise = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2 for rec in records]))
         if noise > 0 and residual_rms.get(channel) is not None:
             ratios[channel] = residual_rms[channel] / noise
     bad = {channel: ratio for channel, ratio in ratios.items() if ratio > MISFIT_FACTOR}

@@ -28,7 +28,9 @@ from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.core.records import check_record
 from dcmotor_id.formats.held import restore_held
 from dcmotor_id.formats.quality import coarse_speed
-from dcmotor_id.identification.discovery import DiscoveryLoop, DiscoveryResult
+from dcmotor_id.identification.basin import bic, regression_evidence, regression_start, suspect
+from dcmotor_id.identification.discovery import (DiscoveryLoop, DiscoveryResult, refit_all_data,
+                                                 refit_start, Structure)
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
@@ -45,6 +47,7 @@ from dcmotor_id.identification.plausibility import check_plausibility
 from dcmotor_id.identification.residuals import (ChannelErrors, model_errors, output_channels,
                                                  simulate_records, simulation_error_pct)
 from dcmotor_id.identification.units_check import unit_warnings
+from dcmotor_id.identification.validate import operating_range
 from dcmotor_id.signals.filters import noise_std, speed_from_position
 
 if TYPE_CHECKING:
@@ -64,6 +67,10 @@ HOPELESS_DISCOVERY_S = 3.0
 JACKKNIFE_GROUPS = 8
 #: Default time budget [s] (``--max-time``).
 DEFAULT_MAX_TIME_S = 120.0
+#: How the held-out part of every record is chosen (the JSON ``errors.heldout_choice``).
+HELDOUT_CHOICE = ('the end of each record carrying the last 30 % of its excitation (the change '
+                  'of the outputs beyond their noise; standstill and steady-speed tails add '
+                  'none), at most 40 % and at least 15 % of its motion')
 #: Choices of ``--initial-state``.
 INITIAL_STATES = ('estimate', 'measured')
 
@@ -278,6 +285,15 @@ class IdentificationResult:
         ``estimate`` or ``measured``.
     elapsed_s : float
         Run time.
+    operating_range : dict
+        Speed and current ranges and directions of the records
+        (:func:`~dcmotor_id.identification.validate.operating_range`; copied into ``model``
+        for ``validate``).
+    start_check : dict or None
+        The fit checked against model-free evidence
+        (:mod:`~dcmotor_id.identification.basin`): ``evidence``
+        (the regression's values), ``doubts``, and when doubted ``second_start``, ``bic`` and
+        ``chosen``; None when not checked (pinned initial states, other estimators).
     estimate : Estimate
         The final estimate (all data).
     input_records : list of Record
@@ -313,6 +329,8 @@ class IdentificationResult:
     upper_bounds: dict[str, float] = field(default_factory=dict)
     initial_state: str = 'estimate'
     elapsed_s: float = 0.0
+    start_check: dict[str, Any] | None = None
+    operating_range: dict[str, Any] = field(default_factory=dict)
     estimate: Estimate | None = field(repr=False, default=None)
     input_records: list[Record] = field(repr=False, default_factory=list)
     discovery_result: DiscoveryResult | None = field(repr=False, default=None)
@@ -347,6 +365,8 @@ class IdentificationResult:
             'upper_bounds': self.upper_bounds,
             'initial_state': self.initial_state,
             'elapsed_s': self.elapsed_s,
+            'start_check': self.start_check,
+            'operating_range': self.operating_range,
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out
@@ -474,8 +494,21 @@ def identify(records: Sequence[Record], method: str = 'refined',
                 estimate, quasi = refit, True
                 errors = simulation_errors(estimate, records, None, quasi_static=True)
     found, discovery_info = None, None
+    checkable = initial_state == 'estimate' and isinstance(estimator, RefinedEstimator)
+    start_check: dict[str, Any] | None = None
+    if checkable:
+        # A base in a wrong basin misleads the effect screen: checked before the loop.
+        found, estimate, discovery_info, start_check = _check_start(
+            records, torque_constant, quasi, discover, vocabulary, progress, estimate, None,
+            None)
+        if start_check['chosen'] == 'first start':
+            start_check = None if not start_check['doubts'] else start_check
+        else:
+            errors = simulation_errors(estimate, records, torque_constant, quasi_static=quasi)
     base_worst = max([value for value in errors.values() if value is not None] or [np.inf])
-    if discover and not base_worst <= HOPELESS_NRMSE_PCT:
+    if start_check is not None and start_check['chosen'] != 'first start':
+        pass  # the second start ran its own discovery
+    elif discover and not base_worst <= HOPELESS_NRMSE_PCT:
         # Worse than the signals' mean: a sign or unit error, which no effect explains (and
         # every candidate fit would diverge slowly); refuse below without the loop.
         discovery_info = {'skipped': f'the base model does not fit ({base_worst:.3g} % '
@@ -503,6 +536,21 @@ def identify(records: Sequence[Record], method: str = 'refined',
         elif found is None and discovery_info and 'time budget' in discovery_info.get(
                 'skipped', ''):
             warnings.append(discovery_info['skipped'])
+    if checkable and start_check is None:
+        # The base looked sound; check where discovery led.
+        found, estimate, discovery_info, start_check = _check_start(
+            records, torque_constant, quasi, discover, vocabulary, progress, estimate, found,
+            discovery_info)
+    if start_check is not None and start_check['chosen'] != 'first start':
+        warnings.append(_second_start_warning(start_check))
+    elif start_check is not None and start_check['doubts']:
+        outcome = start_check.get('second_start')
+        warnings.append('the fit disagrees with the model-free evidence ('
+                        + '; '.join(start_check['doubts']) + ') and a second start '
+                        + (f'could not help ({outcome})' if isinstance(outcome, str) else
+                           'explains the data no better')
+                        + ': the values may come from a wrong basin; compare with '
+                        '--initial-state measured')
     final, terms, fitted_records = estimate, (), list(records)
     if found is not None:
         final, terms, fitted_records = found.estimate, found.terms, found.records
@@ -568,6 +616,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
                                   quasi)
     if errors_detail.get('note'):
         warnings.append(errors_detail['note'])
+    if errors_detail.get('worse_than_constant'):
+        warnings.append('on the held-out part the model predicts worse than a constant (the '
+                        "record's mean): " + ', '.join(errors_detail['worse_than_constant'])
+                        + '; the fit may sit in a wrong basin or miss an effect: compare with '
+                        '--initial-state measured and --no-discover')
     return IdentificationResult(
         parameters=parameters,
         stderr=stderr,
@@ -596,6 +649,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
         upper_bounds=upper_bounds,
         initial_state=initial_state,
         elapsed_s=progress.elapsed(),
+        start_check=start_check,
+        operating_range=operating_range(records),
         estimate=final,
         input_records=list(records),
         discovery_result=found,
@@ -708,6 +763,90 @@ def _identify_current_limited(records, limited, discover, vocabulary, progress, 
         not_identifiable=not_identifiable, warnings=warnings,
         upper_bounds={'La': parameters['La'], 'Ta': parameters['Ta']},
         elapsed_s=progress.elapsed())
+
+
+def _check_start(records, torque_constant, quasi, discover, vocabulary, progress, estimate,
+                 found, discovery_info):
+    """
+    Check the fit against model-free evidence; when doubted, try a second start, keep the best.
+
+    Returns ``(found, base estimate, discovery summary, start_check)``, the first three
+    replaced by the second start's when it explains all of the data better (lower BIC).
+    ``start_check`` is the JSON account (:mod:`dcmotor_id.identification.basin`).
+    """
+    evidence = regression_evidence(records, torque_constant)
+    first = found.estimate if found is not None else estimate
+    first_records = found.records if found is not None else list(records)
+    first_terms = found.terms if found is not None else ()
+    model = OutputErrorModel(first_records, torque_constant, first_terms, quasi)
+    doubts = suspect(first, first_records, model, evidence)
+    check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
+    if not doubts:
+        return found, estimate, discovery_info, check
+    names = [name for name in parameter_names(torque_constant is not None)
+             if not (quasi and name == 'La')]
+    start = regression_start(evidence, estimate.parameters, names)
+    progress.set_stage('second start (initial states pinned)', _names(records))
+    second, second_info, freed = None, None, None
+    try:
+        pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
+                                  progress=progress).fit(records, torque_constant=torque_constant)
+        _check_physical(pinned)
+    except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
+        check['second_start'] = f'failed: {error}'
+        return found, estimate, discovery_info, check
+    structure, values, states = Structure(), pinned.parameters, pinned.initial_states
+    if discover:
+        second, second_info = _run_discovery(
+            records, torque_constant, RefinedEstimator(), vocabulary, progress, 'measured',
+            quasi, pinned)
+        if second is not None:
+            structure = second.final.structure
+            values, states = second.estimate.parameters, second.estimate.initial_states
+    pinned_final = second.estimate if second is not None else pinned
+    second_records = structure.transformed(records)
+    second_model = OutputErrorModel(second_records, torque_constant,
+                                    second.terms if second is not None else (), quasi)
+    try:
+        freed = refit_all_data(structure, records, torque_constant, values,
+                               refit_start(values, records, torque_constant), progress=progress,
+                               initial_states=states, initial_state='estimate',
+                               quasi_static=quasi)[2]
+        _check_physical(freed)
+    except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
+        check['freed'] = f'failed: {error}'  # the pinned fit is still a candidate
+        freed = None
+    noise = dict(first.info.get('noise_std', {}))
+    scores = {'first start': bic(first, first_records, model, noise),
+              'second start, initial states pinned': bic(pinned_final, second_records,
+                                                         second_model, noise,
+                                                         free_states=False)}
+    if freed is not None:
+        scores['second start'] = bic(freed, second_records, second_model, noise)
+    chosen = min(scores, key=lambda key: scores[key])
+    shown = freed if freed is not None else pinned_final
+    check.update({'second_start': {'effects': structure.names(),
+                                   'J': float(shown.parameters['J']),
+                                   'b': float(shown.parameters['b'])},
+                  'bic': scores, 'chosen': chosen})
+    if chosen == 'first start':
+        return found, estimate, discovery_info, check
+    final = freed if chosen == 'second start' and freed is not None else pinned_final
+    if second is None:
+        return None, final, discovery_info, check
+    second = replace(second, estimate=final, effects=structure.effects(final.parameters))
+    return second, pinned, second_info, check
+
+
+def _second_start_warning(check: dict[str, Any]) -> str:
+    """Return the warning of a result taken from the second start."""
+    how = ("the fit with every initial state pinned to the records' first samples"
+           if check['chosen'].endswith('pinned') else
+           'from a second start (the regression on the data, initial states pinned to the '
+           'first samples while the effects were searched, then freed)')
+    return ('the fit from the default start landed where the model-free evidence disagrees ('
+            + '; '.join(check['doubts']) + f'); the result is {how}, which explains all of the '
+            'data better (BIC)')
 
 
 def _structure_shift(base: Estimate, parameters: dict[str, float],
@@ -843,16 +982,68 @@ def _run_discovery(records, torque_constant, estimator, vocabulary, progress, in
     return found, found.summary()
 
 
-def _part_metrics(simulated, measured, outputs):
-    """NRMSE (percent of this part's own spread) and fit % per channel of one part."""
+def _part_metrics(simulated, measured, outputs, spread=None):
+    """
+    NRMSE and fit % per channel of one part.
+
+    In percent of this part's own spread, or of ``spread`` (channel -> standard deviation,
+    e.g. over the whole record) when given.
+    """
     out: dict[str, float | None] = {}
     for channel in ('current', 'speed'):
         value = None
         if channel in outputs and measured[channel].shape[0] > 1:
-            value = simulation_error_pct(simulated[channel], measured[channel])
+            if spread is None:
+                value = simulation_error_pct(simulated[channel], measured[channel])
+            elif spread[channel] > 0:
+                residual = np.asarray(simulated[channel]) - measured[channel]
+                value = float(np.sqrt(np.mean(residual ** 2))) / spread[channel] * 100.0
+                value = value if np.isfinite(value) else None
         out[f'{channel}_nrmse_pct'] = value
         out[f'{channel}_fit_pct'] = None if value is None else 100.0 - value
     return out
+
+
+def _heldout_item(item, rec, index, found, outputs):
+    """Fill a record's held-out figures: segment, errors, constant predictor; moves or not."""
+    stop = found.final.stops[index]
+    speed = np.asarray(rec.speed, dtype=float)
+    held = speed[stop:]
+    noise = max(noise_std(speed), 1e-12)
+    moves = held.shape[0] > 5 and float(np.ptp(held)) > 10.0 * noise
+    item['heldout_samples'] = int(len(rec) - stop)
+    item['heldout_moves'] = bool(moves)
+    time_s = np.asarray(rec.time_s, dtype=float)
+    item['heldout_segments'] = [{'start_sample': int(stop), 'end_sample': int(len(rec)),
+                                 'start_s': float(time_s[stop]), 'end_s': float(time_s[-1])}]
+    if not moves:
+        return False
+    for label, fit in (('before', found.base), ('after', found.final)):
+        # Each fit on its own records (a delay found shifts the final one's).
+        start = fit.stops[index]
+        spread = {c: float(np.std(getattr(fit.records[index], c))) for c in outputs}
+        measured = {c: getattr(fit.records[index], c)[start:] for c in outputs}
+        item[label]['heldout'] = _part_metrics(
+            {c: fit.simulated[index][c][start:] for c in outputs}, measured, outputs, spread)
+    item['heldout_constant'] = _part_metrics(
+        {c: np.full(measured[c].shape, float(np.mean(getattr(found.final.records[index], c))))
+         for c in outputs}, measured, outputs, spread)
+    return True
+
+
+def _worse_than_constant(items):
+    """List the records whose held-out error exceeds a constant predictor's (its mean)."""
+    worse = []
+    for item in items:
+        model, constant = item['after']['heldout'], item.get('heldout_constant')
+        if not model or not constant:
+            continue
+        for key in ('current_nrmse_pct', 'speed_nrmse_pct'):
+            if model.get(key) is not None and constant.get(key) is not None and \
+                    model[key] > constant[key]:
+                worse.append(f'{item["source"] or "record"} ({key.split("_")[0]} '
+                             f'{model[key]:.3g} % against {constant[key]:.3g} %)')
+    return worse
 
 
 def _pooled(items):
@@ -884,14 +1075,20 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     MATLAB-style fit ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` = ``100 - NRMSE``, per
     channel.  ``whole_record``: the all-data fits simulated over each whole record (in-sample).
     ``heldout``: the training-part fits of the discovery loop on each record's held-out part
-    (the last share of its motion); None for a record whose held-out part does not move.
+    (the end of the record carrying the last share of its excitation,
+    :func:`~dcmotor_id.identification.discovery.excited_stop`), in percent of the *whole record's* spread
+    (a steady tail's own spread is tiny); None for a record whose held-out part does not move.
+    ``heldout_constant`` is the same figure for a constant predictor (the record's mean).
 
     Returns
     -------
     dict
         ``records`` (one ``{"source", "samples", "heldout_samples", "heldout_moves",
-        "before": {"whole_record", "heldout"}, "after": {...}}`` per record), ``before`` and
-        ``after`` (root mean square over records), ``heldout_fraction`` and ``note``.
+        "heldout_segments", "heldout_constant", "before": {"whole_record", "heldout"},
+        "after": {...}}`` per record), ``before`` and ``after`` (root mean square over
+        records), ``heldout_fraction``, ``heldout_choice``, ``heldout_normalisation``,
+        ``worse_than_constant`` (records whose held-out error exceeds the constant's) and
+        ``note``.
 
     """
     mechanical_only = torque_constant is not None
@@ -917,21 +1114,8 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
         item: dict[str, Any] = {'source': rec.source, 'samples': len(rec)}
         for label in ('before', 'after'):
             item[label] = {'whole_record': whole[label][index], 'heldout': None}
-        if found is not None:
-            stop = found.final.stops[index]
-            speed = np.asarray(rec.speed, dtype=float)
-            held = speed[stop:]
-            noise = max(noise_std(speed), 1e-12)
-            moves = held.shape[0] > 5 and float(np.ptp(held)) > 10.0 * noise
-            item['heldout_samples'] = int(len(rec) - stop)
-            item['heldout_moves'] = bool(moves)
-            if moves:
-                for label, fit in (('before', found.base), ('after', found.final)):
-                    item[label]['heldout'] = _part_metrics(
-                        {c: fit.simulated[index][c][stop:] for c in outputs},
-                        {c: getattr(fit.records[index], c)[stop:] for c in outputs}, outputs)
-            else:
-                notes.append(rec.source or f'record {index + 1}')
+        if found is not None and not _heldout_item(item, rec, index, found, outputs):
+            notes.append(rec.source or f'record {index + 1}')
         items.append(item)
     summary = {label: {part: _pooled([item[label][part] for item in items
                                       if item[label][part] is not None])
@@ -940,6 +1124,10 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     if notes:
         note = ('held-out part without motion (standstill), not used to judge the fit: '
                 + ', '.join(notes))
+    worse = _worse_than_constant(items)
     return {'records': items, **summary,
             'heldout_fraction': None if found is None else found.holdout_fraction,
+            'heldout_choice': None if found is None else HELDOUT_CHOICE,
+            'heldout_normalisation': 'standard deviation of the whole record',
+            'worse_than_constant': worse,
             'note': note}

@@ -71,7 +71,76 @@ def model_block(result: Mapping[str, Any]) -> dict[str, Any]:
         'effects': effects,
         'sample_period_s': result.get('sample_period_s'),
         'channel_units': dict(COLUMNS),
+        'operating_range': result.get('operating_range'),
     }
+
+
+#: Share of a record's samples outside the model's operating range that earns a warning.
+OUTSIDE_SHARE = 0.05
+#: Margin beyond the model's range before a value counts as outside (a share of the range).
+RANGE_MARGIN = 0.25
+#: Percentiles of a channel that give its range (spikes of noise do not widen it).
+RANGE_PERCENTILES = (1.0, 99.0)
+
+
+def operating_range(records: Sequence[Record]) -> dict[str, Any]:
+    """
+    Return the range of speed and current the records cover (the model's operating range).
+
+    ``speed_rad_s`` and ``current_A`` are ``[low, high]`` (the 1st and 99th percentiles over
+    all records); ``directions`` lists ``positive`` and/or ``negative`` (speeds beyond a fifth
+    of the largest).
+    """
+    out: dict[str, Any] = {}
+    for key, channel in (('speed_rad_s', 'speed'), ('current_A', 'current')):
+        values = [np.asarray(getattr(rec, channel), dtype=float) for rec in records
+                  if getattr(rec, channel, None) is not None]
+        if values:
+            joined = np.concatenate(values)
+            out[key] = [float(value) for value in np.percentile(joined, RANGE_PERCENTILES)]
+    speed = out.get('speed_rad_s')
+    if speed is not None:
+        top = max(abs(speed[0]), abs(speed[1]))
+        out['directions'] = [name for name, present in
+                             (('positive', speed[1] > 0.2 * top),
+                              ('negative', speed[0] < -0.2 * top)) if present]
+    return out
+
+
+def range_warnings(seen: Mapping[str, Any] | None, record: Record) -> list[str]:
+    """
+    Warnings for a record outside the operating range a model was identified on.
+
+    A direction of rotation the model never saw, or speed or current beyond its range (by
+    more than :data:`RANGE_MARGIN` of the range, on more than :data:`OUTSIDE_SHARE` of the
+    samples): the model extrapolates there, and its errors say little about its parameters.
+    """
+    if not seen:
+        return []
+    name = record.source or 'record'
+    out = []
+    here = operating_range([record])
+    missing = [direction for direction in here.get('directions', [])
+               if direction not in seen.get('directions', here.get('directions', []))]
+    if missing:
+        out.append(f'{name}: turns in the {" and ".join(missing)} direction, which the model '
+                   f'never saw (identified on {" and ".join(seen.get("directions", []))} '
+                   'rotation only): friction and offsets differ by direction, so the model '
+                   'extrapolates; identify on records in both directions')
+    for key, channel, unit in (('speed_rad_s', 'speed', 'rad/s'), ('current_A', 'current', 'A')):
+        bounds = seen.get(key)
+        values = getattr(record, channel, None)
+        if not bounds or values is None or missing and channel == 'speed':
+            continue
+        low, high = bounds
+        margin = RANGE_MARGIN * max(high - low, 1e-300)
+        values = np.asarray(values, dtype=float)
+        outside = float(np.mean((values < low - margin) | (values > high + margin)))
+        if outside > OUTSIDE_SHARE:
+            out.append(f'{name}: {100 * outside:.0f} % of its {channel} lies beyond the range '
+                       f'the model was identified on ({low:.4g} .. {high:.4g} {unit}): the '
+                       'model extrapolates there')
+    return out
 
 
 @dataclass(frozen=True)
@@ -449,6 +518,7 @@ def validate(model: Model, records: Sequence[Record], init_samples: int = INIT_S
             notes.append(f'{record.source}: sampled every {record.sample_period_s:.6g} s, the '
                          f'model was identified at {model.sample_period_s:.6g} s (the model is '
                          'continuous-time; delays are converted to this period)')
+        notes += range_warnings(model.description.get('operating_range'), record)
     return Validation([validate_record(model, record, init_samples, position_scale)
                        for record in records], model, notes)
 

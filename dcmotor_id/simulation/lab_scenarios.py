@@ -261,6 +261,41 @@ def directions_with_load(seed: int = 0, sample_period_s: float = 1e-3,
                     note=f'two records (one per direction), constant load {load_nm} N m')
 
 
+#: A servo motor like a small industrial one, seen through a current-controlled drive.
+SERVO_MOTOR = MotorParameters(Ra=1.0, La=1e-3, CPhi=0.0458, J=1.2e-4, b=7e-5, Mc=0.034)
+
+
+def servo_opposite_steps(seed: int = 0, sample_period_s: float = 1e-3, dwell_s: float = 10.0,
+                         offset_nm: float = 0.007, current_noise_a: float = 0.45,
+                         speed_step_rad_s: float = 0.628) -> Scenario:
+    """
+    Simulate two open-loop torque-step records of a servo, one per direction, with an offset.
+
+    Each record starts at rest, holds one current for ``dwell_s`` and steps to a higher one
+    for ``dwell_s`` more (steady tails); a constant load torque ``offset_nm`` (positive
+    opposes positive rotation) adds to Coulomb friction one way and subtracts the other.  The
+    measured current is noisy (the drive's current ripple), the speed comes from an encoder
+    differentiated per sample (a step of ``speed_step_rad_s``).
+    """
+    rng = np.random.default_rng(seed)
+    truth = SERVO_MOTOR
+    steps = max(int(round(sample_period_s / 5e-5)), 1)
+    records = []
+    for sign, levels in ((1.0, [1.09, 1.20]), (-1.0, [0.85, 0.92])):
+        command = sign * step_levels(levels, dwell_s, sample_period_s)
+        load = np.full(command.shape[0] * steps, offset_nm)
+        out = simulate_drive(truth, command, sample_period_s, load_torque_nm=load,
+                             torque_input=True)
+        t = np.arange(command.shape[0]) * sample_period_s
+        speed = np.round(out['speed'] / speed_step_rad_s) * speed_step_rad_s
+        records.append(Record(t, current=_noisy(out['current'], current_noise_a, rng),
+                              speed=speed, source='servo_opposite_'
+                              + ('forward' if sign > 0 else 'back')))
+    return Scenario('servo_opposite_steps', records, truth, torque_constant=truth.CPhi,
+                    note=f'two torque-step records (one per direction), load {offset_nm} N m, '
+                         'steady tails, quantised speed')
+
+
 def pwm_sampled_current(record: Record, duty_threshold: float = 0.6,
                         seed: int = 0) -> Record:
     """Return the record with its current as sampled inside the PWM off-phase (bimodal)."""
@@ -390,4 +425,5 @@ SCENARIOS = {
     'current_steps_from_rest': current_steps_from_rest,
     'geared_motor_held_sensors': geared_motor_held_sensors,
     'coarse_speed_steps': coarse_speed_steps,
+    'servo_opposite_steps': servo_opposite_steps,
 }

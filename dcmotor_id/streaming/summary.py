@@ -88,9 +88,10 @@ def _record_error_lines(detail: Mapping[str, Any], result: Mapping[str, Any]) ->
     """Per-record simulation errors, each in percent of its own record, labelled by part."""
     lines = []
     fraction = detail.get('heldout_fraction')
-    heldout = (f'held-out last {fraction * 100:.0f} % of the motion' if fraction is not None
-               else None)
-    lines.append('simulation error (NRMSE, % of the spread of each record; fit % = 100 - NRMSE):')
+    heldout = (f'held-out end carrying the last {fraction * 100:.0f} % of the excitation'
+               if fraction is not None else None)
+    lines.append('simulation error (NRMSE, % of the spread of each whole record; fit % = 100 - '
+                 'NRMSE):')
     if heldout:
         lines.append(f"  all records, {heldout}: before {format_errors(result['error_before'])}"
                      f"; after {format_errors(result['error_after'])} (spread of all records)")
@@ -102,7 +103,9 @@ def _record_error_lines(detail: Mapping[str, Any], result: Mapping[str, Any]) ->
             if item['after'].get('heldout') is None:
                 text += '; held-out part at standstill, not judged'
             else:
-                text += (f"; held-out {_metric_text(item['before']['heldout'])} -> "
+                segment = (item.get('heldout_segments') or [{}])[0]
+                where = (f" from {segment['start_s']:.4g} s" if 'start_s' in segment else '')
+                text += (f"; held-out{where} {_metric_text(item['before']['heldout'])} -> "
                          f"{_metric_text(item['after']['heldout'])}")
         lines.append(text)
     return lines

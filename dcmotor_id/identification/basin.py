@@ -1,0 +1,186 @@
+"""
+A fit checked against model-free evidence, and a second start when it landed in a wrong basin.
+
+An output-error fit whose model lacks a decisive effect (a constant torque offset on records
+that turn both ways) can settle where the initial states absorb the misfit: a huge J that
+never reaches the steady states, initial speeds moved by hundreds of noise levels.  The
+effect screen run from there does not find what is missing.  :func:`suspect` says when a
+result looks like that, judged against evidence that needs no model fit:
+
+* the steady-state balance and the dynamics, by continuous-time least squares on low-passed
+  signals (:func:`regression_evidence`: ``K i = J dw/dt + b w + Mc sgn w [+ offset]``, the
+  offset column when both directions are present);
+* the records' first samples (initial states moved far beyond the noise);
+* the misfit far above the sensor noise.
+
+Then a second start is tried (:func:`second_start`): the regression's values with every
+initial state pinned to the record's first samples, discovery run from that sound base, and
+the final structure refitted with the initial states free again.  :func:`choose` keeps the
+better of the two by the Bayesian information criterion over all of the data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any, Sequence, TYPE_CHECKING
+
+import numpy as np
+
+from dcmotor_id.core.model import make_admissible
+from dcmotor_id.identification.identifiability import (initial_state_warnings, MISFIT_FACTOR,
+                                                       noise_level)
+from dcmotor_id.identification.residuals import output_channels, simulate_records
+from dcmotor_id.signals.filters import low_pass
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.estimators.base import Estimate
+
+#: Cut-off of the regression's low-pass filter, as a fraction of the sample rate.
+REGRESSION_CUTOFF = 0.02
+#: Factor between a fitted J or b and the regression's beyond which the fit is suspect.
+EVIDENCE_FACTOR = 3.0
+
+
+def both_directions(records: Sequence[Record]) -> bool:
+    """Whether the records turn both ways (beyond a fifth of the largest speed)."""
+    speed = np.concatenate([np.asarray(rec.speed, dtype=float) for rec in records])
+    top = float(np.max(np.abs(speed))) if speed.shape[0] else 0.0
+    return bool(np.any(speed > 0.2 * top) and np.any(speed < -0.2 * top))
+
+
+def regression_evidence(records: Sequence[Record],
+                        torque_constant: float | None = None) -> dict[str, float] | None:
+    """
+    Model-free values by least squares on low-passed signals; None when not determined.
+
+    The mechanical equation ``T = J dw/dt + b w + Mc sgn(w) + offset`` (the offset only when
+    both directions are present) with ``T = K i`` in the mechanical-only mode; in the full
+    mode also ``u = La di/dt + Ra i + CPhi w`` and ``T = CPhi i``.  Returns the base
+    parameters (``Ra, La, CPhi`` in the full mode, ``J, b, Mc``) and ``offset`` [N m].
+    """
+    offset = both_directions(records)
+    mechanical_only = torque_constant is not None
+    rows_m, rhs_m, rows_e, rhs_e = [], [], [], []
+    for rec in records:
+        n = len(rec)
+        trim = min(int(3.0 / (REGRESSION_CUTOFF * 2 * np.pi)) + 2, n // 4)
+        if n - 2 * trim < 20:
+            continue
+        dt = rec.sample_period_s
+        keep = slice(trim, n - trim)
+        measured = np.asarray(rec.speed, dtype=float)
+        current = low_pass(np.asarray(rec.current, dtype=float), REGRESSION_CUTOFF)
+        speed = low_pass(measured, REGRESSION_CUTOFF)
+        sign = low_pass(np.sign(measured), REGRESSION_CUTOFF)
+        columns = [np.gradient(speed, dt), speed, sign] + ([np.ones(n)] if offset else [])
+        rows_m.append(np.column_stack(columns)[keep])
+        rhs_m.append(current[keep] * (torque_constant or 1.0))
+        if not mechanical_only:
+            rows_e.append(np.column_stack([np.gradient(current, dt), current, speed])[keep])
+            rhs_e.append(low_pass(np.asarray(rec.voltage, dtype=float), REGRESSION_CUTOFF)[keep])
+    if not rows_m:
+        return None
+    try:
+        mech = np.linalg.lstsq(np.vstack(rows_m), np.concatenate(rhs_m), rcond=None)[0]
+        cphi = 1.0
+        values: dict[str, float] = {}
+        if not mechanical_only:
+            la, ra, cphi = np.linalg.lstsq(np.vstack(rows_e), np.concatenate(rhs_e),
+                                           rcond=None)[0]
+            values = {'Ra': float(ra), 'La': float(la), 'CPhi': float(cphi)}
+    except np.linalg.LinAlgError:
+        return None
+    values.update({'J': float(mech[0] * cphi), 'b': float(mech[1] * cphi),
+                   'Mc': float(mech[2] * cphi),
+                   'offset': float(mech[3] * cphi) if offset else 0.0})
+    if not all(np.isfinite(value) for value in values.values()):
+        return None
+    return values
+
+
+def misfit_ratio(estimate: Estimate, records: Sequence[Record], model: Any) -> float:
+    """Largest residual RMS over the sensor noise among the output channels."""
+    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
+    worst = 0.0
+    for channel in model.outputs:
+        residual = np.concatenate([out[channel] - getattr(rec, channel)
+                                   for out, rec in zip(simulated, records)])
+        noise = float(np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2
+                                       for rec in records])))
+        rms = float(np.sqrt(np.mean(residual ** 2))) if residual.shape[0] else 0.0
+        worst = max(worst, rms / max(noise, 1e-300))
+    return worst
+
+
+def suspect(estimate: Estimate, records: Sequence[Record], model: Any,
+            evidence: dict[str, float] | None) -> list[str]:
+    """
+    Reasons to doubt that a fit found the right basin (empty: no doubt).
+
+    Doubted only when the model misfits far above the noise and either the initial states
+    moved far from the first samples or J or b is more than :data:`EVIDENCE_FACTOR` off the
+    regression's values.
+    """
+    mechanical_only = model.torque_constant is not None
+    ratio = misfit_ratio(estimate, records, model)
+    if not ratio > MISFIT_FACTOR:
+        return []
+    reasons = []
+    moved = initial_state_warnings(estimate, records, output_channels(mechanical_only))
+    if moved:
+        reasons.append(f'{len(moved)} initial state(s) moved far from the first samples')
+    if evidence is not None:
+        for name in ('J', 'b'):
+            fitted, seen = estimate.parameters[name], evidence[name]
+            if seen > 0 and fitted > 0 and not (1 / EVIDENCE_FACTOR < fitted / seen
+                                                < EVIDENCE_FACTOR):
+                reasons.append(f'{name} = {fitted:.4g} is {fitted / seen:.3g}x the model-free '
+                               f'regression ({seen:.4g})')
+    if reasons:
+        reasons.insert(0, f'the misfit is {ratio:.3g}x the sensor noise')
+        return reasons
+    return []
+
+
+def regression_start(evidence: dict[str, float] | None, fallback: dict[str, float],
+                     names: Sequence[str]) -> dict[str, float]:
+    """Start values from the regression where admissible, else from ``fallback``."""
+    start = {name: float(fallback[name]) for name in names}
+    if evidence is None:
+        return start
+    admissible = make_admissible({name: evidence[name] for name in names if name in evidence})
+    if admissible is not None:
+        start.update(admissible)
+    return start
+
+
+def weighted_cost(estimate: Estimate, records: Sequence[Record], model: Any) -> tuple[float, int]:
+    """Sum of squared residuals over the channels' noise (as the fit saw it), and the count."""
+    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
+    noise = estimate.info.get('noise_std', {})
+    total, count = 0.0, 0
+    for channel in model.outputs:
+        spread = float(np.std(np.concatenate([getattr(rec, channel) for rec in records])))
+        weight = max(float(noise.get(channel, 0.0)), 1e-6 * spread, 1e-300)
+        for out, rec in zip(simulated, records):
+            residual = (out[channel] - getattr(rec, channel)) / weight
+            value = float(residual @ residual)
+            total += value if np.isfinite(value) else np.inf
+            count += residual.shape[0]
+    return total, count
+
+
+def bic(estimate: Estimate, records: Sequence[Record], model: Any,
+        noise: dict[str, float], free_states: bool = True) -> float:
+    """
+    Bayesian information criterion of a fit on all of the data, under common weights.
+
+    ``free_states``: the initial states were fitted (they count as parameters).
+    """
+    weighted = replace(estimate, info={**estimate.info, 'noise_std': noise})
+    cost, count = weighted_cost(weighted, records, model)
+    k = len(estimate.parameters) + (len(records) * len(model.outputs) if free_states else 0)
+    if not np.isfinite(cost):
+        return float('inf')
+    return float(count * np.log(max(cost / max(count, 1), 1e-300)) + k * np.log(max(count, 2)))
