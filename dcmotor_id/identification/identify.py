@@ -1077,7 +1077,8 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     ``heldout``: the training-part fits of the discovery loop on each record's held-out part
     (the end of the record carrying the last share of its excitation,
     :func:`~dcmotor_id.identification.discovery.excited_stop`), in percent of the *whole
-    record's* spread (a steady tail's own spread is tiny); None for a record whose held-out part does not move.
+    record's* spread (a steady tail's own spread is tiny); None for a record whose held-out
+    part does not move.
     ``heldout_constant`` is the same figure for a constant predictor (the record's mean).
 
     Returns
