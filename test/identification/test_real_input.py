@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from dcmotor_id import lab_scenarios
 from dcmotor_id.cli import main as cli_main
 from dcmotor_id.core.errors import NotIdentifiableError
 from dcmotor_id.formats import read_record
@@ -12,6 +11,7 @@ from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.held import held_channels
 from dcmotor_id.formats.mapping import ReadOptions
 from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.simulation import lab_scenarios
 
 
 def test_voltage_step_logged_from_its_start_is_identified(tmp_path, capsys):
