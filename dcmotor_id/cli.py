@@ -20,6 +20,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from dcmotor_id.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
+from dcmotor_id.criterion import CRITERIA
 from dcmotor_id.errors import DcMotorIdError, InputDataError
 from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excitation, quantise
 from dcmotor_id.formats import read_records
@@ -138,7 +139,8 @@ def _cmd_identify(args):
         identified = identify(records, method=args.method,
                               torque_constant=args.torque_constant,
                               discover=not args.no_discover, vocabulary=vocabulary,
-                              progress=progress, initial_state=args.initial_state)
+                              progress=progress, initial_state=args.initial_state,
+                              criterion=args.criterion)
     finally:
         progress.close()
     result = identified.as_dict()
@@ -413,6 +415,11 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument('--initial-state', choices=INITIAL_STATES, default='estimate',
                        help='estimate (default) the initial current and speed of every record, '
                             'or pin them to the first measured samples (measured)')
+    ident.add_argument('--criterion', choices=CRITERIA, default='auto',
+                       help='channels the fit compares: speed (and current), position (the '
+                            'integral of the simulated speed, and current), both; auto '
+                            '(default): position when the speed was derived from it, both when '
+                            'speed and position were measured, else speed')
     ident.set_defaults(handler=_cmd_identify)
 
     val = commands.add_parser('validate', help='simulate an identified model on new records '

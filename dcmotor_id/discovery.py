@@ -34,6 +34,7 @@ from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.criterion import fitted_outputs
 from dcmotor_id.effects import SensorDelay, torque_spread, VOCABULARY
 from dcmotor_id.errors import DcMotorIdError
 from dcmotor_id.estimators.jacobian import jacobian
@@ -277,6 +278,10 @@ class DiscoveryLoop:
     quasi_static : bool
         Fit the quasi-static armature (La -> 0; the electrical time constant below the sample
         period) throughout.
+    criterion : str
+        ``speed`` (default), ``position`` or ``both``: the channels fitted and judged
+        (:mod:`dcmotor_id.criterion`); the held-out errors also report the speed (and the
+        current) when they are not compared.
 
     """
 
@@ -285,11 +290,15 @@ class DiscoveryLoop:
                  holdout_fraction: float = HOLDOUT_FRACTION, min_gain: float = MIN_GAIN,
                  max_effects: int = MAX_EFFECTS, max_lag: int = DEFAULT_LAGS,
                  alpha: float = ALPHA, progress: Progress | None = None,
-                 initial_state: str = 'estimate', quasi_static: bool = False) -> None:
+                 initial_state: str = 'estimate', quasi_static: bool = False,
+                 criterion: str = 'speed') -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
-        self.outputs = output_channels(self.mechanical_only)
+        self.criterion = criterion
+        self.outputs = fitted_outputs(self.mechanical_only, criterion)
+        self.error_channels = output_channels(self.mechanical_only) + tuple(
+            channel for channel in self.outputs if channel == 'position')
         self.candidates = [cls for cls in vocabulary if cls.applies(self.mechanical_only)]
         self.holdout_fraction = float(holdout_fraction)
         self.min_gain = float(min_gain)
@@ -318,7 +327,8 @@ class DiscoveryLoop:
 
     def _estimator(self, **options: Any) -> RefinedEstimator:
         return RefinedEstimator(initial_state=self.initial_state, progress=self.progress,
-                                quasi_static=self.quasi_static, **options)
+                                quasi_static=self.quasi_static, criterion=self.criterion,
+                                **options)
 
     def fit(self, structure: Structure, start: dict | None = None, initial: dict | None = None,
             max_nfev: int = 100,
@@ -341,7 +351,8 @@ class DiscoveryLoop:
             raise ValueError('a structure with effects needs a start point')
         estimate = estimator.fit(train, torque_constant=self.torque_constant,
                                  terms=_slice_terms(terms, stops))
-        model = OutputErrorModel(records, self.torque_constant, terms, self.quasi_static)
+        model = OutputErrorModel(records, self.torque_constant, terms, self.quasi_static,
+                                 self.criterion)
         simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
         fitted = Fit(structure, estimate, records, stops, simulated, terms)
         if self.weights is None:
@@ -429,7 +440,8 @@ class DiscoveryLoop:
                                     for term in fitted.terms):
             return {}
         values = fitted.values
-        errors: dict[str, list[np.ndarray]] = {channel: [] for channel in self.outputs}
+        channels = [channel for channel in self.outputs if channel != 'position']
+        errors: dict[str, list[np.ndarray]] = {channel: [] for channel in channels}
         for index, rec in enumerate(fitted.records):
             extras: dict[str, Any] = {}
             for term in fitted.terms:
@@ -438,14 +450,14 @@ class DiscoveryLoop:
                 extras[key] = extras[key] + contribution if key in extras else contribution
             with np.errstate(all='ignore'):
                 predicted = one_step_error(values, rec, self.torque_constant, **extras)
-            for channel in self.outputs:
+            for channel in channels:
                 errors[channel].append(predicted[channel])
         # Prediction k is of sample k + 1: the parts start one sample earlier.
         stops = [max(stop - 1, 0) for stop in fitted.stops]
         return {channel: residual_nrmse_pct(
             _part(errors[channel], stops, part),
             _part([getattr(rec, channel)[1:] for rec in fitted.records], stops, part))
-            for channel in self.outputs}
+            for channel in channels}
 
     def misfit(self, fitted: Fit) -> bool:
         """Whether the held-out residual is far above the sensor noise on some channel."""
@@ -484,7 +496,8 @@ class DiscoveryLoop:
     def _train_model(self, fitted, terms):
         train = [rec.slice(0, stop) for rec, stop in zip(fitted.records, fitted.stops)]
         return train, OutputErrorModel(train, self.torque_constant,
-                                       _slice_terms(terms, fitted.stops), self.quasi_static)
+                                       _slice_terms(terms, fitted.stops), self.quasi_static,
+                                       self.criterion)
 
     def _stack(self, outputs_per_record, stops):
         parts = []
@@ -751,9 +764,9 @@ class DiscoveryLoop:
             analysis_before=analysis_before, analysis_after=analysis, reason=reason,
             unexplained=self.material(analysis), records=records, terms=terms,
             estimate=estimate, effects=current.structure.effects(estimate.parameters),
-            base_estimate=base_estimate, error_before=base.errors(self.outputs),
-            error_after=current.errors(self.outputs), out_of_time=out_of_time,
-            quasi_static=self.quasi_static)
+            base_estimate=base_estimate, error_before=base.errors(self.error_channels),
+            error_after=current.errors(self.error_channels), out_of_time=out_of_time,
+            quasi_static=self.quasi_static, criterion=self.criterion)
 
     def _round(self, current: Fit, analysis: dict) -> Round:
         """One search round: screen every absent effect, refit the promising, choose."""
@@ -798,14 +811,14 @@ class DiscoveryLoop:
                 equivalent = [candidate for candidate in ties if candidate is not winner]
         results = refitted + screened_out
         report: dict[str, Any] = {
-            'error_before': current.errors(self.outputs),
+            'error_before': current.errors(self.error_channels),
             'candidates': [self._candidate_report(candidate, analysis)
                            for candidate in results],
             'added': None,
         }
         if chosen is not None:
             report['added'] = chosen.describe()
-            report['error_after'] = chosen.fitted.errors(self.outputs)
+            report['error_after'] = chosen.fitted.errors(self.error_channels)
             report['gain_pct'] = chosen.gain * 100.0  # type: ignore[operator]
             report['equivalent'] = [candidate.describe() for candidate in equivalent]
         return Round(results, chosen, report)
@@ -831,7 +844,7 @@ class DiscoveryLoop:
                               fitted.values, self._base(fitted), progress=self.progress,
                               initial_states=fitted.estimate.initial_states,
                               initial_state=self.initial_state,
-                              quasi_static=self.quasi_static)
+                              quasi_static=self.quasi_static, criterion=self.criterion)
 
 
 def refit_start(values: dict, records: Sequence[Record],
@@ -957,6 +970,7 @@ class DiscoveryResult:
     error_after: ChannelErrors
     out_of_time: bool = False
     quasi_static: bool = False
+    criterion: str = 'speed'
 
     def errors_on(self, records: Sequence[Record]) -> dict[str, ChannelErrors]:
         """
@@ -1036,7 +1050,7 @@ def errors_by_step(found: DiscoveryResult, records: Sequence[Record]) -> list[di
             estimate = refit_all_data(
                 structure, found.source_records, tc, found.estimate.parameters,
                 refit_start(found.final.values, found.source_records, tc),
-                quasi_static=found.quasi_static)[2]
+                quasi_static=found.quasi_static, criterion=found.criterion)[2]
         errors = structure_errors(structure, estimate, records, tc)
         out.append({'effects': structure.names(), **errors})
     return out

@@ -19,6 +19,7 @@ from typing import Any, Sequence, TYPE_CHECKING
 import numpy as np
 
 from dcmotor_id.blas import single_threaded
+from dcmotor_id.criterion import resolve_criterion
 from dcmotor_id.discovery import DiscoveryLoop, DiscoveryResult
 from dcmotor_id.effects import VOCABULARY
 from dcmotor_id.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
@@ -102,7 +103,7 @@ def prepare_records(records: Sequence[Record], torque_constant: float | None = N
                     'lower cut-off (the default is a tenth of the sample rate, at most 100 Hz)')
             assert record.position is not None  # checked above: no speed means a position
             record = record.replace(speed=speed_from_position(
-                record.position, record.sample_period_s, speed_cutoff_hz))
+                record.position, record.sample_period_s, speed_cutoff_hz), speed_derived=True)
         prepared.append(record)
     periods = np.array([rec.sample_period_s for rec in prepared])
     if np.max(np.abs(periods / periods[0] - 1.0)) > 1e-6:
@@ -241,6 +242,9 @@ class IdentificationResult:
         The records identified (as given, before any data effect).
     discovery_result : DiscoveryResult or None
         The loop's result, when it ran.
+    criterion : str
+        The channels the fit compared: ``speed``, ``position`` or ``both``
+        (:mod:`dcmotor_id.criterion`).
 
     """
 
@@ -273,6 +277,7 @@ class IdentificationResult:
     estimate: Estimate | None = field(repr=False, default=None)
     input_records: list[Record] = field(repr=False, default_factory=list)
     discovery_result: DiscoveryResult | None = field(repr=False, default=None)
+    criterion: str = 'speed'
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""
@@ -304,6 +309,7 @@ class IdentificationResult:
             'upper_bounds': self.upper_bounds,
             'initial_state': self.initial_state,
             'elapsed_s': self.elapsed_s,
+            'criterion': self.criterion,
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out
@@ -319,10 +325,24 @@ def supports_discovery(estimator: Any) -> bool:
     return bool(getattr(estimator, 'supports_terms', False))
 
 
-def _make_estimator(method, initial_state, progress):
+def _make_estimator(method, initial_state, progress, criterion='speed'):
     if method == 'refined':
-        return RefinedEstimator(initial_state=initial_state, progress=progress)
+        return RefinedEstimator(initial_state=initial_state, progress=progress,
+                                criterion=criterion)
     return METHODS[method]()
+
+
+def _criterion_of(records, criterion, method, estimator):
+    """The criterion the fit uses: resolved for the refined method, else the speed's."""
+    resolved = resolve_criterion(records, criterion)
+    if estimator is not None:
+        return getattr(estimator, 'criterion', 'speed')
+    if method != 'refined':
+        if criterion not in ('auto', 'speed'):
+            raise InputDataError(f'--criterion {criterion} needs the refined method (the '
+                                 f'{method} method fits the speed)')
+        return 'speed'
+    return resolved
 
 
 @single_threaded
@@ -332,7 +352,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
              vocabulary: Sequence[type[Effect]] | None = None, *,
              max_time_s: float | None = DEFAULT_MAX_TIME_S,
              progress: Progress | None = None,
-             initial_state: str = 'estimate') -> IdentificationResult:
+             initial_state: str = 'estimate',
+             criterion: str = 'auto') -> IdentificationResult:
     """
     Identify the motor from prepared records.
 
@@ -359,6 +380,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
     initial_state : str
         ``estimate`` (every record's initial state is fitted) or ``measured`` (pinned to the
         first samples).
+    criterion : str
+        ``auto`` (default), ``speed``, ``position`` or ``both``: the channels the output-error
+        fit compares (:func:`dcmotor_id.criterion.resolve_criterion`; ``auto`` compares the
+        position when the speed was derived from it).  The JSON key ``criterion`` holds the
+        one used.
 
     Returns
     -------
@@ -386,6 +412,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
         raise InputDataError(f'initial state must be one of {", ".join(INITIAL_STATES)}, not '
                              f'{initial_state!r}')
     progress = progress if progress is not None else Progress(max_time_s)
+    criterion = _criterion_of(records, criterion, method, estimator)
     mechanical_only = torque_constant is not None
     excitation = check_excitation(records, mechanical_only)
     warnings: list[str] = []
@@ -394,11 +421,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
     limited = None if mechanical_only or estimator is not None or method != 'refined' else \
         limited_samples(records)
     if limited is not None:
-        return _identify_current_limited(records, limited, discover, vocabulary, progress,
-                                         initial_state)
+        return replace(_identify_current_limited(records, limited, discover, vocabulary,
+                                                 progress, initial_state), criterion='speed')
     if excitation.one_direction:
         vocabulary = [cls for cls in vocabulary if cls.name not in ONE_DIRECTION_CONFOUNDED]
-    estimator = estimator or _make_estimator(method, initial_state, progress)
+    estimator = estimator or _make_estimator(method, initial_state, progress, criterion)
     progress.set_stage('base fit', _names(records))
     try:
         estimate = estimator.fit(records, torque_constant=torque_constant)
@@ -415,7 +442,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
         robust = with_robust_stderr(estimate)
         full_la = (robust.parameters['La'], robust.stderr['La'], robust.parameters['Ra'])
         if _la_unresolved(*full_la, records[0].sample_period_s):
-            refit = _quasi_static_refit(estimate, records, errors, initial_state, progress)
+            refit = _quasi_static_refit(estimate, records, errors, initial_state, progress,
+                                        criterion)
             if refit is None:
                 not_identifiable['La'] = _la_reason(*full_la, records[0].sample_period_s,
                                                     None)
@@ -439,7 +467,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
         try:
             found, discovery_info = _run_discovery(records, torque_constant, estimator,
                                                    vocabulary, progress, initial_state, quasi,
-                                                   estimate)
+                                                   estimate, criterion)
         finally:
             progress.deadline = deadline
         if found is not None and found.out_of_time:
@@ -547,6 +575,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
         estimate=final,
         input_records=list(records),
         discovery_result=found,
+        criterion=criterion,
     )
 
 
@@ -695,7 +724,7 @@ def _la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
     return bool(la / ra < dt or la_stderr > IDENTIFIABLE_REL_STDERR * la)
 
 
-def _quasi_static_refit(estimate, records, errors, initial_state, progress):
+def _quasi_static_refit(estimate, records, errors, initial_state, progress, criterion='speed'):
     """
     Refit with the quasi-static armature (La -> 0); return the estimate or None.
 
@@ -707,7 +736,7 @@ def _quasi_static_refit(estimate, records, errors, initial_state, progress):
     progress.set_stage('quasi-static armature refit')
     try:
         quasi = RefinedEstimator(initial=start, quasi_static=True, initial_state=initial_state,
-                                 progress=progress).fit(records)
+                                 progress=progress, criterion=criterion).fit(records)
         quasi_errors = simulation_errors(quasi, records, None, quasi_static=True)
     except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
         return None
@@ -770,7 +799,7 @@ def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, 
 
 
 def _run_discovery(records, torque_constant, estimator, vocabulary, progress, initial_state,
-                   quasi_static=False, estimate=None):
+                   quasi_static=False, estimate=None, criterion='speed'):
     """Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``."""
     if not supports_discovery(estimator):
         return None, {'skipped': f'effect discovery needs the refined method (the '
@@ -779,7 +808,7 @@ def _run_discovery(records, torque_constant, estimator, vocabulary, progress, in
     try:
         found = DiscoveryLoop(records, torque_constant, vocabulary=vocabulary,
                               progress=progress, initial_state=initial_state,
-                              quasi_static=quasi_static).run(estimate)
+                              quasi_static=quasi_static, criterion=criterion).run(estimate)
         _check_physical(found.estimate)
     except TimeBudgetExceeded:
         return None, {'skipped': f'the time budget ({progress.max_time_s:g} s) ran out '

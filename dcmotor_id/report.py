@@ -609,7 +609,8 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
              f'<p>{len(result["records"])} record(s): '
              f'{html.escape(", ".join(str(r) for r in result["records"]))}; '
              f'{result["n_samples"]} samples, dt {result["sample_period_s"]:.6g} s; mode '
-             f'{html.escape(result["mode"])}; method {html.escape(result["method"])}.</p>',
+             f'{html.escape(result["mode"])}; method {html.escape(result["method"])}; '
+             f'criterion {html.escape(_criterion_text(result.get("criterion", "speed")))}.</p>',
              f'<p class="{verdict_class}">{verdict}</p>',
              '<h2>Simulation error</h2>',
              _table(['', 'current NRMSE', 'speed NRMSE'],
@@ -764,3 +765,16 @@ def write_validation_report(directory: str, validation: Validation,
              f'{html.escape(effects)}.</p>']
     parts += _validation_parts(directory, validation, units)
     return _write_page(directory, 'validation.html', 'dcmotor_id validation', parts)
+
+
+#: What each fit criterion compares (the report's words).
+CRITERION_TEXT = {'speed': 'speed (and current): output error on the measured speed',
+                  'position': 'position (and current): output error on the measured position, '
+                              'the integral of the simulated speed; the speed derived from it '
+                              'is not compared',
+                  'both': 'both: output error on the speed and the position (and current)'}
+
+
+def _criterion_text(criterion: str) -> str:
+    """Return the report's description of a fit criterion."""
+    return CRITERION_TEXT.get(criterion, criterion)

@@ -28,6 +28,7 @@ from typing import Any, Callable, cast, Mapping, Sequence
 
 import numpy as np
 
+from dcmotor_id.criterion import fitted_outputs, integrate_speed
 from dcmotor_id.errors import FitError
 from dcmotor_id.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.estimators.jacobian import jacobian
@@ -71,11 +72,17 @@ class OutputErrorModel:
         The La -> 0 limit of the armature (an electrical time constant far below the sample
         period): ``J dw/dt = CPhi (u - CPhi w) / Ra - b w - Mc sgn w`` and
         ``i = (u - CPhi w) / Ra``; La is not a parameter then.
+    criterion : str
+        ``speed`` (default), ``position`` or ``both``: the channels compared
+        (:func:`dcmotor_id.criterion.fitted_outputs`).  With the position, every record's
+        initial state ends with its initial position and :meth:`simulate` also returns the
+        position (the integral of the simulated speed).
 
     """
 
     def __init__(self, records: Sequence[Any], torque_constant: float | None = None,
-                 terms: Sequence[ExogenousTerm] = (), quasi_static: bool = False) -> None:
+                 terms: Sequence[ExogenousTerm] = (), quasi_static: bool = False,
+                 criterion: str = 'speed') -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
@@ -88,7 +95,12 @@ class OutputErrorModel:
         self.quasi_static = bool(quasi_static) and not self.mechanical_only
         self.base_names = tuple(name for name in parameter_names(self.mechanical_only)
                                 if not (self.quasi_static and name == 'La'))
-        self.outputs = ('speed',) if self.mechanical_only else ('current', 'speed')
+        # The simulated states (the ODE's), the compared channels, and every record's initial
+        # state (the ODE's, then the initial position when the position is compared).
+        self.dynamic = ('speed',) if self.mechanical_only else ('current', 'speed')
+        self.criterion = criterion
+        self.outputs = fitted_outputs(self.mechanical_only, criterion)
+        self.states = self.dynamic + (('position',) if 'position' in self.outputs else ())
         # The period is a median over the record: computed once, not at every simulation.
         self.sample_periods_s = [rec.sample_period_s for rec in self.records]
         # Mechanical-only mode: the sampled current is the input.  It varies within a sample,
@@ -121,7 +133,23 @@ class OutputErrorModel:
 
     def simulate(self, values: Mapping[str, float], index: int,
                  initial_state: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
-        """Simulate record ``index``; return a dict of output arrays (current, speed)."""
+        """
+        Simulate record ``index``; return a dict of output arrays (current, speed, position).
+
+        ``initial_state`` is the ODE's (``(i0, w0)`` or ``(w0,)``), optionally followed by
+        the initial position: then ``position``, the integral of the simulated speed, is
+        returned too (also when the position is not compared).
+        """
+        n_dynamic = len(self.dynamic)
+        out = self._simulate_dynamic(values, index, initial_state[:n_dynamic])
+        speed = out.pop('position_speed')
+        if len(initial_state) > n_dynamic:
+            out['position'] = integrate_speed(speed, self.sample_periods_s[index],
+                                              float(initial_state[n_dynamic]))
+        return out
+
+    def _simulate_dynamic(self, values, index, initial_state):
+        """Simulate the ODE; ``position_speed`` is the speed state (no output offsets)."""
         rec = self.records[index]
         dt = self.sample_periods_s[index]
         extra_torque = self._channel(values, 'torque', index)
@@ -158,7 +186,8 @@ class OutputErrorModel:
                                       max(values['Mc'] - delta, 0.0) / values['J'])
                 states = system.simulate(forcing, initial_state, dt)
                 out = {'current': states[:-1, 0], 'speed': states[:-1, 1]}
-        for channel in self.outputs:
+        out['position_speed'] = out['speed']
+        for channel in self.dynamic:
             offset = self._channel(values, channel, index)
             if offset is not None:
                 out[channel] = out[channel] + offset
@@ -328,6 +357,9 @@ class RefinedEstimator:
     initial_states : sequence, optional
         Start of every record's initial state (a warm start, e.g. from an earlier fit of the
         same records); default: the first measured samples.  Ignored when pinned.
+    criterion : str
+        ``speed`` (default), ``position`` or ``both``: the channels compared
+        (:class:`OutputErrorModel`).
 
     """
 
@@ -339,7 +371,8 @@ class RefinedEstimator:
                  initial: Mapping[str, float] | None = None, quasi_static: bool = False,
                  initial_state: str = 'estimate',
                  progress: Callable[..., None] | None = None,
-                 initial_states: Sequence[Sequence[float]] | None = None) -> None:
+                 initial_states: Sequence[Sequence[float]] | None = None,
+                 criterion: str = 'speed') -> None:
         if initial_state not in ('estimate', 'measured'):
             raise ValueError(f'initial_state must be estimate or measured, not {initial_state}')
         self.max_nfev = max_nfev
@@ -349,14 +382,16 @@ class RefinedEstimator:
         self.initial_state = initial_state
         self.progress = progress
         self.initial_states = initial_states
+        self.criterion = criterion
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
         """Fit the records; return an :class:`Estimate` with standard errors."""
-        model = OutputErrorModel(records, torque_constant, terms, self.quasi_static)
+        model = OutputErrorModel(records, torque_constant, terms, self.quasi_static,
+                                 self.criterion)
         names = list(model.base_names) + [term.name for term in model.terms]
         n_base = len(model.base_names)
-        n_state = len(model.outputs)
+        n_state = len(model.states)
         start_base = self._start(model)
         # Base parameters are fitted as logarithms (positive, relative steps); term
         # coefficients and initial states as multiples of their typical magnitude.
@@ -365,16 +400,17 @@ class RefinedEstimator:
                  for name in model.base_names]
         magnitudes = [1.0] * n_base + [term.scale for term in model.terms]
         start += [term.initial / term.scale for term in model.terms]
-        pinned = (np.array([[float(getattr(rec, channel)[0]) for channel in model.outputs]
+        pinned = (np.array([[float(getattr(rec, channel)[0]) for channel in model.states]
                             for rec in records]) if self.initial_state == 'measured' else None)
         warm = self.initial_states if self.initial_states is not None and len(
             self.initial_states) == len(records) else None
         for index, rec in enumerate(records if pinned is None else ()):
-            for position, channel in enumerate(model.outputs):
+            for position, channel in enumerate(model.states):
                 values = getattr(rec, channel)
                 scale = max(float(np.std(values)), 1e-9)
                 magnitudes.append(scale)
-                first = float(values[0]) if warm is None else float(warm[index][position])
+                first = float(values[0]) if warm is None or position >= len(
+                    warm[index]) else float(warm[index][position])
                 start.append(first / scale)
         scales = np.array(magnitudes)
         z0 = np.array(start)
@@ -471,7 +507,7 @@ class RefinedEstimator:
         if final is None:
             final = evaluate(z, noise, True)
             total_nfev += 1
-        n_residuals = sum(len(rec) for rec in records) * n_state
+        n_residuals = sum(len(rec) for rec in records) * len(model.outputs)
         dof = max(n_residuals - z.shape[0], 1)
         s2 = float(final.cost) / dof
         cov_z = s2 * np.linalg.pinv(final.hessian)
@@ -495,6 +531,7 @@ class RefinedEstimator:
             'covariance': covariance[:len(names), :len(names)].tolist(),
             'names': names,
             'quasi_static': model.quasi_static,
+            'criterion': model.criterion,
             'sensitivities': 'analytic' if analytic else 'finite differences',
             # What the data-based covariance needs (dcmotor_id.estimators.uncertainty): the
             # fit's normal equations in its internal coordinates z (theta = chain * dz locally)
@@ -517,7 +554,8 @@ class RefinedEstimator:
             # A start point needs seconds of data, not hours: windows spread over each record
             # keep the search's time and memory bounded (the fit itself uses every sample).
             records = _windows(records, START_SAMPLES)
-            model = OutputErrorModel(records, constant, quasi_static=model.quasi_static)
+            model = OutputErrorModel(records, constant, quasi_static=model.quasi_static,
+                                     criterion=model.criterion)
         candidates = _svf_candidates(records, constant)
         try:
             paper = PaperEstimator().fit(records, torque_constant=constant).parameters
@@ -534,7 +572,7 @@ class RefinedEstimator:
             cost = 0.0
             with np.errstate(all='ignore'):
                 for index, rec in enumerate(records):
-                    state = [float(getattr(rec, channel)[0]) for channel in model.outputs]
+                    state = [float(getattr(rec, channel)[0]) for channel in model.states]
                     out = model.simulate(values, index, state)
                     for channel in model.outputs:
                         measured = getattr(rec, channel)
