@@ -309,6 +309,7 @@ class DiscoveryLoop:
         self.progress = progress
         self.initial_state = initial_state
         self.quasi_static = bool(quasi_static) and not self.mechanical_only
+        self.anchor: Fit | None = None
 
     # ------------------------------------------------------------------ fitting
     def _stops(self, records):
@@ -606,11 +607,39 @@ class DiscoveryLoop:
         structure = current.structure.plus(cls, inner)
         initial = dict(current.values)
         initial.update(start_terms)
+        fitted = self._try_from(structure, self._base(current), initial,
+                                current.estimate.initial_states)
+        if self.anchor is None:
+            return fitted
+        # The position criterion: the integral of a model that lacks an effect drifts, and
+        # its fit may end far from the physical values (EMPS without its force offset: the
+        # mass doubles, the Coulomb friction vanishes).  The candidate is also fitted from the
+        # speed-criterion values; the lower training cost wins (a fit's local minimum, not a
+        # selection: the held-out part is not looked at).
+        anchored = self._try_from(structure, self._base(self.anchor), {
+            **initial, **{name: value for name, value in self.anchor.values.items()
+                          if name in self.anchor.estimate.parameters}}, None)
+        return min((fit for fit in (fitted, anchored) if fit is not None),
+                   key=lambda fit: fit.train_cost, default=None)
+
+    def _try_from(self, structure, start, initial, initial_states):
+        """Fit a structure from a start point; None when the fit fails."""
         try:
             with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
-                return self.fit(structure, start=self._base(current), initial=initial,
-                                max_nfev=CANDIDATE_MAX_NFEV,
-                                initial_states=current.estimate.initial_states)
+                return self.fit(structure, start=start, initial=initial,
+                                max_nfev=CANDIDATE_MAX_NFEV, initial_states=initial_states)
+        except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
+            return None
+
+    def _anchor_fit(self) -> Fit | None:
+        """The base model fitted on the speed (training parts), when the criterion is not."""
+        if self.criterion == 'speed':
+            return None
+        loop = DiscoveryLoop(self.records, self.torque_constant, self.candidates,
+                             self.holdout_fraction, progress=self.progress,
+                             initial_state=self.initial_state, quasi_static=self.quasi_static)
+        try:
+            return loop.fit(Structure())
         except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             return None
 
@@ -717,6 +746,7 @@ class DiscoveryLoop:
                      if name in estimate.parameters}
             base = self.fit(Structure(), start=start, initial_states=estimate.initial_states)
         current = base
+        self.anchor = self._anchor_fit()
         steps = []
         analysis_before = self.analyse(base)
         analysis = analysis_before
