@@ -76,6 +76,10 @@ MISFIT_FACTOR = 3.0
 #: an effect simulated inside the model, has no one-step form there).
 ONE_STEP_TERMS = {'voltage': 'voltage_extra', 'torque': 'torque_extra',
                   'current': 'current_offset', 'speed': 'speed_offset'}
+#: Contiguous blocks of the held-out part whose error drops give the noise of the gain.
+HELDOUT_BLOCKS = 8
+#: Standard errors of the held-out drop a candidate's gain must exceed.
+GAIN_NOISE_FACTOR = 2.0
 #: Bound on the Jacobian evaluations of a candidate's refit (per parameter, as in
 #: :class:`~dcmotor_id.estimators.refined.RefinedEstimator`).
 CANDIDATE_MAX_NFEV = 30
@@ -209,6 +213,12 @@ class Candidate:
         Relative drop of the held-out cost against the current structure.
     bic_delta : float or None
         Change of the training BIC.
+    insample_gain : float or None
+        Relative drop of the training cost (the part the candidate was fitted on).
+    gain_noise : float or None
+        Noise of ``gain``: :data:`GAIN_NOISE_FACTOR` standard errors of the drop, from its
+        spread over :data:`HELDOUT_BLOCKS` contiguous blocks of the held-out part
+        (:func:`heldout_gain_noise`); the gain must exceed it.
 
     """
 
@@ -220,6 +230,8 @@ class Candidate:
     problem: str | None = None
     gain: float | None = None
     bic_delta: float | None = None
+    insample_gain: float | None = None
+    gain_noise: float | None = None
 
     @property
     def name(self) -> str:
@@ -355,6 +367,8 @@ class DiscoveryLoop:
         model = OutputErrorModel(records, self.torque_constant, terms, self.quasi_static,
                                  self.criterion)
         simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
+        if self.criterion != 'speed' and len(structure) and not self.quasi_static:
+            simulated = open_loop_outputs(structure, estimate, records, self.torque_constant)
         fitted = Fit(structure, estimate, records, stops, simulated, terms)
         if self.weights is None:
             self.weights = {channel: max(estimate.info['noise_std'][channel], 1e-300)
@@ -687,7 +701,10 @@ class DiscoveryLoop:
         if candidate.fit is None:
             return candidate
         return replace(candidate, gain=1.0 - candidate.fit.heldout_cost / current.heldout_cost,
-                       bic_delta=self._bic(candidate.fit) - self._bic(current))
+                       bic_delta=self._bic(candidate.fit) - self._bic(current),
+                       insample_gain=1.0 - candidate.fit.train_cost / current.train_cost,
+                       gain_noise=heldout_gain_noise(current, candidate.fit, self.outputs,
+                                                     self.weights or {}))
 
     def _problem(self, current, fitted):
         """Why a candidate's fit is not acceptable (physics, collapse), or None."""
@@ -771,6 +788,7 @@ class DiscoveryLoop:
         except TimeBudgetExceeded:
             out_of_time = True
             reason = 'the time budget ran out: the best structure so far is kept'
+        current, reason = never_worse(base, current, reason)
         try:
             if out_of_time:
                 raise TimeBudgetExceeded('no time left for the all-data refit')
@@ -836,7 +854,8 @@ class DiscoveryLoop:
                     if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
             winner = min(ties, key=lambda candidate: order[candidate.name])
             # Refitted candidates are scored: gain and bic_delta are set.
-            if winner.gain >= self.min_gain and winner.bic_delta < 0:  # type: ignore[operator]
+            if winner.gain >= self.min_gain and winner.bic_delta < 0 and \
+                    winner.gain > winner.gain_noise:  # type: ignore[operator]
                 chosen = winner
                 equivalent = [candidate for candidate in ties if candidate is not winner]
         results = refitted + screened_out
@@ -863,6 +882,8 @@ class DiscoveryLoop:
             'refitted': candidate.fit is not None,
             'rejected': candidate.problem,
             'heldout_gain_pct': None if candidate.gain is None else candidate.gain * 100.0,
+            'heldout_gain_noise_pct': _pct_or_none(candidate.gain_noise),
+            'insample_gain_pct': _pct_or_none(candidate.insample_gain),
             'bic_delta': candidate.bic_delta,
             'screen_explained_pct': candidate.screen_explained * 100.0,
             'regressor_correlation': correlation,
@@ -875,6 +896,76 @@ class DiscoveryLoop:
                               initial_states=fitted.estimate.initial_states,
                               initial_state=self.initial_state,
                               quasi_static=self.quasi_static, criterion=self.criterion)
+
+
+def open_loop_outputs(structure: Structure, estimate: Estimate, records: Sequence[Record],
+                      torque_constant: float | None = None) -> list[dict[str, np.ndarray]]:
+    """
+    Simulate a fitted structure open loop, as ``dcmotor-id validate`` does; per record.
+
+    The fit's effect terms are regressors of *measured* signals (the speed's magnitude, the
+    measured position's angle), which on the held-out part would feed the measurement into
+    the prediction; here every effect is driven by the simulated state
+    (:func:`dcmotor_id.validate.simulate`), so that a candidate is judged as the model will be
+    used.  The position starts at the fitted initial position.
+    """
+    from dcmotor_id.validate import Model, simulate
+
+    values = estimate.parameters
+    effects = [{'name': effect.name, 'parameters': dict(effect.parameters)}
+               for effect in structure.effects(values) if not type(effect).TRANSFORM]
+    mechanical = torque_constant is not None
+    model = Model({name: float(values[name]) for name in parameter_names(mechanical)},
+                  'mechanical' if mechanical else 'full', torque_constant, effects)
+    n_dynamic = 1 if mechanical else 2
+    outputs = []
+    for rec, state in zip(records, estimate.initial_states):
+        with np.errstate(all='ignore'):
+            out = simulate(model, rec, np.asarray(state[:n_dynamic], dtype=float))
+        if len(state) > n_dynamic and rec.position is not None:
+            out['position'] = out['position'] + (float(state[n_dynamic]) - float(rec.position[0]))
+        outputs.append(out)
+    return outputs
+
+
+def _pct_or_none(value: float | None) -> float | None:
+    return None if value is None else float(value) * 100.0
+
+
+def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
+                       weights: dict[str, float]) -> float:
+    """
+    Noise of a candidate's relative held-out gain: two standard errors of the error drop.
+
+    The weighted squared held-out errors of both fits (the held-out cost's terms) are
+    subtracted sample by sample and summed over :data:`HELDOUT_BLOCKS` contiguous blocks;
+    the blocks' spread gives the standard error of the total drop (blocks far longer than the
+    residual's correlation are nearly independent; shorter ones make it conservative).
+    Returns ``GAIN_NOISE_FACTOR`` times it relative to the current held-out cost (``inf``
+    when it cannot be computed).
+    """
+    drop = None
+    for channel in outputs:
+        before = current.channel_residual(channel, 'heldout')
+        after = candidate.channel_residual(channel, 'heldout')
+        if before.shape != after.shape or before.shape[0] < 2 * HELDOUT_BLOCKS:
+            return float('inf')
+        term = (before ** 2 - after ** 2) / (max(weights.get(channel, 1.0), 1e-300) ** 2
+                                             * before.shape[0])
+        drop = term if drop is None else drop + term
+    if drop is None or not np.all(np.isfinite(drop)) or current.heldout_cost <= 0.0:
+        return float('inf')
+    sums = np.array([part.sum() for part in np.array_split(drop, HELDOUT_BLOCKS)])
+    stderr = float(np.sqrt(HELDOUT_BLOCKS) * np.std(sums, ddof=1))
+    return GAIN_NOISE_FACTOR * stderr / current.heldout_cost
+
+
+def never_worse(base: Fit, final: Fit, reason: str) -> tuple[Fit, str]:
+    """Return the final structure, or the base one when it is not better on the held-out part."""
+    if final is base or final.heldout_cost < base.heldout_cost:
+        return final, reason
+    return base, (reason + '; the effects found did not lower the held-out error of the base '
+                  'model, which is kept')
 
 
 def refit_start(values: dict, records: Sequence[Record],

@@ -412,7 +412,26 @@ def identify(records: Sequence[Record], method: str = 'refined',
         raise InputDataError(f'initial state must be one of {", ".join(INITIAL_STATES)}, not '
                              f'{initial_state!r}')
     progress = progress if progress is not None else Progress(max_time_s)
-    criterion = _criterion_of(records, criterion, method, estimator)
+    resolved = _criterion_of(records, criterion, method, estimator)
+    arguments = (records, method, torque_constant, discover, estimator, vocabulary, progress,
+                 initial_state)
+    try:
+        return _identify(*arguments, resolved)
+    except FitError as error:
+        if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
+            raise
+        # The position integrates every force the model lacks over the whole record: a base
+        # model that cannot follow it (a load the loop did not find) is refused there, and
+        # ``auto`` falls back to the speed, as before the position criterion.
+        result = _identify(*arguments, 'speed')
+        result.warnings.insert(0, f'the fit on the position failed ({error}); the result is '
+                                  'the fit on the speed (--criterion speed)')
+        return result
+
+
+def _identify(records, method, torque_constant, discover, estimator, vocabulary, progress,
+              initial_state, criterion):
+    """Identify with a resolved criterion (:func:`identify`'s body)."""
     mechanical_only = torque_constant is not None
     excitation = check_excitation(records, mechanical_only)
     warnings: list[str] = []
@@ -452,6 +471,10 @@ def identify(records: Sequence[Record], method: str = 'refined',
                 errors = simulation_errors(estimate, records, None, quasi_static=True)
     found, discovery_info = None, None
     base_worst = max([value for value in errors.values() if value is not None] or [np.inf])
+    if criterion != 'speed':
+        # The base model's position may be far off for lack of the very effect (a load) the
+        # loop is there to find: the loop gets its full time, the final model is checked.
+        base_worst = min(base_worst, NO_FIT_NRMSE_PCT)
     if discover and not base_worst <= HOPELESS_NRMSE_PCT:
         # Worse than the signals' mean: a sign or unit error, which no effect explains (and
         # every candidate fit would diverge slowly); refuse below without the loop.
