@@ -623,13 +623,14 @@ class DiscoveryLoop:
         initial.update(start_terms)
         fitted = self._try_from(structure, self._base(current), initial,
                                 current.estimate.initial_states)
-        if self.anchor is None:
+        if self.anchor is None or len(current.structure):
             return fitted
         # The position criterion: the integral of a model that lacks an effect drifts, and
         # its fit may end far from the physical values (EMPS without its force offset: the
         # mass doubles, the Coulomb friction vanishes).  The candidate is also fitted from the
         # speed-criterion values; the lower training cost wins (a fit's local minimum, not a
-        # selection: the held-out part is not looked at).
+        # selection: the held-out part is not looked at).  Only from the base model: once an
+        # effect is in, the fit starts from a model that follows the position.
         anchored = self._try_from(structure, self._base(self.anchor), {
             **initial, **{name: value for name, value in self.anchor.values.items()
                           if name in self.anchor.estimate.parameters}}, None)
@@ -763,6 +764,10 @@ class DiscoveryLoop:
                      if name in estimate.parameters}
             base = self.fit(Structure(), start=start, initial_states=estimate.initial_states)
         current = base
+        if base.estimate.info.get('initial_state') == 'measured':
+            # The position criterion pinned the base's initial states (its fitted start moved
+            # to absorb a misfit): the candidates start pinned too, without a second fit.
+            self.initial_state = 'measured'
         self.anchor = self._anchor_fit()
         steps = []
         analysis_before = self.analyse(base)
