@@ -19,8 +19,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from dcmotor_id.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.criterion import CRITERIA
+from dcmotor_id.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.errors import DcMotorIdError, InputDataError
 from dcmotor_id.excitation import add_sensor_noise, EXCITATION_KINDS, make_excitation, quantise
 from dcmotor_id.formats import read_records

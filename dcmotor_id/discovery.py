@@ -647,7 +647,7 @@ class DiscoveryLoop:
             return None
 
     def _anchor_fit(self) -> Fit | None:
-        """The base model fitted on the speed (training parts), when the criterion is not."""
+        """Fit the base model on the speed (training parts) when the criterion is not the speed."""
         if self.criterion == 'speed':
             return None
         loop = DiscoveryLoop(self.records, self.torque_constant, self.candidates,

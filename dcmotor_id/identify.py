@@ -333,7 +333,7 @@ def _make_estimator(method, initial_state, progress, criterion='speed'):
 
 
 def _criterion_of(records, criterion, method, estimator):
-    """The criterion the fit uses: resolved for the refined method, else the speed's."""
+    """Return the criterion the fit uses: resolved for the refined method, else speed."""
     resolved = resolve_criterion(records, criterion)
     if estimator is not None:
         return getattr(estimator, 'criterion', 'speed')
@@ -424,8 +424,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
         # model that cannot follow it (a load the loop did not find) is refused there, and
         # ``auto`` falls back to the speed, as before the position criterion.
         result = _identify(*arguments, 'speed')
-        result.warnings.insert(0, f'the fit on the position failed ({error}); the result is '
-                                  'the fit on the speed (--criterion speed)')
+        reason = str(error).split('. Check')[0]
+        result.warnings.insert(0, f'the fit on the position failed ({reason}): the integral '
+                                  'of a force the model lacks drifts over the record (the loop '
+                                  'looks for it unless --no-discover); the result is the fit '
+                                  'on the speed (--criterion speed)')
         return result
 
 

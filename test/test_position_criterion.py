@@ -25,7 +25,7 @@ NAMES = ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
 
 def encoder_record(duration_s=4.0, dt=1e-3, counts_per_rev=4096, current_noise=0.01, seed=0,
                    kind='paper'):
-    """A motor-2 record with a quantised encoder position and no speed column."""
+    """Simulate a motor-2 record with a quantised encoder position and no speed column."""
     t, voltage = make_excitation(kind, duration_s, dt)
     current, speed = simulate_motor(MOTOR, voltage, dt, (0.0, 0.0))
     rng = np.random.default_rng(seed)
@@ -161,4 +161,3 @@ def test_discovery_never_ends_worse_than_its_base_on_held_out():
     kept, reason = never_worse(base, worse, 'stopped')
     assert kept is base and 'base model' in reason
     assert never_worse(base, base, 'stopped') == (base, 'stopped')
-

@@ -143,7 +143,7 @@ class NormalEquations:
 
     def _with_position(self, values, index, initial_state, inverse_sigma, with_sens, store):
         """
-        The normal equations with the position compared: the kernel's, then the position's.
+        Accumulate the normal equations with the position: the kernel's, then the position's.
 
         The position is the trapezoidal integral of the simulated speed from the initial
         position (:func:`dcmotor_id.criterion.integrate_speed`), so its sensitivities are the

@@ -710,7 +710,7 @@ def moved_start(records: Sequence[Any], positions: Sequence[float]) -> str | Non
 
 
 def _kept_columns(equations, n_records, n_columns):
-    """The columns of ``z`` among the passes' (shared, then the free initial states)."""
+    """Return the columns of ``z`` among the passes' (shared, then the free initial states)."""
     free = getattr(equations, 'free_states', None)
     if free is None or all(free) or not any(free):
         # All states fitted, or all pinned (dropped): the first columns.
