@@ -663,20 +663,8 @@ def _assemble(equations, results, weights, chain, factors, base=None):
 
 
 def free_states(states: Sequence[str], initial_state: str) -> list[bool]:
-    """
-    Which initial states the fit estimates: all (``estimate``) or none (``measured``).
-
-    With the position compared, ``estimate`` fits the initial position alone and pins the
-    ODE's initial state (current, speed) to the first samples, as ``dcmotor-id validate``
-    starts its simulation: over a long record the integral of a free initial speed is a
-    position offset of ``w0 J / b`` that absorbs misfit (EMPS: 5 mm, the fitted start far
-    from the carriage at rest, and a model worse on new records).
-    """
-    if initial_state == 'measured':
-        return [False] * len(states)
-    if 'position' in states:
-        return [channel == 'position' for channel in states]
-    return [True] * len(states)
+    """Which initial states the fit estimates: all (``estimate``) or none (``measured``)."""
+    return [initial_state != 'measured'] * len(states)
 
 
 #: Distance of a fitted initial position from the first samples, in their noise levels, beyond
