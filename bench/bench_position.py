@@ -15,7 +15,8 @@ Records with a position and no speed: the position criterion against the speed c
    the same observation model (:func:`dcmotor_id.estimators.fisher.cramer_rao_bound` with
    ``criterion='position'``, initial states as nuisance parameters).
 
-Usage: ``.venv/bin/python bench/bench_position.py [--seeds N] [--runs N] > bench/position_results.md``
+Usage: ``.venv/bin/python bench/bench_position.py [--seeds N] [--runs N]``
+(its markdown on stdout: ``bench/position_results.md``)
 """
 
 import argparse

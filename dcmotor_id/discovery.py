@@ -30,7 +30,7 @@ that matters) while no candidate helps: the evidence says how much and where.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence, TYPE_CHECKING
+from typing import Any, cast, Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -858,9 +858,9 @@ class DiscoveryLoop:
             ties = [candidate for candidate in admissible
                     if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
             winner = min(ties, key=lambda candidate: order[candidate.name])
-            # Refitted candidates are scored: gain and bic_delta are set.
-            if winner.gain >= self.min_gain and winner.bic_delta < 0 and \
-                    winner.gain > winner.gain_noise:  # type: ignore[operator]
+            # Refitted candidates are scored: gain, bic_delta and gain_noise are set.
+            gain, noise = cast(float, winner.gain), cast(float, winner.gain_noise)
+            if gain >= self.min_gain and cast(float, winner.bic_delta) < 0 and gain > noise:
                 chosen = winner
                 equivalent = [candidate for candidate in ties if candidate is not winner]
         results = refitted + screened_out
