@@ -86,7 +86,7 @@ def encoder_section(seeds, counts):
 
 
 def paper_position_records(motor, level, rng):
-    """The paper's two records with ``level`` noise on current and position (no speed)."""
+    """Simulate the paper's two records with ``level`` noise on current and position."""
     records, noise = [], {'current': [], 'position': []}
     for spec in (PAPER_SINE, PAPER_SAWTOOTH):
         t, voltage = make_excitation(spec['kind'], 4.0, 1e-4, amplitude_v=spec['amplitude_v'],
