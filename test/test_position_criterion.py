@@ -164,3 +164,35 @@ def test_discovery_never_ends_worse_than_its_base_on_held_out():
     kept, reason = never_worse(base, worse, 'stopped')
     assert kept is base and 'base model' in reason
     assert never_worse(base, base, 'stopped') == (base, 'stopped')
+
+
+def test_loop_finds_a_load_on_position_only_data_and_reports_its_gains(tmp_path):
+    """A constant load the base model lacks drifts the position; the loop finds it."""
+    from dcmotor_id.report import write_report
+    from dcmotor_id.simulation import MotorEffects, simulate_motor_effects
+
+    dt = 1e-3
+    t, voltage = make_excitation('prbs', 3.0, dt, amplitude_v=60)
+    current, speed, angle = simulate_motor_effects(
+        MOTOR, voltage, dt, MotorEffects(load_torque_Nm=0.3), (0.0, 0.0),
+        initial_angle_rad=0.2)
+    rng = np.random.default_rng(5)
+    lsb = 2 * np.pi / 4096
+    rec = Record(t, current + 0.01 * np.std(current) * rng.standard_normal(t.shape[0]),
+                 voltage, None, np.round(angle / lsb) * lsb, source='load')
+    result = identify(prepare_records([rec]))
+    assert result.criterion == 'position'
+    assert [effect['name'] for effect in result.effects][:1] in (['load_torque'],
+                                                                  ['coulomb_asymmetry'])
+    found = result.discovery_result
+    assert found is not None and found.final.heldout_cost <= found.base.heldout_cost
+    added = found.steps[0]['added']['name']
+    decided = next(candidate for candidate in found.steps[0]['candidates']
+                   if candidate['name'] == added)
+    assert decided['heldout_gain_pct'] > decided['heldout_gain_noise_pct']
+    assert decided['insample_gain_pct'] > 0
+    page = write_report(str(tmp_path / 'report'), result.as_dict(), found, [rec])
+    with open(page, encoding='utf-8') as stream:
+        text = stream.read()
+    assert 'in-sample gain' in text and 'held-out noise' in text
+    assert 'criterion position' in text
