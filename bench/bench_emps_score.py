@@ -13,8 +13,12 @@ diagnosis fits on PULSES that show what limits the score.
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import resource
+import subprocess
 import sys
+import tempfile
 import time
 from typing import Any, Mapping
 
@@ -23,7 +27,120 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from studies.emps import emps_score, format_score  # noqa: E402
+from studies.emps import emps_score, find_data_dir, format_score  # noqa: E402
+
+#: The reading options of the README's EMPS commands (``.mat`` variables, units).
+READING = ['--column', 'current=vir', '--column', 'position=qm', '--position-unit', 'm']
+#: The README's identify commands, by row label: extra options after the reading ones.
+PRODUCT_COMMANDS = {
+    'identify, the loop with --extended-vocabulary (the README command)':
+        ['--extended-vocabulary', '--max-time', '600'],
+    'identify, the loop with the standard vocabulary': ['--max-time', '600'],
+    'identify --no-discover': ['--no-discover', '--max-time', '600'],
+}
+
+
+def _cli(arguments: list[str]) -> tuple[int, str, float]:
+    """Run ``python -m dcmotor_id.cli``; return the exit code, stderr and its CPU time [s]."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    done = subprocess.run([sys.executable, '-m', 'dcmotor_id.cli', *arguments],
+                          capture_output=True, text=True, cwd=os.path.dirname(HERE),
+                          check=False)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return done.returncode, done.stderr, (after.ru_utime - before.ru_utime
+                                          + after.ru_stime - before.ru_stime)
+
+
+def product_rows(data_dir: str | None, gtau: float) -> list[dict[str, Any]]:
+    """
+    EMPS through the product path: the README's identify commands, then validate on PULSES.
+
+    Every row runs ``dcmotor-id identify DATA_EMPS.mat ... --torque-constant GTAU --json`` and
+    ``dcmotor-id validate MODEL.json DATA_EMPS_PULSES.mat ... --json`` as a user would and
+    reads the position RMSE from validate's JSON.
+    """
+    directory = find_data_dir(data_dir)
+    estimation = os.path.join(directory, 'DATA_EMPS.mat')
+    validation = os.path.join(directory, 'DATA_EMPS_PULSES.mat')
+    rows = []
+    with tempfile.TemporaryDirectory() as work:
+        for label, extra in PRODUCT_COMMANDS.items():
+            model, scores = os.path.join(work, 'model.json'), os.path.join(work, 'scores.json')
+            start = time.perf_counter()
+            code, err, cpu = _cli(['identify', estimation, *READING, '--torque-constant',
+                                   f'{gtau:.10g}', *extra, '--json', model, '--quiet'])
+            wall = time.perf_counter() - start
+            row: dict[str, Any] = {'model': label, 'command': extra, 'exit': code,
+                                   'wall_s': wall, 'cpu_s': cpu}
+            if code != 0:
+                row['error'] = err.strip()
+                rows.append(row)
+                continue
+            code, err, _ = _cli(['validate', model, validation, *READING, '--json', scores])
+            with open(model, encoding='utf-8') as stream:
+                result = json.load(stream)
+            with open(scores, encoding='utf-8') as stream:
+                record = json.load(stream)['records'][0]
+            row.update(result=result, position_rmse_mm=1e3 * record['position_rmse'],
+                       fit_position_pct=record['fit_pct']['position'])
+            rows.append(row)
+    return rows
+
+
+def _effects_text(result: Mapping[str, Any]) -> str:
+    """Return the effects of a result as text."""
+    return '; '.join(f"{effect['name']} " + ', '.join(
+        f'{key} {value:.4g}' for key, value in effect['parameters'].items())
+        for effect in result['effects']) or 'none'
+
+
+def product_table(rows: list[dict[str, Any]], score: Mapping[str, Any]) -> str:
+    """Return the markdown table of the product rows beside the baselines of the same run."""
+    lines = ['| model (trained on DATA_EMPS) | criterion | M [kg] | Fv [N s/m] | Fc [N] | effects '
+             '| PULSES position RMSE [mm] | PULSES fit position | identify time (wall / CPU) |',
+             '|---|---|---|---|---|---|---|---|---|']
+    for row in rows:
+        if row['exit'] != 0:
+            lines.append(f"| {row['model']} | | | | | refused: {row.get('error', '')} | | | |")
+            continue
+        result = row['result']
+        p = result['parameters']
+        lines.append(f"| {row['model']} | {result['criterion']} | {p['J']:.2f} | {p['b']:.1f} "
+                     f"| {p['Mc']:.2f} | {_effects_text(result)} | "
+                     f"**{row['position_rmse_mm']:.2f}** | {row['fit_position_pct']:.2f} % | "
+                     f"{row['wall_s']:.0f} s / {row['cpu_s']:.0f} s |")
+    for start in ('published IDIM-LS', '4-parameter rigid model, output error on position'):
+        base = _row(score, start)
+        p = base['parameters']
+        lines.append(f"| baseline: {base['model']} | | {p['J']:.2f} | {p['b']:.1f} | "
+                     f"{p['Mc']:.2f} | {_effects_text(base)} | "
+                     f"**{base['validation']['position_rmse_mm']:.2f}** | "
+                     f"{base['validation']['fit_position_pct']:.2f} % | |")
+    return '\n'.join(lines)
+
+
+def rounds_text(rows: list[dict[str, Any]]) -> str:
+    """Return what the loop decided in each round: per candidate, the gains that decided."""
+    out = []
+    for row in rows:
+        discovery = (row.get('result') or {}).get('discovery') or {}
+        if not discovery.get('steps'):
+            continue
+        out.append(f"{row['model']} (stopped: {discovery.get('reason')}):")
+        for number, step in enumerate(discovery['steps'], 1):
+            added = step.get('added')
+            parts = []
+            for candidate in step['candidates']:
+                if candidate['heldout_gain_pct'] is None:
+                    continue
+                refused = f", refused: {candidate['rejected']}" if candidate['rejected'] else ''
+                parts.append(f"{candidate['name']} in-sample "
+                             f"{candidate['insample_gain_pct']:.1f} %, held-out "
+                             f"{candidate['heldout_gain_pct']:.1f} % (noise "
+                             f"{candidate['heldout_gain_noise_pct']:.1f} %){refused}")
+            out.append(f"- round {number}: added {added['name'] if added else 'nothing'}; "
+                       + '; '.join(parts))
+    return '\n'.join(out)
 
 
 def _row(score: Mapping[str, Any], start: str) -> Mapping[str, Any]:
@@ -121,6 +238,7 @@ def main() -> int:
     load = os.getloadavg()
     start = time.perf_counter()
     score = emps_score(args.data_dir)
+    products = product_rows(args.data_dir, score['gtau'])
     seconds = time.perf_counter() - start
     pulses = score['pulses']
     text = ['# EMPS: position RMSE on the PULSES validation record', '',
@@ -133,6 +251,19 @@ def main() -> int:
             'The two rows '
             'marked "diagnosis" are fitted on PULSES itself: they are not scores, they measure '
             'how far the two records differ.', '',
+            '## Through the product path', '',
+            'As the README tells a user: `dcmotor-id identify DATA_EMPS.mat --column '
+            'current=vir --column position=qm --position-unit m --torque-constant '
+            f"{score['gtau']:.10g} [options] --json model.json`, then `dcmotor-id validate "
+            'model.json DATA_EMPS_PULSES.mat` with the same reading options (its '
+            '`position_rmse`; initial state from the first 20 samples, not scored). The '
+            'position is the only measured motion channel, so the criterion is `position` '
+            '(auto). Baselines from the same run below.', '',
+            product_table(products, score), '', 'The loop, round by round (gains of the '
+            'candidates refitted; in-sample: training part, held-out: the last 30 % of the '
+            'motion, open-loop simulation; an effect is added when its held-out gain is at '
+            'least 5 %, above its noise, and lowers the BIC):', '', rounds_text(products), '',
+            '## The study (studies/emps.py)', '',
             format_score(score), '', difference_text(score), '',
             f'The force pulses: {pulses["pulses"]} onsets of `pulses_N` (height '
             f'{pulses["pulse_height"]:g}); at each onset the recorded `vir` of the PULSES '

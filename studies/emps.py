@@ -239,7 +239,8 @@ def emps_study(data_dir: str | None = None) -> dict[str, Any]:
     out = {'published': dict(PUBLISHED_IDIM_LS), 'idim_ls': replication,
            'criteria': comparison, 'gtau': gtau}
     for key, vocabulary in (('loop', VOCABULARY), ('loop_extended', EXTENDED_VOCABULARY)):
-        identified = identify([estimation], torque_constant=gtau, vocabulary=vocabulary)
+        identified = identify([estimation], torque_constant=gtau, vocabulary=vocabulary,
+                              criterion='speed')
         found = identified.discovery_result
         out[key] = {'result': identified.as_dict(), 'found': found,
                     'estimation': found.errors_on([estimation]),
@@ -517,7 +518,7 @@ def emps_score(data_dir: str | None = None) -> dict[str, Any]:
         ('4-parameter rigid model, output error on position',
          position_output_fit(estimation, gtau)),
     ]
-    loop = identify([estimation], torque_constant=gtau)
+    loop = identify([estimation], torque_constant=gtau, criterion='speed')
     fits.append(('discovery loop on speed (identify, effects: '
                  + (', '.join(e['name'] for e in loop.effects) or 'none') + ')',
                  PositionFit(model_from_dict(loop.as_dict()))))

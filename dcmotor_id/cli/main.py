@@ -33,6 +33,7 @@ from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
                                         POSITION_UNITS, ReadingNote, ReadOptions, SPEED_UNITS)
 from dcmotor_id.formats.paths import check_input_path, kind_of, same_file
+from dcmotor_id.identification.criterion import CRITERIA
 from dcmotor_id.identification.dropouts import repair_all
 from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.identification.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES,
@@ -219,7 +220,8 @@ def _cmd_identify(args):
         identified = identify(records, method=args.method,
                               torque_constant=args.torque_constant,
                               discover=not args.no_discover, vocabulary=vocabulary,
-                              progress=progress, initial_state=args.initial_state)
+                              progress=progress, initial_state=args.initial_state,
+                              criterion=args.criterion)
     except TimeBudgetExceeded:
         raise InputDataError(f'--max-time {args.max_time:g}: no fit finished within the time '
                              'budget; give more time (e.g. --max-time 60), or shorten or '
@@ -550,6 +552,11 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument('--initial-state', choices=INITIAL_STATES, default='estimate',
                        help='estimate (default) the initial current and speed of every record, '
                             'or pin them to the first measured samples (measured)')
+    ident.add_argument('--criterion', choices=CRITERIA, default='auto',
+                       help='channels the fit compares: speed (and current), position (the '
+                            'integral of the simulated speed, and current), both; auto '
+                            '(default): position when the speed was derived from it, both when '
+                            'speed and position were measured, else speed')
     ident.set_defaults(handler=_cmd_identify)
 
     val = commands.add_parser('validate', help='simulate an identified model on new records '

@@ -46,6 +46,9 @@ class Record:
         Shaft position [rad].
     source : str
         Where the record came from (a path), for messages.
+    speed_derived : bool
+        The speed was derived from the position (not measured): the fit's ``auto`` criterion
+        then compares the position instead (:mod:`dcmotor_id.identification.criterion`).
 
     """
 
@@ -55,6 +58,7 @@ class Record:
     speed: Optional[np.ndarray] = None
     position: Optional[np.ndarray] = None
     source: str = ''
+    speed_derived: bool = False
 
     @property
     def sample_period_s(self) -> float:
@@ -74,7 +78,7 @@ class Record:
         def cut(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
             return None if values is None else values[start:stop]
         return Record(self.time_s[start:stop], cut(self.current), cut(self.voltage),
-                      cut(self.speed), cut(self.position), self.source)
+                      cut(self.speed), cut(self.position), self.source, self.speed_derived)
 
     def columns(self) -> dict[str, np.ndarray]:
         """Return the present columns as a dict name -> array (``t`` first)."""

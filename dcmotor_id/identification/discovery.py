@@ -31,13 +31,14 @@ that matters) while no candidate helps: the evidence says how much and where.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence, TYPE_CHECKING
+from typing import Any, cast, Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
+from dcmotor_id.identification.criterion import fitted_outputs
 from dcmotor_id.identification.effects import SensorDelay, torque_spread, VOCABULARY
 from dcmotor_id.identification.estimators.jacobian import jacobian
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
@@ -76,6 +77,10 @@ MISFIT_FACTOR = 3.0
 #: an effect simulated inside the model, has no one-step form there).
 ONE_STEP_TERMS = {'voltage': 'voltage_extra', 'torque': 'torque_extra',
                   'current': 'current_offset', 'speed': 'speed_offset'}
+#: Contiguous blocks of the held-out part whose error drops give the noise of the gain.
+HELDOUT_BLOCKS = 8
+#: Standard errors of the held-out drop a candidate's gain must exceed.
+GAIN_NOISE_FACTOR = 2.0
 #: Bound on the Jacobian evaluations of a candidate's refit (per parameter, as in
 #: :class:`~dcmotor_id.identification.estimators.refined.RefinedEstimator`).
 CANDIDATE_MAX_NFEV = 30
@@ -231,6 +236,12 @@ class Candidate:
         Relative drop of the held-out cost against the current structure.
     bic_delta : float or None
         Change of the training BIC.
+    insample_gain : float or None
+        Relative drop of the training cost (the part the candidate was fitted on).
+    gain_noise : float or None
+        Noise of ``gain``: :data:`GAIN_NOISE_FACTOR` standard errors of the drop, from its
+        spread over :data:`HELDOUT_BLOCKS` contiguous blocks of the held-out part
+        (:func:`heldout_gain_noise`); the gain must exceed it.
 
     """
 
@@ -242,6 +253,8 @@ class Candidate:
     problem: str | None = None
     gain: float | None = None
     bic_delta: float | None = None
+    insample_gain: float | None = None
+    gain_noise: float | None = None
 
     @property
     def name(self) -> str:
@@ -301,6 +314,10 @@ class DiscoveryLoop:
     quasi_static : bool
         Fit the quasi-static armature (La -> 0; the electrical time constant below the sample
         period) throughout.
+    criterion : str
+        ``speed`` (default), ``position`` or ``both``: the channels fitted and judged
+        (:mod:`dcmotor_id.identification.criterion`); the held-out errors also report the speed (and the
+        current) when they are not compared.
 
     """
 
@@ -309,11 +326,15 @@ class DiscoveryLoop:
                  holdout_fraction: float = HOLDOUT_FRACTION, min_gain: float = MIN_GAIN,
                  max_effects: int = MAX_EFFECTS, max_lag: int = DEFAULT_LAGS,
                  alpha: float = ALPHA, progress: Progress | None = None,
-                 initial_state: str = 'estimate', quasi_static: bool = False) -> None:
+                 initial_state: str = 'estimate', quasi_static: bool = False,
+                 criterion: str = 'speed') -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
-        self.outputs = output_channels(self.mechanical_only)
+        self.criterion = criterion
+        self.outputs = fitted_outputs(self.mechanical_only, criterion)
+        self.error_channels = output_channels(self.mechanical_only) + tuple(
+            channel for channel in self.outputs if channel == 'position')
         self.candidates = [cls for cls in vocabulary if cls.applies(self.mechanical_only)]
         self.holdout_fraction = float(holdout_fraction)
         self.min_gain = float(min_gain)
@@ -324,6 +345,7 @@ class DiscoveryLoop:
         self.progress = progress
         self.initial_state = initial_state
         self.quasi_static = bool(quasi_static) and not self.mechanical_only
+        self.anchor: Fit | None = None
 
     # ------------------------------------------------------------------ fitting
     def _stops(self, records):
@@ -338,7 +360,8 @@ class DiscoveryLoop:
 
     def _estimator(self, **options: Any) -> RefinedEstimator:
         return RefinedEstimator(initial_state=self.initial_state, progress=self.progress,
-                                quasi_static=self.quasi_static, **options)
+                                quasi_static=self.quasi_static, criterion=self.criterion,
+                                **options)
 
     def fit(self, structure: Structure, start: dict | None = None, initial: dict | None = None,
             max_nfev: int = 100,
@@ -361,8 +384,11 @@ class DiscoveryLoop:
             raise ValueError('a structure with effects needs a start point')
         estimate = estimator.fit(train, torque_constant=self.torque_constant,
                                  terms=_slice_terms(terms, stops))
-        model = OutputErrorModel(records, self.torque_constant, terms, self.quasi_static)
+        model = OutputErrorModel(records, self.torque_constant, terms, self.quasi_static,
+                                 self.criterion)
         simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
+        if self.criterion != 'speed' and len(structure) and not self.quasi_static:
+            simulated = open_loop_outputs(structure, estimate, records, self.torque_constant)
         fitted = Fit(structure, estimate, records, stops, simulated, terms)
         if self.weights is None:
             self.weights = {channel: max(estimate.info['noise_std'][channel], 1e-300)
@@ -451,7 +477,8 @@ class DiscoveryLoop:
                                     for term in fitted.terms):
             return {}
         values = fitted.values
-        errors: dict[str, list[np.ndarray]] = {channel: [] for channel in self.outputs}
+        channels = [channel for channel in self.outputs if channel != 'position']
+        errors: dict[str, list[np.ndarray]] = {channel: [] for channel in channels}
         for index, rec in enumerate(fitted.records):
             extras: dict[str, Any] = {}
             for term in fitted.terms:
@@ -460,14 +487,14 @@ class DiscoveryLoop:
                 extras[key] = extras[key] + contribution if key in extras else contribution
             with np.errstate(all='ignore'):
                 predicted = one_step_error(values, rec, self.torque_constant, **extras)
-            for channel in self.outputs:
+            for channel in channels:
                 errors[channel].append(predicted[channel])
         # Prediction k is of sample k + 1: the parts start one sample earlier.
         stops = [max(stop - 1, 0) for stop in fitted.stops]
         return {channel: residual_nrmse_pct(
             _part(errors[channel], stops, part),
             _part([getattr(rec, channel)[1:] for rec in fitted.records], stops, part))
-            for channel in self.outputs}
+            for channel in channels}
 
     def misfit(self, fitted: Fit) -> bool:
         """Whether the held-out residual is far above the sensor noise on some channel."""
@@ -506,7 +533,8 @@ class DiscoveryLoop:
     def _train_model(self, fitted, terms):
         train = [rec.slice(0, stop) for rec, stop in zip(fitted.records, fitted.stops)]
         return train, OutputErrorModel(train, self.torque_constant,
-                                       _slice_terms(terms, fitted.stops), self.quasi_static)
+                                       _slice_terms(terms, fitted.stops), self.quasi_static,
+                                       self.criterion)
 
     def _stack(self, outputs_per_record, stops):
         parts = []
@@ -620,17 +648,48 @@ class DiscoveryLoop:
         more from the candidate's own neutral start (its terms at their defaults).
         """
         structure = current.structure.plus(cls, inner)
+        fitted, initial = None, dict(current.values)
         for terms in ((start_terms, {}) if start_terms else ({},)):
             initial = dict(current.values)
             initial.update(terms)
-            try:
-                with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
-                    return self.fit(structure, start=self._base(current), initial=initial,
-                                    max_nfev=CANDIDATE_MAX_NFEV,
-                                    initial_states=current.estimate.initial_states)
-            except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
-                continue
-        return None
+            fitted = self._try_from(structure, self._base(current), initial,
+                                    current.estimate.initial_states)
+            if fitted is not None:
+                break
+        if self.anchor is None or len(current.structure):
+            return fitted
+        # The position criterion: the integral of a model that lacks an effect drifts, and
+        # its fit may end far from the physical values (EMPS without its force offset: the
+        # mass doubles, the Coulomb friction vanishes).  The candidate is also fitted from the
+        # speed-criterion values; the lower training cost wins (a fit's local minimum, not a
+        # selection: the held-out part is not looked at).  Only from the base model: once an
+        # effect is in, the fit starts from a model that follows the position.
+        anchored = self._try_from(structure, self._base(self.anchor), {
+            **initial, **{name: value for name, value in self.anchor.values.items()
+                          if name in self.anchor.estimate.parameters}}, None)
+        return min((fit for fit in (fitted, anchored) if fit is not None),
+                   key=lambda fit: fit.train_cost, default=None)
+
+    def _try_from(self, structure, start, initial, initial_states):
+        """Fit a structure from a start point; None when the fit fails."""
+        try:
+            with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
+                return self.fit(structure, start=start, initial=initial,
+                                max_nfev=CANDIDATE_MAX_NFEV, initial_states=initial_states)
+        except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
+            return None
+
+    def _anchor_fit(self) -> Fit | None:
+        """Fit the base model on the speed (training parts) when the criterion is not the speed."""
+        if self.criterion == 'speed':
+            return None
+        loop = DiscoveryLoop(self.records, self.torque_constant, self.candidates,
+                             self.holdout_fraction, progress=self.progress,
+                             initial_state=self.initial_state, quasi_static=self.quasi_static)
+        try:
+            return loop.fit(Structure())
+        except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
+            return None
 
     def _base(self, fitted):
         return refit_start(fitted.values, self.records, self.torque_constant)
@@ -676,7 +735,10 @@ class DiscoveryLoop:
         if candidate.fit is None:
             return candidate
         return replace(candidate, gain=1.0 - candidate.fit.heldout_cost / current.heldout_cost,
-                       bic_delta=self._bic(candidate.fit) - self._bic(current))
+                       bic_delta=self._bic(candidate.fit) - self._bic(current),
+                       insample_gain=1.0 - candidate.fit.train_cost / current.train_cost,
+                       gain_noise=heldout_gain_noise(current, candidate.fit, self.outputs,
+                                                     self.weights or {}))
 
     def _problem(self, current, fitted):
         """Why a candidate's fit is not acceptable (physics, collapse), or None."""
@@ -735,6 +797,11 @@ class DiscoveryLoop:
                      if name in estimate.parameters}
             base = self.fit(Structure(), start=start, initial_states=estimate.initial_states)
         current = base
+        if base.estimate.info.get('initial_state') == 'measured':
+            # The position criterion pinned the base's initial states (its fitted start moved
+            # to absorb a misfit): the candidates start pinned too, without a second fit.
+            self.initial_state = 'measured'
+        self.anchor = self._anchor_fit()
         steps = []
         analysis_before = self.analyse(base)
         analysis = analysis_before
@@ -759,6 +826,7 @@ class DiscoveryLoop:
         except TimeBudgetExceeded:
             out_of_time = True
             reason = 'the time budget ran out: the best structure so far is kept'
+        current, reason = never_worse(base, current, reason)
         try:
             if out_of_time:
                 raise TimeBudgetExceeded('no time left for the all-data refit')
@@ -782,9 +850,9 @@ class DiscoveryLoop:
             analysis_before=analysis_before, analysis_after=analysis, reason=reason,
             unexplained=self.material(analysis), records=records, terms=terms,
             estimate=estimate, effects=current.structure.effects(estimate.parameters),
-            base_estimate=base_estimate, error_before=base.errors(self.outputs),
-            error_after=current.errors(self.outputs), out_of_time=out_of_time,
-            quasi_static=self.quasi_static)
+            base_estimate=base_estimate, error_before=base.errors(self.error_channels),
+            error_after=current.errors(self.error_channels), out_of_time=out_of_time,
+            quasi_static=self.quasi_static, criterion=self.criterion)
 
     def _round(self, current: Fit, analysis: dict) -> Round:
         """One search round: screen every absent effect, refit the promising, choose."""
@@ -830,14 +898,14 @@ class DiscoveryLoop:
                 chosen = None
         results = refitted + screened_out
         report: dict[str, Any] = {
-            'error_before': current.errors(self.outputs),
+            'error_before': current.errors(self.error_channels),
             'candidates': [self._candidate_report(candidate, analysis)
                            for candidate in results],
             'added': None,
         }
         if chosen is not None:
             report['added'] = chosen.describe()
-            report['error_after'] = chosen.fitted.errors(self.outputs)
+            report['error_after'] = chosen.fitted.errors(self.error_channels)
             report['gain_pct'] = chosen.gain * 100.0
             report['equivalent'] = [candidate.describe() for candidate in equivalent]
         return Round(results, chosen, report)
@@ -850,8 +918,10 @@ class DiscoveryLoop:
         ties = [candidate for candidate in admissible
                 if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
         winner = min(ties, key=lambda candidate: order[candidate.name])
-        # Refitted candidates are scored: gain and bic_delta are set.
-        if winner.gain >= self.min_gain and winner.bic_delta < 0:
+        # Refitted candidates are scored: gain, bic_delta and gain_noise are set.
+        noise = winner.gain_noise
+        if winner.gain >= self.min_gain and winner.bic_delta < 0 and (
+                noise is None or winner.gain > noise):
             return winner, [candidate for candidate in ties if candidate is not winner]
         return None, []
 
@@ -973,6 +1043,8 @@ class DiscoveryLoop:
             'refitted': candidate.fit is not None,
             'rejected': candidate.problem,
             'heldout_gain_pct': None if candidate.gain is None else candidate.gain * 100.0,
+            'heldout_gain_noise_pct': _pct_or_none(candidate.gain_noise),
+            'insample_gain_pct': _pct_or_none(candidate.insample_gain),
             'bic_delta': candidate.bic_delta,
             'screen_explained_pct': candidate.screen_explained * 100.0,
             'regressor_correlation': correlation,
@@ -984,7 +1056,77 @@ class DiscoveryLoop:
                               fitted.values, self._base(fitted), progress=self.progress,
                               initial_states=fitted.estimate.initial_states,
                               initial_state=self.initial_state,
-                              quasi_static=self.quasi_static)
+                              quasi_static=self.quasi_static, criterion=self.criterion)
+
+
+def open_loop_outputs(structure: Structure, estimate: Estimate, records: Sequence[Record],
+                      torque_constant: float | None = None) -> list[dict[str, np.ndarray]]:
+    """
+    Simulate a fitted structure open loop, as ``dcmotor-id validate`` does; per record.
+
+    The fit's effect terms are regressors of *measured* signals (the speed's magnitude, the
+    measured position's angle), which on the held-out part would feed the measurement into
+    the prediction; here every effect is driven by the simulated state
+    (:func:`dcmotor_id.identification.validate.simulate`), so that a candidate is judged as the model will be
+    used.  The position starts at the fitted initial position.
+    """
+    from dcmotor_id.identification.validate import Model, simulate
+
+    values = estimate.parameters
+    effects = [{'name': effect.name, 'parameters': dict(effect.parameters)}
+               for effect in structure.effects(values) if not type(effect).TRANSFORM]
+    mechanical = torque_constant is not None
+    model = Model({name: float(values[name]) for name in parameter_names(mechanical)},
+                  'mechanical' if mechanical else 'full', torque_constant, effects)
+    n_dynamic = 1 if mechanical else 2
+    outputs = []
+    for rec, state in zip(records, estimate.initial_states):
+        with np.errstate(all='ignore'):
+            out = simulate(model, rec, np.asarray(state[:n_dynamic], dtype=float))
+        if len(state) > n_dynamic and rec.position is not None:
+            out['position'] = out['position'] + (float(state[n_dynamic]) - float(rec.position[0]))
+        outputs.append(out)
+    return outputs
+
+
+def _pct_or_none(value: float | None) -> float | None:
+    return None if value is None else float(value) * 100.0
+
+
+def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
+                       weights: dict[str, float]) -> float:
+    """
+    Noise of a candidate's relative held-out gain: two standard errors of the error drop.
+
+    The weighted squared held-out errors of both fits (the held-out cost's terms) are
+    subtracted sample by sample and summed over :data:`HELDOUT_BLOCKS` contiguous blocks;
+    the blocks' spread gives the standard error of the total drop (blocks far longer than the
+    residual's correlation are nearly independent; shorter ones make it conservative).
+    Returns ``GAIN_NOISE_FACTOR`` times it relative to the current held-out cost (``inf``
+    when it cannot be computed).
+    """
+    drop = None
+    for channel in outputs:
+        before = current.channel_residual(channel, 'heldout')
+        after = candidate.channel_residual(channel, 'heldout')
+        if before.shape != after.shape or before.shape[0] < 2 * HELDOUT_BLOCKS:
+            return float('inf')
+        term = (before ** 2 - after ** 2) / (max(weights.get(channel, 1.0), 1e-300) ** 2
+                                             * before.shape[0])
+        drop = term if drop is None else drop + term
+    if drop is None or not np.all(np.isfinite(drop)) or current.heldout_cost <= 0.0:
+        return float('inf')
+    sums = np.array([part.sum() for part in np.array_split(drop, HELDOUT_BLOCKS)])
+    stderr = float(np.sqrt(HELDOUT_BLOCKS) * np.std(sums, ddof=1))
+    return GAIN_NOISE_FACTOR * stderr / current.heldout_cost
+
+
+def never_worse(base: Fit, final: Fit, reason: str) -> tuple[Fit, str]:
+    """Return the final structure, or the base one when it is not better on the held-out part."""
+    if final is base or final.heldout_cost < base.heldout_cost:
+        return final, reason
+    return base, (reason + '; the effects found did not lower the held-out error of the base '
+                  'model, which is kept')
 
 
 def refit_start(values: dict, records: Sequence[Record],
@@ -1157,6 +1299,7 @@ class DiscoveryResult:
     error_after: ChannelErrors
     out_of_time: bool = False
     quasi_static: bool = False
+    criterion: str = 'speed'
 
     def errors_on(self, records: Sequence[Record]) -> dict[str, ChannelErrors]:
         """
@@ -1236,7 +1379,7 @@ def errors_by_step(found: DiscoveryResult, records: Sequence[Record]) -> list[di
             estimate = refit_all_data(
                 structure, found.source_records, tc, found.estimate.parameters,
                 refit_start(found.final.values, found.source_records, tc),
-                quasi_static=found.quasi_static)[2]
+                quasi_static=found.quasi_static, criterion=found.criterion)[2]
         errors = structure_errors(structure, estimate, records, tc)
         out.append({'effects': structure.names(), **errors})
     return out

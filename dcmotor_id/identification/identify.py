@@ -29,6 +29,7 @@ from dcmotor_id.core.records import check_record
 from dcmotor_id.formats.held import restore_held
 from dcmotor_id.formats.quality import coarse_speed
 from dcmotor_id.identification.basin import bic, regression_evidence, regression_start, suspect
+from dcmotor_id.identification.criterion import resolve_criterion
 from dcmotor_id.identification.discovery import (DiscoveryLoop, DiscoveryResult, refit_all_data,
                                                  refit_start, Structure)
 from dcmotor_id.identification.effects import VOCABULARY
@@ -116,7 +117,7 @@ def prepare_records(records: Sequence[Record], torque_constant: float | None = N
                     'lower cut-off (the default is a tenth of the sample rate, at most 100 Hz)')
             assert record.position is not None  # checked above: no speed means a position
             record = record.replace(speed=speed_from_position(
-                record.position, record.sample_period_s, speed_cutoff_hz))
+                record.position, record.sample_period_s, speed_cutoff_hz), speed_derived=True)
         prepared.append(record)
     periods = np.array([rec.sample_period_s for rec in prepared])
     if np.max(np.abs(periods / periods[0] - 1.0)) > 1e-6:
@@ -300,6 +301,9 @@ class IdentificationResult:
         The records identified (as given, before any data effect).
     discovery_result : DiscoveryResult or None
         The loop's result, when it ran.
+    criterion : str
+        The channels the fit compared: ``speed``, ``position`` or ``both``
+        (:mod:`dcmotor_id.identification.criterion`).
 
     """
 
@@ -334,6 +338,7 @@ class IdentificationResult:
     estimate: Estimate | None = field(repr=False, default=None)
     input_records: list[Record] = field(repr=False, default_factory=list)
     discovery_result: DiscoveryResult | None = field(repr=False, default=None)
+    criterion: str = 'speed'
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""
@@ -367,6 +372,7 @@ class IdentificationResult:
             'elapsed_s': self.elapsed_s,
             'start_check': self.start_check,
             'operating_range': self.operating_range,
+            'criterion': self.criterion,
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out
@@ -382,10 +388,24 @@ def supports_discovery(estimator: Any) -> bool:
     return bool(getattr(estimator, 'supports_terms', False))
 
 
-def _make_estimator(method, initial_state, progress):
+def _make_estimator(method, initial_state, progress, criterion='speed'):
     if method == 'refined':
-        return RefinedEstimator(initial_state=initial_state, progress=progress)
+        return RefinedEstimator(initial_state=initial_state, progress=progress,
+                                criterion=criterion)
     return METHODS[method]()
+
+
+def _criterion_of(records, criterion, method, estimator):
+    """Return the criterion the fit uses: resolved for the refined method, else speed."""
+    resolved = resolve_criterion(records, criterion)
+    if estimator is not None:
+        return getattr(estimator, 'criterion', 'speed')
+    if method != 'refined':
+        if criterion not in ('auto', 'speed'):
+            raise InputDataError(f'--criterion {criterion} needs the refined method (the '
+                                 f'{method} method fits the speed)')
+        return 'speed'
+    return resolved
 
 
 @single_threaded
@@ -395,7 +415,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
              vocabulary: Sequence[type[Effect]] | None = None, *,
              max_time_s: float | None = DEFAULT_MAX_TIME_S,
              progress: Progress | None = None,
-             initial_state: str = 'estimate') -> IdentificationResult:
+             initial_state: str = 'estimate',
+             criterion: str = 'auto') -> IdentificationResult:
     """
     Identify the motor from prepared records.
 
@@ -423,6 +444,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
     initial_state : str
         ``estimate`` (every record's initial state is fitted) or ``measured`` (pinned to the
         first samples).
+    criterion : str
+        ``auto`` (default), ``speed``, ``position`` or ``both``: the channels the output-error
+        fit compares (:func:`dcmotor_id.identification.criterion.resolve_criterion`; ``auto`` compares the
+        position when the speed was derived from it).  The JSON key ``criterion`` holds the
+        one used.
 
     Returns
     -------
@@ -450,6 +476,29 @@ def identify(records: Sequence[Record], method: str = 'refined',
         raise InputDataError(f'initial state must be one of {", ".join(INITIAL_STATES)}, not '
                              f'{initial_state!r}')
     progress = progress if progress is not None else Progress(max_time_s)
+    resolved = _criterion_of(records, criterion, method, estimator)
+    arguments = (records, method, torque_constant, discover, estimator, vocabulary, progress,
+                 initial_state)
+    try:
+        return _identify(*arguments, resolved)
+    except FitError as error:
+        if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
+            raise
+        # The position integrates every force the model lacks over the whole record: a base
+        # model that cannot follow it (a load the loop did not find) is refused there, and
+        # ``auto`` falls back to the speed, as before the position criterion.
+        result = _identify(*arguments, 'speed')
+        reason = str(error).split('. Check')[0]
+        result.warnings.insert(0, f'the fit on the position failed ({reason}): the integral '
+                                  'of a force the model lacks drifts over the record (the loop '
+                                  'looks for it unless --no-discover); the result is the fit '
+                                  'on the speed (--criterion speed)')
+        return result
+
+
+def _identify(records, method, torque_constant, discover, estimator, vocabulary, progress,
+              initial_state, criterion):
+    """Identify with a resolved criterion (:func:`identify`'s body)."""
     mechanical_only = torque_constant is not None
     # Sensors refreshing slower than the log: fit on their real updates (said in a warning).
     records, warnings = restore_held(list(records))
@@ -460,11 +509,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
     limited = None if mechanical_only or estimator is not None or method != 'refined' else \
         limited_samples(records)
     if limited is not None:
-        return _identify_current_limited(records, limited, discover, vocabulary, progress,
-                                         initial_state)
+        return replace(_identify_current_limited(records, limited, discover, vocabulary,
+                                                 progress, initial_state), criterion='speed')
     if excitation.one_direction:
         vocabulary = [cls for cls in vocabulary if cls.name not in ONE_DIRECTION_CONFOUNDED]
-    estimator = estimator or _make_estimator(method, initial_state, progress)
+    estimator = estimator or _make_estimator(method, initial_state, progress, criterion)
     progress.set_stage('base fit', _names(records))
     try:
         estimate = estimator.fit(records, torque_constant=torque_constant)
@@ -486,7 +535,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
         robust = with_robust_stderr(estimate)
         full_la = (robust.parameters['La'], robust.stderr['La'], robust.parameters['Ra'])
         if _la_unresolved(*full_la, records[0].sample_period_s):
-            refit = _quasi_static_refit(estimate, records, errors, initial_state, progress)
+            refit = _quasi_static_refit(estimate, records, errors, initial_state, progress,
+                                        criterion)
             if refit is None:
                 not_identifiable['La'] = _la_reason(*full_la, records[0].sample_period_s,
                                                     None)
@@ -506,6 +556,10 @@ def identify(records: Sequence[Record], method: str = 'refined',
         else:
             errors = simulation_errors(estimate, records, torque_constant, quasi_static=quasi)
     base_worst = max([value for value in errors.values() if value is not None] or [np.inf])
+    if criterion != 'speed':
+        # The base model's position may be far off for lack of the very effect (a load) the
+        # loop is there to find: the loop gets its full time, the final model is checked.
+        base_worst = min(base_worst, NO_FIT_NRMSE_PCT)
     if start_check is not None and start_check['chosen'] != 'first start':
         pass  # the second start ran its own discovery
     elif discover and not base_worst <= HOPELESS_NRMSE_PCT:
@@ -523,7 +577,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
         try:
             found, discovery_info = _run_discovery(records, torque_constant, estimator,
                                                    vocabulary, progress, initial_state, quasi,
-                                                   estimate)
+                                                   estimate, criterion)
         finally:
             progress.deadline = deadline
         if found is not None and found.out_of_time:
@@ -654,6 +708,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
         estimate=final,
         input_records=list(records),
         discovery_result=found,
+        criterion=criterion,
     )
 
 
@@ -887,7 +942,7 @@ def _la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
     return bool(la / ra < dt or la_stderr > IDENTIFIABLE_REL_STDERR * la)
 
 
-def _quasi_static_refit(estimate, records, errors, initial_state, progress):
+def _quasi_static_refit(estimate, records, errors, initial_state, progress, criterion='speed'):
     """
     Refit with the quasi-static armature (La -> 0); return the estimate or None.
 
@@ -899,7 +954,7 @@ def _quasi_static_refit(estimate, records, errors, initial_state, progress):
     progress.set_stage('quasi-static armature refit')
     try:
         quasi = RefinedEstimator(initial=start, quasi_static=True, initial_state=initial_state,
-                                 progress=progress).fit(records)
+                                 progress=progress, criterion=criterion).fit(records)
         quasi_errors = simulation_errors(quasi, records, None, quasi_static=True)
     except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
         return None
@@ -962,7 +1017,7 @@ def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, 
 
 
 def _run_discovery(records, torque_constant, estimator, vocabulary, progress, initial_state,
-                   quasi_static=False, estimate=None):
+                   quasi_static=False, estimate=None, criterion='speed'):
     """Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``."""
     if not supports_discovery(estimator):
         return None, {'skipped': f'effect discovery needs the refined method (the '
@@ -971,7 +1026,7 @@ def _run_discovery(records, torque_constant, estimator, vocabulary, progress, in
     try:
         found = DiscoveryLoop(records, torque_constant, vocabulary=vocabulary,
                               progress=progress, initial_state=initial_state,
-                              quasi_static=quasi_static).run(estimate)
+                              quasi_static=quasi_static, criterion=criterion).run(estimate)
         _check_physical(found.estimate)
     except TimeBudgetExceeded:
         return None, {'skipped': f'the time budget ({progress.max_time_s:g} s) ran out '

@@ -508,6 +508,11 @@ def _evidence_rows(found):
     return rows
 
 
+def _gain_text(value):
+    """Return a gain in percent as text (n/a when the candidate was not refitted)."""
+    return 'n/a' if value is None else _number(value, 3) + ' %'
+
+
 def _step_rows(found):
     rows = []
     for number, step in enumerate(found.steps, start=1):
@@ -528,7 +533,9 @@ def _step_rows(found):
             inner = ', '.join(f'{k}={_number(v, 4)}' for k, v in candidate['inner'].items())
             rows.append([number, html.escape(candidate['name']), html.escape(inner),
                          _number(candidate['screen_explained_pct'], 3) + ' %',
+                         _gain_text(candidate.get('insample_gain_pct')),
                          'n/a' if gain is None else _number(gain, 3) + ' %',
+                         _gain_text(candidate.get('heldout_gain_noise_pct')),
                          _number(candidate['bic_delta'], 4), html.escape(verdict)])
     return rows
 
@@ -617,7 +624,8 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
              f'<p>{len(result["records"])} record(s): '
              f'{html.escape(", ".join(str(r) for r in result["records"]))}; '
              f'{result["n_samples"]} samples, dt {result["sample_period_s"]:.6g} s; mode '
-             f'{html.escape(result["mode"])}; method {html.escape(result["method"])}.</p>',
+             f'{html.escape(result["mode"])}; method {html.escape(result["method"])}; '
+             f'criterion {html.escape(_criterion_text(result.get("criterion", "speed")))}.</p>',
              f'<p class="{verdict_class}">{verdict}</p>',
              '<h2>Simulation error</h2>',
              _table(['', 'current NRMSE', 'speed NRMSE'],
@@ -662,11 +670,15 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
             parts.append('<h2>Search rounds</h2>')
             parts.append(f'<img src="{images[2]}" alt="error per step">')
             parts.append(_table(['round', 'candidate', 'inner parameters',
-                                 'linearised screen', 'held-out gain', 'BIC change',
-                                 'verdict'], _step_rows(found)))
+                                 'linearised screen', 'in-sample gain', 'held-out gain',
+                                 'held-out noise', 'BIC change', 'verdict'],
+                                _step_rows(found)))
             parts.append(f'<p>A candidate is added when it lowers the held-out error by at '
-                         f'least {found.min_gain * 100:.0f} % and the BIC of the training '
-                         f'fit; the loop stopped because {html.escape(found.reason)}.</p>')
+                         f'least {found.min_gain * 100:.0f} % and by more than its noise (two '
+                         'standard errors of the drop over blocks of the held-out part), and '
+                         'the BIC of the training fit; in-sample gain: on the training part '
+                         'it was fitted on. The loop stopped because '
+                         f'{html.escape(found.reason)}.</p>')
     if validation is not None:
         parts += _validation_parts(directory, validation, units)
     return _write_page(directory, 'index.html', 'dcmotor_id report', parts)
@@ -772,3 +784,16 @@ def write_validation_report(directory: str, validation: Validation,
              f'{html.escape(effects)}.</p>']
     parts += _validation_parts(directory, validation, units)
     return _write_page(directory, 'validation.html', 'dcmotor_id validation', parts)
+
+
+#: What each fit criterion compares (the report's words).
+CRITERION_TEXT = {'speed': 'speed (and current): output error on the measured speed',
+                  'position': 'position (and current): output error on the measured position, '
+                              'the integral of the simulated speed; the speed derived from it '
+                              'is not compared',
+                  'both': 'both: output error on the speed and the position (and current)'}
+
+
+def _criterion_text(criterion: str) -> str:
+    """Return the report's description of a fit criterion."""
+    return CRITERION_TEXT.get(criterion, criterion)

@@ -45,7 +45,9 @@ def format_table(result: Mapping[str, Any]) -> str:
     """Render a result dict as a readable table (the output of ``dcmotor-id identify``)."""
     lines = [f"method: {result['method']}   mode: {result['mode']}   records: "
              f"{len(result['records'])}   samples: {result['n_samples']}   "
-             f"dt: {result['sample_period_s']:.6g} s"]
+             f"dt: {result['sample_period_s']:.6g} s"
+             + (f"   criterion: {result['criterion']}"
+                if result.get('criterion', 'speed') != 'speed' else '')]
     lines.append(f"{'parameter':<10}{'value':>16}{'stderr':>14}{'rel.':>10}  unit")
     bounds = result.get('upper_bounds') or {}
     missing = result.get('not_identifiable') or {}

@@ -191,7 +191,7 @@ def _accumulated_information(model, values, initial_states, sigma, include_initi
     if not include_initial_states:
         return names, information[:n_shared, :n_shared]
     names += [f'x0[{index}].{channel}' for index in range(len(states))
-              for channel in model.outputs]
+              for channel in getattr(model, 'states', model.outputs)]
     return names, information
 
 
@@ -199,7 +199,8 @@ def cramer_rao_bound(records: Sequence[Any], truth: MotorParameters | Mapping[st
                      noise_std: Mapping[str, Any], torque_constant: float | None = None,
                      terms: Sequence[ExogenousTerm] = (),
                      initial_states: Sequence[ArrayLike] | None = None,
-                     include_initial_states: bool = True) -> dict[str, float]:
+                     include_initial_states: bool = True,
+                     criterion: str = 'speed') -> dict[str, float]:
     """
     Smallest standard error of every parameter that an unbiased estimator can reach.
 
@@ -219,6 +220,9 @@ def cramer_rao_bound(records: Sequence[Any], truth: MotorParameters | Mapping[st
         True initial states; default zero (a motor at rest).
     include_initial_states : bool
         Treat the initial states as unknown, as the refined estimator does.
+    criterion : str
+        The channels observed (:mod:`dcmotor_id.identification.criterion`): with ``position`` the noise of
+        ``position`` [rad] is needed, and the initial position is a nuisance parameter.
 
     Returns
     -------
@@ -227,12 +231,12 @@ def cramer_rao_bound(records: Sequence[Any], truth: MotorParameters | Mapping[st
         in the full mode).
 
     """
-    model = OutputErrorModel(records, torque_constant, terms)
+    model = OutputErrorModel(records, torque_constant, terms, criterion=criterion)
     values = truth.as_dict(derived=False) if isinstance(truth, MotorParameters) else dict(truth)
     for term in model.terms:
         values.setdefault(term.name, term.initial)
     if initial_states is None:
-        initial_states = [np.zeros(len(model.outputs)) for _ in model.records]
+        initial_states = [np.zeros(len(model.states)) for _ in model.records]
     names, information = fisher_information(model, values, initial_states, noise_std,
                                             include_initial_states)
     diagonal = np.sqrt(np.diag(information))

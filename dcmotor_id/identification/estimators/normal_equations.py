@@ -18,10 +18,11 @@ numerically.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, cast, Mapping, Sequence
 
 import numpy as np
 
+from dcmotor_id.identification.criterion import integrate_speed
 from dcmotor_id.identification.estimators.base import StateTerm
 from dcmotor_id.identification.estimators.uncertainty import block_edges
 from dcmotor_id.simulation.compiled import kernel
@@ -92,7 +93,9 @@ class NormalEquations:
         self.model = model
         self.names = list(model.base_names) + [term.name for term in model.terms]
         self.n_shared = len(self.names)
-        self.n_state = len(model.outputs)
+        # Columns of a record's initial state: the ODE's, then the initial position when the
+        # position is compared (its sensitivities follow the kernel's, :meth:`_with_position`).
+        self.n_state = len(getattr(model, 'states', model.outputs))
         self._regressors = [self._stack_regressors(index) for index in range(len(model.records))]
 
     @staticmethod
@@ -131,10 +134,73 @@ class NormalEquations:
     def record(self, values: Mapping[str, float], index: int, initial_state: Sequence[float],
                inverse_sigma: Sequence[float], with_sens: bool = True,
                store: bool = False) -> RecordSums:
-        """Run the kernel over record ``index``; return its :class:`RecordSums`."""
+        """
+        Run the kernel over record ``index``; return its :class:`RecordSums`.
+
+        ``inverse_sigma`` weights the model's compared channels (``model.outputs``, in order);
+        ``initial_state`` is the record's (``model.states``).
+        """
+        if 'position' in self.model.outputs:
+            return self._with_position(values, index, initial_state, inverse_sigma, with_sens,
+                                       store)
+        return self._dynamic(values, index, initial_state, inverse_sigma, with_sens, store)
+
+    def _with_position(self, values, index, initial_state, inverse_sigma, with_sens, store):
+        """
+        Accumulate the normal equations with the position: the kernel's, then the position's.
+
+        The position is the trapezoidal integral of the simulated speed from the initial
+        position (:func:`dcmotor_id.identification.criterion.integrate_speed`), so its sensitivities are the
+        running integral of the speed's, which the kernel stores (the trajectory), and 1 for
+        the initial position.  A channel not compared (the speed derived from the position)
+        enters the kernel with weight 0.
+        """
+        model = self.model
+        dynamic, outputs = model.dynamic, model.outputs
+        weight = dict(zip(outputs, (float(value) for value in inverse_sigma)))
+        n_dynamic = len(dynamic)
+        kernel_sums = self._dynamic(values, index, initial_state[:n_dynamic],
+                                    [weight.get(channel, 0.0) for channel in dynamic],
+                                    with_sens, True)
+        trajectory = cast(np.ndarray, kernel_sums.trajectory)
+        dt = float(model.sample_periods_s[index])
+        m = self.n_shared + n_dynamic
+        error = (integrate_speed(trajectory[:, -1, 0], dt, float(initial_state[n_dynamic]))
+                 - np.asarray(model.records[index].position, dtype=float))
+        residual = error * weight['position']
+        kernel_h, kernel_g, kernel_b = kernel_sums.by_channel
+        edges = kernel_sums.block_edges
+        hessian = np.zeros((len(outputs), m + 1, m + 1))
+        gradient = np.zeros((len(outputs), m + 1))
+        blocks = np.zeros((edges.shape[0] - 1, len(outputs), m + 1))
+        sums = np.zeros(len(outputs))
+        for out, channel in enumerate(outputs):
+            if channel == 'position':
+                sums[out] = float(error @ error)
+                if with_sens:
+                    rows = np.empty((error.shape[0], m + 1))
+                    rows[:, :m] = integrate_speed(trajectory[:, -1, 1:], dt, 0.0)
+                    rows[:, m] = 1.0
+                    rows *= weight['position']
+                    hessian[out] = rows.T @ rows
+                    gradient[out] = rows.T @ residual
+                    blocks[:, out] = np.add.reduceat(rows * residual[:, None], edges[:-1],
+                                                     axis=0)
+                continue
+            state = dynamic.index(channel)
+            sums[out] = kernel_sums.sums[state]
+            hessian[out, :m, :m] = kernel_h[state]
+            gradient[out, :m] = kernel_g[state]
+            blocks[:, out, :m] = kernel_b[:, state]
+        return RecordSums((hessian, gradient, blocks),
+                          kernel_sums.cost + float(residual @ residual), sums, edges,
+                          trajectory if store else None)
+
+    def _dynamic(self, values, index, initial_state, inverse_sigma, with_sens, store):
+        """Run the kernel (the ODE's states, weighted by ``inverse_sigma``)."""
         model = self.model
         rec = model.records[index]
-        n = self.n_state
+        n = len(getattr(model, 'dynamic', model.outputs))
         m = self.n_shared + n
         dt = float(model.sample_periods_s[index])
         columns = {name: position for position, name in enumerate(self.names)}
@@ -181,7 +247,8 @@ class NormalEquations:
         reg_factor = np.array([1.0 / values['La'] if term.channel == 'voltage' else 1.0 / inertia
                                for term, _, _ in forcing_terms], dtype=float)
         oreg_col = np.array([column for _, column, _ in output_terms], dtype=np.int64)
-        oreg_chan = np.array([model.outputs.index(term.channel) for term, _, _ in output_terms],
+        states = getattr(model, 'dynamic', model.outputs)
+        oreg_chan = np.array([states.index(term.channel) for term, _, _ in output_terms],
                              dtype=np.int64)
         oreg_value = np.array([values[term.name] for term, _, _ in output_terms], dtype=float)
         raw_pos, raw_neg = coulomb + delta, coulomb - delta
@@ -204,7 +271,7 @@ class NormalEquations:
         for c in range(n):
             s_start[c, self.n_shared + c] = 1.0
         measured = [np.ascontiguousarray(getattr(rec, channel), dtype=float)
-                    for channel in model.outputs]
+                    for channel in getattr(model, 'dynamic', model.outputs)]
         edges = block_edges(len(rec))
         trajectory = np.empty((len(rec), n, m + 1)) if store else _NO_TRAJECTORY
         hessian, gradient, cost, sums, blocks = kernel('normal_kernel')(

@@ -32,12 +32,13 @@ import numpy as np
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (derived_stderr, derived_values, make_admissible,
                                    MotorParameters, parameter_names, POSITIVE_NAMES, state_matrix)
+from dcmotor_id.identification.criterion import fitted_outputs, integrate_speed
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.identification.estimators.jacobian import jacobian
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.uncertainty import block_scores
-from dcmotor_id.signals.filters import low_pass
+from dcmotor_id.signals.filters import low_pass, noise_std
 from dcmotor_id.simulation import (combine_contributions, EXACT_FIELDS, HybridSystem,
                                    motor_forcing, MotorEffects, simulate_mechanical,
                                    simulate_mechanical_effects, simulate_motor_effects)
@@ -85,11 +86,17 @@ class OutputErrorModel:
         The La -> 0 limit of the armature (an electrical time constant far below the sample
         period): ``J dw/dt = CPhi (u - CPhi w) / Ra - b w - Mc sgn w`` and
         ``i = (u - CPhi w) / Ra``; La is not a parameter then.
+    criterion : str
+        ``speed`` (default), ``position`` or ``both``: the channels compared
+        (:func:`dcmotor_id.identification.criterion.fitted_outputs`).  With the position, every record's
+        initial state ends with its initial position and :meth:`simulate` also returns the
+        position (the integral of the simulated speed).
 
     """
 
     def __init__(self, records: Sequence[Any], torque_constant: float | None = None,
-                 terms: Sequence[ExogenousTerm] = (), quasi_static: bool = False) -> None:
+                 terms: Sequence[ExogenousTerm] = (), quasi_static: bool = False,
+                 criterion: str = 'speed') -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
@@ -102,7 +109,12 @@ class OutputErrorModel:
         self.quasi_static = bool(quasi_static) and not self.mechanical_only
         self.base_names = tuple(name for name in parameter_names(self.mechanical_only)
                                 if not (self.quasi_static and name == 'La'))
-        self.outputs = ('speed',) if self.mechanical_only else ('current', 'speed')
+        # The simulated states (the ODE's), the compared channels, and every record's initial
+        # state (the ODE's, then the initial position when the position is compared).
+        self.dynamic = ('speed',) if self.mechanical_only else ('current', 'speed')
+        self.criterion = criterion
+        self.outputs = fitted_outputs(self.mechanical_only, criterion)
+        self.states = self.dynamic + (('position',) if 'position' in self.outputs else ())
         # The period is a median over the record: computed once, not at every simulation.
         self.sample_periods_s = [rec.sample_period_s for rec in self.records]
         # Mechanical-only mode: the sampled current is the input.  It varies within a sample,
@@ -135,7 +147,23 @@ class OutputErrorModel:
 
     def simulate(self, values: Mapping[str, float], index: int,
                  initial_state: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
-        """Simulate record ``index``; return a dict of output arrays (current, speed)."""
+        """
+        Simulate record ``index``; return a dict of output arrays (current, speed, position).
+
+        ``initial_state`` is the ODE's (``(i0, w0)`` or ``(w0,)``), optionally followed by
+        the initial position: then ``position``, the integral of the simulated speed, is
+        returned too (also when the position is not compared).
+        """
+        n_dynamic = len(self.dynamic)
+        out = self._simulate_dynamic(values, index, initial_state[:n_dynamic])
+        speed = out.pop('position_speed')
+        if len(initial_state) > n_dynamic:
+            out['position'] = integrate_speed(speed, self.sample_periods_s[index],
+                                              float(initial_state[n_dynamic]))
+        return out
+
+    def _simulate_dynamic(self, values, index, initial_state):
+        """Simulate the ODE; ``position_speed`` is the speed state (no output offsets)."""
         rec = self.records[index]
         dt = self.sample_periods_s[index]
         extra_torque = self._channel(values, 'torque', index)
@@ -172,7 +200,8 @@ class OutputErrorModel:
                                       max(values['Mc'] - delta, 0.0) / values['J'])
                 states = system.simulate(forcing, initial_state, dt)
                 out = {'current': states[:-1, 0], 'speed': states[:-1, 1]}
-        for channel in self.outputs:
+        out['position_speed'] = out['speed']
+        for channel in self.dynamic:
             offset = self._channel(values, channel, index)
             if offset is not None:
                 out[channel] = out[channel] + offset
@@ -342,6 +371,9 @@ class RefinedEstimator:
     initial_states : sequence, optional
         Start of every record's initial state (a warm start, e.g. from an earlier fit of the
         same records); default: the first measured samples.  Ignored when pinned.
+    criterion : str
+        ``speed`` (default), ``position`` or ``both``: the channels compared
+        (:class:`OutputErrorModel`).
 
     """
 
@@ -353,7 +385,8 @@ class RefinedEstimator:
                  initial: Mapping[str, float] | None = None, quasi_static: bool = False,
                  initial_state: str = 'estimate',
                  progress: Callable[..., None] | None = None,
-                 initial_states: Sequence[Sequence[float]] | None = None) -> None:
+                 initial_states: Sequence[Sequence[float]] | None = None,
+                 criterion: str = 'speed') -> None:
         if initial_state not in ('estimate', 'measured'):
             raise ValueError(f'initial_state must be estimate or measured, not {initial_state}')
         self.max_nfev = max_nfev
@@ -363,14 +396,37 @@ class RefinedEstimator:
         self.initial_state = initial_state
         self.progress = progress
         self.initial_states = initial_states
+        self.criterion = criterion
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
-        """Fit the records; return an :class:`Estimate` with standard errors."""
-        model = OutputErrorModel(records, torque_constant, terms, self.quasi_static)
+        """
+        Fit the records; return an :class:`Estimate` with standard errors.
+
+        With the position compared and the initial states estimated, a fit whose initial
+        position ends far from the first samples (:func:`moved_start`: the integral's offset
+        absorbed a misfit) is repeated with the initial states pinned to the first samples,
+        as ``dcmotor-id validate`` starts its simulations; ``info['initial_state']`` then says
+        ``measured`` and ``info['moved_start']`` why.
+        """
+        estimate = self._fit(records, torque_constant, terms, self.initial_state)
+        if self.initial_state != 'estimate' or 'position' not in fitted_outputs(
+                torque_constant is not None, self.criterion):
+            return estimate
+        moved = moved_start(records, [state[-1] for state in estimate.initial_states])
+        if moved is None:
+            return estimate
+        pinned = self._fit(records, torque_constant, terms, 'measured')
+        pinned.info['moved_start'] = moved
+        return pinned
+
+    def _fit(self, records, torque_constant, terms, initial_state):
+        """Fit with the initial states estimated or pinned (``initial_state``)."""
+        model = OutputErrorModel(records, torque_constant, terms, self.quasi_static,
+                                 self.criterion)
         names = list(model.base_names) + [term.name for term in model.terms]
         n_base = len(model.base_names)
-        n_state = len(model.outputs)
+        n_state = len(model.states)
         start_base = self._start(model)
         # Base parameters are fitted as logarithms (positive, relative steps); term
         # coefficients and initial states as multiples of their typical magnitude.
@@ -379,16 +435,20 @@ class RefinedEstimator:
                  for name in model.base_names]
         magnitudes = [1.0] * n_base + [term.scale for term in model.terms]
         start += [term.initial / term.scale for term in model.terms]
-        pinned = (np.array([[float(getattr(rec, channel)[0]) for channel in model.outputs]
-                            for rec in records]) if self.initial_state == 'measured' else None)
+        free = free_states(model.states, initial_state)
+        first_samples = np.array([[float(getattr(rec, channel)[0]) for channel in model.states]
+                                  for rec in records])
         warm = self.initial_states if self.initial_states is not None and len(
             self.initial_states) == len(records) else None
-        for index, rec in enumerate(records if pinned is None else ()):
-            for position, channel in enumerate(model.outputs):
+        for index, rec in enumerate(records):
+            for position, channel in enumerate(model.states):
+                if not free[position]:
+                    continue
                 values = getattr(rec, channel)
                 scale = max(float(np.std(values)), 1e-9)
                 magnitudes.append(scale)
-                first = float(values[0]) if warm is None else float(warm[index][position])
+                first = float(values[0]) if warm is None or position >= len(
+                    warm[index]) else float(warm[index][position])
                 start.append(first / scale)
         scales = np.array(magnitudes)
         z0 = np.array(start)
@@ -401,14 +461,19 @@ class RefinedEstimator:
                  for _ in records]
         analytic = has_analytic_sensitivities(model)
         equations = NormalEquations(model) if analytic else None
+        if equations is not None:
+            equations.free_states = free
 
         def unpack(z):
             theta = z * scales
             with np.errstate(over='ignore'):  # a wild step: an infinite cost, rejected
                 theta[:n_base] = np.exp(z[:n_base])
             values = dict(zip(names, theta[:len(names)]))
-            states = (theta[len(names):].reshape(len(records), n_state) if pinned is None
-                      else pinned)
+            if all(free):
+                states = theta[len(names):].reshape(len(records), n_state)
+            else:
+                states = first_samples.copy()
+                states[:, free] = theta[len(names):].reshape(len(records), sum(free))
             return values, states, theta
 
         def chain_of(theta):
@@ -486,7 +551,7 @@ class RefinedEstimator:
         if final is None:
             final = evaluate(z, noise, True)
             total_nfev += 1
-        n_residuals = sum(len(rec) for rec in records) * n_state
+        n_residuals = sum(len(rec) for rec in records) * len(model.outputs)
         dof = max(n_residuals - z.shape[0], 1)
         s2 = float(final.cost) / dof
         cov_z = s2 * np.linalg.pinv(final.hessian)
@@ -510,6 +575,8 @@ class RefinedEstimator:
             'covariance': covariance[:len(names), :len(names)].tolist(),
             'names': names,
             'quasi_static': model.quasi_static,
+            'criterion': model.criterion,
+            'initial_state': initial_state,
             'sensitivities': 'analytic' if analytic else 'finite differences',
             # What the data-based covariance needs
             # (dcmotor_id.identification.estimators.uncertainty): the fit's normal equations in its
@@ -533,7 +600,8 @@ class RefinedEstimator:
             # A start point needs seconds of data, not hours: windows spread over each record
             # keep the search's time and memory bounded (the fit itself uses every sample).
             records = _windows(records, START_SAMPLES)
-            model = OutputErrorModel(records, constant, quasi_static=model.quasi_static)
+            model = OutputErrorModel(records, constant, quasi_static=model.quasi_static,
+                                     criterion=model.criterion)
         candidates = _svf_candidates(records, constant)
         try:
             paper = PaperEstimator().fit(records, torque_constant=constant).parameters
@@ -550,7 +618,7 @@ class RefinedEstimator:
             cost = 0.0
             with np.errstate(all='ignore'):
                 for index, rec in enumerate(records):
-                    state = [float(getattr(rec, channel)[0]) for channel in model.outputs]
+                    state = [float(getattr(rec, channel)[0]) for channel in model.states]
                     out = model.simulate(values, index, state)
                     for channel in model.outputs:
                         measured = getattr(rec, channel)
@@ -608,11 +676,58 @@ def _assemble(equations, results, weights, chain, factors, base=None):
         cost += float(result.sums @ weights[index] ** 2)
     # Pinned initial states (``initial_state='measured'``) are not in ``z``: ``chain`` covers
     # the shared parameters only, and the states' columns are dropped.
-    keep = len(chain)
-    return _Pass(cost, hessian[:keep, :keep] * np.outer(chain, chain), gradient[:keep] * chain,
-                 [result.sums for result in results], np.vstack(blocks)[:, :keep] * chain,
+    keep = _kept_columns(equations, len(results), len(chain))
+    return _Pass(cost, hessian[keep][:, keep] * np.outer(chain, chain), gradient[keep] * chain,
+                 [result.sums for result in results], np.vstack(blocks)[:, keep] * chain,
                  np.concatenate(block_record),
                  (equations, results, weights if base is None else base, chain))
+
+
+def free_states(states: Sequence[str], initial_state: str) -> list[bool]:
+    """Which initial states the fit estimates: all (``estimate``) or none (``measured``)."""
+    return [initial_state != 'measured'] * len(states)
+
+
+#: Distance of a fitted initial position from the first samples, in their noise levels, beyond
+#: which the fit moved the start to absorb a misfit.
+MOVED_START_NOISE = 10.0
+
+
+def moved_start(records: Sequence[Any], positions: Sequence[float]) -> str | None:
+    """
+    Say which record's fitted initial position is far from its first samples, else None.
+
+    Far: beyond :data:`MOVED_START_NOISE` noise levels of the measured position (at least
+    the quantisation's, ``LSB / sqrt(12)``), measured against the mean of the first 20
+    samples' departure from their straight line (the record's own start).
+    """
+    for index, (rec, fitted) in enumerate(zip(records, positions)):
+        measured = np.asarray(rec.position, dtype=float)
+        steps = np.abs(np.diff(measured[:10_000]))
+        lsb = float(np.min(steps[steps > 0])) if np.any(steps > 0) else 0.0
+        noise = max(noise_std(measured), lsb / np.sqrt(12.0), 1e-300)
+        head = measured[:20]
+        line = np.polyval(np.polyfit(np.arange(head.shape[0]), head, 1), 0.0) \
+            if head.shape[0] >= 3 else float(head[0])
+        gap = abs(float(fitted) - float(line))
+        if gap > MOVED_START_NOISE * noise:
+            name = rec.source or f'record {index + 1}'
+            return (f'{name}: the fitted initial position is {gap:.3g} from the first samples '
+                    f'({gap / noise:.0f} noise levels): the offset absorbed a misfit, so the '
+                    'initial states were pinned to the first samples')
+    return None
+
+
+def _kept_columns(equations, n_records, n_columns):
+    """Return the columns of ``z`` among the passes' (shared, then the free initial states)."""
+    free = getattr(equations, 'free_states', None)
+    if free is None or all(free) or not any(free):
+        # All states fitted, or all pinned (dropped): the first columns.
+        return slice(0, n_columns)
+    shared, n_state = equations.n_shared, equations.n_state
+    return np.array(list(range(shared)) + [shared + index * n_state + state
+                                           for index in range(n_records)
+                                           for state in range(n_state) if free[state]])
 
 
 def _numeric_pass(residual, z, model, noise, with_sens):
