@@ -30,14 +30,14 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
+from dcmotor_id.core.model import PAPER_MOTORS  # noqa: E402
+from dcmotor_id.core.records import Record  # noqa: E402
 from dcmotor_id.identification.criterion import integrate_speed  # noqa: E402
 from dcmotor_id.identification.estimators.fisher import cramer_rao_bound  # noqa: E402
 from dcmotor_id.identification.estimators.refined import RefinedEstimator  # noqa: E402
-from dcmotor_id.simulation.excitation import make_excitation  # noqa: E402
 from dcmotor_id.identification.identify import identify, prepare_records  # noqa: E402
-from dcmotor_id.core.model import PAPER_MOTORS  # noqa: E402
-from dcmotor_id.core.records import Record  # noqa: E402
 from dcmotor_id.simulation import simulate_motor  # noqa: E402
+from dcmotor_id.simulation.excitation import make_excitation  # noqa: E402
 from dcmotor_id.simulation.scenarios import PAPER_SAWTOOTH, PAPER_SINE  # noqa: E402
 
 NAMES = ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
