@@ -31,7 +31,7 @@ that matters) while no candidate helps: the evidence says how much and where.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, cast, Sequence, TYPE_CHECKING
+from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
