@@ -316,8 +316,8 @@ class DiscoveryLoop:
         period) throughout.
     criterion : str
         ``speed`` (default), ``position`` or ``both``: the channels fitted and judged
-        (:mod:`dcmotor_id.identification.criterion`); the held-out errors also report the speed (and the
-        current) when they are not compared.
+        (:mod:`dcmotor_id.identification.criterion`); the held-out errors also report the
+        speed (and the current) when they are not compared.
 
     """
 
