@@ -1067,8 +1067,8 @@ def open_loop_outputs(structure: Structure, estimate: Estimate, records: Sequenc
     The fit's effect terms are regressors of *measured* signals (the speed's magnitude, the
     measured position's angle), which on the held-out part would feed the measurement into
     the prediction; here every effect is driven by the simulated state
-    (:func:`dcmotor_id.identification.validate.simulate`), so that a candidate is judged as the model will be
-    used.  The position starts at the fitted initial position.
+    (:func:`dcmotor_id.identification.validate.simulate`), so that a candidate is judged as
+    the model will be used.  The position starts at the fitted initial position.
     """
     from dcmotor_id.identification.validate import Model, simulate
 
