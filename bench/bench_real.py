@@ -1025,8 +1025,10 @@ def code_version() -> str:
         done = subprocess.run(['git', '-C', ROOT, *args], capture_output=True, text=True)
         return done.stdout.strip() if done.returncode == 0 else ''
     commit = git('rev-parse', '--short', 'HEAD') or 'unknown'
+    package = git('log', '-1', '--format=%h', '--', 'dcmotor_id') or 'unknown'
     dirty = git('status', '--porcelain', '--', 'dcmotor_id')
-    return commit + (' with local changes to dcmotor_id/' if dirty else '')
+    return (f'{commit} (dcmotor_id/ last changed in {package}'
+            + (', with local changes)' if dirty else ')'))
 
 
 def public_command(args: argparse.Namespace) -> str:
