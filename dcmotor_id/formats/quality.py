@@ -149,8 +149,9 @@ def back_emf_balance(voltage: float, current: np.ndarray, speed: Optional[np.nda
     record, at most 50 samples: the balance is linear, so it holds for them too).  A step
     response logged from its start (the voltage applied as the log began, current and speed
     rising from rest) satisfies it with positive Ra and CPhi, and its back-EMF carries a
-    visible share of the voltage (the current falls as the speed rises); a set-point that never reaches the motor does not (a current held by a
-    current controller while the speed rises needs a back-EMF constant of zero).
+    visible share of the voltage (the current falls as the speed rises); a set-point that
+    never reaches the motor does not (a current held by a current controller while the
+    speed rises needs a back-EMF constant of zero).
 
     Returns
     -------
