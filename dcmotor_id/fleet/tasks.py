@@ -141,7 +141,8 @@ def read_windows(source: Source, options: FleetOptions) -> BagWindows:
         try:
             if source.kind == 'csv':
                 motor = csv_motor_id(source, options.motor_from)
-                record = read_record(source.path)
+                record = read_record(source.path,
+                                     mechanical_only=options.torque_constant is not None)
                 start_ns = int(round(float(record.time_s[0]) * 1e9)) if len(record) else 0
                 record = record.replace(time_s=record.time_s - record.time_s[0])
                 result.windows.extend(cut_windows(record, start_ns, motor, options.window_s,

@@ -145,11 +145,13 @@ def back_emf_balance(voltage: float, current: np.ndarray, speed: Optional[np.nda
     Return how well a constant voltage explains the current and speed, or None if it cannot.
 
     The armature balance ``u = Ra i + La di/dt + CPhi w`` is fitted to the constant voltage
-    by least squares (no offset).  A step response logged from its start (the voltage applied
-    as the log began, current and speed rising from rest) satisfies it with positive Ra and
-    CPhi, and its back-EMF carries a visible share of the voltage (the current falls as the
-    speed rises); a set-point that never reaches the motor does not (a current held by a
-    current controller while the speed rises needs a back-EMF constant of zero).
+    by least squares (no offset), on moving means of current and speed (a hundredth of the
+    record, at most 50 samples: the balance is linear, so it holds for them too).  A step
+    response logged from its start (the voltage applied as the log began, current and speed
+    rising from rest) satisfies it with positive Ra and CPhi, and its back-EMF carries a
+    visible share of the voltage (the current falls as the speed rises); a set-point that
+    never reaches the motor does not (a current held by a current controller while the
+    speed rises needs a back-EMF constant of zero).
 
     Returns
     -------
@@ -163,8 +165,11 @@ def back_emf_balance(voltage: float, current: np.ndarray, speed: Optional[np.nda
     if speed is None or voltage == 0.0:
         return None
     sign = np.sign(voltage)
-    current = sign * np.asarray(current, dtype=float)
-    speed = sign * np.asarray(speed, dtype=float)
+    # A moving mean keeps the (linear) balance and keeps the noise out of di/dt.
+    width = int(np.clip(len(current) // 100, 1, 50))
+    kernel = np.ones(width) / width
+    current = sign * np.convolve(np.asarray(current, dtype=float), kernel, mode='valid')
+    speed = sign * np.convolve(np.asarray(speed, dtype=float), kernel, mode='valid')
     rate = np.gradient(current, sample_period_s)
     regressors = np.column_stack([current, rate, speed])
     target = np.full(current.shape, abs(voltage))
