@@ -446,7 +446,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
         first samples).
     criterion : str
         ``auto`` (default), ``speed``, ``position`` or ``both``: the channels the output-error
-        fit compares (:func:`dcmotor_id.identification.criterion.resolve_criterion`; ``auto`` compares the
+        fit compares (:func:`dcmotor_id.identification.criterion.resolve_criterion`; ``auto``
+        compares the
         position when the speed was derived from it).  The JSON key ``criterion`` holds the
         one used.
 

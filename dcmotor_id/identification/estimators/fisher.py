@@ -222,7 +222,8 @@ def cramer_rao_bound(records: Sequence[Any], truth: MotorParameters | Mapping[st
         Treat the initial states as unknown, as the refined estimator does.
     criterion : str
         The channels observed (:mod:`dcmotor_id.identification.criterion`): with ``position``
-        the noise of ``position`` [rad] is needed, and the initial position is a nuisance parameter.
+        the noise of ``position`` [rad] is needed, and the initial position is a nuisance
+        parameter.
 
     Returns
     -------

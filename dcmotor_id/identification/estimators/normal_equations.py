@@ -150,7 +150,8 @@ class NormalEquations:
         Accumulate the normal equations with the position: the kernel's, then the position's.
 
         The position is the trapezoidal integral of the simulated speed from the initial
-        position (:func:`dcmotor_id.identification.criterion.integrate_speed`), so its sensitivities are the
+        position (:func:`dcmotor_id.identification.criterion.integrate_speed`), so its
+        sensitivities are the
         running integral of the speed's, which the kernel stores (the trajectory), and 1 for
         the initial position.  A channel not compared (the speed derived from the position)
         enters the kernel with weight 0.

@@ -88,7 +88,8 @@ class OutputErrorModel:
         ``i = (u - CPhi w) / Ra``; La is not a parameter then.
     criterion : str
         ``speed`` (default), ``position`` or ``both``: the channels compared
-        (:func:`dcmotor_id.identification.criterion.fitted_outputs`).  With the position, every record's
+        (:func:`dcmotor_id.identification.criterion.fitted_outputs`).  With the position, every
+        record's
         initial state ends with its initial position and :meth:`simulate` also returns the
         position (the integral of the simulated speed).
 
