@@ -123,7 +123,6 @@ class Exciter(Node):
         self.session = ExcitationSession(limits, rate, ramp_in, stale, watch=WATCHED[source])
         #: Guards the session: held for microseconds, by the tick, ~/start and ~/stop.
         self._lock = threading.RLock()
-        self.stop_calls = 0
         self._zeros_due = 0
         self._last_state = self.session.state
         self.command_publisher = self.create_publisher(Float64, 'voltage_command',
@@ -195,7 +194,6 @@ class Exciter(Node):
     def _on_stop(self, request: Trigger.Request,
                  response: Trigger.Response) -> Trigger.Response:
         with self._lock:
-            self.stop_calls += 1
             was = self.session.state
             self.session.stop()
             self._halt()
