@@ -40,7 +40,11 @@ rows = 0
 import scipy.io, pyarrow.parquet, rosbags.rosbag2  # the readers' imports, in the baseline
 if sys.argv[1] == 'read':
     rows = len(read_record(sys.argv[2]))
-print(rows, time.perf_counter() - start, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+# VmHWM, not ru_maxrss: Linux carries ru_maxrss over exec from the forked parent (a parent
+# that wrote a 400 MB file made every child report 500 MiB)
+with open('/proc/self/status', encoding='ascii') as status:
+    peak = next(int(line.split()[1]) for line in status if line.startswith('VmHWM:'))
+print(rows, time.perf_counter() - start, peak)
 """
 
 
@@ -161,8 +165,8 @@ def main() -> int:
             'samples topic, 250 samples a message, or of the three Float64 topics, which hold '
             'no position); it is read by `dcmotor_id.formats.read_record` in a fresh '
             "process limited to 2 GiB of address space (RLIMIT_AS). Peak = the process's "
-            f'maximum resident memory; the baseline (importing the readers, scipy.io, pyarrow '
-            f'and rosbags, no reading) is {base / 1024:.0f} MiB. "x numbers" = the memory '
+            'maximum resident memory (VmHWM); the baseline (importing the readers, scipy.io, '
+            f'pyarrow and rosbags, no reading) is {base / 1024:.0f} MiB. "x numbers" = the memory '
             'above the baseline over the 8 bytes x 5 columns x rows the record holds; "x file" '
             '= the memory above the baseline over the size of the input (the documented '
             'multiple of the input size S of issue 21; every reader also refuses, before '

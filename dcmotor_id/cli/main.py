@@ -229,6 +229,7 @@ def _cmd_identify(args):
     finally:
         progress.close()
     result = identified.as_dict()
+    repairs += _unit_flag_warnings(options, result.get('parameters') or {})
     if loss or repairs:
         result['warnings'] = loss + repairs + list(result.get('warnings') or [])
     if loss:
@@ -256,6 +257,15 @@ def _cmd_identify(args):
     for failure in failures:
         print(f'dcmotor-id: error: {failure} (the result is printed above)', file=sys.stderr)
     return 2 if failures else 0
+
+
+def _unit_flag_warnings(options: ReadOptions, parameters: Mapping[str, Any]) -> list[str]:
+    """Warn when ``--current-unit mA`` looks given on data already in amperes."""
+    ra = parameters.get('Ra')
+    if options.current_unit == 'mA' and isinstance(ra, float) and ra > 100.0:
+        return [f'--current-unit mA gives Ra = {ra:.4g} Ohm, an armature of kilo-ohms: the '
+                'current column looks already in amperes; drop --current-unit mA if so']
+    return []
 
 
 def reading_options(args: argparse.Namespace) -> ReadOptions:

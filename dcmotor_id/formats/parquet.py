@@ -63,13 +63,14 @@ def read_parquet(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Reco
         rows = pq.ParquetFile(path).metadata.num_rows
     except (pyarrow.ArrowException, OSError) as error:
         raise InputDataError(f'{path}: not a readable Parquet file ({error})') from None
-    check_budget(16.0 * rows * len(set(present.values())), path,
+    check_budget(20.0 * rows * len(set(present.values())), path,
                  f'{rows} rows of {len(set(present.values()))} columns')
-    table = pq.read_table(path, columns=sorted(set(present.values())))
     columns = {}
     for channel, name in present.items():
         try:
-            column = table.column(name)
+            # one column at a time, released before the next: the peak is the record plus
+            # one column, not the whole table beside its copy
+            column = pq.read_table(path, columns=[name], use_threads=False).column(name)
             if pyarrow.types.is_timestamp(column.type) or pyarrow.types.is_duration(
                     column.type) or pyarrow.types.is_date(column.type):
                 columns[channel] = _seconds(column)

@@ -796,3 +796,12 @@ def test_plan_refuses_a_duration_beyond_the_budget_at_once(capsys):
     refused(capsys, 'plan', '--duration', '1e6', phrases=[
         '--duration 1e+06', '1e+09 samples', '--memory-budget', 'shorter --duration'])
     assert time.monotonic() - started < 5
+
+
+def test_the_milliampere_flag_on_ampere_data_is_named(table, tmp_path, capsys):
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, table),
+                               '--no-discover', '--current-unit', 'mA', '--json', out)
+    assert code == 0, err
+    warnings = json.loads(out.read_text())['warnings']
+    assert any('the current column looks already in amperes' in text for text in warnings)
