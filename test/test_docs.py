@@ -1,0 +1,73 @@
+"""The manual: docs/ builds with Sphinx without a warning, and what it names exists."""
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DOCS = os.path.join(ROOT, 'docs')
+# The README is the short entry point; the manual is docs/ (issue 18: about 10 KB at most).
+README_MAX_BYTES = 10 * 1024
+# Paths of the repository named in backquotes in the README and the manual.
+NAMED_PATH = re.compile(r'`((?:dcmotor_id|test|bench|config|launch|studies)/[\w./]*[\w/])`')
+
+
+def sphinx_build(source, out, *extra):
+    """Run ``sphinx-build -W`` (warnings are errors) as ``make docs`` does; return the result."""
+    command = [sys.executable, '-m', 'sphinx', '-b', 'html', '-W', '--keep-going', '-q',
+               *extra, source, out]
+    return subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_docs_build_without_warnings(tmp_path):
+    result = sphinx_build(DOCS, str(tmp_path / 'html'), '-d', str(tmp_path / 'doctrees'))
+    assert result.returncode == 0, 'the manual has warnings:\n' + result.stderr
+    for page in ('index', 'getting_started', 'cli', 'formats', 'trust', 'nodes', 'online',
+                 'closing_the_loop', 'control_design', 'experiment', 'fleet', 'architecture',
+                 'benchmarks/index', 'benchmarks/speed_results', 'api/index'):
+        assert (tmp_path / 'html' / f'{page}.html').is_file(), page
+    api = (tmp_path / 'html' / 'api' / 'identification.html').read_text(encoding='utf-8')
+    assert 'identify' in api
+
+
+@pytest.mark.slow
+def test_docs_build_fails_on_a_warning(tmp_path):
+    # The same configuration on a page with a broken reference: -W must turn it into a failure.
+    source = tmp_path / 'src'
+    source.mkdir()
+    shutil.copy(os.path.join(DOCS, 'conf.py'), source / 'conf.py')
+    (source / '_static').mkdir()
+    (source / 'index.md').write_text('# Broken\n\nSee [a page](no_such_page.md).\n')
+    env = dict(os.environ, DCMOTOR_ID_DOCS_NO_API='1')
+    command = [sys.executable, '-m', 'sphinx', '-b', 'html', '-W', '-q', str(source),
+               str(tmp_path / 'html')]
+    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600,
+                            env=env)
+    assert result.returncode != 0
+    assert 'no_such_page' in result.stderr
+
+
+def test_readme_is_short():
+    size = os.path.getsize(os.path.join(ROOT, 'README.md'))
+    assert size <= README_MAX_BYTES, f'README.md is {size} bytes: move the detail into docs/'
+
+
+def test_paths_named_in_the_manual_exist():
+    texts = [os.path.join(ROOT, 'README.md')]
+    for folder, _, files in os.walk(DOCS):
+        if '_build' in folder:
+            continue
+        texts += [os.path.join(folder, name) for name in files
+                  if name.endswith(('.md', '.rst'))]
+    missing = []
+    for path in texts:
+        with open(path, encoding='utf-8') as stream:
+            for name in NAMED_PATH.findall(stream.read()):
+                if not os.path.exists(os.path.join(ROOT, name)):
+                    missing.append(f'{os.path.relpath(path, ROOT)}: {name}')
+    assert not missing, 'paths named in the manual that do not exist:\n' + '\n'.join(missing)
