@@ -36,6 +36,8 @@ highlight_language = 'none'
 # The docstrings are numpydoc style (pep257).
 napoleon_google_docstring = False
 napoleon_numpy_docstring = True
+# Attributes sections as fields of their class (not attribute entries that autodoc repeats).
+napoleon_use_ivar = True
 autodoc_member_order = 'bysource'
 autodoc_typehints = 'description'
 autodoc_default_options = {'members': True, 'show-inheritance': True}
