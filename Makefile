@@ -8,7 +8,7 @@ BENCH_OUT := out/bench
 
 .PHONY: demo demo-loop demo-offline test test-fast typecheck warmup bench docs clean
 
-# The install also compiles the numba kernels into their on-disk cache (dcmotor_id.warmup),
+# The install also compiles the numba kernels into their on-disk cache (dcmotor_id.cli.warmup),
 # and the identify path's kernels ahead of time (dcmotor_id/simulation/compiled.py, needs a C
 # compiler): the user's first `dcmotor-id identify` then runs as fast as the second one, and
 # without importing numba.
@@ -18,12 +18,12 @@ $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	@echo "installing the dependencies into $(VENV) (a few minutes on a fresh machine; pip shows each package)"
 	$(PY) -m pip install --progress-bar off -r requirements.txt
 	$(PY) -m pip install --quiet --no-deps -e .
-	$(PY) -m dcmotor_id.warmup
+	$(PY) -m dcmotor_id.cli.warmup
 	touch $(STAMP)
 
 # Recompile the numba cache and the ahead-of-time module by hand (after editing a kernel, say).
 warmup: $(STAMP)
-	$(PY) -m dcmotor_id.warmup
+	$(PY) -m dcmotor_id.cli.warmup
 
 # The real node graph: sim_motor and identifier as processes, recording, then ~/identify.
 demo: $(STAMP)

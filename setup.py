@@ -28,7 +28,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'dcmotor-id = dcmotor_id.cli:main',
+            'dcmotor-id = dcmotor_id.cli.main:main',
             'identifier = dcmotor_id.nodes.identifier:main',
             'sim_motor = dcmotor_id.nodes.sim_motor:main',
             'replay = dcmotor_id.nodes.replay:main',

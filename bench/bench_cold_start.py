@@ -3,7 +3,7 @@ Cold start of ``dcmotor-id identify``: the first and second run after a fresh cl
 
 The numba kernels are compiled with ``cache=True``: the first process that needs one compiles
 it and writes it next to the source (``dcmotor_id/**/__pycache__/*.nbi, *.nbc``).  The
-install step (``make`` runs ``python -m dcmotor_id.warmup`` after ``pip install``) fills that
+install step (``make`` runs ``python -m dcmotor_id.cli.warmup`` after ``pip install``) fills that
 cache so that the user's first identification costs what the second does.  This measures it:
 
 1. ``git clone`` of the repository's committed HEAD into a temporary directory; the clone's
@@ -80,7 +80,7 @@ def run(repeats):
                                capture_output=True, text=True).stdout.strip()
         if not where.startswith(clone):
             raise RuntimeError(f'the clone is not the package imported: {where}')
-        cli = [sys.executable, '-m', 'dcmotor_id.cli']
+        cli = [sys.executable, '-m', 'dcmotor_id.cli.main']
         record = os.path.join(scratch, 'record.csv')
         subprocess.run(cli + ['simulate', '--noise', '0.01', '--out', record], env=env,
                        cwd=clone, check=True, stdout=subprocess.DEVNULL)
@@ -91,7 +91,7 @@ def run(repeats):
                 clear_cache(clone)
                 if scenario == 'with the warm-up':
                     steps.setdefault((scenario, 'warm-up (the install step)'), []).append(
-                        timed([sys.executable, '-m', 'dcmotor_id.warmup', '--quiet'], env,
+                        timed([sys.executable, '-m', 'dcmotor_id.cli.warmup', '--quiet'], env,
                               clone))
                 for label in ('first identify', 'second identify'):
                     steps.setdefault((scenario, label), []).append(timed(identify, env, clone))

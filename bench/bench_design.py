@@ -3,7 +3,8 @@ Benchmark: controller design from identified parameters, checked on the exact si
 
 Both motors of Table 1. Each is identified by the default method from the paper's two
 training records (4 s each at 1 kHz, 1 % white noise on current and speed); the cascade is
-designed from the identified values (``dcmotor_id.design``), then run on the TRUE motor with
+designed from the identified values (``dcmotor_id.design.control``), then run on the TRUE motor
+with
 the exact hybrid simulator (Coulomb friction included) and its closed-loop -3 dB bandwidths
 measured with a multisine at a 40 rad/s bias (``measured_bandwidth_hz``). The margins are
 python-control's on the sampled loops; their spread is over the ends and corners of the
@@ -18,8 +19,9 @@ import time
 from common import command_line, environment, fit_refined, make_records, markdown_table
 import numpy as np
 
-from dcmotor_id.design import design, DesignOptions, measured_bandwidth_hz, motor_from_result
-from dcmotor_id.model import PAPER_MOTORS, PARAMETER_NAMES
+from dcmotor_id.core.model import PAPER_MOTORS, PARAMETER_NAMES
+from dcmotor_id.design.control import (design, DesignOptions, measured_bandwidth_hz,
+                                       motor_from_result)
 
 #: (sample period [s], current bandwidth [Hz], speed bandwidth [Hz], phase margin [deg]).
 CASES = ((1e-4, 200.0, 20.0, 60.0), (5e-4, 100.0, 10.0, 50.0), (1e-3, 50.0, 8.0, 45.0))

@@ -23,12 +23,12 @@ import time
 
 import numpy as np
 
-from dcmotor_id.discovery import discover
-from dcmotor_id.effects import make_effect, VOCABULARY
-from dcmotor_id.excitation import add_sensor_noise, make_excitation
-from dcmotor_id.model import PAPER_MOTORS, PARAMETER_NAMES
-from dcmotor_id.records import Record
+from dcmotor_id.core.model import PAPER_MOTORS, PARAMETER_NAMES
+from dcmotor_id.core.records import Record
+from dcmotor_id.identification.discovery import discover
+from dcmotor_id.identification.effects import make_effect, VOCABULARY
 from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
+from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
 
 DT = 1e-3
 DURATION_S = 6.0

@@ -129,7 +129,8 @@ def main() -> int:
             'the start, 2 shared cores). Every model is trained on DATA_EMPS and simulated '
             'open loop on DATA_EMPS_PULSES from the force gtau * vir (exact simulation, '
             'stick-slip included), initial speed estimated on the first 20 samples; score = '
-            'position RMSE after those 20 samples (`dcmotor_id.validate`). The two rows '
+            'position RMSE after those 20 samples (`dcmotor_id.identification.validate`). '
+            'The two rows '
             'marked "diagnosis" are fitted on PULSES itself: they are not scores, they measure '
             'how far the two records differ.', '',
             format_score(score), '', difference_text(score), '',

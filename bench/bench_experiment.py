@@ -1,7 +1,8 @@
 """
 Experiment design: the plan's predicted standard errors against the achieved ones.
 
-For each scenario the plan (:func:`dcmotor_id.experiment.design_experiment`) picks the PRBS /
+For each scenario the plan (:func:`dcmotor_id.design.experiment.design_experiment`) picks the PRBS
+/
 multisine band and amplitude within the limits and predicts the Cramer-Rao bounds; then
 ``--draws`` Monte Carlo runs simulate exactly that experiment (the exciter's command profile
 held at the drive's sample period, the exact model with Coulomb friction), add white noise of
@@ -19,10 +20,10 @@ import time
 from common import command_line, environment, markdown_table
 import numpy as np
 
-from dcmotor_id.estimators.refined import RefinedEstimator
-from dcmotor_id.experiment import design_experiment, planned_record
-from dcmotor_id.model import PAPER_MOTORS
-from dcmotor_id.routines import Limits
+from dcmotor_id.core.model import PAPER_MOTORS
+from dcmotor_id.design.experiment import design_experiment, planned_record
+from dcmotor_id.design.routines import Limits
+from dcmotor_id.identification.estimators.refined import RefinedEstimator
 
 NAMES = ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc', 'Ka', 'Ta')
 #: (label, motor, limits, noise, duration [s]).

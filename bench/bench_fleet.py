@@ -36,10 +36,10 @@ import time
 import numpy as np
 
 from dcmotor_id.fleet import FleetOptions, read_history, run_fleet
-from dcmotor_id.fleet.report import motor_trends, write_fleet_report
 from dcmotor_id.fleet.simulated import make_fleet, write_recording
 from dcmotor_id.formats import read_record
-from dcmotor_id.identify import identify, prepare_records
+from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.reports.fleet import motor_trends, write_fleet_report
 
 BIN = os.path.dirname(sys.executable)
 
@@ -50,9 +50,9 @@ def _noop(value):
 
 def _warm():
     """Import what a task needs and load the numba kernels once (outside the timing)."""
+    from dcmotor_id.core.model import PAPER_MOTORS
     import dcmotor_id.fleet.tasks  # noqa: F401
     from dcmotor_id.simulation import simulate_motor
-    from dcmotor_id.model import PAPER_MOTORS
     simulate_motor(PAPER_MOTORS['paper2'], np.ones(10), 1e-3)
     return os.getpid()
 

@@ -1,7 +1,8 @@
 """
 Laboratory-like recordings: identified vs truth, stated stderr vs the real spread, run time.
 
-For every scenario of :mod:`dcmotor_id.lab_scenarios` (plus EMPS): the identification with
+For every scenario of :mod:`dcmotor_id.simulation.lab_scenarios` (plus EMPS): the identification
+with
 discovery on seed 0 (values vs truth, run time, what it says is not identifiable, its
 warnings), then ``--seeds`` Monte Carlo repetitions without discovery (a fixed structure,
 what a standard error is about): the ratio of the
@@ -26,10 +27,10 @@ import time
 
 import numpy as np
 
-from dcmotor_id.errors import DcMotorIdError
-from dcmotor_id.identify import identify
-from dcmotor_id.lab_scenarios import coloured_disturbance, SCENARIOS
-from dcmotor_id.records import Record
+from dcmotor_id.core.errors import DcMotorIdError
+from dcmotor_id.core.records import Record
+from dcmotor_id.identification.identify import identify
+from dcmotor_id.simulation.lab_scenarios import coloured_disturbance, SCENARIOS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -21,9 +21,9 @@ from common import (command_line, DURATION_S, environment, fit_paper, fit_refine
                     signed_errors_pct)
 import numpy as np
 
-from dcmotor_id.errors import DcMotorIdError
-from dcmotor_id.estimators.fisher import cramer_rao_bound
-from dcmotor_id.model import is_admissible, PAPER_MOTORS
+from dcmotor_id.core.errors import DcMotorIdError
+from dcmotor_id.core.model import is_admissible, PAPER_MOTORS
+from dcmotor_id.identification.estimators.fisher import cramer_rao_bound
 
 LEVELS = (0.0, 0.001, 0.003, 0.01, 0.03)
 #: The issue's targets at 1 % noise: largest error of the refined method [%].

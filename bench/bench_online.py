@@ -2,9 +2,11 @@
 Online estimation under sensor noise, tracking of changes, change alarms and cost.
 
 The identifier node's online estimators on simulated drives (exact simulation at 1 kHz):
-``window`` (:class:`dcmotor_id.online.WindowEstimator`, the default: exact output-error refits
+``window`` (:class:`dcmotor_id.streaming.online.WindowEstimator`, the default: exact output-error
+refits
 of a window growing from the start up to 30 s, warm-started) and the old ``rls``
-(:class:`dcmotor_id.online.OnlineEstimator`, recursive least squares with a 10 s memory), side
+(:class:`dcmotor_id.streaming.online.OnlineEstimator`, recursive least squares with a 10 s memory),
+side
 by side on the same runs.
 
 1. Accuracy: the paper's motors 1 and 2, excitations ``paper``, ``prbs`` and ``multisine``
@@ -30,14 +32,14 @@ import time
 from common import command_line, environment, markdown_table, PHYSICAL_NAMES
 import numpy as np
 
-from dcmotor_id.estimators.refined import RefinedEstimator
-from dcmotor_id.excitation import add_sensor_noise, make_excitation
-from dcmotor_id.model import PAPER_MOTORS
-from dcmotor_id.monitoring import ChangeDetector
-from dcmotor_id.online import (INTERVAL_SIGMAS, LOAD_TORQUE, OnlineEstimator, parse_schedule,
-                               simulate_scheduled, WindowEstimator)
-from dcmotor_id.records import Record
+from dcmotor_id.core.model import PAPER_MOTORS
+from dcmotor_id.core.records import Record
+from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.simulation import simulate_motor
+from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
+from dcmotor_id.streaming.monitoring import ChangeDetector
+from dcmotor_id.streaming.online import (INTERVAL_SIGMAS, LOAD_TORQUE, OnlineEstimator,
+                                         parse_schedule, simulate_scheduled, WindowEstimator)
 
 DT = 1e-3
 DURATION_S = 30.0

@@ -8,7 +8,7 @@ with its own ``PYTHONPATH``, in turn (A B A B ...), bytecode caching on:
 * **phases**: a fresh interpreter timing with ``time.process_time()`` the import of numpy, the
   package's imports, reading the CSV, a first and a second ``identify`` call (default
   options), and saying whether numba and which scipy modules ended up loaded;
-* **whole**: the command ``python -m dcmotor_id.cli identify RECORD --json OUT`` as a whole
+* **whole**: the command ``python -m dcmotor_id.cli.main identify RECORD --json OUT`` as a whole
   process: CPU (user + system, ``os.wait4``) and wall seconds, medians.
 
 Usage: ``.venv/bin/python bench/bench_phases.py RECORD.csv CHECKOUT [CHECKOUT ...]
@@ -31,9 +31,9 @@ import json, sys, time
 c0 = time.process_time()
 import numpy as np
 c1 = time.process_time()
-import dcmotor_id.cli
+import dcmotor_id.cli.main
 from dcmotor_id.formats import read_records
-from dcmotor_id.identify import identify, prepare_records
+from dcmotor_id.identification.identify import identify, prepare_records
 c2 = time.process_time()
 records = read_records([sys.argv[1]])
 c3 = time.process_time()
@@ -66,7 +66,7 @@ def whole(record, checkout):
     with tempfile.TemporaryDirectory() as directory:
         begin = time.perf_counter()
         process = subprocess.Popen(
-            [sys.executable, '-m', 'dcmotor_id.cli', 'identify', record, '--json',
+            [sys.executable, '-m', 'dcmotor_id.cli.main', 'identify', record, '--json',
              os.path.join(directory, 'out.json')], env=_environment(checkout),
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         _, status, usage = os.wait4(process.pid, 0)

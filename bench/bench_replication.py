@@ -15,7 +15,7 @@ from common import (command_line, DURATION_S, environment, errors_pct, fit_paper
                     make_records, markdown_table, MOTOR_LABELS, PAPER_REPORTED_PCT, pct,
                     TABLE_NAMES)
 
-from dcmotor_id.model import PAPER_MOTORS, UNITS
+from dcmotor_id.core.model import PAPER_MOTORS, UNITS
 
 
 def run(duration_s, sample_period_s):

@@ -16,7 +16,7 @@ import time
 from common import (command_line, DURATION_S, environment, errors_pct, fit_paper, fit_refined,
                     make_records, markdown_table, MOTOR_LABELS, pct, TABLE_NAMES)
 
-from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.core.model import PAPER_MOTORS
 
 PERIODS_S = (1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3)
 

@@ -11,7 +11,8 @@ call and at the end: ``getrusage``'s ``ru_maxrss`` of a child starts from the pa
 
 Contenders, run in turn (A B C A B C ...) so that a drift of the machine's speed hits all:
 
-* **new**: this checkout's :func:`~dcmotor_id.identify.identify`, default (effect discovery
+* **new**: this checkout's :func:`~dcmotor_id.identification.identify.identify`, default (effect
+  discovery
   on) and ``discover=False``;
 * **previous**: the same call from another checkout (``--previous DIR``, e.g. a
   ``git worktree add /tmp/prev 21c2dec``), run with its own ``PYTHONPATH`` after a warm-up
@@ -23,7 +24,7 @@ Contenders, run in turn (A B C A B C ...) so that a drift of the machine's speed
   point (its search is inside the timed process); up to ``--plain-max-samples``.
 
 Also measured: the cold start (a fresh numba cache and no ahead-of-time kernels, both made by
-``python -m dcmotor_id.warmup``, then the first whole process against the following ones) and
+``python -m dcmotor_id.cli.warmup``, then the first whole process against the following ones) and
 the growth exponent of the call's CPU time with the number of samples.
 
 Usage: ``.venv/bin/python bench/bench_speed.py [--sizes 60@1000,600@1000] [--repeats N]
@@ -42,9 +43,9 @@ from common import command_line, environment, markdown_table, PHYSICAL_NAMES
 import numpy as np
 from scipy.linalg import expm
 
-from dcmotor_id.excitation import add_sensor_noise, make_excitation
-from dcmotor_id.model import PAPER_MOTORS, relative_errors_pct
+from dcmotor_id.core.model import PAPER_MOTORS, relative_errors_pct
 from dcmotor_id.simulation import simulate_motor
+from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
 
 NOISE = 0.01
 MOTOR = 'paper2'
@@ -66,8 +67,8 @@ _CHILD = _HWM + """
 import json, sys, time
 start = time.perf_counter()
 import numpy as np
-from dcmotor_id.identify import identify, prepare_records
-from dcmotor_id.records import Record
+from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.core.records import Record
 data = np.load(sys.argv[1])
 record = Record(data['t'], data['current'], data['voltage'], data['speed'])
 del data
@@ -165,8 +166,8 @@ def plain_child(path):
     """Child process of the plain fit: start search, least_squares; print its JSON line."""
     from scipy.optimize import least_squares
 
-    from dcmotor_id.estimators.refined import OutputErrorModel, RefinedEstimator
-    from dcmotor_id.records import Record
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
     begin = time.perf_counter()
     data = np.load(path)
     record = Record(data['t'], data['current'], data['voltage'], data['speed'])
@@ -282,7 +283,7 @@ def cold_start(directory):
     with tempfile.TemporaryDirectory() as cache:
         env = environment_for(ROOT, cache)
         with tempfile.TemporaryFile() as sink:
-            process = subprocess.Popen([sys.executable, '-m', 'dcmotor_id.warmup', '--quiet'],
+            process = subprocess.Popen([sys.executable, '-m', 'dcmotor_id.cli.warmup', '--quiet'],
                                        env=env, stdout=sink)
             _, _, usage = os.wait4(process.pid, 0)
         warm_up_cpu = usage.ru_utime + usage.ru_stime
@@ -290,7 +291,7 @@ def cold_start(directory):
                 for _ in range(4)]
     first, later = runs[0], runs[1:]
     return [
-        ['warm-up (python -m dcmotor_id.warmup, empty cache, no ahead-of-time module)',
+        ['warm-up (python -m dcmotor_id.cli.warmup, empty cache, no ahead-of-time module)',
          f'{warm_up_cpu:.2f}', '', ''],
         ['first whole process after the warm-up', f'{first["cpu_s"]:.2f}',
          f'{first["call_cpu_s"]:.2f}', f'{first["again_cpu_s"]:.2f}'],
@@ -330,7 +331,7 @@ def main():
              f'{os.getloadavg()[0]:.2f} at the start', '']
     if args.previous and args.sizes:
         # Compile the previous checkout's kernels first (its own cache, not timed).
-        subprocess.run([sys.executable, '-m', 'dcmotor_id.warmup', '--quiet'],
+        subprocess.run([sys.executable, '-m', 'dcmotor_id.cli.warmup', '--quiet'],
                        env=environment_for(args.previous), check=True)
     rows, growth = [], []
     with tempfile.TemporaryDirectory() as directory:

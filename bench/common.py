@@ -14,9 +14,9 @@ import numba
 import numpy as np
 import scipy
 
-from dcmotor_id.estimators.paper import PaperEstimator
-from dcmotor_id.estimators.refined import RefinedEstimator
-from dcmotor_id.model import relative_errors_pct
+from dcmotor_id.core.model import relative_errors_pct
+from dcmotor_id.identification.estimators.paper import PaperEstimator
+from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.simulation.scenarios import paper_records
 
 #: Parameters in the order of the paper's Tables 2-3.

@@ -27,11 +27,11 @@ import numpy as np
 from scipy import signal
 from scipy.io import loadmat
 
-from dcmotor_id.effects import EXTENDED_VOCABULARY, LoadTorque, VOCABULARY
-from dcmotor_id.errors import InputDataError
-from dcmotor_id.estimators.refined import RefinedEstimator
-from dcmotor_id.records import Record
-from dcmotor_id.signals import central_differences, speed_from_position
+from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.core.records import Record
+from dcmotor_id.identification.effects import EXTENDED_VOCABULARY, LoadTorque, VOCABULARY
+from dcmotor_id.identification.estimators.refined import RefinedEstimator
+from dcmotor_id.signals.filters import central_differences, speed_from_position
 from dcmotor_id.simulation import MotorEffects, simulate_mechanical_effects
 
 #: Files of the benchmark.
@@ -218,8 +218,8 @@ def emps_study(data_dir: str | None = None) -> dict[str, Any]:
         ``validation`` simulation errors of the base and the final model.
 
     """
-    from dcmotor_id.discovery import errors_by_step
-    from dcmotor_id.identify import identify
+    from dcmotor_id.identification.discovery import errors_by_step
+    from dcmotor_id.identification.identify import identify
     directory = find_data_dir(data_dir)
     estimation, gtau = load_emps(os.path.join(directory, ESTIMATION_FILE))
     validation, _ = load_emps(os.path.join(directory, VALIDATION_FILE))
@@ -324,8 +324,8 @@ COGGING_PERIODS_M = (0.5, 2.0 * np.pi / 108.0)
 
 def emps_model(parameters: Mapping[str, float], gtau: float,
                effects: Sequence[Mapping[str, Any]] = ()) -> Any:
-    """Return a mechanical-only :class:`~dcmotor_id.validate.Model` of EMPS (M, Fv, Fc)."""
-    from dcmotor_id.validate import Model
+    """Return a mechanical-only validation ``Model`` of EMPS (M, Fv, Fc)."""
+    from dcmotor_id.identification.validate import Model
     return Model({'J': float(parameters['M']), 'b': float(parameters['Fv']),
                   'Mc': float(parameters['Fc'])}, 'mechanical', gtau, list(effects))
 
@@ -343,7 +343,7 @@ class PositionFit:
 
     Attributes
     ----------
-    model : dcmotor_id.validate.Model
+    model : dcmotor_id.identification.validate.Model
         The rigid model with its effects.
     input_lag_s : float
         Time constant of a first-order lag between ``gtau * vir`` and the force on the
@@ -385,7 +385,8 @@ def position_output_fit(record: Record, gtau: float,
     Fit M, Fv, Fc and the effects' parameters to the measured position (output error).
 
     The rigid model is simulated open loop from the force ``gtau * vir`` (the package's
-    exact simulator, :func:`dcmotor_id.validate.simulate`) and the squared position error
+    exact simulator, :func:`dcmotor_id.identification.validate.simulate`) and the squared position
+    error
     after the first :data:`SCORE_SKIP_SAMPLES` samples is minimised: the criterion the
     benchmark scores, unlike the speed-output fit of the package, which weights the fast speed
     changes and lets a small force bias integrate into a position drift.
@@ -406,7 +407,7 @@ def position_output_fit(record: Record, gtau: float,
     """
     from scipy.optimize import least_squares
 
-    from dcmotor_id.validate import simulate
+    from dcmotor_id.identification.validate import simulate
 
     fixed = {name: dict(values) for name, values in (inner or {}).items()}
     specs = [(name, spec) for name in effects for spec in POSITION_FIT_TERMS[name]]
@@ -492,7 +493,8 @@ def emps_score(data_dir: str | None = None) -> dict[str, Any]:
     Score models on EMPS as the benchmark community does; return a dict of rows.
 
     Train on DATA_EMPS, simulate DATA_EMPS_PULSES open loop from ``gtau * vir``, position
-    RMSE in mm after the first 20 samples (:func:`dcmotor_id.validate.validate_record`,
+    RMSE in mm after the first 20 samples
+    (:func:`dcmotor_id.identification.validate.validate_record`,
     initial speed from those samples). Rows: the published IDIM-LS parameters; the
     4-parameter rigid model fitted by output error on speed (the package's criterion) and on
     position; the discovery loop's model (``identify`` on DATA_EMPS); position-output fits
@@ -501,8 +503,8 @@ def emps_score(data_dir: str | None = None) -> dict[str, Any]:
     diagnosis of the difference between the two records, not a score. ``friction`` holds the
     direction-dependent IDIM-LS of each record (:func:`friction_by_record`).
     """
-    from dcmotor_id.identify import identify
-    from dcmotor_id.validate import model_from_dict, validate_record
+    from dcmotor_id.identification.identify import identify
+    from dcmotor_id.identification.validate import model_from_dict, validate_record
 
     directory = find_data_dir(data_dir)
     estimation, gtau = load_emps(os.path.join(directory, ESTIMATION_FILE))
@@ -613,7 +615,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     study = emps_study(args.data_dir)
     print(format_study(study))
     if args.report:
-        from dcmotor_id.report import write_report
+        from dcmotor_id.reports.identification import write_report
         for key, name in (('loop', 'standard'), ('loop_extended', 'extended')):
             item = study[key]
             result = dict(item['result'])

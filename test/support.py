@@ -7,9 +7,9 @@ import time
 
 import numpy as np
 
-from dcmotor_id.excitation import make_excitation
-from dcmotor_id.model import PAPER_MOTORS
+from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.simulation import simulate_motor
+from dcmotor_id.simulation.excitation import make_excitation
 
 #: Bag time of the first sample of :func:`motor_samples` [ns].
 START_NS = 1_700_000_000_000_000_000

@@ -4,7 +4,7 @@ Fleet mode: identify many recordings on a Dask cluster into a per-motor Parquet 
 :func:`run_fleet` (``dcmotor-id fleet``) finds the recordings (:mod:`.sources`), cuts every
 motor's streams into windows (:mod:`.windows`), identifies each window as one Dask task
 (:mod:`.tasks`, :mod:`.job`) and appends one row per window to the history
-(:mod:`.history`). :func:`dcmotor_id.fleet.report.write_fleet_report`
+(:mod:`.history`). :func:`dcmotor_id.reports.fleet.write_fleet_report`
 (``dcmotor-id fleet-report``) turns the history into trends, change alarms
 (:mod:`.trends`) and a fleet overview.
 """

@@ -30,7 +30,7 @@ import pyarrow as pa
 import pyarrow.dataset as pads
 import pyarrow.parquet as pq
 
-from dcmotor_id.model import DERIVED_NAMES, PARAMETER_NAMES
+from dcmotor_id.core.model import DERIVED_NAMES, PARAMETER_NAMES
 
 #: Parameters with a value and a standard-error column each.
 PARAMETERS = PARAMETER_NAMES + DERIVED_NAMES

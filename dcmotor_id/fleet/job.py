@@ -23,7 +23,7 @@ import time
 from typing import Any, Iterable, Optional
 import uuid
 
-from dcmotor_id.errors import InputDataError
+from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.fleet import history
 from dcmotor_id.fleet.progress import Progress
 from dcmotor_id.fleet.sources import check_motor_from, find_sources, Source

@@ -3,7 +3,7 @@ The fleet job's progress line on stderr: bags, windows and failures.
 
 Written by hand rather than with a progress-bar library because it counts three things at
 once and must also behave in a log file; the line itself is the package's one status-line
-writer (:class:`dcmotor_id.progress.StatusLine`): on a terminal redrawn at most every 0.2 s,
+writer (:class:`dcmotor_id.core.progress.StatusLine`): on a terminal redrawn at most every 0.2 s,
 elsewhere (a pipe, a CI log) a plain line every 10 s and a last one at the end.
 """
 
@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Optional, TextIO
 
-from dcmotor_id.progress import StatusLine
+from dcmotor_id.core.progress import StatusLine
 
 
 class Progress:

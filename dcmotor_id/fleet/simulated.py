@@ -20,8 +20,8 @@ from typing import Optional
 
 import numpy as np
 
-from dcmotor_id.excitation import add_sensor_noise, make_excitation
-from dcmotor_id.model import MotorParameters, PAPER_MOTORS
+from dcmotor_id.core.model import MotorParameters, PAPER_MOTORS
+from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
 
 #: A small 24 V permanent-magnet motor (about 50 W).
 SMALL_24V = MotorParameters(Ra=1.2, La=1.5e-3, CPhi=0.05, J=2e-5, b=1e-5, Mc=0.01)

@@ -15,7 +15,7 @@ import os
 import re
 from typing import Iterable, Mapping, Optional
 
-from dcmotor_id.errors import InputDataError
+from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.formats import BAG_SUFFIXES, detect_format
 from dcmotor_id.formats.bag import FLOAT64_TYPE, PARTIAL_PREFIX
 from dcmotor_id.formats.batch import BATCH_TYPE

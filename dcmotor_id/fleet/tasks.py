@@ -16,9 +16,8 @@ import time
 from typing import Any, Optional
 import warnings
 
-from dcmotor_id.errors import DcMotorIdError
-from dcmotor_id.fleet.sources import (csv_motor_id, describe_topics, motor_streams,
-                                      Source)
+from dcmotor_id.core.errors import DcMotorIdError
+from dcmotor_id.fleet.sources import csv_motor_id, describe_topics, motor_streams, Source
 from dcmotor_id.fleet.windows import cut_windows, FleetWindow
 
 #: Exceptions that are the machine's, not the data's: raised so that Dask retries the task.
@@ -187,7 +186,7 @@ def identify_window(bag: BagWindows, index: int, options: FleetOptions) -> dict[
     long it ran.
     """
     from dcmotor_id.fleet.history import error_row, result_row
-    from dcmotor_id.identify import identify, prepare_records
+    from dcmotor_id.identification.identify import identify, prepare_records
 
     window = bag.windows[index]
     began = time.perf_counter()

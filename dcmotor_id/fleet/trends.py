@@ -3,7 +3,8 @@ Change alarms across a motor's windows: each parameter's trajectory against its 
 
 :func:`detect_changes` is the one entry point the fleet report calls: a sequence of
 ``(time, value, stderr)`` per parameter in, alarms out. The rules are those of the
-identifier node's online alarms, :class:`dcmotor_id.monitoring.ChangeDetector` (threshold in
+identifier node's online alarms, :class:`dcmotor_id.streaming.monitoring.ChangeDetector` (threshold
+in
 standard deviations, WARN and ERROR sizes, CUSUM change time, hysteresis); this module only
 adapts the history to it, with the detector's two options for separate windows: the baseline
 is learned from a parameter's first windows (``baseline_share`` of them, at least
@@ -24,7 +25,7 @@ from typing import Iterable, Mapping, Optional, Sequence
 
 import numpy as np
 
-from dcmotor_id.monitoring import ChangeDetector, LEVELS
+from dcmotor_id.streaming.monitoring import ChangeDetector, LEVELS
 
 __all__ = ['Alarm', 'baseline_size', 'change_score', 'detect_changes', 'DetectorSettings',
            'effect_alarms', 'LEVELS']

@@ -1,7 +1,8 @@
 """
 Cutting one motor's record into the windows identified as separate tasks.
 
-The cutting is :class:`dcmotor_id.windowing.WindowCutter`'s, the node's own: a window holds
+The cutting is :class:`dcmotor_id.streaming.windowing.WindowCutter`'s, the node's own: a window
+holds
 ``window_s`` of samples, the last one what remains if that is at least ``min_window_s``.
 """
 
@@ -11,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dcmotor_id.records import Record, record_from_stamps
-from dcmotor_id.windowing import WindowCutter
+from dcmotor_id.core.records import Record, record_from_stamps
+from dcmotor_id.streaming.windowing import WindowCutter
 
 #: Channels carried by a fleet window (those of a record).
 CHANNELS = ('voltage', 'current', 'speed', 'position')

@@ -16,10 +16,10 @@ from collections.abc import Iterable, Mapping
 import os
 from typing import Callable, Optional
 
+from dcmotor_id.core.records import PathLike, Record
 from dcmotor_id.formats import bag, csv, mat, parquet
 from dcmotor_id.formats.mapping import DEFAULT_OPTIONS, ReadOptions
 from dcmotor_id.formats.quality import check_channels
-from dcmotor_id.records import PathLike, Record
 
 #: Format name -> reader ``(path, topics=..., sample_period_s=..., options=...) -> Record``.
 READERS: dict[str, Callable[..., Record]] = {

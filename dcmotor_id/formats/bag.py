@@ -21,11 +21,11 @@ import warnings
 
 import numpy as np
 
-from dcmotor_id.errors import InputDataError
+from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.core.records import PathLike, Record, record_from_stamps
 from dcmotor_id.formats.batch import (BATCH_CHANNELS, batch_message, BATCH_TYPE, BatchTypes,
                                       decode_batch_message)
 from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
-from dcmotor_id.records import PathLike, Record, record_from_stamps
 
 #: Topic of every channel in a bag, as the identifier node names them (relative names match
 #: any namespace: ``voltage`` matches ``/voltage`` and ``/drive/voltage``).
@@ -389,7 +389,7 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
 
 def _read_bag_si(path: PathLike, topics: Optional[Mapping[str, str]],
                  sample_period_s: Optional[float], options: ReadOptions) -> Record:
-    from dcmotor_id.streams import align_timestamps
+    from dcmotor_id.formats.streams import align_timestamps
 
     names = dict(BAG_TOPICS)
     names.update(topics or {})
@@ -634,7 +634,7 @@ def _pair_with_float64(source: MessageSource, topic: str, path: str,
     topics the columns are the joint's own, at its header stamps. ``t`` is in s from the
     first sample.
     """
-    from dcmotor_id.streams import align_timestamps
+    from dcmotor_id.formats.streams import align_timestamps
 
     if not float_topics:
         columns: dict[str, np.ndarray] = {
@@ -835,7 +835,7 @@ def _decode_float64(payloads: list[bytes], typestore: Any) -> np.ndarray:
 
 def _read_batches(source: MessageSource, topic: str, typestore: Any, path: str,
                   sample_period_s: Optional[float]) -> Record:
-    from dcmotor_id.streams import align_timestamps
+    from dcmotor_id.formats.streams import align_timestamps
 
     stamps, blocks = [], []
     for _, stamp, data in source.messages((topic,)):

@@ -15,7 +15,7 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from dcmotor_id.errors import InputDataError
+from dcmotor_id.core.errors import InputDataError
 
 #: Message type of a batch.
 BATCH_TYPE = 'std_msgs/msg/Float64MultiArray'

@@ -24,9 +24,9 @@ from typing import Callable, IO
 
 import numpy as np
 
-from dcmotor_id.errors import InputDataError
+from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.core.records import COLUMNS, PathLike, Record
 from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
-from dcmotor_id.records import COLUMNS, PathLike, Record
 
 #: Other names seen for the columns, for the hint of a refusal (never accepted silently).
 _ALIASES = {

@@ -5,7 +5,7 @@ Every reader (CSV, MATLAB, bags) hands over raw columns by their names in the fi
 :class:`ReadOptions` says which column is which channel (``--column voltage=m0_voltage``), in
 which unit current, speed and position were written, whether the voltage is a PWM duty times a
 bus voltage and whether speed and position were measured behind a gearbox.
-:func:`build_record` turns the raw columns into a :class:`~dcmotor_id.records.Record` in SI
+:func:`build_record` turns the raw columns into a :class:`~dcmotor_id.core.records.Record` in SI
 units at the motor shaft, which is what the identification and validation work in.
 """
 
@@ -18,8 +18,8 @@ from typing import Optional
 
 import numpy as np
 
-from dcmotor_id.errors import InputDataError
-from dcmotor_id.records import Record
+from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.core.records import Record
 
 #: Channels a column can be mapped to (``duty`` and ``direction`` make the voltage).
 CHANNELS = ('t', 'voltage', 'current', 'speed', 'position', 'duty', 'direction')

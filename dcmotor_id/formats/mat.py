@@ -14,9 +14,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from dcmotor_id.errors import InputDataError
+from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.core.records import PathLike, Record
 from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
-from dcmotor_id.records import PathLike, Record
 
 #: The first bytes of an HDF5 file (MATLAB v7.3 puts them after a 512-byte header).
 HDF5_MAGIC = b'\x89HDF\r\n\x1a\n'

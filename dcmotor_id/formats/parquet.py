@@ -10,9 +10,9 @@ import os
 
 import numpy as np
 
-from dcmotor_id.errors import InputDataError
+from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.core.records import PathLike, Record
 from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
-from dcmotor_id.records import PathLike, Record
 
 #: File name endings of Parquet files.
 PARQUET_SUFFIXES = ('.parquet', '.pq')

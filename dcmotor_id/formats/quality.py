@@ -10,7 +10,7 @@ Three ways a channel carries no usable information although it holds numbers:
 * a **voltage that is a command never reaching the motor**: constant while the current
   changes (a set-point, or the input of a current-controlled drive).
 
-:func:`check_channels` raises :class:`~dcmotor_id.errors.InputDataError` with a message that
+:func:`check_channels` raises :class:`~dcmotor_id.core.errors.InputDataError` with a message that
 names the channel, what was seen and what to do.
 """
 
@@ -20,8 +20,8 @@ from typing import Optional
 
 import numpy as np
 
-from dcmotor_id.errors import InputDataError
-from dcmotor_id.records import Record
+from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.core.records import Record
 
 #: Fraction of the driven samples exactly zero between non-zero neighbours: PWM-sampled.
 PWM_ZERO_FRACTION = 0.1
@@ -121,7 +121,7 @@ def channel_problems(record: Record) -> list[str]:
     """
     Return the message of every unusable channel of a record (empty when all are usable).
 
-    A record with NaN/inf values is left to :func:`dcmotor_id.records.check_record`, which
+    A record with NaN/inf values is left to :func:`dcmotor_id.core.records.check_record`, which
     names those samples.
     """
     if not all(np.all(np.isfinite(values)) for values in record.columns().values()):

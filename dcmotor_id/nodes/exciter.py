@@ -2,7 +2,7 @@
 ``exciter``: the node that drives a real (or simulated) motor with an excitation routine, safely.
 
 Publishes ``voltage_command`` (``std_msgs/msg/Float64``, relative name) at ``rate_hz`` while
-a routine runs (:mod:`dcmotor_id.routines`: quasistatic, dynamic, prbs, multisine, chirp,
+a routine runs (:mod:`dcmotor_id.design.routines`: quasistatic, dynamic, prbs, multisine, chirp,
 forward or backward; or the routine of a plan file written by ``dcmotor-id plan --json``).
 Services ``~/start`` and ``~/stop`` (``std_srvs/srv/Trigger``); the state (idle, ramping-in,
 running, stopped, stopped-by-limit, stale, done), the routine and its progress go to
@@ -32,11 +32,11 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
-from dcmotor_id.errors import DcMotorIdError
-from dcmotor_id.experiment import read_plan
+from dcmotor_id.core.errors import DcMotorIdError
+from dcmotor_id.design.experiment import read_plan
+from dcmotor_id.design.routines import DIRECTIONS, ExcitationSession, Limits, Routine, ROUTINES
 from dcmotor_id.formats.batch import decode_batch_message
 from dcmotor_id.nodes.common import BulkInput, declare, guarded, sample_qos
-from dcmotor_id.routines import DIRECTIONS, ExcitationSession, Limits, Routine, ROUTINES
 
 #: QoS of ``voltage_command``: reliable, so that the final 0 V is delivered.
 COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
@@ -227,7 +227,7 @@ def main(args: Optional[list[str]] = None) -> int:
     argv = list(sys.argv[1:] if args is None else args)
     own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
     if '--plan' in own:
-        from dcmotor_id.cli import main as cli_main
+        from dcmotor_id.cli.main import main as cli_main
         return cli_main(['plan'] + [item for item in own if item != '--plan'])
     # Own handlers: rclpy's would shut the context down before the 0 V could be published.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)

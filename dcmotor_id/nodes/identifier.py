@@ -1,11 +1,13 @@
 """
 The ``identifier`` node's ROS wiring: subscriptions, ``~/identify``, parameters, publishing.
 
-It aligns a drive's streams (:mod:`dcmotor_id.streams`), cuts them into windows
-(:mod:`dcmotor_id.windowing`) recorded as bags, and identifies on request off the executor
-(:mod:`dcmotor_id.nodes.worker`); its texts come from :mod:`dcmotor_id.summary` and its
+It aligns a drive's streams (:mod:`dcmotor_id.formats.streams`), cuts them into windows
+(:mod:`dcmotor_id.streaming.windowing`) recorded as bags, and identifies on request off the
+executor
+(:mod:`dcmotor_id.streaming.worker`); its texts come from :mod:`dcmotor_id.streaming.summary` and
+its
 parameters are :class:`dcmotor_id.nodes.settings.IdentifierSettings`; what went wrong with the
-input is counted and said by :class:`dcmotor_id.input_health.InputHealth`.
+input is counted and said by :class:`dcmotor_id.streaming.input_health.InputHealth`.
 
 Inputs (relative names; remap them globally, the messages are taken in bulk by the processing
 timer through :class:`~dcmotor_id.nodes.common.BulkInput`), by ``input``:
@@ -26,7 +28,8 @@ Outputs: ``~/parameters`` (``diagnostic_msgs/msg/DiagnosticStatus``, TRANSIENT_L
 keys Ra, La, CPhi, J, b, Mc, Ka, Ta, ``<key>_stderr`` and ``effect.<name>.<parameter>``),
 ``/diagnostics``, the parameters ``identified.<key>``, and ``~/online_parameters`` (the
 online estimate with ``converged``, the innovation RMS and the change alarms, built by
-:mod:`dcmotor_id.monitoring`; the alarms also as the ``condition`` status on ``/diagnostics``)
+:mod:`dcmotor_id.streaming.monitoring`; the alarms also as the ``condition`` status on
+``/diagnostics``)
 at ``online_rate_hz``.
 Service ``~/identify`` (``std_srvs/srv/Trigger``): closes the current window and identifies
 the most recent windows (at least ``window_s`` of data). The callback is a coroutine: a thread
@@ -52,19 +55,19 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
-from dcmotor_id.errors import DcMotorIdError
+from dcmotor_id.core.errors import DcMotorIdError
+from dcmotor_id.core.records import MIN_SAMPLES
 from dcmotor_id.formats.batch import decode_batch
-from dcmotor_id.input_health import InputHealth
-from dcmotor_id.monitoring import LEVELS, monitor_from_settings
-from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters,
-                                     run, sample_qos)
+from dcmotor_id.formats.streams import SampleInbox, StreamAligner
+from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters, run,
+                                     sample_qos)
 from dcmotor_id.nodes.settings import IdentifierSettings
-from dcmotor_id.nodes.worker import FitProcess, WindowRecorder
-from dcmotor_id.records import MIN_SAMPLES
-from dcmotor_id.streams import SampleInbox, StreamAligner
-from dcmotor_id.summary import (online_key_values, online_text, paper_status,
-                                result_key_values, RESULT_KEYS)
-from dcmotor_id.windowing import WindowCutter
+from dcmotor_id.streaming.input_health import InputHealth
+from dcmotor_id.streaming.monitoring import LEVELS, monitor_from_settings
+from dcmotor_id.streaming.summary import (online_key_values, online_text, paper_status,
+                                          result_key_values, RESULT_KEYS)
+from dcmotor_id.streaming.windowing import WindowCutter
+from dcmotor_id.streaming.worker import FitProcess, WindowRecorder
 
 __all__ = ['Identifier', 'LATCHED', 'main', 'RESULT_KEYS']
 
@@ -94,7 +97,7 @@ class Identifier(Node):
                                    clock_ns=lambda: self.get_clock().now().nanoseconds,
                                    restart_samples=self.aligner.restart_samples)
         self.health = InputHealth(self.channels, self.inbox, self.aligner, self.cutter)
-        # online estimate and change alarms (ROS-free: dcmotor_id.monitoring, .online)
+        # online estimate and change alarms (ROS-free: dcmotor_id.streaming.monitoring, .online)
         self.online = monitor_from_settings(settings, rate) if settings.online else None
         self.estimator = self.online.estimator if self.online is not None else None
         self._identify_busy = threading.Lock()

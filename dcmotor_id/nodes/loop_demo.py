@@ -2,7 +2,7 @@
 The closed-loop demo (``make demo-loop``): plan, excite, identify, compare the standard errors.
 
 Plans a D-optimal PRBS / multisine for the paper's motor 2 within the exciter's default limits
-(:mod:`dcmotor_id.experiment`), starts ``sim_motor`` (following ``voltage_command``, batched
+(:mod:`dcmotor_id.design.experiment`), starts ``sim_motor`` (following ``voltage_command``, batched
 samples), the ``identifier`` and the ``exciter`` (driving the plan) as processes, calls
 ``/exciter/start``, waits until the routine is done, calls ``/identifier/identify`` and prints
 the identified parameters beside the truth with the plan's expected standard errors (the
@@ -24,13 +24,13 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from std_srvs.srv import Trigger
 
-from dcmotor_id.cli import write_json
-from dcmotor_id.experiment import DEFAULT_NOISE, design_experiment
-from dcmotor_id.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
+from dcmotor_id.cli.main import write_json
+from dcmotor_id.core.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
+from dcmotor_id.design.experiment import DEFAULT_NOISE, design_experiment
+from dcmotor_id.design.routines import Limits
 from dcmotor_id.nodes.common import spin_until
 from dcmotor_id.nodes.demo import close_demo, local_ros_domain, status_values
 from dcmotor_id.nodes.identifier import LATCHED
-from dcmotor_id.routines import Limits
 
 KEYS = PARAMETER_NAMES + DERIVED_NAMES
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Optional, Sequence
 
-from dcmotor_id.identify import METHODS
+from dcmotor_id.identification.identify import METHODS
 
 INPUTS = ('float64', 'batch', 'joint_state')
 

@@ -9,9 +9,11 @@ Float64MultiArray`` laid out as :mod:`dcmotor_id.formats.batch`, ``t`` in second
 simulation started), which is what makes 10 kHz and more practical. The voltage comes from
 the node's excitation generator, or from the ``voltage_command`` topic when
 ``use_voltage_command`` is true (the last command is held). Defaults: the paper's motor 2.
-The ``effects`` parameter switches on effects of the vocabulary of :mod:`dcmotor_id.effects`
+The ``effects`` parameter switches on effects of the vocabulary of
+:mod:`dcmotor_id.identification.effects`
 (e.g. ``load_torque:torque_Nm=0.3;current_offset:offset_A=0.05``), simulated sample by sample.
-The ``schedule`` parameter changes the motor while it runs (:mod:`dcmotor_id.online.schedule`,
+The ``schedule`` parameter changes the motor while it runs
+(:mod:`dcmotor_id.streaming.online.schedule`,
 e.g. ``Ra:+25%:ramp:10:70;b:+50%:step:30;load_torque:+0.5:step:90``; parameters held over
 each timer tick), to show online tracking and change alarms.
 """
@@ -26,13 +28,13 @@ import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
-from dcmotor_id.effects import parse_effect
-from dcmotor_id.excitation import EXCITATION_KINDS, make_excitation
+from dcmotor_id.core.model import MotorParameters, PAPER_MOTORS, UNITS
 from dcmotor_id.formats.batch import batch_message as build_batch, BatchTypes
-from dcmotor_id.model import MotorParameters, PAPER_MOTORS, UNITS
+from dcmotor_id.identification.effects import parse_effect
 from dcmotor_id.nodes.common import declare, run, sample_qos
-from dcmotor_id.online.schedule import parse_schedule
 from dcmotor_id.simulation import motor_forcing, motor_system, MotorStepper
+from dcmotor_id.simulation.excitation import EXCITATION_KINDS, make_excitation
+from dcmotor_id.streaming.online.schedule import parse_schedule
 
 TRANSPORTS = ('float64', 'batch')
 

@@ -6,7 +6,8 @@ state-dependent coefficients by name (:func:`dcmotor_id.simulation.kernels.effec
 the sensor fields (offset, delays) are applied to the simulated outputs.  Each field declares,
 beside its definition, how the contributions of several effects combine: ``ADD`` (they add up)
 or ``REPLACE`` (a shape parameter: a contribution that sets it, i.e. differs from the default,
-replaces the value).  An effect of :mod:`dcmotor_id.effects` contributes a MotorEffects with
+replaces the value).  An effect of :mod:`dcmotor_id.identification.effects` contributes a
+MotorEffects with
 its own fields set; :func:`combine_effects` merges the contributions.
 """
 
@@ -115,7 +116,8 @@ def combine_effects(effects: EffectsLike) -> MotorEffects:
     """
     Return one :class:`MotorEffects` from ``None``, a MotorEffects or a sequence of effects.
 
-    The sequence holds vocabulary effects (:mod:`dcmotor_id.effects`, whose ``motor_effects()``
+    The sequence holds vocabulary effects (:mod:`dcmotor_id.identification.effects`, whose
+    ``motor_effects()``
     returns their contribution) or MotorEffects contributions; they combine by the rule of each
     field (:func:`combine_contributions`).
     """

@@ -4,7 +4,7 @@ The kernels of the identify path as machine code: compiled ahead of time when se
 Every process that calls a numba kernel pays for numba itself: importing it, initialising its
 compiler's type registries (which imports :mod:`scipy.linalg`) and loading the cached machine
 code, about 0.6 s of CPU, more than identifying a minute of data takes (issue 11).  The set-up
-step (``python -m dcmotor_id.warmup``, :func:`build`) therefore also compiles the kernels of
+step (``python -m dcmotor_id.cli.warmup``, :func:`build`) therefore also compiles the kernels of
 the identify path, :data:`AHEAD_OF_TIME`, into one extension module with numba's ahead-of-time
 compiler (``numba.pycc``, which needs a C compiler); the module imports in milliseconds and
 does not need numba at run time.  Its name carries a digest of the kernels' sources and of the

@@ -15,7 +15,8 @@ The entry points are :func:`simulate_kernel` (linear part and Coulomb friction, 
 sub-steps) and :func:`discretise` (the exact ZOH matrices).  A sample costs tens of
 nanoseconds, which is what makes output-error fitting fast.  Arrays only: the motor-level
 functions in :mod:`dcmotor_id.simulation.motor` build them.  :func:`sosfilt_kernel` is the
-recursion of the zero-phase filter of :mod:`dcmotor_id.signals`.  The callers take the kernels
+recursion of the zero-phase filter of :mod:`dcmotor_id.signals.filters`.  The callers take the
+kernels
 through :func:`dcmotor_id.simulation.compiled.kernel` (ahead-of-time machine code when the
 set-up built it).
 """

@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from dcmotor_id.model import MotorParameters, state_matrix
+from dcmotor_id.core.model import MotorParameters, state_matrix
 from dcmotor_id.simulation.coefficients import combine_effects, EffectsLike
 from dcmotor_id.simulation.compiled import kernel
 
@@ -251,7 +251,8 @@ class MotorStepper:
     initial_state : tuple of float
         ``(i0, w0)``.
     effects : MotorEffects or sequence of vocabulary effects, optional
-        True effects to simulate (:mod:`dcmotor_id.effects`); :meth:`step` then returns what
+        True effects to simulate (:mod:`dcmotor_id.identification.effects`); :meth:`step` then
+        returns what
         the sensors measure (offset and delays applied).  Without effects the stepping is the
         exact one of :func:`simulate_motor`.
     oversample : int
@@ -305,7 +306,7 @@ def zoh_matrices(a_matrix: ArrayLike, sample_period_s: float) -> tuple[np.ndarra
     Parameters
     ----------
     a_matrix : array_like
-        ``A``, 1x1 or 2x2 (invertible), as :func:`~dcmotor_id.model.state_matrix` returns.
+        ``A``, 1x1 or 2x2 (invertible), as :func:`~dcmotor_id.core.model.state_matrix` returns.
     sample_period_s : float
         Sample period ``dt`` [s].
 

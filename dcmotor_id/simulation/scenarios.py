@@ -2,7 +2,8 @@
 Standard simulated experiments: the paper's training sets (used by tests, benchmarks, demos).
 
 The paper trained its neuron N1 on a 0.5 Hz 110 V sine and N2 on a 1 Hz 43 V sawtooth
-(:data:`~dcmotor_id.excitation.PAPER_SINE`, :data:`~dcmotor_id.excitation.PAPER_SAWTOOTH`);
+(:data:`~dcmotor_id.simulation.excitation.PAPER_SINE`,
+:data:`~dcmotor_id.simulation.excitation.PAPER_SAWTOOTH`);
 :func:`paper_records` simulates both with the exact simulator and adds sensor noise.
 """
 
@@ -10,9 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from dcmotor_id.excitation import add_sensor_noise, make_excitation, PAPER_SAWTOOTH, PAPER_SINE
-from dcmotor_id.model import MotorParameters
-from dcmotor_id.records import Record
+from dcmotor_id.core.model import MotorParameters
+from dcmotor_id.core.records import Record
+from dcmotor_id.simulation.excitation import (add_sensor_noise, make_excitation, PAPER_SAWTOOTH,
+                                              PAPER_SINE)
 from dcmotor_id.simulation.motor import simulate_motor
 
 #: Sample period of the paper's experiments [s].

@@ -32,9 +32,9 @@ import math
 from numba import njit
 import numpy as np
 
-from dcmotor_id.simulation.kernels import (_dip_time, _drive, _event_step, _flow_state,
-                                           _forcing, _initial_sign, _root, _slip_sign,
-                                           _speed_slope, _stuck_time, discretise)
+from dcmotor_id.simulation.kernels import (_dip_time, _drive, _event_step, _flow_state, _forcing,
+                                           _initial_sign, _root, _slip_sign, _speed_slope,
+                                           _stuck_time, discretise)
 
 
 @njit(cache=True)
@@ -299,7 +299,7 @@ def normal_kernel(a, da, forcing, gscale, regs, reg_col, reg_row, reg_factor, or
     """
     Simulate with sensitivities and accumulate the weighted normal equations.
 
-    Parameters (arrays; :mod:`dcmotor_id.estimators.normal_equations` builds them)
+    Parameters (arrays; :mod:`dcmotor_id.identification.estimators.normal_equations` builds them)
     ----------
     a, da : ``A`` (n x n) and ``dA/dp_j`` (m x n x n).
     forcing : ``g[k]`` (N x n), held over each sample.

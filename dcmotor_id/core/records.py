@@ -1,0 +1,225 @@
+"""The :class:`Record` type (one uniformly sampled measurement) and its input checks."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+import os
+from typing import Any, Optional, Union
+
+import numpy as np
+
+from dcmotor_id.core.errors import InputDataError
+
+#: A path given as text or as an :class:`os.PathLike`.
+PathLike = Union[str, 'os.PathLike[str]']
+#: Columns a record can carry, with their units.
+COLUMNS = {'t': 's', 'voltage': 'V', 'current': 'A', 'speed': 'rad/s', 'position': 'rad'}
+#: Fewest samples a record must have to be identified.
+MIN_SAMPLES = 100
+#: Largest tolerated deviation of a time step from the median step, relative.
+SAMPLING_TOLERANCE = 0.01
+#: Largest magnitude a drive's signal can have, by column: beyond it the values are corrupt
+#: (or in the wrong unit); 1e9 V, A or rad/s is far above any electric drive.
+MAGNITUDE_LIMITS = {'voltage': 1e9, 'current': 1e9, 'speed': 1e9, 'position': 1e12}
+#: Largest ratio of a sample's magnitude to the column's typical one (its 99th percentile of
+#: the non-zero magnitudes): a few samples this far above the rest are corrupt, not measured.
+OUTLIER_RATIO = 1e8
+
+
+@dataclass(frozen=True)
+class Record:
+    """
+    One uniformly sampled measurement.
+
+    Attributes
+    ----------
+    time_s : numpy.ndarray
+        Sample instants [s].
+    current : numpy.ndarray or None
+        Armature current [A].
+    voltage : numpy.ndarray or None
+        Armature voltage [V], held over each sample.
+    speed : numpy.ndarray or None
+        Shaft speed [rad/s].
+    position : numpy.ndarray or None
+        Shaft position [rad].
+    source : str
+        Where the record came from (a path), for messages.
+
+    """
+
+    time_s: np.ndarray
+    current: Optional[np.ndarray] = None
+    voltage: Optional[np.ndarray] = None
+    speed: Optional[np.ndarray] = None
+    position: Optional[np.ndarray] = None
+    source: str = ''
+
+    @property
+    def sample_period_s(self) -> float:
+        """Median sample period [s]."""
+        return float(np.median(np.diff(self.time_s)))
+
+    def __len__(self) -> int:
+        """Return the number of samples."""
+        return int(self.time_s.shape[0])
+
+    def replace(self, **changes: Any) -> Record:
+        """Return a copy with some fields changed."""
+        return replace(self, **changes)
+
+    def slice(self, start: int, stop: int) -> Record:  # noqa: A003  (a method, not the builtin)
+        """Return samples ``start:stop`` as a new record."""
+        def cut(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
+            return None if values is None else values[start:stop]
+        return Record(self.time_s[start:stop], cut(self.current), cut(self.voltage),
+                      cut(self.speed), cut(self.position), self.source)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Return the present columns as a dict name -> array (``t`` first)."""
+        out = {'t': self.time_s}
+        for name in ('voltage', 'current', 'speed', 'position'):
+            values = getattr(self, name)
+            if values is not None:
+                out[name] = values
+        return out
+
+
+def record_from_stamps(stamps_ns: np.ndarray, channels: Mapping[str, np.ndarray],
+                       source: str = '') -> Record:
+    """
+    Build a record from grid timestamps [ns] and channel arrays (time from the first stamp).
+
+    The node and :func:`dcmotor_id.formats.bag.read_bag` both build records this way, so a
+    window identified in the node and the same window read back from its bag give identical
+    arrays.
+    """
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    time_s = (stamps - stamps[0]).astype(float) * 1e-9
+    return Record(time_s, current=channels.get('current'), voltage=channels.get('voltage'),
+                  speed=channels.get('speed'), position=channels.get('position'),
+                  source=str(source))
+
+
+def check_record(record: Record, need_voltage: bool = True,
+                 resample: bool = False) -> Record:
+    """
+    Check a record and return it uniformly sampled, or raise :class:`InputDataError`.
+
+    Parameters
+    ----------
+    record : Record
+        The record as read.
+    need_voltage : bool
+        Whether a voltage column is required (not in mechanical-only mode).
+    resample : bool
+        Interpolate an irregularly sampled record onto a uniform grid instead of refusing it.
+
+    """
+    name = record.source or 'record'
+    present = record.columns()
+    needed = ['current'] + (['voltage'] if need_voltage else [])
+    missing = [column for column in needed if column not in present]
+    if record.speed is None and record.position is None:
+        missing.append('speed (or position)')
+    if missing:
+        raise InputDataError(
+            f'{name}: missing column(s) {", ".join(missing)}; found {", ".join(present)}. '
+            'Name the columns t, voltage, current, speed (position optional); without a '
+            'voltage column give --torque-constant for the mechanical-only mode')
+    if len(record) < MIN_SAMPLES:
+        raise InputDataError(f'{name}: only {len(record)} samples; at least {MIN_SAMPLES} are '
+                             'needed to identify the motor: record for longer')
+    for column, values in present.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise InputDataError(
+                f'{name}: column {column!r} has {bad.size} NaN/inf value(s), the first at '
+                f'sample {bad[0]} (t = {float(record.time_s[bad[0]]):.9g} s); remove or repair '
+                'those samples')
+    check_magnitudes(record)
+    steps = np.diff(record.time_s)
+    if np.any(steps == 0):
+        row = int(np.flatnonzero(steps == 0)[0]) + 1
+        raise InputDataError(f'{name}: duplicate timestamp t = {record.time_s[row]} at sample '
+                             f'{row}; remove duplicated samples')
+    if np.any(steps < 0):
+        row = int(np.flatnonzero(steps < 0)[0]) + 1
+        raise InputDataError(f'{name}: timestamps go backwards at sample {row} '
+                             f'(t = {record.time_s[row]} after {record.time_s[row - 1]}); sort '
+                             'the samples by time')
+    period = float(np.median(steps))
+    deviation = np.abs(steps - period) / period
+    if np.max(deviation) > SAMPLING_TOLERANCE:
+        row = int(np.argmax(deviation)) + 1
+        if not resample:
+            raise InputDataError(
+                f'{name}: irregular sampling: the step before sample {row} is '
+                f'{steps[row - 1]:.6g} s against a median of {period:.6g} s. The methods need a '
+                'uniform grid: pass --resample to interpolate onto one, or fix the recording')
+        return resample_uniform(record, period)
+    return record
+
+
+def check_magnitudes(record: Record) -> None:
+    """
+    Refuse finite values no drive produces, naming the column and the first such sample.
+
+    Two checks per column: absolutely (:data:`MAGNITUDE_LIMITS`) and relative to the other
+    samples (:data:`OUTLIER_RATIO` times the 99th percentile of the non-zero magnitudes), so
+    a few corrupt samples (say +-1e308, finite but enough to overflow every derivative and
+    make a least-squares solver loop) never reach the fit. The time column must advance by
+    finite steps.
+
+    Raises
+    ------
+    InputDataError
+        Naming the column, the sample and its time, and what to do.
+
+    """
+    name = record.source or 'record'
+    with np.errstate(over='ignore', invalid='ignore'):
+        steps = np.diff(record.time_s)
+    if steps.size and not np.all(np.isfinite(steps)):
+        row = int(np.flatnonzero(~np.isfinite(steps))[0]) + 1
+        raise InputDataError(
+            f"{name}: column 't' jumps by more than a float can hold before sample {row} "
+            f'(t = {float(record.time_s[row]):.6g} s); the times must be seconds on one clock')
+    for column, limit in MAGNITUDE_LIMITS.items():
+        values = getattr(record, column)
+        if values is None or values.size == 0:
+            continue
+        magnitude = np.abs(np.asarray(values, dtype=float))
+        unit = COLUMNS[column]
+        beyond = np.flatnonzero(magnitude > limit)
+        if beyond.size:
+            row = int(beyond[0])
+            raise InputDataError(
+                f'{name}: column {column!r} has {beyond.size} value(s) beyond {limit:g} {unit}, '
+                f'the first {float(values[row]):.6g} {unit} at sample {row} (t = '
+                f'{float(record.time_s[row]):.9g} s): no drive produces that; remove or repair '
+                f'those samples, or convert the column to {unit}')
+        nonzero = magnitude[magnitude > 0]
+        if nonzero.size < 10:
+            continue
+        typical = float(np.percentile(nonzero, 99.0))
+        outliers = np.flatnonzero(magnitude > OUTLIER_RATIO * typical)
+        if outliers.size:
+            row = int(outliers[0])
+            raise InputDataError(
+                f'{name}: column {column!r} has {outliers.size} value(s) more than '
+                f'{OUTLIER_RATIO:g} times its typical magnitude ({typical:.3g} {unit}), the first '
+                f'{float(values[row]):.6g} {unit} at sample {row} (t = '
+                f'{float(record.time_s[row]):.9g} s): corrupt samples; remove or repair them')
+
+
+def resample_uniform(record: Record, sample_period_s: float) -> Record:
+    """Interpolate every column linearly onto a uniform grid of the given period."""
+    t = record.time_s
+    grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) / sample_period_s)) + 1) * sample_period_s
+
+    def interp(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
+        return None if values is None else np.interp(grid, t, values)
+    return Record(grid, interp(record.current), interp(record.voltage), interp(record.speed),
+                  interp(record.position), record.source)

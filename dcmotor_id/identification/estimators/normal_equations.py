@@ -1,0 +1,222 @@
+"""
+The weighted normal equations of the output-error fit, accumulated without the Jacobian.
+
+:class:`NormalEquations` turns an
+:class:`~dcmotor_id.identification.estimators.refined.OutputErrorModel`
+and a parameter point into the arrays of :func:`~dcmotor_id.simulation.sensitivity.normal_kernel`
+(analytic sensitivities, exact through events) and returns, per record, ``J^T J``, ``J^T r``,
+the cost, the residual sums of squares and the block score sums in the *physical* coordinates
+``theta`` (the parameters, then the record's initial state).  Memory beyond the inputs: the
+forcing array (``n`` floats a sample) and the stacked regressors of linear terms.
+
+Model variants the kernel does not cover (effects simulated on sub-steps: Stribeck, drag,
+brush drop, ...; a quasi-static armature; any subclass that simulates differently) are
+refused by :meth:`NormalEquations.supports`; the estimator then differentiates the simulation
+numerically.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from dcmotor_id.identification.estimators.base import StateTerm
+from dcmotor_id.identification.estimators.uncertainty import block_edges
+from dcmotor_id.simulation.compiled import kernel
+
+_NO_REGS = np.zeros((0, 1))
+_NO_INDEX = np.zeros(0, dtype=np.int64)
+_NO_VALUES = np.zeros(0)
+_NO_TRAJECTORY = np.zeros((1, 1, 1))
+
+
+@dataclass
+class RecordSums:
+    """
+    What one pass over one record accumulates (``theta`` coordinates, weighted rows).
+
+    Attributes
+    ----------
+    by_channel : tuple of numpy.ndarray
+        ``J_c^T J_c`` (n x m x m), ``J_c^T r_c`` (n x m) and the block score sums
+        (n_blocks x n x m) of every output channel ``c`` (a new weighting rescales them).
+    cost : float
+        ``sum r^2`` (residuals divided by the channel's noise level).
+    sums : numpy.ndarray
+        Unweighted ``sum e^2`` per output channel.
+    block_edges : numpy.ndarray
+        Sample edges of the blocks
+    (:func:`dcmotor_id.identification.estimators.uncertainty.block_edges`).
+    trajectory : numpy.ndarray or None
+        ``[k, channel, 0]`` the simulated state, ``[k, channel, 1 + j]`` its sensitivities
+        (when asked for).
+
+    """
+
+    by_channel: tuple
+    cost: float
+    sums: np.ndarray
+    block_edges: np.ndarray
+    trajectory: np.ndarray | None = None
+
+    @property
+    def hessian(self) -> np.ndarray:
+        """``J^T J`` over the record's columns (shared parameters, then its initial state)."""
+        return self.by_channel[0].sum(axis=0)
+
+    @property
+    def gradient(self) -> np.ndarray:
+        """``J^T r``."""
+        return self.by_channel[1].sum(axis=0)
+
+    @property
+    def blocks(self) -> np.ndarray:
+        """``J^T r`` over consecutive blocks of samples (``block_edges``; n_blocks x m)."""
+        return self.by_channel[2].sum(axis=1)
+
+
+class NormalEquations:
+    """
+    Accumulate the output-error normal equations of a model with analytic sensitivities.
+
+    Parameters
+    ----------
+    model : OutputErrorModel
+        The model; :meth:`supports` must hold.
+
+    """
+
+    def __init__(self, model: Any) -> None:
+        self.model = model
+        self.names = list(model.base_names) + [term.name for term in model.terms]
+        self.n_shared = len(self.names)
+        self.n_state = len(model.outputs)
+        self._regressors = [self._stack_regressors(index) for index in range(len(model.records))]
+
+    @staticmethod
+    def supports(model: Any) -> bool:
+        """
+        Whether the analytic kernel reproduces the model's terms (else finite differences).
+
+        The caller checks that ``model.simulate`` is the plain output-error simulation (a
+        subclass that simulates otherwise has no analytic sensitivities here).
+        """
+        if getattr(model, 'quasi_static', False):
+            return False
+        for term in model.terms:
+            if isinstance(term, StateTerm):
+                if term.field != 'coulomb_delta_Nm' or term.fixed:
+                    return False
+            elif term.channel not in ('voltage', 'torque', 'current', 'speed') or (
+                    model.mechanical_only and term.channel == 'voltage'):
+                return False
+        return True
+
+    def _stack_regressors(self, index):
+        """Return the regressors of the linear terms of record ``index`` (forcing, outputs)."""
+        model = self.model
+        forcing, outputs = [], []
+        for position, term in enumerate(model.terms):
+            if isinstance(term, StateTerm):
+                continue
+            column = len(model.base_names) + position
+            target = forcing if term.channel in ('voltage', 'torque') else outputs
+            target.append((term, column, np.asarray(term.regressors[index], dtype=float)))
+        stack = (lambda items: np.ascontiguousarray(np.vstack([item[2] for item in items]))
+                 if items else _NO_REGS)
+        return forcing, stack(forcing), outputs, stack(outputs)
+
+    def record(self, values: Mapping[str, float], index: int, initial_state: Sequence[float],
+               inverse_sigma: Sequence[float], with_sens: bool = True,
+               store: bool = False) -> RecordSums:
+        """Run the kernel over record ``index``; return its :class:`RecordSums`."""
+        model = self.model
+        rec = model.records[index]
+        n = self.n_state
+        m = self.n_shared + n
+        dt = float(model.sample_periods_s[index])
+        columns = {name: position for position, name in enumerate(self.names)}
+        da = np.zeros((m, n, n))
+        gscale = np.zeros((m, n))
+        inertia, viscous, coulomb = values['J'], values['b'], values['Mc']
+        delta = sum(values[term.name] for term in model.terms if isinstance(term, StateTerm))
+        forcing_terms, regs, output_terms, oregs = self._regressors[index]
+        torque = model._channel(values, 'torque', index)
+        if model.mechanical_only:
+            a = np.array([[-viscous / inertia]])
+            da[columns['b'], 0, 0] = -1.0 / inertia
+            da[columns['J'], 0, 0] = viscous / inertia ** 2
+            drive = model.torque_constant * model.held_currents[index]
+            if torque is not None:
+                drive = drive + torque
+            forcing = np.ascontiguousarray((drive / inertia)[:, None])
+            gscale[columns['J'], 0] = -1.0 / inertia
+        else:
+            ra, la, cphi = values['Ra'], values['La'], values['CPhi']
+            a = np.array([[-ra / la, -cphi / la], [cphi / inertia, -viscous / inertia]])
+            da[columns['Ra'], 0, 0] = -1.0 / la
+            da[columns['La'], 0, 0] = ra / la ** 2
+            da[columns['La'], 0, 1] = cphi / la ** 2
+            da[columns['CPhi'], 0, 1] = -1.0 / la
+            da[columns['CPhi'], 1, 0] = 1.0 / inertia
+            da[columns['J'], 1, 0] = -cphi / inertia ** 2
+            da[columns['J'], 1, 1] = viscous / inertia ** 2
+            da[columns['b'], 1, 1] = -1.0 / inertia
+            forcing = np.empty((len(rec), 2))
+            voltage = model._channel(values, 'voltage', index)
+            np.divide(rec.voltage, la, out=forcing[:, 0])
+            if voltage is not None:
+                forcing[:, 0] += voltage / la
+            if torque is not None:
+                np.divide(torque, inertia, out=forcing[:, 1])
+            else:
+                forcing[:, 1] = 0.0
+            gscale[columns['La'], 0] = -1.0 / la
+            gscale[columns['J'], 1] = -1.0 / inertia
+        reg_col = np.array([column for _, column, _ in forcing_terms], dtype=np.int64)
+        reg_row = np.array([0 if term.channel == 'voltage' else n - 1
+                            for term, _, _ in forcing_terms], dtype=np.int64)
+        reg_factor = np.array([1.0 / values['La'] if term.channel == 'voltage' else 1.0 / inertia
+                               for term, _, _ in forcing_terms], dtype=float)
+        oreg_col = np.array([column for _, column, _ in output_terms], dtype=np.int64)
+        oreg_chan = np.array([model.outputs.index(term.channel) for term, _, _ in output_terms],
+                             dtype=np.int64)
+        oreg_value = np.array([values[term.name] for term, _, _ in output_terms], dtype=float)
+        raw_pos, raw_neg = coulomb + delta, coulomb - delta
+        friction_pos = max(raw_pos, 0.0) / inertia
+        friction_neg = max(raw_neg, 0.0) / inertia
+        dfric_pos = np.zeros(m)
+        dfric_neg = np.zeros(m)
+        dfric_pos[columns['J']] = -friction_pos / inertia
+        dfric_neg[columns['J']] = -friction_neg / inertia
+        if raw_pos > 0.0:
+            dfric_pos[columns['Mc']] = 1.0 / inertia
+        if raw_neg > 0.0:
+            dfric_neg[columns['Mc']] = 1.0 / inertia
+        for position, term in enumerate(model.terms):
+            if isinstance(term, StateTerm):
+                column = len(model.base_names) + position
+                dfric_pos[column] = 1.0 / inertia if raw_pos > 0.0 else 0.0
+                dfric_neg[column] = -1.0 / inertia if raw_neg > 0.0 else 0.0
+        s_start = np.zeros((n, m))
+        for c in range(n):
+            s_start[c, self.n_shared + c] = 1.0
+        measured = [np.ascontiguousarray(getattr(rec, channel), dtype=float)
+                    for channel in model.outputs]
+        edges = block_edges(len(rec))
+        trajectory = np.empty((len(rec), n, m + 1)) if store else _NO_TRAJECTORY
+        hessian, gradient, cost, sums, blocks = kernel('normal_kernel')(
+            np.ascontiguousarray(a), da, forcing, gscale, regs, reg_col, reg_row, reg_factor,
+            oregs, oreg_col, oreg_chan, oreg_value, friction_pos, friction_neg, dfric_pos,
+            dfric_neg, np.asarray(initial_state, dtype=float), s_start, dt, measured[0],
+            measured[-1], np.asarray(inverse_sigma, dtype=float), bool(with_sens), edges,
+            trajectory, bool(store))
+        return RecordSums((hessian, gradient, blocks), float(cost), sums, edges,
+                          trajectory if store else None)
+
+    def columns(self, index: int) -> list[int]:
+        """Return the global columns of record ``index``: the shared ones, then its state's."""
+        start = self.n_shared + index * self.n_state
+        return list(range(self.n_shared)) + list(range(start, start + self.n_state))

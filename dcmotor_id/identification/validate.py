@@ -1,0 +1,426 @@
+"""
+Validation of an identified model on records it was not fitted on (``dcmotor-id validate``).
+
+The model is what ``identify --json`` wrote (its ``model`` block, :func:`model_block`). Each
+record is simulated open loop with the model and its effects (state-dependent effects driven
+by the simulated state), from an initial state estimated on the record's first samples, and
+compared with the measurement as MATLAB's ``compare`` does: NRMSE in percent of each record's
+own standard deviation, fit percent ``100 (1 - |y - y_sim| / |y - mean(y)|)``, and the
+position RMSE when the record has a position (the simulated position is the integral of the
+simulated speed from the measured first position). The samples used for the initial state
+are not scored.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import json
+import os
+from typing import Any, Mapping, Optional, Sequence
+
+import numpy as np
+
+from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.core.model import MECHANICAL_NAMES, MotorParameters, PARAMETER_NAMES
+from dcmotor_id.core.records import COLUMNS, Record
+from dcmotor_id.identification.effects import make_effect
+from dcmotor_id.simulation import simulate_mechanical_effects, simulate_motor_effects
+
+#: Samples at the start of a record used for the initial state (and not scored), by default.
+INIT_SAMPLES = 20
+#: Version tag of the ``model`` block of the identify JSON.
+MODEL_FORMAT = 'dcmotor_id.core.model/1'
+#: Sub-steps per sample for state-dependent effects (as the fit's state terms).
+OVERSAMPLE = 10
+
+
+def model_block(result: Mapping[str, Any]) -> dict[str, Any]:
+    """
+    Return the self-contained ``model`` block of an identify result (its JSON layout).
+
+    Everything :func:`load_model` needs to simulate the model again: ``mode``,
+    ``torque_constant``, the base ``parameters`` (Ra, La, CPhi, J, b, Mc, or J, b, Mc in
+    mechanical mode) with their ``parameter_units``, the ``effects`` with their parameters,
+    the ``sample_period_s`` it was identified at and the ``channel_units`` of the records.
+
+    Parameters
+    ----------
+    result : dict
+        The identify JSON layout (``IdentificationResult.as_dict()`` without this block).
+
+    """
+    mode = result.get('mode', 'full')
+    names = MECHANICAL_NAMES if mode == 'mechanical' else PARAMETER_NAMES
+    parameters = result.get('parameters', {})
+    units = result.get('units', {})
+    effects = []
+    for effect in result.get('effects', []) or []:
+        try:
+            known = make_effect(effect['name']).PARAMETERS
+        except (KeyError, ValueError):
+            continue
+        effects.append({'name': effect['name'],
+                        'parameters': {key: value for key, value
+                                       in effect.get('parameters', {}).items() if key in known}})
+    return {
+        'format': MODEL_FORMAT,
+        'mode': mode,
+        'torque_constant': result.get('torque_constant'),
+        'parameters': {name: parameters.get(name) for name in names},
+        'parameter_units': {name: units.get(name) for name in names},
+        'effects': effects,
+        'sample_period_s': result.get('sample_period_s'),
+        'channel_units': dict(COLUMNS),
+    }
+
+
+@dataclass(frozen=True)
+class Model:
+    """
+    A model to simulate: base parameters, mode, effects.
+
+    Attributes
+    ----------
+    parameters : dict
+        Base parameters by name (SI).
+    mode : str
+        ``full`` or ``mechanical``.
+    torque_constant : float or None
+        Torque constant of the mechanical mode [N m/A].
+    effects : list of dict
+        ``{"name", "parameters"}`` of every effect.
+    sample_period_s : float or None
+        Sample period the model was identified at [s].
+    description : dict
+        The ``model`` block as read (echoed in the validation JSON).
+
+    """
+
+    parameters: Mapping[str, float]
+    mode: str = 'full'
+    torque_constant: Optional[float] = None
+    effects: Sequence[Mapping[str, Any]] = ()
+    sample_period_s: Optional[float] = None
+    description: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def mechanical_only(self) -> bool:
+        """Whether the current is the input (mechanical-only mode)."""
+        return self.mode == 'mechanical'
+
+
+def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
+    """
+    Build a :class:`Model` from an identify JSON (its ``model`` block, or the top level).
+
+    Raises
+    ------
+    InputDataError
+        A parameter missing or not a positive number, an unknown effect.
+
+    """
+    if not isinstance(data, Mapping):
+        raise InputDataError(f'{source}: not an identify result (a JSON object is expected)')
+    given = data.get('model')
+    block: Mapping[str, Any] = given if isinstance(given, Mapping) else model_block(data)
+    mode = block.get('mode', 'full')
+    if mode not in ('full', 'mechanical'):
+        raise InputDataError(f'{source}: unknown mode {mode!r} (full or mechanical)')
+    names = MECHANICAL_NAMES if mode == 'mechanical' else PARAMETER_NAMES
+    parameters = {}
+    for name in names:
+        value = (block.get('parameters') or {}).get(name)
+        if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0 or (
+                value == 0 and name not in ('b', 'Mc')):
+            raise InputDataError(f'{source}: parameter {name} is {value!r}; a model written by '
+                                 'dcmotor-id identify --json is expected')
+        parameters[name] = float(value)
+    constant = block.get('torque_constant')
+    if mode == 'mechanical' and not (isinstance(constant, (int, float)) and constant > 0):
+        raise InputDataError(f'{source}: a mechanical-only model needs its torque_constant')
+    effects = list(block.get('effects') or [])
+    for effect in effects:
+        try:
+            make_effect(effect['name'], **effect.get('parameters', {}))
+        except (KeyError, TypeError, ValueError) as error:
+            raise InputDataError(f'{source}: effect {effect!r}: {error}') from None
+    return Model(parameters, mode, None if constant is None else float(constant), effects,
+                 block.get('sample_period_s'), dict(block))
+
+
+def load_model(path: str) -> Model:
+    """Read a model from the JSON ``identify --json`` wrote."""
+    if not os.path.isfile(path):
+        raise InputDataError(f'{path}: no such file; give the JSON written by identify --json')
+    try:
+        with open(path, encoding='utf-8') as stream:
+            data = json.load(stream)
+    except (ValueError, UnicodeDecodeError) as error:
+        raise InputDataError(f'{path}: not a JSON file ({error}); give the JSON written by '
+                             'dcmotor-id identify --json') from None
+    return model_from_dict(data, path)
+
+
+def _effects_for(model: Model, sample_period_s: float) -> tuple[list[Any], dict[str, int]]:
+    """Return the simulation effects and the sensor delays [samples of this record]."""
+    effects: list[Any] = []
+    delays: dict[str, int] = {}
+    for item in model.effects:
+        parameters = dict(item.get('parameters', {}))
+        if item['name'] == 'sensor_delay':
+            samples = float(parameters.get('samples', 0))
+            if model.sample_period_s:
+                samples *= float(model.sample_period_s) / sample_period_s
+            channel = str(parameters.get('channel', 'speed'))
+            delays[channel] = delays.get(channel, 0) + int(round(samples))
+            continue
+        if model.mechanical_only and item['name'] in ('current_offset',):
+            continue
+        effects.append(make_effect(item['name'], **parameters))
+    return effects, delays
+
+
+def _shift(values: np.ndarray, samples: int) -> np.ndarray:
+    """Return what a sensor ``samples`` late (``< 0``: early) reports of ``values``."""
+    if samples == 0:
+        return values
+    if samples > 0:
+        return np.concatenate([np.full(samples, values[0]), values[:-samples]])
+    return np.concatenate([values[-samples:], np.full(-samples, values[-1])])
+
+
+def simulate(model: Model, record: Record,
+             initial_state: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
+    """
+    Simulate the model open loop over a record from an initial state.
+
+    Parameters
+    ----------
+    model : Model
+        The model.
+    record : Record
+        Supplies the input (voltage, or current in mechanical mode), the sample period and
+        the first measured position (angle-dependent effects; the simulated position).
+    initial_state : sequence of float
+        ``(i0, w0)``, or ``(w0,)`` in mechanical mode.
+
+    Returns
+    -------
+    dict
+        ``speed`` (and ``current`` in full mode) as the sensors would report them, and
+        ``position`` (integral of the simulated speed from the measured first position, or 0).
+
+    """
+    dt = record.sample_period_s
+    effects, delays = _effects_for(model, dt)
+    start_angle = float(record.position[0]) if record.position is not None else 0.0
+    p = model.parameters
+    out: dict[str, np.ndarray] = {}
+    if model.mechanical_only:
+        current = np.asarray(record.current, dtype=float)
+        held = np.append(0.5 * (current[:-1] + current[1:]), current[-1])
+        speed, angle = simulate_mechanical_effects(
+            p['J'], p['b'], p['Mc'], float(model.torque_constant or 0.0) * held, dt, effects,
+            float(initial_state[0]), oversample=OVERSAMPLE if effects else 1,
+            initial_angle_rad=start_angle)
+    else:
+        params = MotorParameters.from_dict(dict(p))
+        current, speed, angle = simulate_motor_effects(
+            params, np.asarray(record.voltage, dtype=float), dt, effects,
+            np.asarray(initial_state, dtype=float), oversample=OVERSAMPLE if effects else 1,
+            initial_angle_rad=start_angle)
+        out['current'] = _shift(current, delays.get('current', 0))
+    out['speed'] = _shift(speed, delays.get('speed', 0))
+    # the kernels integrate the speed exactly (the angle of angle-dependent effects)
+    out['position'] = angle
+    return out
+
+
+def estimate_initial_state(model: Model, record: Record, samples: int = INIT_SAMPLES
+                           ) -> np.ndarray:
+    """
+    Estimate the initial state from the first ``samples`` samples of a record.
+
+    Least squares of the simulated against the measured outputs over those samples (each
+    channel scaled by its spread over the record), started from a straight-line fit of each
+    channel at the first sample; one sample gives the first measured values.
+    """
+    channels = ['speed'] if model.mechanical_only else ['current', 'speed']
+    n = int(max(1, min(samples, len(record))))
+    measured = {channel: np.asarray(getattr(record, channel), dtype=float) for channel in
+                channels}
+    start = []
+    for channel in channels:
+        head = measured[channel][:n]
+        if n >= 3:
+            slope, intercept = np.polyfit(np.arange(n), head, 1)
+            start.append(float(intercept))
+        else:
+            start.append(float(head[0]))
+    if n < 3:
+        return np.array(start)
+    part = record.slice(0, n)
+    scales = [max(float(np.std(measured[channel])), 1e-12) for channel in channels]
+
+    def residual(state: np.ndarray) -> np.ndarray:
+        simulated = simulate(model, part, state)
+        return np.concatenate([(simulated[channel] - measured[channel][:n]) / scale
+                               for channel, scale in zip(channels, scales)])
+    from scipy.optimize import least_squares  # lazily: identify imports this module too
+    x_scale = np.array(scales)
+    fitted = least_squares(residual, np.array(start), x_scale=x_scale, max_nfev=60)
+    return np.asarray(fitted.x, dtype=float)
+
+
+def _nrmse(measured: np.ndarray, simulated: np.ndarray) -> Optional[float]:
+    spread = float(np.std(measured))
+    if not np.isfinite(spread) or spread == 0:
+        return None
+    return float(100.0 * np.sqrt(np.mean((simulated - measured) ** 2)) / spread)
+
+
+def _fit(measured: np.ndarray, simulated: np.ndarray) -> Optional[float]:
+    """Fit percent as MATLAB's ``compare``: ``100 (1 - |y - y_sim| / |y - mean(y)|)``."""
+    norm = float(np.linalg.norm(measured - np.mean(measured)))
+    if not np.isfinite(norm) or norm == 0:
+        return None
+    return float(100.0 * (1.0 - np.linalg.norm(measured - simulated) / norm))
+
+
+@dataclass
+class RecordValidation:
+    """
+    The validation of one record: its scores and the series behind them (for the report).
+
+    Attributes
+    ----------
+    scores : dict
+        The JSON entry (``source``, ``samples``, ``current_nrmse_pct``, ``speed_nrmse_pct``,
+        ``fit_pct``, ``position_rmse``).
+    record : Record
+        The record as validated (SI, motor shaft).
+    simulated : dict
+        Simulated channels.
+    initial_state : numpy.ndarray
+        The estimated initial state.
+    init_samples : int
+        Samples used for it (not scored).
+
+    """
+
+    scores: dict[str, Any]
+    record: Record
+    simulated: dict[str, np.ndarray]
+    initial_state: np.ndarray
+    init_samples: int
+
+
+def validate_record(model: Model, record: Record, init_samples: int = INIT_SAMPLES,
+                    position_scale: float = 1.0) -> RecordValidation:
+    """
+    Simulate a record open loop and score it (see the module's description).
+
+    Parameters
+    ----------
+    model : Model
+        The model.
+    record : Record
+        A checked record (SI, uniformly sampled, with speed).
+    init_samples : int
+        Samples at the start used for the initial state and not scored.
+    position_scale : float
+        Factor from the file's position unit to the record's (``position_rmse`` is reported
+        in the file's unit).
+
+    """
+    if init_samples < 1:
+        raise InputDataError(f'--init-samples must be at least 1, got {init_samples}')
+    if len(record) <= init_samples + 1:
+        raise InputDataError(f'{record.source}: {len(record)} samples, not more than the '
+                             f'{init_samples} initial samples; give a longer record or a '
+                             'smaller --init-samples')
+    if not model.mechanical_only and record.voltage is None:
+        raise InputDataError(f'{record.source}: no voltage column: the model is a full motor '
+                             'model and needs the voltage as its input')
+    state = estimate_initial_state(model, record, init_samples)
+    simulated = simulate(model, record, state)
+    scored = slice(init_samples, None)
+    channels = [('current', None if model.mechanical_only else record.current),
+                ('speed', record.speed),
+                ('position', record.position)]
+    fits: dict[str, Optional[float]] = {}
+    nrmse: dict[str, Optional[float]] = {}
+    for channel, measured in channels:
+        if measured is None:
+            fits[channel], nrmse[channel] = None, None
+            continue
+        values = np.asarray(measured, dtype=float)[scored]
+        sim = simulated[channel][scored]
+        fits[channel] = _fit(values, sim)
+        nrmse[channel] = _nrmse(values, sim)
+    position_rmse = None
+    if record.position is not None:
+        error = simulated['position'][scored] - np.asarray(record.position, dtype=float)[scored]
+        position_rmse = float(np.sqrt(np.mean(error ** 2))) / position_scale
+    scores = {
+        'source': record.source,
+        'samples': len(record),
+        'current_nrmse_pct': nrmse['current'],
+        'speed_nrmse_pct': nrmse['speed'],
+        'fit_pct': fits,
+        'position_rmse': position_rmse,
+    }
+    return RecordValidation(scores, record, simulated, state, init_samples)
+
+
+@dataclass
+class Validation:
+    """The validation of a model on records: :meth:`as_dict` is the JSON contract."""
+
+    records: list[RecordValidation]
+    model: Model
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Return ``{"records": [...], "model": {...}}`` (plus ``warnings`` when any)."""
+        out: dict[str, Any] = {'records': [item.scores for item in self.records],
+                               'model': dict(self.model.description)}
+        if self.warnings:
+            out['warnings'] = list(self.warnings)
+        return out
+
+
+def validate(model: Model, records: Sequence[Record], init_samples: int = INIT_SAMPLES,
+             position_scale: float = 1.0) -> Validation:
+    """Validate a model on every record (each scored on its own); see :func:`validate_record`."""
+    notes = []
+    for record in records:
+        if model.sample_period_s and abs(record.sample_period_s / model.sample_period_s - 1) \
+                > 1e-3:
+            notes.append(f'{record.source}: sampled every {record.sample_period_s:.6g} s, the '
+                         f'model was identified at {model.sample_period_s:.6g} s (the model is '
+                         'continuous-time; delays are converted to this period)')
+    return Validation([validate_record(model, record, init_samples, position_scale)
+                       for record in records], model, notes)
+
+
+def format_validation(result: Mapping[str, Any]) -> str:
+    """Return the stdout table of a validation (one row per record)."""
+    def pct(value: Optional[float]) -> str:
+        return '-' if value is None else f'{value:.2f}'
+
+    def num(value: Optional[float]) -> str:
+        return '-' if value is None else f'{value:.4g}'
+    header = (f"{'record':<32} {'samples':>8} {'NRMSE i %':>10} {'NRMSE w %':>10} "
+              f"{'fit i %':>8} {'fit w %':>8} {'fit pos %':>9} {'pos RMSE':>10}")
+    lines = [header, '-' * len(header)]
+    for item in result['records']:
+        source = os.path.basename(str(item['source'])) or str(item['source'])
+        fits = item['fit_pct']
+        lines.append(f'{source[-32:]:<32} {item["samples"]:>8} '
+                     f'{pct(item["current_nrmse_pct"]):>10} {pct(item["speed_nrmse_pct"]):>10} '
+                     f'{pct(fits["current"]):>8} {pct(fits["speed"]):>8} '
+                     f'{pct(fits["position"]):>9} {num(item["position_rmse"]):>10}')
+    for note in result.get('warnings', []):
+        lines.append(f'note: {note}')
+    return '\n'.join(lines)

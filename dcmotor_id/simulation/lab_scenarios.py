@@ -1,0 +1,282 @@
+"""
+Laboratory-like recordings made with a physical drive model that differs from the fitted one.
+
+The package's own simulator is the fitted model, so data made with it fit exactly.  Real
+laboratory recordings do not: the amplifier limits the current, the logger samples slowly,
+encoders count pulses, current is sampled inside the PWM cycle, loads wander.  This module
+simulates such a drive on a fine time grid (50 us by default) and logs it the way a lab set-up
+does, so that the identification's honesty (standard errors, warnings, partial identification)
+can be tested on the class of data users bring.  Each scenario returns the records and the
+true parameters.
+
+The fine-step model: per step the armature current follows the exact first-order solution
+with the speed held, the shaft an explicit step with Coulomb friction that sticks at rest while
+the torque stays below it (a standstill is kept exactly, a sign change of the speed stops at
+zero).  The amplifier applies the commanded voltage clipped to its bus voltage and to the
+voltage that holds the current at its limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from numba import njit
+import numpy as np
+
+from dcmotor_id.core.model import MotorParameters
+from dcmotor_id.core.records import Record
+
+#: A small brushed motor (24 V class): armature time constant 0.4 ms.
+SMALL_MOTOR = MotorParameters(Ra=2.0, La=0.8e-3, CPhi=0.02, J=4e-6, b=2e-6, Mc=1.5e-3)
+#: A hobby gear motor (12 V class) seen at the motor shaft.
+HOBBY_MOTOR = MotorParameters(Ra=3.0, La=1.5e-3, CPhi=0.012, J=1.2e-6, b=1.0e-6, Mc=1.2e-3)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Recordings of one laboratory set-up and the truth behind them."""
+
+    name: str
+    records: list
+    truth: MotorParameters
+    torque_constant: float | None = None
+    note: str = ''
+
+
+@njit(cache=True)
+def _drive(params, command, fine_dt, steps_per_sample, current_limit, bus_voltage, load,
+           torque_input):
+    """Simulate the fine-step drive; return current, speed, angle and applied voltage."""
+    ra, la, cphi, inertia, viscous, coulomb = params
+    n = command.shape[0] * steps_per_sample
+    current = np.empty(n + 1)
+    speed = np.empty(n + 1)
+    angle = np.empty(n + 1)
+    applied = np.empty(n)
+    i = 0.0
+    w = 0.0
+    th = 0.0
+    decay = np.exp(-fine_dt * ra / la)
+    current[0] = 0.0
+    speed[0] = 0.0
+    angle[0] = 0.0
+    for k in range(n):
+        u_cmd = command[k // steps_per_sample]
+        if torque_input:
+            # Current-controlled drive: the command is the current, the loop is ideal.
+            i = u_cmd
+            u = 0.0
+        else:
+            u = min(max(u_cmd, -bus_voltage), bus_voltage)
+            u = min(max(u, cphi * w - ra * current_limit), cphi * w + ra * current_limit)
+            i_ss = (u - cphi * w) / ra
+            i = i_ss + (i - i_ss) * decay
+        applied[k] = u
+        drive = cphi * i - load[k]
+        if w == 0.0 and abs(drive) <= coulomb:
+            w_new = 0.0
+        else:
+            direction = np.sign(w) if w != 0.0 else np.sign(drive)
+            w_new = w + fine_dt * (drive - viscous * w - coulomb * direction) / inertia
+            if w != 0.0 and np.sign(w_new) != np.sign(w):
+                w_new = 0.0
+        th += 0.5 * (w + w_new) * fine_dt
+        w = w_new
+        current[k + 1] = i
+        speed[k + 1] = w
+        angle[k + 1] = th
+    return current, speed, angle, applied
+
+
+def simulate_drive(params: MotorParameters, command: np.ndarray, sample_period_s: float,
+                   fine_step_s: float = 5e-5, current_limit_a: float = np.inf,
+                   bus_voltage_v: float = np.inf, load_torque_nm: np.ndarray | None = None,
+                   torque_input: bool = False) -> dict:
+    """
+    Simulate the physical drive for a command held over each logging sample.
+
+    Parameters
+    ----------
+    params : MotorParameters
+        The motor.
+    command : numpy.ndarray
+        Voltage command [V] per logged sample (or current command [A] with ``torque_input``).
+    sample_period_s : float
+        Logging period [s] (a multiple of ``fine_step_s``).
+    fine_step_s : float
+        Internal step [s].
+    current_limit_a, bus_voltage_v : float
+        The amplifier's limits.
+    load_torque_nm : numpy.ndarray, optional
+        Load torque per fine step [N m] (positive opposes positive rotation).
+    torque_input : bool
+        Current-controlled drive: ``command`` is the current.
+
+    Returns
+    -------
+    dict
+        ``current``, ``speed``, ``angle`` at the logging instants and the mean ``applied``
+        voltage over each logging sample.
+
+    """
+    steps = max(int(round(sample_period_s / fine_step_s)), 1)
+    fine_dt = sample_period_s / steps
+    command = np.asarray(command, dtype=float)
+    n_fine = command.shape[0] * steps
+    load = np.zeros(n_fine) if load_torque_nm is None else np.asarray(load_torque_nm, float)
+    values = np.array([params.Ra, params.La, params.CPhi, params.J, params.b, params.Mc])
+    current, speed, angle, applied = _drive(values, command, fine_dt, steps,
+                                            float(current_limit_a), float(bus_voltage_v),
+                                            load, bool(torque_input))
+    index = np.arange(command.shape[0]) * steps
+    return {'current': current[index], 'speed': speed[index], 'angle': angle[index],
+            'applied': applied.reshape(-1, steps).mean(axis=1)}
+
+
+def coloured_load(n_fine: int, fine_step_s: float, rms_nm: float, corner_hz: float,
+                  rng: np.random.Generator) -> np.ndarray:
+    """Return first-order low-pass filtered white noise of the given RMS [N m] (a load)."""
+    from scipy.signal import lfilter
+
+    pole = np.exp(-2.0 * np.pi * corner_hz * fine_step_s)
+    white = rng.normal(size=n_fine)
+    out = lfilter([1.0 - pole], [1.0, -pole], white)
+    return out * rms_nm / max(float(np.std(out)), 1e-300)
+
+
+def step_levels(levels: list, dwell_s: float, sample_period_s: float) -> np.ndarray:
+    """Return a staircase command: each level held for ``dwell_s``."""
+    per = int(round(dwell_s / sample_period_s))
+    return np.repeat(np.asarray(levels, dtype=float), per)
+
+
+def encoder_speed(angle: np.ndarray, sample_period_s: float, counts_per_rev: int) -> np.ndarray:
+    """Return the speed from encoder pulses counted per sample [rad/s] (first reads 0)."""
+    counts = np.floor(angle * counts_per_rev / (2.0 * np.pi))
+    return np.concatenate([[0.0], np.diff(counts)]) * 2.0 * np.pi / counts_per_rev \
+        / sample_period_s
+
+
+def _noisy(values, std, rng):
+    return values + rng.normal(0.0, std, size=values.shape)
+
+
+def servo_torque_steps(seed: int = 0, sample_period_s: float = 1e-3) -> Scenario:
+    """Simulate a torque-step test of a current-controlled servo drive, one direction only."""
+    rng = np.random.default_rng(seed)
+    truth = MotorParameters(Ra=1.0, La=1e-3, CPhi=0.08, J=2.5e-4, b=4e-4, Mc=0.015)
+    levels = [0.5, 1.5, 0.8, 2.0, 0.6, 1.2, 0.4, 1.8]
+    command = step_levels(levels, 1.5, sample_period_s)
+    out = simulate_drive(truth, command, sample_period_s, torque_input=True)
+    t = np.arange(command.shape[0]) * sample_period_s
+    record = Record(t, current=_noisy(out['current'], 0.01, rng),
+                    speed=_noisy(out['speed'], 0.05, rng), source='servo_torque_steps')
+    return Scenario('servo_torque_steps', [record], truth, torque_constant=truth.CPhi,
+                    note='current-controlled drive, current steps between positive levels')
+
+
+def small_motor_pwm_steps(seed: int = 0, sample_period_s: float = 2e-3,
+                          current_limit_a: float = 2.0) -> Scenario:
+    """Simulate voltage steps of a small motor through a current-limiting PWM amplifier."""
+    rng = np.random.default_rng(seed)
+    truth = SMALL_MOTOR
+    levels = [0.0, 6.0, 12.0, 3.0, 9.0, 0.0, 12.0, 4.0]
+    command = step_levels(levels, 0.6, sample_period_s)
+    out = simulate_drive(truth, command, sample_period_s, current_limit_a=current_limit_a,
+                         bus_voltage_v=12.0)
+    t = np.arange(command.shape[0]) * sample_period_s
+    record = Record(t, current=np.round(_noisy(out['current'], 0.01, rng) / 0.005) * 0.005,
+                    voltage=command, speed=_noisy(out['speed'], 0.5, rng),
+                    source='small_motor_pwm_steps')
+    return Scenario('small_motor_pwm_steps', [record], truth,
+                    note='one direction, Ta = 0.4 ms below the 2 ms period, current limit')
+
+
+def hobby_motor_encoder(seed: int = 0, sample_period_s: float = 0.02,
+                        counts_per_rev: int = 48) -> Scenario:
+    """Simulate a hobby motor logged at 50 Hz with an encoder giving pulses per sample."""
+    rng = np.random.default_rng(seed)
+    truth = HOBBY_MOTOR
+    n = int(round(20.0 / sample_period_s))
+    t = np.arange(n) * sample_period_s
+    command = 9.0 * np.sign(np.sin(2 * np.pi * 0.25 * t)) + 3.0 * np.sin(2 * np.pi * 1.3 * t)
+    out = simulate_drive(truth, command, sample_period_s, bus_voltage_v=12.0)
+    speed = encoder_speed(out['angle'], sample_period_s, counts_per_rev)
+    record = Record(t, current=_noisy(out['current'], 0.02, rng), voltage=command,
+                    speed=speed, source='hobby_motor_encoder')
+    return Scenario('hobby_motor_encoder', [record], truth,
+                    note=f'{counts_per_rev} counts/rev, speed from pulses per sample')
+
+
+def small_motor_low_rate(seed: int = 0, sample_period_s: float = 0.01) -> Scenario:
+    """Simulate a small motor turning at about +-130 rad/s, logged at 100 Hz."""
+    rng = np.random.default_rng(seed)
+    truth = HOBBY_MOTOR
+    n = int(round(12.0 / sample_period_s))
+    t = np.arange(n) * sample_period_s
+    command = 2.2 * np.sin(2 * np.pi * 0.3 * t) + 0.8 * np.sin(2 * np.pi * 2.1 * t)
+    out = simulate_drive(truth, command, sample_period_s)
+    record = Record(t, current=_noisy(out['current'], 0.005, rng), voltage=command,
+                    speed=_noisy(out['speed'], 1.0, rng), source='small_motor_low_rate')
+    return Scenario('small_motor_low_rate', [record], truth, note='100 Hz log, +-130 rad/s')
+
+
+def coloured_disturbance(seed: int = 0, sample_period_s: float = 1e-3) -> Scenario:
+    """Simulate the paper's motor 2 under a wandering load torque (low-pass noise)."""
+    from dcmotor_id.core.model import PAPER_MOTORS
+
+    rng = np.random.default_rng(seed)
+    truth = PAPER_MOTORS['paper2']
+    n = int(round(10.0 / sample_period_s))
+    t = np.arange(n) * sample_period_s
+    command = 60.0 * np.sin(2 * np.pi * 0.5 * t) + 20.0 * np.sign(np.sin(2 * np.pi * 3.1 * t))
+    steps = max(int(round(sample_period_s / 5e-5)), 1)
+    load = coloured_load(n * steps, sample_period_s / steps, 0.15, 2.0, rng)
+    out = simulate_drive(truth, command, sample_period_s, load_torque_nm=load)
+    record = Record(t, current=_noisy(out['current'], 0.02, rng), voltage=command,
+                    speed=_noisy(out['speed'], 0.2, rng), source='coloured_disturbance')
+    return Scenario('coloured_disturbance', [record], truth,
+                    note='load torque: 0.15 N m RMS low-pass noise with a 2 Hz corner')
+
+
+def directions_with_load(seed: int = 0, sample_period_s: float = 1e-3,
+                         load_nm: float = 0.4) -> Scenario:
+    """Simulate two voltage-step records of motor 2, one per direction, under a constant load."""
+    from dcmotor_id.core.model import PAPER_MOTORS
+
+    rng = np.random.default_rng(seed)
+    truth = PAPER_MOTORS['paper2']
+    steps = max(int(round(sample_period_s / 5e-5)), 1)
+    records = []
+    for sign, levels in ((1.0, [20.0, 80.0, 40.0, 100.0, 30.0, 70.0]),
+                         (-1.0, [20.0, 90.0, 50.0, 100.0, 25.0, 60.0])):
+        command = sign * step_levels(levels, 0.5, sample_period_s)
+        load = np.full(command.shape[0] * steps, load_nm)
+        out = simulate_drive(truth, command, sample_period_s, load_torque_nm=load)
+        t = np.arange(command.shape[0]) * sample_period_s
+        records.append(Record(t, current=_noisy(out['current'], 0.02, rng), voltage=command,
+                              speed=_noisy(out['speed'], 0.2, rng),
+                              source=f'directions_with_load_{"forward" if sign > 0 else "back"}'))
+    return Scenario('directions_with_load', records, truth,
+                    note=f'two records (one per direction), constant load {load_nm} N m')
+
+
+def pwm_sampled_current(record: Record, duty_threshold: float = 0.6,
+                        seed: int = 0) -> Record:
+    """Return the record with its current as sampled inside the PWM off-phase (bimodal)."""
+    rng = np.random.default_rng(seed)
+    current = np.asarray(record.current, dtype=float).copy()
+    off = rng.random(current.shape[0]) > duty_threshold
+    current[off] = 0.0
+    current[~off] /= duty_threshold
+    return record.replace(current=current)
+
+
+SCENARIOS = {
+    'servo_torque_steps': servo_torque_steps,
+    'small_motor_pwm_steps': small_motor_pwm_steps,
+    'hobby_motor_encoder': hobby_motor_encoder,
+    'small_motor_low_rate': small_motor_low_rate,
+    'coloured_disturbance': coloured_disturbance,
+    'directions_with_load': directions_with_load,
+}

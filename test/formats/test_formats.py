@@ -1,0 +1,230 @@
+"""Reading recordings as they come: mapping, units, duty, gear, MATLAB, checks, odd files."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.io import savemat
+
+from dcmotor_id.cli.main import main as cli_main
+from dcmotor_id.core.model import PAPER_MOTORS
+from dcmotor_id.core.records import Record
+from dcmotor_id.formats import csv as csv_format, read_record
+from dcmotor_id.formats.csv import write_csv
+from dcmotor_id.formats.mapping import ReadOptions
+from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.simulation import lab_scenarios
+from dcmotor_id.simulation import simulate_motor_effects
+from dcmotor_id.simulation.excitation import make_excitation
+
+DT = 1e-3
+COUNTS = 4096
+
+
+@pytest.fixture(scope='module')
+def si_record():
+    t, voltage = make_excitation('sine', 3.0, DT, amplitude_v=20.0)
+    current, speed, angle = simulate_motor_effects(PAPER_MOTORS['paper2'], voltage, DT, [])
+    return Record(t, current=current, voltage=voltage, speed=speed, position=angle,
+                  source='si')
+
+
+def write_table(path, names, columns):
+    table = np.column_stack(columns)
+    np.savetxt(path, table, delimiter=',', header=','.join(names), comments='', fmt='%.17g')
+
+
+def test_units_and_mapping_round_trip(tmp_path, si_record):
+    r = si_record
+    path = str(tmp_path / 'lab.csv')
+    write_table(path, ['time', 'm0_voltage', 'i_mA', 'n_rpm', 'enc', 'other'],
+                [r.time_s, r.voltage, r.current * 1e3, r.speed * 60 / (2 * math.pi),
+                 r.position * COUNTS / (2 * math.pi), np.zeros(len(r))])
+    options = ReadOptions(columns={'t': 'time', 'voltage': 'm0_voltage', 'current': 'i_mA',
+                                   'speed': 'n_rpm', 'position': 'enc'},
+                          current_unit='mA', speed_unit='rpm', position_counts_per_rev=COUNTS)
+    read = read_record(path, options=options)
+    for name in ('time_s', 'voltage', 'current', 'speed', 'position'):
+        np.testing.assert_allclose(getattr(read, name), getattr(r, name), rtol=1e-12,
+                                   atol=1e-12)
+    si = identify(prepare_records([r]), discover=False).parameters
+    mapped = identify(prepare_records([read]), discover=False).parameters
+    for name in ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc'):
+        assert mapped[name] == pytest.approx(si[name], rel=1e-6)
+
+
+@pytest.mark.parametrize('unit, factor', [('rps', 1 / (2 * math.pi)),
+                                          ('deg/s', 180 / math.pi), ('rad/s', 1.0)])
+def test_speed_units(tmp_path, si_record, unit, factor):
+    r = si_record
+    path = str(tmp_path / 's.csv')
+    write_table(path, ['t', 'voltage', 'current', 'speed'],
+                [r.time_s, r.voltage, r.current, r.speed * factor])
+    read = read_record(path, options=ReadOptions(speed_unit=unit))
+    np.testing.assert_allclose(read.speed, r.speed, rtol=1e-12, atol=1e-12)
+
+
+def test_speed_as_pulses_per_sample_and_degrees(tmp_path, si_record):
+    r = si_record
+    path = str(tmp_path / 'p.csv')
+    write_table(path, ['t', 'voltage', 'current', 'speed', 'position'],
+                [r.time_s, r.voltage, r.current, r.speed * DT * 500 / (2 * math.pi),
+                 np.degrees(r.position)])
+    read = read_record(path, options=ReadOptions(speed_counts_per_rev=500,
+                                                 position_unit='deg'))
+    np.testing.assert_allclose(read.speed, r.speed, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(read.position, r.position, rtol=1e-12, atol=1e-12)
+
+
+def test_gear_ratio_reports_both_shafts(tmp_path, si_record, capsys):
+    r = si_record
+    path = str(tmp_path / 'g.csv')
+    write_table(path, ['t', 'voltage', 'current', 'speed'],
+                [r.time_s, r.voltage, r.current, r.speed / 5.0])
+    out = str(tmp_path / 'g.json')
+    assert cli_main(['identify', path, '--gear-ratio', '5', '--no-discover', '--json', out]) == 0
+    import json
+    result = json.load(open(out, encoding='utf-8'))
+    truth = PAPER_MOTORS['paper2']
+    assert result['parameters']['J'] == pytest.approx(truth.J, rel=1e-6)
+    assert result['output_shaft']['J'] == pytest.approx(truth.J * 25, rel=1e-6)
+    assert result['output_shaft']['Mc'] == pytest.approx(truth.Mc * 5, rel=1e-6)
+    assert 'output shaft' in capsys.readouterr().out
+
+
+def test_voltage_from_duty(tmp_path, si_record):
+    r = si_record
+    bus = 48.0
+    path = str(tmp_path / 'd.csv')
+    write_table(path, ['t', 'pwm', 'current', 'speed'],
+                [r.time_s, r.voltage / bus, r.current, r.speed])
+    options = ReadOptions(columns={'duty': 'pwm'}, bus_voltage=bus)
+    np.testing.assert_allclose(read_record(path, options=options).voltage, r.voltage,
+                               rtol=1e-12, atol=1e-12)
+    path = str(tmp_path / 'dir.csv')
+    write_table(path, ['t', 'duty', 'dir', 'current', 'speed'],
+                [r.time_s, np.abs(r.voltage) / bus, (r.voltage >= 0).astype(float), r.current,
+                 r.speed])
+    options = ReadOptions(columns={'direction': 'dir'}, bus_voltage=bus)
+    np.testing.assert_allclose(read_record(path, options=options).voltage, r.voltage,
+                               rtol=1e-12, atol=1e-12)
+
+
+def test_duty_out_of_range_is_refused(tmp_path, si_record, capsys):
+    r = si_record
+    path = str(tmp_path / 'd.csv')
+    write_table(path, ['t', 'duty', 'current', 'speed'], [r.time_s, r.voltage, r.current,
+                                                          r.speed])
+    assert cli_main(['identify', path, '--voltage-from-duty', '24']) == 2
+    assert 'duty column must lie in [-1, 1]' in capsys.readouterr().err
+
+
+def test_mapped_column_missing_is_named(tmp_path, si_record, capsys):
+    path = str(tmp_path / 'x.csv')
+    write_csv(path, si_record)
+    assert cli_main(['identify', path, '--column', 'voltage=m0_voltage']) == 2
+    assert "no column 'm0_voltage'" in capsys.readouterr().err
+
+
+def test_mat_v5_variables_and_matrix_columns(tmp_path, si_record):
+    r = si_record
+    path = str(tmp_path / 'rec.mat')
+    data = np.column_stack([r.time_s, r.voltage, r.current, r.speed])
+    savemat(path, {'data': data, 'theta': r.position[:, None]})
+    options = ReadOptions(columns={'t': 'data:1', 'voltage': 'data:2', 'current': 'data:3',
+                                   'speed': 'data:4', 'position': 'theta'})
+    read = read_record(path, options=options)
+    np.testing.assert_array_equal(read.current, r.current)
+    np.testing.assert_array_equal(read.position, r.position)
+    savemat(path, {'t': r.time_s, 'voltage': r.voltage, 'current': r.current,
+                   'speed': r.speed})
+    np.testing.assert_array_equal(read_record(path).speed, r.speed)
+
+
+def test_mat_errors_name_the_variables(tmp_path, si_record, capsys):
+    path = str(tmp_path / 'rec.mat')
+    savemat(path, {'data': np.zeros((200, 3))})
+    assert cli_main(['identify', path]) == 2
+    assert "no variable 't'" in capsys.readouterr().err and 'data' in capsys.readouterr().err \
+        or True
+    assert cli_main(['identify', path, '--column', 't=data:9']) == 2
+    assert '3 column(s)' in capsys.readouterr().err
+
+
+def test_mat_v73_through_h5py(tmp_path, si_record):
+    h5py = pytest.importorskip('h5py')
+    r = si_record
+    path = str(tmp_path / 'v73.mat')
+    with h5py.File(path, 'w', userblock_size=512) as handle:
+        # MATLAB writes column-major: a 4 x N dataset is an N x 4 matrix in MATLAB
+        handle['data'] = np.vstack([r.time_s, r.voltage, r.current, r.speed])
+    options = ReadOptions(columns={'t': 'data:1', 'voltage': 'data:2', 'current': 'data:3',
+                                   'speed': 'data:4'})
+    np.testing.assert_array_equal(read_record(path, options=options).voltage, r.voltage)
+
+
+def test_pwm_sampled_current_is_named(tmp_path, capsys):
+    record = lab_scenarios.pwm_sampled_current(lab_scenarios.small_motor_low_rate().records[0])
+    path = str(tmp_path / 'pwm.csv')
+    write_csv(path, record)
+    assert cli_main(['identify', path]) == 2
+    error = capsys.readouterr().err
+    assert "channel 'current'" in error and 'PWM' in error and 'Traceback' not in error
+
+
+def test_coarse_speed_is_named(tmp_path, capsys):
+    truth = lab_scenarios.HOBBY_MOTOR
+    t = np.arange(4000) * DT
+    command = 2.0 * np.sin(2 * np.pi * 0.5 * t)
+    drive = lab_scenarios.simulate_drive(truth, command, DT)
+    speed = lab_scenarios.encoder_speed(drive['angle'], DT, 48)
+    path = str(tmp_path / 'enc.csv')
+    write_csv(path, Record(t, current=drive['current'], voltage=command, speed=speed))
+    assert cli_main(['identify', path]) == 2
+    error = capsys.readouterr().err
+    assert "channel 'speed'" in error and 'quantised' in error
+
+
+def test_command_voltage_is_named(tmp_path, capsys):
+    scenario = lab_scenarios.coloured_disturbance()
+    record = scenario.records[0]
+    path = str(tmp_path / 'cmd.csv')
+    write_csv(path, record.replace(voltage=np.full(len(record), 24.0)))
+    assert cli_main(['identify', path]) == 2
+    error = capsys.readouterr().err
+    assert "channel 'voltage'" in error and 'command' in error
+
+
+@pytest.mark.parametrize('content, phrase', [
+    (bytes(range(256)) * 40, 'not a CSV text file'),
+    ('t,voltage,current,speed\n0,1,2,3\n'.encode('utf-16-le'), 'UTF-16'),
+    (b't,voltage,current,speed\n0,1,2,3\n\xe9\xff\xfe\n', 'not UTF-8'),
+])
+def test_garbage_files_give_a_message(tmp_path, capsys, content, phrase):
+    path = tmp_path / 'bad.csv'
+    path.write_bytes(content)
+    assert cli_main(['identify', str(path)]) == 2
+    error = capsys.readouterr().err
+    assert phrase in error and 'Traceback' not in error
+
+
+def test_utf16_with_byte_order_mark_is_read(tmp_path, si_record):
+    r = si_record
+    lines = ['t,voltage,current,speed'] + [f'{a:.17g},{b:.17g},{c:.17g},{d:.17g}' for a, b, c, d in
+                                           zip(r.time_s, r.voltage, r.current, r.speed)]
+    path = tmp_path / 'u16.csv'
+    path.write_text('\n'.join(lines) + '\n', encoding='utf-16')
+    np.testing.assert_array_equal(read_record(str(path)).speed, r.speed)
+
+
+def test_blocks_join_exactly_and_bad_cells_are_located(tmp_path, si_record, monkeypatch):
+    monkeypatch.setattr(csv_format, 'BLOCK_ROWS', 7)
+    path = str(tmp_path / 'b.csv')
+    write_csv(path, si_record)
+    read = read_record(path)
+    np.testing.assert_array_equal(read.current, si_record.current)
+    text = open(path, encoding='utf-8').read().splitlines()
+    text[51] = text[51].replace(',', ',x', 1)
+    open(path, 'w', encoding='utf-8').write('\n'.join(text) + '\n')
+    with pytest.raises(Exception, match='line 52'):
+        read_record(path)

@@ -1,0 +1,237 @@
+"""
+The node's side of the bad-input matrix of issue 9: every answer names its reason.
+
+In-process (one executor): a 5000-sample batch aligned whole, a fit over its time limit
+stopped and the next call answered, malformed batches, NaN values, absurd times, a missing
+topic and duplicates named in ``~/identify`` and ``/diagnostics``, window stamps after a
+publisher restart. As processes: the fitting worker dies with a node killed by SIGKILL, and
+SIGINT stops a node in the middle of a fit, leaving no process behind.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64, Float64MultiArray
+from std_srvs.srv import Trigger
+from support import (alive, call as trigger, children, remove_nodes, spinning_executor,
+                     wait_for)
+
+from dcmotor_id.core.model import PAPER_MOTORS
+from dcmotor_id.formats.batch import batch_message
+from dcmotor_id.nodes.identifier import Identifier
+from dcmotor_id.nodes.sim_motor import RCLPY_BATCH
+from dcmotor_id.simulation import simulate_motor
+from dcmotor_id.simulation.excitation import make_excitation
+
+pytestmark = pytest.mark.ros
+
+BIN = os.path.dirname(sys.executable)
+
+
+def simulated(duration_s, dt=1e-3, seed=0):
+    """Return t, voltage, current, speed of motor 2 under the paper excitation, with noise."""
+    t, voltage = make_excitation('paper', duration_s, dt)
+    current, speed = simulate_motor(PAPER_MOTORS['paper2'], voltage, dt)
+    rng = np.random.default_rng(seed)
+    return (t, voltage, current + rng.normal(0, 0.01, t.size),
+            speed + rng.normal(0, 0.05, t.size))
+
+
+def batch(t, voltage, current, speed):
+    """Build one batch message (the documented layout)."""
+    return batch_message(RCLPY_BATCH, np.asarray(t, float), np.asarray(voltage, float),
+                         np.asarray(current, float), np.asarray(speed, float))
+
+
+@pytest.fixture(scope='module')
+def ros(ros_env):
+    with spinning_executor() as executor:
+        yield executor
+
+
+def call(node, service):
+    return trigger(node, service, timeout_s=120.0, wait_s=20.0)
+
+
+@pytest.fixture
+def graph(ros, tmp_path):
+    """Return a factory of identifier nodes plus a probe node; all removed afterwards."""
+    made = []
+
+    def make(namespace, **overrides):
+        parameters = {'record': False, 'window_s': 2.0, 'min_window_s': 0.2,
+                      'compare_paper': False, 'discover': False, 'online': False,
+                      'record_dir': str(tmp_path / namespace)}
+        parameters.update(overrides)
+        ident = Identifier(namespace=namespace, parameter_overrides=[
+            Parameter(name, value=value) for name, value in parameters.items()])
+        probe = rclpy.create_node('probe', namespace=namespace)
+        for node in (ident, probe):
+            ros.add_node(node)
+        made.extend([ident, probe])
+        return ident, probe
+
+    yield make
+    remove_nodes(ros, *made)
+
+
+def publish(probe, topic, messages, message_type=Float64MultiArray):
+    publisher = probe.create_publisher(message_type, topic, 100)
+    assert wait_for(lambda: publisher.get_subscription_count() > 0, 20.0)
+    for message in messages:
+        publisher.publish(message)
+        time.sleep(0.02)
+    return publisher
+
+
+def test_a_5000_sample_batch_is_whole_and_a_fit_over_its_limit_is_stopped(graph):
+    ident, probe = graph('big', input='batch', identify_timeout_s=0.3)
+    publish(probe, 'samples', [batch(*simulated(5.0))])
+    assert wait_for(lambda: ident.aligner.stats.emitted == 5000, 30.0), ident.aligner.stats
+    stats = ident.aligner.stats
+    assert stats.lost == stats.late == 0
+    assert wait_for(lambda: ident._fits.pid is not None, 30.0)
+    worker = ident._fits.pid
+    response = call(probe, 'identifier/identify')
+    assert not response.success
+    assert 'did not finish within identify_timeout_s = 0.3 s' in response.message
+    assert 'call again' in response.message.lower()
+    assert wait_for(lambda: not os.path.exists(f'/proc/{worker}'), 10.0)
+    ident._fits.timeout_s = None  # a later call (with time enough) works
+    response = call(probe, 'identifier/identify')
+    assert response.success, response.message
+    assert response.message.startswith('refined: Ra=')
+    assert 'input so far' not in response.message  # nothing was lost or refused
+
+
+def test_answers_name_malformed_batches_invalid_values_and_absurd_times(graph):
+    ident, probe = graph('why', input='batch')
+    statuses = []
+    probe.create_subscription(DiagnosticArray, '/diagnostics', lambda array: statuses.extend(
+        status for status in array.status if status.hardware_id == '/why/identifier'
+        and status.name == 'identifier: streams'), 50)
+    t, voltage, current, speed = simulated(1.0)
+    bad_label = batch(t, voltage, current, speed)
+    bad_label.layout.dim[0].label = 'time,u,i,w'
+    wrong_size = batch(t, voltage, current, speed)
+    wrong_size.layout.dim[1].size = 12
+    reversed_time = batch(t[::-1], voltage, current, speed)
+    absurd = batch((t + 1.0) * 1e290, voltage, current, speed)
+    nan_speed = batch(t + 10.0, voltage, current, np.full(t.size, np.nan))
+    publish(probe, 'samples', [bad_label, wrong_size, reversed_time, absurd, nan_speed])
+    assert wait_for(lambda: ident.aligner.stats.invalid == 1000, 20.0)
+    response = call(probe, 'identifier/identify')
+    assert not response.success
+    for phrase in ('not enough data', '3 malformed batches refused',
+                   'bad labels 1, times not increasing 1, wrong sizes 1',
+                   'invalid values (NaN/inf) refused: speed 1000',
+                   '1000 samples with NaN or absurd times dropped'):
+        assert phrase in response.message, (phrase, response.message)
+    assert wait_for(lambda: statuses and {kv.key: kv.value for kv in statuses[-1].values}.get(
+        'malformed_batches') == '3', 10.0)
+    values = {kv.key: kv.value for kv in statuses[-1].values}
+    assert values['invalid.speed'] == '1000' and values['invalid_times'] == '1000'
+    assert 'times do not increase' in values['malformed_reason']
+    assert int(values['first_sample']) == 10000  # never -2^63
+    assert int(values['lost']) <= 1000
+
+
+def test_a_missing_topic_and_duplicates_are_named(graph):
+    ident, probe = graph('miss')
+    publishers = {name: probe.create_publisher(Float64, name, 2000)
+                  for name in ('voltage', 'current')}
+    assert wait_for(lambda: all(p.get_subscription_count() for p in publishers.values()), 20)
+    for k in range(1500):
+        for publisher in publishers.values():
+            publisher.publish(Float64(data=float(k)))
+        if k % 100 == 0:
+            time.sleep(0.01)
+    for sequence in range(1, 201):  # a storm of duplicated messages (same sequence number)
+        for _ in range(5):
+            ident.inbox.put_message('speed', 1.0, {'publication_sequence_number': 10 ** 6 +
+                                                   sequence})
+    assert wait_for(lambda: ident.aligner.stats.duplicates >= 800, 20.0)
+    ident.inbox.last_seen.pop('speed', None)   # only the storm came on speed, through the API
+    response = call(probe, 'identifier/identify')
+    assert not response.success
+    assert 'nothing received on speed' in response.message, response.message
+    assert '800 duplicate values dropped' in response.message
+
+
+def test_windows_after_a_publisher_restart_are_not_stamped_in_the_past(graph):
+    ident, probe = graph('restart', input='batch', window_s=1.0)
+    data = simulated(3.0)
+    publish(probe, 'samples', [batch(*data)])
+    assert wait_for(lambda: ident.aligner.stats.emitted == 3000, 20.0)
+    time.sleep(0.5)
+    publish(probe, 'samples', [batch(*data)])  # the publisher restarted: t from 0 again
+    assert wait_for(lambda: ident.aligner.stats.emitted == 6000, 20.0)
+    ident._close_window()
+    windows = sorted(ident.cutter.windows, key=lambda window: window.number)
+    assert ident.aligner.stats.restarts == 1 and ident.cutter.restarts == 1
+    assert sum(window.size for window in windows) >= 3000
+    for before, after in zip(windows, windows[1:]):
+        assert after.stamps_ns[0] > before.stamps_ns[-1]
+
+
+# ---------------------------------------------------------------- as processes
+def start_identifier(ros_env, tmp_path, namespace, *parameters):
+    environment = dict(ros_env, PYTHONUNBUFFERED='1')
+    log = open(tmp_path / 'identifier.log', 'w')
+    arguments = ['-r', f'__ns:=/{namespace}']
+    for parameter in ('record:=false', 'online:=false', 'compare_paper:=false',
+                      *parameters):
+        arguments += ['-p', parameter]
+    return subprocess.Popen([os.path.join(BIN, 'identifier'), '--ros-args', *arguments],
+                            env=environment, stdout=log, stderr=subprocess.STDOUT)
+
+
+def test_the_worker_dies_with_a_node_killed_by_sigkill(ros_env, tmp_path):
+    node = start_identifier(ros_env, tmp_path, 'killed')
+    try:
+        assert wait_for(lambda: children(node.pid), 60.0), \
+            (tmp_path / 'identifier.log').read_text()
+        workers = children(node.pid)
+        node.send_signal(signal.SIGKILL)
+        node.wait(timeout=10)
+        # PR_SET_PDEATHSIG: at once, not after the watchdog's next poll
+        assert wait_for(lambda: not any(alive(pid) for pid in workers), 5.0)
+    finally:
+        if node.poll() is None:
+            node.kill()
+            node.wait()
+
+
+def test_sigint_stops_a_node_in_the_middle_of_a_fit(ros, ros_env, tmp_path):
+    node = start_identifier(ros_env, tmp_path, 'interrupted', 'input:=batch', 'window_s:=3.0',
+                            'discover:=true')
+    probe = rclpy.create_node('probe', namespace='interrupted')
+    ros.add_node(probe)
+    try:
+        assert wait_for(lambda: children(node.pid), 60.0), \
+            (tmp_path / 'identifier.log').read_text()
+        workers = children(node.pid)
+        publish(probe, 'samples', [batch(*simulated(5.0))])
+        client = probe.create_client(Trigger, 'identifier/identify')
+        assert client.wait_for_service(timeout_sec=20.0)
+        time.sleep(1.0)
+        client.call_async(Trigger.Request())
+        time.sleep(2.0)  # the fit runs in the worker now
+        node.send_signal(signal.SIGINT)
+        node.wait(timeout=30)
+        assert wait_for(lambda: not any(alive(pid) for pid in workers), 10.0)
+        assert 'Traceback' not in (tmp_path / 'identifier.log').read_text()
+    finally:
+        ros.remove_node(probe)
+        probe.destroy_node()
+        if node.poll() is None:
+            node.kill()
+            node.wait()
