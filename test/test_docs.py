@@ -1,5 +1,6 @@
 """The manual: docs/ builds with Sphinx without a warning, and what it names exists."""
 
+import importlib
 import os
 import re
 import shutil
@@ -14,6 +15,8 @@ DOCS = os.path.join(ROOT, 'docs')
 README_MAX_BYTES = 10 * 1024
 # Paths of the repository named in backquotes in the README and the manual.
 NAMED_PATH = re.compile(r'`((?:dcmotor_id|test|bench|config|launch|studies)/[\w./]*[\w/])`')
+# Dotted names of the package in backquotes (a module, or a name in a module).
+NAMED_OBJECT = re.compile(r'`(dcmotor_id(?:\.\w+)+)[`(]')
 
 
 def sphinx_build(source, out, *extra):
@@ -57,17 +60,44 @@ def test_readme_is_short():
     assert size <= README_MAX_BYTES, f'README.md is {size} bytes: move the detail into docs/'
 
 
-def test_paths_named_in_the_manual_exist():
-    texts = [os.path.join(ROOT, 'README.md')]
+def manual_texts():
+    """Yield (path relative to the repository, text) of the README and every page."""
+    paths = [os.path.join(ROOT, 'README.md')]
     for folder, _, files in os.walk(DOCS):
-        if '_build' in folder:
-            continue
-        texts += [os.path.join(folder, name) for name in files
-                  if name.endswith(('.md', '.rst'))]
-    missing = []
-    for path in texts:
+        if '_build' not in folder:
+            paths += [os.path.join(folder, name) for name in files
+                      if name.endswith(('.md', '.rst'))]
+    for path in sorted(paths):
         with open(path, encoding='utf-8') as stream:
-            for name in NAMED_PATH.findall(stream.read()):
-                if not os.path.exists(os.path.join(ROOT, name)):
-                    missing.append(f'{os.path.relpath(path, ROOT)}: {name}')
+            yield os.path.relpath(path, ROOT), stream.read()
+
+
+def resolves(dotted):
+    """Whether ``dotted`` is a module of the package or a name in one."""
+    parts = dotted.split('.')
+    for split in range(len(parts), 0, -1):
+        try:
+            target = importlib.import_module('.'.join(parts[:split]))
+        except ImportError:
+            continue
+        for attribute in parts[split:]:
+            if not hasattr(target, attribute):
+                return False
+            target = getattr(target, attribute)
+        return True
+    return False
+
+
+def test_paths_named_in_the_manual_exist():
+    missing = []
+    for path, text in manual_texts():
+        for name in NAMED_PATH.findall(text):
+            if not os.path.exists(os.path.join(ROOT, name)):
+                missing.append(f'{path}: {name}')
     assert not missing, 'paths named in the manual that do not exist:\n' + '\n'.join(missing)
+
+
+def test_names_of_the_package_in_the_manual_exist():
+    missing = [f'{path}: {name}' for path, text in manual_texts()
+               for name in NAMED_OBJECT.findall(text) if not resolves(name)]
+    assert not missing, 'names in the manual that the package lacks:\n' + '\n'.join(missing)
