@@ -18,7 +18,7 @@ setup(
     python_requires='>=3.10',
     # py.typed: the package's type hints apply to its users (PEP 561).
     package_data={PACKAGE: ['py.typed']},
-    install_requires=['numpy', 'scipy', 'numba', 'matplotlib', 'rosbags', 'mcap',
+    install_requires=['numpy', 'scipy', 'numba>=0.68,<0.69', 'matplotlib', 'rosbags', 'mcap',
                       'control>=0.10', 'dask[distributed]', 'pyarrow', 'threadpoolctl'],
     extras_require={'test': ['pytest', 'mypy'], 'mat73': ['h5py']},
     zip_safe=True,

@@ -1,15 +1,14 @@
 """
 Benchmark: controller design from identified parameters, checked on the exact simulator.
 
-Both motors of Table 1. Each is identified by the default method from the paper's two
-training records (4 s each at 1 kHz, 1 % white noise on current and speed); the cascade is
-designed from the identified values (``dcmotor_id.design.control``), then run on the TRUE motor
-with
-the exact hybrid simulator (Coulomb friction included) and its closed-loop -3 dB bandwidths
-measured with a multisine at a 40 rad/s bias (``measured_bandwidth_hz``). The margins are
-python-control's on the sampled loops; their spread is over the ends and corners of the
-parameters' 95 % intervals, with the identified standard errors and with 10 and 100 times
-them (100 x: a motor known to a few per cent, e.g. from a datasheet).
+Both motors of Table 1. Each is identified by the default method from the paper's two training
+records (4 s each at 1 kHz, 1 % white noise on current and speed); the cascade is designed from the
+identified values (``dcmotor_id.design.control``), then run on the TRUE motor with the exact hybrid
+simulator (Coulomb friction included) and its closed-loop -3 dB bandwidths measured with a
+multisine at a 40 rad/s bias (``measured_bandwidth_hz``). The margins are python-control's on the
+sampled loops; their spread is over the ends and corners of the parameters' 95 % intervals, with
+the identified standard errors and with 10 and 100 times them (100 x: a motor known to a few per
+cent, e.g. from a datasheet).
 
 Usage: ``.venv/bin/python bench/bench_design.py``
 """

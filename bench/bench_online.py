@@ -1,13 +1,11 @@
 """
 Online estimation under sensor noise, tracking of changes, change alarms and cost.
 
-The identifier node's online estimators on simulated drives (exact simulation at 1 kHz):
-``window`` (:class:`dcmotor_id.streaming.online.WindowEstimator`, the default: exact output-error
-refits
-of a window growing from the start up to 30 s, warm-started) and the old ``rls``
-(:class:`dcmotor_id.streaming.online.OnlineEstimator`, recursive least squares with a 10 s memory),
-side
-by side on the same runs.
+The identifier node's online estimators on simulated drives (exact simulation at 1 kHz): ``window``
+(:class:`dcmotor_id.streaming.online.WindowEstimator`, the default: exact output-error refits of a
+window growing from the start up to 30 s, warm-started) and the old ``rls``
+(:class:`dcmotor_id.streaming.online.RlsEstimator`, recursive least squares with a 10 s memory),
+side by side on the same runs.
 
 1. Accuracy: the paper's motors 1 and 2, excitations ``paper``, ``prbs`` and ``multisine``
    (30 s), white noise of 0, 0.1, 1 and 3 % of each signal's standard deviation on current
@@ -38,8 +36,8 @@ from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.simulation import simulate_motor
 from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
 from dcmotor_id.streaming.monitoring import ChangeDetector
-from dcmotor_id.streaming.online import (INTERVAL_SIGMAS, LOAD_TORQUE, OnlineEstimator,
-                                         parse_schedule, simulate_scheduled, WindowEstimator)
+from dcmotor_id.streaming.online import (INTERVAL_SIGMAS, LOAD_TORQUE, parse_schedule,
+                                         RlsEstimator, simulate_scheduled, WindowEstimator)
 
 DT = 1e-3
 DURATION_S = 30.0
@@ -90,7 +88,7 @@ def accuracy_runs(draws, motors, excitations, noises=NOISES):
                     window = WindowEstimator(DT, refit_interval_s=GRID_INTERVAL_S,
                                              **WINDOW,
                                              cpu_budget=1.0)
-                    rls = OnlineEstimator(DT)
+                    rls = RlsEstimator(DT)
 
                     def snapshot(end, window=window, rls=rls, runs=runs):
                         for checkpoint in CHECKPOINTS_S:
@@ -211,7 +209,7 @@ def tracking(motor, kind, seed, schedule_text, duration_s, interval_s=2.0):
     current, speed = simulate_scheduled(params, schedule, voltage, DT)
     meas_i, meas_w = noisy(current, speed, 0.01, seed)
     window = WindowEstimator(DT, refit_interval_s=interval_s, cpu_budget=1.0, **WINDOW)
-    rls = OnlineEstimator(DT)
+    rls = RlsEstimator(DT)
     detectors = {'window': ChangeDetector(min_baseline_window_s=window.window_s),
                  'rls': ChangeDetector(min_baseline_window_s=rls.memory_s)}
     trajectory = {'window': [], 'rls': []}
@@ -368,7 +366,7 @@ def cpu_table():
         meas_i, meas_w = noisy(current, speed, 0.01, 0)
         block = int(rate / 50)  # the node's 50 Hz processing timer
         for name, estimator in (('window', WindowEstimator(dt, cpu_budget=0.08, **WINDOW)),
-                                ('rls', OnlineEstimator(dt))):
+                                ('rls', RlsEstimator(dt))):
             started = time.process_time()
             for first in range(0, voltage.size, block):
                 part = slice(first, first + block)

@@ -12,8 +12,7 @@ call and at the end: ``getrusage``'s ``ru_maxrss`` of a child starts from the pa
 Contenders, run in turn (A B C A B C ...) so that a drift of the machine's speed hits all:
 
 * **new**: this checkout's :func:`~dcmotor_id.identification.identify.identify`, default (effect
-  discovery
-  on) and ``discover=False``;
+  discovery on) and ``discover=False``;
 * **previous**: the same call from another checkout (``--previous DIR``, e.g. a
   ``git worktree add /tmp/prev 21c2dec``), run with its own ``PYTHONPATH`` after a warm-up
   run that compiles its kernels;

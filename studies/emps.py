@@ -384,12 +384,11 @@ def position_output_fit(record: Record, gtau: float,
     """
     Fit M, Fv, Fc and the effects' parameters to the measured position (output error).
 
-    The rigid model is simulated open loop from the force ``gtau * vir`` (the package's
-    exact simulator, :func:`dcmotor_id.identification.validate.simulate`) and the squared position
-    error
-    after the first :data:`SCORE_SKIP_SAMPLES` samples is minimised: the criterion the
-    benchmark scores, unlike the speed-output fit of the package, which weights the fast speed
-    changes and lets a small force bias integrate into a position drift.
+    The rigid model is simulated open loop from the force ``gtau * vir`` (the package's exact
+    simulator, :func:`dcmotor_id.identification.validate.simulate`) and the squared position error
+    after the first :data:`SCORE_SKIP_SAMPLES` samples is minimised: the criterion the benchmark
+    scores, unlike the speed-output fit of the package, which weights the fast speed changes and
+    lets a small force bias integrate into a position drift.
 
     Parameters
     ----------
@@ -492,16 +491,15 @@ def emps_score(data_dir: str | None = None) -> dict[str, Any]:
     """
     Score models on EMPS as the benchmark community does; return a dict of rows.
 
-    Train on DATA_EMPS, simulate DATA_EMPS_PULSES open loop from ``gtau * vir``, position
-    RMSE in mm after the first 20 samples
-    (:func:`dcmotor_id.identification.validate.validate_record`,
-    initial speed from those samples). Rows: the published IDIM-LS parameters; the
-    4-parameter rigid model fitted by output error on speed (the package's criterion) and on
-    position; the discovery loop's model (``identify`` on DATA_EMPS); position-output fits
-    with the extensions tried (asymmetric friction, Stribeck, drag, a force periodic in
-    position, a lag of the force). A last row fits the best structure on PULSES itself: a
-    diagnosis of the difference between the two records, not a score. ``friction`` holds the
-    direction-dependent IDIM-LS of each record (:func:`friction_by_record`).
+    Train on DATA_EMPS, simulate DATA_EMPS_PULSES open loop from ``gtau * vir``, position RMSE in
+    mm after the first 20 samples (:func:`dcmotor_id.identification.validate.validate_record`,
+    initial speed from those samples). Rows: the published IDIM-LS parameters; the 4-parameter
+    rigid model fitted by output error on speed (the package's criterion) and on position; the
+    discovery loop's model (``identify`` on DATA_EMPS); position-output fits with the extensions
+    tried (asymmetric friction, Stribeck, drag, a force periodic in position, a lag of the force).
+    A last row fits the best structure on PULSES itself: a diagnosis of the difference between the
+    two records, not a score. ``friction`` holds the direction-dependent IDIM-LS of each record
+    (:func:`friction_by_record`).
     """
     from dcmotor_id.identification.identify import identify
     from dcmotor_id.identification.validate import model_from_dict, validate_record

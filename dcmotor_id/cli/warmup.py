@@ -46,9 +46,9 @@ def _online(path: str) -> None:
     """Feed a record to the online estimator (the identifier node's recursive kernel)."""
     import numpy as np
 
-    from dcmotor_id.streaming.online import OnlineEstimator
+    from dcmotor_id.streaming.online import RlsEstimator
     table = np.genfromtxt(path, delimiter=',', names=True)
-    estimator = OnlineEstimator(float(table['t'][1] - table['t'][0]))
+    estimator = RlsEstimator(float(table['t'][1] - table['t'][0]))
     estimator.update(table['voltage'], table['current'], table['speed'])
     estimator.estimate()
 

@@ -22,9 +22,8 @@ The parameters travel in these forms, each for a reason:
   :attr:`~dcmotor_id.identification.estimators.base.Estimate.parameters` is such a mapping with the
   derived
   values (:func:`derived_values`) added.
-* :class:`~dcmotor_id.simulation.MotorEffects`: what the simulator needs to reproduce effects
-  (its own coefficients, combined from the effects of :mod:`dcmotor_id.identification.effects`,
-  whose
+* :class:`~dcmotor_id.simulation.MotorEffects`: what the simulator needs to reproduce effects (its
+  own coefficients, combined from the effects of :mod:`dcmotor_id.identification.effects`, whose
   ``parameters`` are the effect's parameters as reported in JSON).
 
 The hybrid (stick-slip) solution lives in :mod:`dcmotor_id.simulation`.
@@ -132,7 +131,15 @@ def parameter_names(mechanical_only: bool) -> tuple[str, ...]:
 
 
 def derived_values(values: Mapping[str, float]) -> dict[str, float]:
-    """Return the derived parameters ``Ka = 1/Ra`` and ``Ta = La/Ra`` of a values mapping."""
+    """
+    Return the derived parameters ``Ka = 1/Ra`` [1/Ohm] and ``Ta = La/Ra`` [s].
+
+    Examples
+    --------
+    >>> derived_values({'Ra': 2.0, 'La': 0.01})
+    {'Ka': 0.5, 'Ta': 0.005}
+
+    """
     ra, la = values['Ra'], values['La']
     return {'Ka': 1.0 / ra, 'Ta': la / ra}
 

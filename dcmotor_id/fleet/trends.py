@@ -25,51 +25,10 @@ from typing import Iterable, Mapping, Optional, Sequence
 
 import numpy as np
 
-from dcmotor_id.streaming.monitoring import ChangeDetector, LEVELS
+from dcmotor_id.streaming.monitoring import Alarm, ChangeDetector, LEVELS
 
 __all__ = ['Alarm', 'baseline_size', 'change_score', 'detect_changes', 'DetectorSettings',
            'effect_alarms', 'LEVELS']
-
-
-@dataclass(frozen=True)
-class Alarm:
-    """
-    A parameter (or an effect) that changed.
-
-    Attributes
-    ----------
-    name : str
-        Parameter name, or ``effect <name>``.
-    level : str
-        ``WARN`` or ``ERROR``.
-    value, baseline : float
-        Value at the newest window and the baseline (effects: their first parameter).
-    change_pct : float
-        Change at the newest window in percent of the baseline (effects: NaN).
-    sigmas : float
-        Change at the newest window in standard deviations of the difference.
-    since : float
-        Time of the first window of the change (the input's time unit).
-    raised : float
-        Time of the window at which the change was decided.
-
-    """
-
-    name: str
-    level: str
-    value: float
-    baseline: float
-    change_pct: float
-    sigmas: float
-    since: float
-    raised: float
-
-    def text(self) -> str:
-        """Describe the alarm in a few words (times not included)."""
-        if self.name.startswith('effect '):
-            return f'{self.name} appeared ({self.value:.3g})'
-        return (f'{self.name} {self.change_pct:+.1f} % ({self.sigmas:+.0f} sigma, '
-                f'baseline {self.baseline:.4g}, now {self.value:.4g})')
 
 
 @dataclass(frozen=True)
@@ -136,7 +95,7 @@ def _one(name: str, points: Sequence[tuple[float, float, float]],
     _, value, error = data[-1]
     z, change = detector.compare(name, value, error)
     return Alarm(name, LEVELS[level], value, detector.baseline.value(name), 100.0 * change,
-                 z, since, raised)
+                 z, since, raised=raised)
 
 
 def detect_changes(series: Mapping[str, Sequence[tuple[float, float, float]]],
@@ -202,7 +161,7 @@ def effect_alarms(windows: Iterable[tuple[float, Mapping[str, float]]],
             value = next((found[name] for _, found in reversed(later) if name in found),
                          math.nan)
             alarms.append(Alarm(f'effect {name}', 'WARN', float(value), 0.0, math.nan,
-                                math.nan, since, raised))
+                                math.nan, since, raised=raised))
     return alarms
 
 

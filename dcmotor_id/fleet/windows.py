@@ -2,8 +2,7 @@
 Cutting one motor's record into the windows identified as separate tasks.
 
 The cutting is :class:`dcmotor_id.streaming.windowing.WindowCutter`'s, the node's own: a window
-holds
-``window_s`` of samples, the last one what remains if that is at least ``min_window_s``.
+holds ``window_s`` of samples, the last one what remains if that is at least ``min_window_s``.
 """
 
 from __future__ import annotations

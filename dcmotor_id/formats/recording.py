@@ -21,12 +21,11 @@ class WindowBagWriter:
     """
     Write consecutive windows of samples as separate bags under a directory, within a budget.
 
-    Every window becomes its own bag directory ``window_<number>_<first stamp ns>`` written
-    by :func:`dcmotor_id.formats.bag.write_bag` (temporary name, then rename), so a window on
-    disk is always a finished, readable bag, whatever happens to the process. After each
-    window the oldest windows are deleted until the total is within ``budget_bytes`` (the
-    newest is kept).
-    Leftover temporary directories of a killed writer are removed on start.
+    Every window becomes its own bag directory ``window_<number>_<first stamp ns>`` written by
+    :func:`dcmotor_id.formats.bag.write_bag` (temporary name, then rename), so a window on disk is
+    always a finished, readable bag, whatever happens to the process. After each window the oldest
+    windows are deleted until the total is within ``budget_bytes`` (the newest is kept). Leftover
+    temporary directories of a killed writer are removed on start.
 
     Parameters
     ----------

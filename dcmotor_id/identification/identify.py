@@ -318,8 +318,7 @@ def supports_discovery(estimator: Any) -> bool:
     Whether the discovery loop can follow this estimator (it fits effect terms).
 
     The :class:`~dcmotor_id.identification.estimators.base.Estimator` protocol's ``supports_terms``
-    says
-    whether the estimator fits effect terms (the refined one does, the paper's does not).
+    says whether the estimator fits effect terms (the refined one does, the paper's does not).
     """
     return bool(getattr(estimator, 'supports_terms', False))
 

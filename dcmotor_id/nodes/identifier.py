@@ -3,11 +3,10 @@ The ``identifier`` node's ROS wiring: subscriptions, ``~/identify``, parameters,
 
 It aligns a drive's streams (:mod:`dcmotor_id.formats.streams`), cuts them into windows
 (:mod:`dcmotor_id.streaming.windowing`) recorded as bags, and identifies on request off the
-executor
-(:mod:`dcmotor_id.streaming.worker`); its texts come from :mod:`dcmotor_id.streaming.summary` and
-its
-parameters are :class:`dcmotor_id.nodes.settings.IdentifierSettings`; what went wrong with the
-input is counted and said by :class:`dcmotor_id.streaming.input_health.InputHealth`.
+executor (:mod:`dcmotor_id.streaming.worker`); its texts come from
+:mod:`dcmotor_id.streaming.summary` and its parameters are
+:class:`dcmotor_id.nodes.settings.IdentifierSettings`; what went wrong with the input is counted
+and said by :class:`dcmotor_id.streaming.input_health.InputHealth`.
 
 Inputs (relative names; remap them globally, the messages are taken in bulk by the processing
 timer through :class:`~dcmotor_id.nodes.common.BulkInput`), by ``input``:

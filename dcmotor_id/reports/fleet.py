@@ -156,8 +156,8 @@ def plot_motor(trend: MotorTrend, directory: str, name: str) -> str:
             colour = _LEVEL_COLOURS[alarm.level]
             axis.axvline(_time(alarm.raised), color=colour, linewidth=1.5,
                          label=f'{alarm.level} decided')
-            if math.isfinite(alarm.since) and alarm.since != alarm.raised:
-                axis.axvline(_time(alarm.since), color=colour, linewidth=1.0, linestyle=':',
+            if math.isfinite(alarm.since_s) and alarm.since_s != alarm.raised:
+                axis.axvline(_time(alarm.since_s), color=colour, linewidth=1.0, linestyle=':',
                              label='since')
             title += f'   {alarm.level} {alarm.change_pct:+.1f} %'
             axis.set_title(title, color=colour, fontsize=10, fontweight='bold')
@@ -309,7 +309,7 @@ def write_fleet_report(history_dir: str, directory: str,
         parts.append(
             f'<tr><td><a href="#{_safe_name(trend.motor_id)}">'
             f'{html.escape(trend.motor_id)}</a></td><td class="{trend.level}">{trend.level}'
-            f'</td>{_cell(change)}{_cell("; ".join(a.text() for a in trend.alarms) or "-")}'
+            f'</td>{_cell(change)}{_cell("; ".join(a.summary() for a in trend.alarms) or "-")}'
             f'{_cell(effects)}{_cell(len(trend.rows))}{_cell(len(trend.failed))}'
             f'{_cell(last)}</tr>')
     parts.append('</table>')
@@ -329,8 +329,8 @@ def write_fleet_report(history_dir: str, directory: str,
             parts.append('<table><tr><th>alarm</th><th>level</th><th>since</th>'
                          '<th>decided</th></tr>')
             for alarm in trend.alarms:
-                parts.append(f'<tr>{_cell(alarm.text())}<td class="{alarm.level}">'
-                             f'{alarm.level}</td>{_cell(_when(alarm.since))}'
+                parts.append(f'<tr>{_cell(alarm.summary())}<td class="{alarm.level}">'
+                             f'{alarm.level}</td>{_cell(_when(alarm.since_s))}'
                              f'{_cell(_when(alarm.raised))}</tr>')
             parts.append('</table>')
         else:

@@ -117,9 +117,8 @@ def combine_effects(effects: EffectsLike) -> MotorEffects:
     Return one :class:`MotorEffects` from ``None``, a MotorEffects or a sequence of effects.
 
     The sequence holds vocabulary effects (:mod:`dcmotor_id.identification.effects`, whose
-    ``motor_effects()``
-    returns their contribution) or MotorEffects contributions; they combine by the rule of each
-    field (:func:`combine_contributions`).
+    ``motor_effects()`` returns their contribution) or MotorEffects contributions; they combine by
+    the rule of each field (:func:`combine_contributions`).
     """
     if effects is None:
         return _DEFAULTS

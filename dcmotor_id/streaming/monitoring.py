@@ -26,12 +26,10 @@ learned from the first ``baseline_count`` observations of each quantity
 (:func:`baseline_from_observations`: their mean, with the estimates' standard errors inflated
 by the excess scatter of those observations) instead of from one converged estimate.
 
-While a window mixes data from before and after a sudden change, its fit is a compromise
-that can move other parameters far (a step of b briefly shows as Coulomb friction); such an
-estimate is not ``settled`` (:attr:`~dcmotor_id.streaming.online.OnlineEstimate.settled`) and
-raises
-no new alarm until the window restarts after the change or the mismatch has lasted half a
-window (a slow drift).
+While a window mixes data from before and after a sudden change, its fit is a compromise that can
+move other parameters far (a step of b briefly shows as Coulomb friction); such an estimate is not
+``settled`` (:attr:`~dcmotor_id.streaming.online.OnlineEstimate.settled`) and raises no new alarm
+until the window restarts after the change or the mismatch has lasted half a window (a slow drift).
 
 Where physics allows, the alarm says what the change probably is: a copper winding's
 resistance rises by :data:`COPPER_ALPHA_PER_K` per kelvin, so ``Ra +18 %`` reads "winding
@@ -145,24 +143,28 @@ def baseline_from_observations(observations: Mapping[str, Sequence[tuple[float, 
 @dataclass(frozen=True)
 class Alarm:
     """
-    A parameter that changed.
+    A parameter (or an effect) that changed: the node's online alarms and the fleet's trends.
 
     Attributes
     ----------
     name : str
-        Parameter (``Ra`` ... ``Mc``) or ``load_torque_Nm``.
+        Parameter (``Ra`` ... ``Mc``), ``load_torque_Nm``, or ``effect <name>`` (fleet).
     level : str
         ``WARN`` or ``ERROR``.
     value, baseline : float
-        Current estimate and baseline (SI units).
+        Current estimate and baseline (SI units; effects: their first parameter).
     change_pct : float
-        Change in percent of the baseline (load torque: of the baseline Coulomb friction).
+        Change in percent of the baseline (load torque: of the baseline Coulomb friction;
+        effects: NaN).
     sigmas : float
         Change in standard deviations of the difference.
     since_s : float
-        Data time of the first estimate of the change [s].
+        Time of the first estimate of the change, in the unit of the times observed: data
+        time [s] in the node, UTC [ns] in the fleet's trends.
     meaning : str
         What the change probably is, or ''.
+    raised : float
+        Time at which the change was decided (same unit), NaN where not tracked (the node).
 
     """
 
@@ -174,6 +176,7 @@ class Alarm:
     sigmas: float
     since_s: float
     meaning: str = ''
+    raised: float = math.nan
 
     def text(self) -> str:
         """One line, e.g. ``Ra +18.0 % (41 sigma) since 34.0 s: winding temperature ...``."""
@@ -184,6 +187,13 @@ class Alarm:
             head = f'{self.name} {self.change_pct:+.1f} % ({self.sigmas:+.0f} sigma)'
         text = f'{head} since {self.since_s:.1f} s'
         return f'{text}: {self.meaning}' if self.meaning else text
+
+    def summary(self) -> str:
+        """Describe the alarm in a few words, times not included (the fleet report's cells)."""
+        if self.name.startswith('effect '):
+            return f'{self.name} appeared ({self.value:.3g})'
+        return (f'{self.name} {self.change_pct:+.1f} % ({self.sigmas:+.0f} sigma, '
+                f'baseline {self.baseline:.4g}, now {self.value:.4g})')
 
 
 def meaning(name: str, change: float) -> str:
@@ -446,7 +456,7 @@ class OnlineMonitor:
 
     Parameters
     ----------
-    estimator : WindowEstimator or OnlineEstimator
+    estimator : OnlineEstimator
         The online estimator (:func:`dcmotor_id.streaming.online.make_estimator`).
     detector : ChangeDetector, optional
         None switches monitoring off.
@@ -538,13 +548,9 @@ class OnlineMonitor:
         return level, message, pairs
 
     def close(self) -> None:
-        """Fit what is left (window estimator) and stop its worker process."""
-        flush = getattr(self.estimator, 'flush', None)
-        if flush is not None:
-            flush()
-        shutdown = getattr(getattr(self.estimator, 'submit', None), 'shutdown', None)
-        if shutdown is not None:
-            shutdown()
+        """Use the samples the estimator still buffers, then release its worker."""
+        self.estimator.flush()
+        self.estimator.close()
 
 
 def monitor_from_settings(settings: Any, sample_rate_hz: float) -> OnlineMonitor:
@@ -554,25 +560,18 @@ def monitor_from_settings(settings: Any, sample_rate_hz: float) -> OnlineMonitor
     ``settings`` has the ``online_*``, ``monitor*`` and ``nominal_*`` fields of
     :class:`dcmotor_id.nodes.settings.IdentifierSettings`.
     """
-    from dcmotor_id.streaming.online import make_estimator, RefitProcess
-    submit = None
-    if settings.online_method == 'window' and settings.online_in_subprocess:
-        submit = RefitProcess()
-        submit.warm()
+    from dcmotor_id.streaming.online import make_estimator
     estimator = make_estimator(
         settings.online_method, 1.0 / sample_rate_hz, memory_s=settings.online_memory_s,
         converged_rel_stderr=settings.online_converged_rel_stderr,
         window_s=settings.online_window_s, refit_interval_s=settings.online_refit_interval_s,
         cpu_budget=settings.online_cpu_budget, load_torque=settings.online_load_torque,
-        submit=submit)
+        in_subprocess=settings.online_in_subprocess)
     detector = None
     if settings.monitor:
         detector = ChangeDetector(settings.monitor_warn_pct, settings.monitor_error_pct,
                                   threshold=settings.monitor_threshold_sigma,
-                                  min_baseline_window_s=min(settings.online_window_s,
-                                                            settings.online_memory_s * 2)
-                                  if settings.online_method == 'rls'
-                                  else settings.online_window_s)
+                                  min_baseline_window_s=estimator.baseline_window_s)
     nominal = nominal_baseline({name: getattr(settings, f'nominal_{name}')
                                 for name in PARAMETER_NAMES})
     if settings.monitor_baseline == 'nominal' and nominal is None and settings.monitor:

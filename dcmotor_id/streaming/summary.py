@@ -121,8 +121,7 @@ def format_line(result: Mapping[str, Any]) -> str:
     Render a result as one line (the answer of ``~/identify``).
 
     Besides the keys of :func:`~dcmotor_id.identification.identify.identify` it reads ``paper``
-    (the paper
-    method's result, or why it failed), ``bags`` and ``record_errors`` when present.
+    (the paper method's result, or why it failed), ``bags`` and ``record_errors`` when present.
     """
     values = result['parameters']
     text = f"{result['method']}: " + ', '.join(

@@ -158,7 +158,7 @@ def test_change_detector():
               for k, (t, value, stderr) in enumerate(steady)]
     alarms = detect_changes({'Ra': rising, 'b': steady})
     assert [alarm.name for alarm in alarms] == ['Ra']
-    assert alarms[0].level == 'ERROR' and alarms[0].since == 4e9 and alarms[0].raised == 5e9
+    assert alarms[0].level == 'ERROR' and alarms[0].since_s == 4e9 and alarms[0].raised == 5e9
     assert alarms[0].change_pct == pytest.approx(80.0, abs=1.0)
     # significant but below 5 %: no alarm
     small = [(t, value * (1.02 if k >= 4 else 1.0), stderr)
@@ -167,7 +167,7 @@ def test_change_detector():
     effects = [(t, {'load_torque': 0.3} if k >= 6 else {}) for k, t in enumerate(times)]
     found = effect_alarms(effects)
     assert [alarm.name for alarm in found] == ['effect load_torque']
-    assert found[0].since == 6e9 and found[0].value == 0.3
+    assert found[0].since_s == 6e9 and found[0].value == 0.3
     assert effect_alarms([(t, {'load_torque': 0.3}) for t in times]) == []
 
 

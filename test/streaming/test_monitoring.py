@@ -13,8 +13,8 @@ from dcmotor_id.streaming.monitoring import (alarm_key_values, Baseline,
                                              baseline_from_observations, baseline_from_result,
                                              ChangeDetector, meaning, monitor_from_settings,
                                              nominal_baseline, OnlineMonitor)
-from dcmotor_id.streaming.online import (LOAD_TORQUE, OnlineEstimate, OnlineEstimator,
-                                         parse_schedule, simulate_scheduled, WindowEstimator)
+from dcmotor_id.streaming.online import (LOAD_TORQUE, OnlineEstimate, parse_schedule, RlsEstimator,
+                                         simulate_scheduled, WindowEstimator)
 
 TRUTH = PAPER_MOTORS['paper2'].as_dict()
 REL_STDERR = 0.002
@@ -137,7 +137,7 @@ def test_monitor_from_the_node_settings():
     assert isinstance(monitor.estimator, WindowEstimator) and monitor.estimator.submit is None
     assert monitor.detector.baseline.source == 'nominal'
     rls = monitor_from_settings(IdentifierSettings(online_method='rls', monitor=False), 1000.0)
-    assert rls.detector is None and isinstance(rls.estimator, OnlineEstimator)
+    assert rls.detector is None and isinstance(rls.estimator, RlsEstimator)
     with pytest.raises(ValueError, match='nominal'):
         monitor_from_settings(IdentifierSettings(monitor_baseline='nominal',
                                                  online_in_subprocess=False), 1000.0)

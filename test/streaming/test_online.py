@@ -11,8 +11,8 @@ from dcmotor_id.core.model import PAPER_MOTORS, PARAMETER_NAMES, relative_errors
 from dcmotor_id.simulation import simulate_motor
 from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
 from dcmotor_id.streaming.online import (disagreement, INTERVAL_SIGMAS, LOAD_TORQUE,
-                                         make_estimator, OnlineEstimator, parse_schedule,
-                                         physical_from_discrete, RefitOutcome, simulate_scheduled,
+                                         make_estimator, parse_schedule, physical_from_discrete,
+                                         RefitOutcome, RlsEstimator, simulate_scheduled,
                                          simultaneous_sigmas, WindowEstimator)
 
 
@@ -42,7 +42,7 @@ def test_noise_free_data_give_the_parameters_at_any_sample_period():
     for dt, duration in ((1e-3, 12.0), (1e-4, 3.0)):
         _, voltage = make_excitation('paper', duration, dt)
         current, speed = simulate_motor(params, voltage, dt)
-        estimator = OnlineEstimator(dt, memory_s=20.0)
+        estimator = RlsEstimator(dt, memory_s=20.0)
         feed(estimator, voltage, current, speed, block=max(1, int(0.02 / dt)))
         estimate = estimator.estimate()
         errors = relative_errors_pct(estimate.parameters, params)
@@ -58,7 +58,7 @@ def test_a_gap_declared_with_break_continuity_does_not_bias_the_estimate():
     current, speed = simulate_motor(params, voltage, dt)
     keep = np.ones(voltage.size, dtype=bool)
     keep[3000:3400] = False  # 0.4 s lost
-    estimator = OnlineEstimator(dt, memory_s=20.0)
+    estimator = RlsEstimator(dt, memory_s=20.0)
     feed(estimator, voltage[:3000], current[:3000], speed[:3000])
     estimator.break_continuity()
     feed(estimator, voltage[3400:], current[3400:], speed[3400:])
@@ -72,7 +72,7 @@ def test_noisy_data_converge_near_the_truth():
     _, voltage = make_excitation('paper', 16.0, dt)
     current, speed = simulate_motor(params, voltage, dt)
     rng = np.random.default_rng(0)
-    estimator = OnlineEstimator(dt, memory_s=20.0)
+    estimator = RlsEstimator(dt, memory_s=20.0)
     feed(estimator, voltage, current + rng.normal(0, 0.01, current.size),
          speed + rng.normal(0, 0.02, speed.size))
     estimate = estimator.estimate()
@@ -84,7 +84,7 @@ def test_noisy_data_converge_near_the_truth():
 
 def test_no_excitation_is_not_converged():
     dt = 1e-3
-    estimator = OnlineEstimator(dt)
+    estimator = RlsEstimator(dt)
     zeros = np.zeros(5000)
     feed(estimator, zeros, zeros, zeros)
     estimate = estimator.estimate()
@@ -321,7 +321,7 @@ def test_the_refits_respect_the_cpu_budget():
 def test_make_estimator_builds_both_methods():
     assert isinstance(make_estimator('window', 1e-3, window_s=5.0, memory_s=3.0),
                       WindowEstimator)
-    assert isinstance(make_estimator('rls', 1e-3, window_s=5.0, memory_s=3.0), OnlineEstimator)
+    assert isinstance(make_estimator('rls', 1e-3, window_s=5.0, memory_s=3.0), RlsEstimator)
     with pytest.raises(ValueError):
         make_estimator('kalman', 1e-3)
 

@@ -69,7 +69,16 @@ def make_effect(name: str, **parameters: Any) -> Effect:
 
 
 def parse_effect(text: str) -> Effect:
-    """Parse ``NAME[:param=value,...]`` (the CLI's ``--effect``) into an effect."""
+    """
+    Parse ``NAME[:param=value,...]`` (the CLI's ``--effect``) into an effect.
+
+    Examples
+    --------
+    >>> effect = parse_effect('load_torque:torque_Nm=0.3')
+    >>> effect.name, effect.parameters['torque_Nm']
+    ('load_torque', 0.3)
+
+    """
     name, _, rest = text.partition(':')
     parameters: dict[str, Any] = {}
     for item in filter(None, (part.strip() for part in rest.split(','))):

@@ -498,10 +498,10 @@ class RefinedEstimator:
             'quasi_static': model.quasi_static,
             'sensitivities': 'analytic' if analytic else 'finite differences',
             # What the data-based covariance needs
-            # (dcmotor_id.identification.estimators.uncertainty): the
-            # fit's normal equations in its internal coordinates z (theta = chain * dz locally)
-            # at the optimum, with the final noise weights: J^T J, the score sums J^T r over
-            # blocks of samples and the record of each block.
+            # (dcmotor_id.identification.estimators.uncertainty): the fit's normal equations in its
+            # internal coordinates z (theta = chain * dz locally) at the optimum, with the final
+            # noise weights: J^T J, the score sums J^T r over blocks of samples and the record of
+            # each block.
             'normal_matrix': final.hessian,
             'block_scores': final.blocks,
             'block_record': final.block_record,

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import cmath
 import math
+from typing import Any, Mapping
 
 from numba import njit
 import numpy as np
@@ -48,7 +49,7 @@ from dcmotor_id.core.model import derived_values
 from dcmotor_id.identification.estimators.jacobian import jacobian
 from dcmotor_id.streaming.online.estimate import is_converged, NAMES, OnlineEstimate
 
-__all__ = ['log2x2', 'OnlineEstimator', 'physical_from_discrete', 'RlsEstimator']
+__all__ = ['log2x2', 'physical_from_discrete', 'RlsEstimator']
 _N_REGRESSORS = 4
 
 
@@ -153,9 +154,9 @@ def physical_from_discrete(theta: ArrayLike, sample_period_s: float) -> dict[str
     return {name: float(value) for name, value in values.items()}
 
 
-class OnlineEstimator:
+class RlsEstimator:
     """
-    Recursive least squares on the exactly discretised neurons.
+    Recursive least squares on the exactly discretised neurons (an ``OnlineEstimator``).
 
     Parameters
     ----------
@@ -171,6 +172,8 @@ class OnlineEstimator:
 
     """
 
+    method = 'rls'
+
     def __init__(self, sample_period_s: float, memory_s: float = 10.0,
                  converged_rel_stderr: float = 0.05, initial_covariance: float = 1e4) -> None:
         if not sample_period_s > 0:
@@ -181,8 +184,29 @@ class OnlineEstimator:
         self.memory_s = float(memory_s)
         self.converged_rel_stderr = float(converged_rel_stderr)
         self.forgetting = float(np.exp(-self.sample_period_s / self.memory_s))
+        self.baseline_window_s = 2.0 * self.memory_s
         self._initial_covariance = float(initial_covariance)
         self.reset()
+
+    @classmethod
+    def from_options(cls, sample_period_s: float, options: Mapping[str, Any]) -> 'RlsEstimator':
+        """
+        Build from the node's options: ``memory_s``, ``converged_rel_stderr``.
+
+        With ``window_s``, the baseline window is the shorter of it and two memories.
+        """
+        estimator = cls(sample_period_s, options.get('memory_s', 10.0),
+                        options.get('converged_rel_stderr', 0.05))
+        if 'window_s' in options:
+            estimator.baseline_window_s = min(float(options['window_s']),
+                                              estimator.baseline_window_s)
+        return estimator
+
+    def flush(self) -> None:
+        """Nothing is buffered: every sample is used as it comes."""
+
+    def close(self) -> None:
+        """Nothing to release."""
 
     def reset(self) -> None:
         """Forget everything."""
@@ -274,7 +298,3 @@ class OnlineEstimator:
         return OnlineEstimate(values, stderr, converged, rms, self.n_updates, method='rls',
                               time_s=self.n_samples * self.sample_period_s,
                               window_s=self.memory_s)
-
-
-#: The recursive least squares under its own name (``OnlineEstimator`` is the historic one).
-RlsEstimator = OnlineEstimator

@@ -78,7 +78,7 @@ import math
 from multiprocessing import get_context
 import os
 import time
-from typing import Callable, Mapping, Optional, Sequence
+from typing import Any, Callable, Mapping, Optional, Sequence
 import warnings
 
 import numpy as np
@@ -385,9 +385,33 @@ class WindowEstimator:
         self.load_torque = bool(load_torque)
         self.restart_s = float(restart_s)
         self.submit = submit
+        self.baseline_window_s = self.window_s
         self._window_n = max(MIN_RUN_SAMPLES, int(round(self.window_s / self.sample_period_s)))
         self._first_initial = dict(initial) if initial else None
         self.reset()
+
+    @classmethod
+    def from_options(cls, sample_period_s: float,
+                     options: Mapping[str, Any]) -> 'WindowEstimator':
+        """
+        Build from the node's options (those of the constructor; others are ignored).
+
+        ``in_subprocess`` (without ``submit``) runs the refits in a :class:`RefitProcess`.
+        """
+        names = ('window_s', 'refit_interval_s', 'min_window_s', 'converged_rel_stderr',
+                 'cpu_budget', 'load_torque', 'submit', 'initial')
+        chosen = {name: options[name] for name in names if name in options}
+        if options.get('in_subprocess') and chosen.get('submit') is None:
+            process = RefitProcess()
+            process.warm()
+            chosen['submit'] = process
+        return cls(sample_period_s, **chosen)
+
+    def close(self) -> None:
+        """Stop the worker process of the refits, if it has one."""
+        shutdown = getattr(self.submit, 'shutdown', None)
+        if shutdown is not None:
+            shutdown()
 
     def reset(self) -> None:
         """Forget everything."""

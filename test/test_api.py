@@ -1,0 +1,64 @@
+"""The public surface: names from the package face, doctested examples, no import leak."""
+
+import doctest
+import subprocess
+import sys
+
+import pytest
+
+import dcmotor_id
+from dcmotor_id.simulation import compiled
+
+LEAK_CHECK = """
+import sys
+{statement}
+print('loaded:' + ','.join(sorted(m for m in ('scipy', 'numba', 'matplotlib', 'rclpy')
+                                  if m in sys.modules)))
+"""
+
+
+def loaded_after(statement: str) -> str:
+    completed = subprocess.run([sys.executable, '-c', LEAK_CHECK.format(statement=statement)],
+                               capture_output=True, text=True, timeout=300)
+    assert completed.returncode == 0, completed.stderr
+    lines = [line for line in completed.stdout.splitlines() if line.startswith('loaded:')]
+    assert lines, completed.stdout
+    return lines[-1][len('loaded:'):]
+
+
+def test_every_public_name_resolves():
+    for name in dcmotor_id.__all__:
+        assert getattr(dcmotor_id, name) is not None, name
+    with pytest.raises(AttributeError):
+        dcmotor_id.no_such_name  # noqa: B018
+
+
+@pytest.mark.parametrize('module', ['dcmotor_id', 'dcmotor_id.core.model',
+                                    'dcmotor_id.identification.effects'])
+def test_doctested_examples(module):
+    imported = __import__(module, fromlist=['_'])
+    failures, attempted = doctest.testmod(imported, optionflags=doctest.ELLIPSIS)
+    assert attempted > 0, f'{module} has no example'
+    assert failures == 0
+
+
+def test_command_line_imports_neither_scipy_nor_numba():
+    assert loaded_after('import dcmotor_id.cli.main') == ''
+
+
+def test_package_face_is_light():
+    assert loaded_after('import dcmotor_id; dcmotor_id.Record') == ''
+
+
+@pytest.mark.skipif(compiled.built_path() is None,
+                    reason='the ahead-of-time module is built by the set-up step (make)')
+def test_identify_path_loads_neither_scipy_nor_numba(tmp_path):
+    """A whole ``dcmotor-id identify`` of a CSV, discovery included, without scipy or numba."""
+    csv_path, out = tmp_path / 'r.csv', tmp_path / 'r.json'
+    subprocess.run([sys.executable, '-m', 'dcmotor_id.cli.main', 'simulate', '--motor', 'paper2',
+                    '--excitation', 'paper', '--duration', '4', '--sample-period', '1e-3',
+                    '--noise', '0.01', '--out', str(csv_path)], check=True, timeout=300)
+    statement = ('from dcmotor_id.cli.main import main\n'
+                 f'assert main(["identify", {str(csv_path)!r}, "--json", {str(out)!r}, '
+                 '"--quiet"]) == 0')
+    assert loaded_after(statement) == ''
