@@ -9,6 +9,8 @@ import sys
 
 import pytest
 
+import dcmotor_id
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOCS = os.path.join(ROOT, 'docs')
 # The README is the short entry point; the manual is docs/ (issue 18: about 10 KB at most).
@@ -35,7 +37,14 @@ def test_docs_build_without_warnings(tmp_path):
                  'benchmarks/index', 'benchmarks/speed_results', 'api/index'):
         assert (tmp_path / 'html' / f'{page}.html').is_file(), page
     api = (tmp_path / 'html' / 'api' / 'identification.html').read_text(encoding='utf-8')
-    assert 'identify' in api
+    assert 'id="dcmotor_id.identification.identify.identify"' in api
+    # Every public name of the package links to its documentation in the module of its layer.
+    package = (tmp_path / 'html' / 'api' / 'package.html').read_text(encoding='utf-8')
+    table = package[package.index('Public names'):]
+    table = table[:table.index('</table>')]
+    linked = set(re.findall(r'<a class="reference internal" href="[^"]*#dcmotor_id[.\w]*\.(\w+)"',
+                            table))
+    assert set(dcmotor_id.__all__) <= linked, set(dcmotor_id.__all__) - linked
 
 
 @pytest.mark.slow
