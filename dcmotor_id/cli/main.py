@@ -9,25 +9,31 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import os
 import platform
+import stat
 import sys
 import tempfile
 import traceback
 from typing import Any, Mapping, Sequence
+import warnings
 
 import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError, InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
-from dcmotor_id.core.progress import terminal_progress
+from dcmotor_id.core.progress import terminal_progress, TimeBudgetExceeded
 from dcmotor_id.core.records import Record
 from dcmotor_id.formats import read_records
-from dcmotor_id.formats.bag import BAG_TOPICS
+from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
+from dcmotor_id.formats.budget import check_budget, DEFAULT_BUDGET_BYTES, set_memory_budget
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
                                         POSITION_UNITS, ReadOptions, SPEED_UNITS)
+from dcmotor_id.formats.paths import check_input_path, kind_of, same_file
+from dcmotor_id.identification.dropouts import repair_all
 from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.identification.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES,
                                                 METHODS, prepare_records)
@@ -41,6 +47,30 @@ def load_records(paths: Sequence[str], topics: Mapping[str, str] | None = None,
                  options: ReadOptions | None = None) -> list[Record]:
     """Read every input path (CSV, .mat, rosbag2 directories, .mcap or .db3 files)."""
     return read_records(paths, topics=topics, options=options or ReadOptions())
+
+
+def load_records_reporting_loss(paths: Sequence[str], topics: Mapping[str, str] | None = None,
+                                options: ReadOptions | None = None
+                                ) -> tuple[list[Record], list[str]]:
+    """
+    Read the inputs as :func:`load_records`; return them and what was lost reading them.
+
+    A truncated or damaged bag is read as far as it can be; each loss (samples or messages,
+    of which topic, where) is printed as a warning on stderr and returned, for the result's
+    ``warnings`` and ``data_loss``.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always', TruncatedBagWarning)
+        warnings.simplefilter('always', DamagedBagWarning)
+        records = load_records(paths, topics, options)
+    loss = []
+    for item in caught:
+        if issubclass(item.category, (TruncatedBagWarning, DamagedBagWarning)):
+            loss.append(str(item.message))
+            print(f'dcmotor-id: warning: {item.message}', file=sys.stderr)
+        else:
+            warnings.showwarning(item.message, item.category, item.filename, item.lineno)
+    return records, list(dict.fromkeys(loss))
 
 
 def _json_safe(value):
@@ -64,13 +94,16 @@ def _nearest_existing(path: str) -> str:
     return path
 
 
-def check_output_path(path: str, option: str, directory: bool = False) -> None:
+def check_output_path(path: str, option: str, directory: bool = False,
+                      inputs: Sequence[str] = ()) -> None:
     """
     Refuse an output path that cannot be written, before any work is done.
 
-    A file option (``--json``) must not name a directory; for both kinds, the nearest
-    existing ancestor must be a directory in which a file can be created (tried with a
-    temporary file, which also catches read-only file systems and running as root).
+    A file option (``--json``) must not name a directory, and may only replace a regular file
+    that is not one of the ``inputs`` (never a symlink, a device, a FIFO nor a recording);
+    for both kinds, the nearest existing ancestor must be a directory in which a file can be
+    created (tried with a temporary file, which also catches read-only file systems and
+    running as root).
 
     Raises
     ------
@@ -79,6 +112,8 @@ def check_output_path(path: str, option: str, directory: bool = False) -> None:
 
     """
     target = os.path.abspath(path)
+    if not directory:
+        _check_replaceable(path, option, inputs)
     if not directory and (os.path.isdir(target) or path.endswith(os.sep)):
         raise InputDataError(f'{option} {path}: is a directory; give a file name, e.g. '
                              f'{os.path.join(path, "result.json")}')
@@ -99,6 +134,27 @@ def check_output_path(path: str, option: str, directory: bool = False) -> None:
                              f'({error.strerror or error}); choose a writable place') from None
 
 
+def _check_replaceable(path: str, option: str, inputs: Sequence[str] = ()) -> None:
+    """Refuse an output file that exists and is not a regular file, or is an input."""
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return
+    if stat.S_ISLNK(mode):
+        raise InputDataError(f'{option} {path}: is a symbolic link (to '
+                             f'{os.readlink(path)}); it is not replaced: give the path of a '
+                             'new or regular file')
+    if stat.S_ISDIR(mode):
+        return  # refused as a directory by the caller
+    if not stat.S_ISREG(mode):
+        raise InputDataError(f'{option} {path}: is {kind_of(mode)}, not a regular file; it is '
+                             'not replaced: give the path of a new or regular file')
+    twin = same_file(path, inputs)
+    if twin is not None:
+        raise InputDataError(f'{option} {path}: is the input {twin}; writing there would '
+                             'destroy the recording: give another file name')
+
+
 def write_json(path: str, result: Mapping[str, Any]) -> None:
     """
     Write the result as strict JSON, atomically.
@@ -107,6 +163,7 @@ def write_json(path: str, result: Mapping[str, Any]) -> None:
     runs never share one), then is renamed into place: a reader sees the old file or the whole
     new one, never a torn one.
     """
+    _check_replaceable(path, 'the output')
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
     handle, temporary = tempfile.mkstemp(dir=directory, suffix='.partial',
@@ -125,14 +182,17 @@ def write_json(path: str, result: Mapping[str, Any]) -> None:
 def _cmd_identify(args):
     # Every output place is checked first: a fit of minutes is never lost to a typo.
     if args.json:
-        check_output_path(args.json, '--json')
+        check_output_path(args.json, '--json', inputs=args.files)
     if args.report:
         check_output_path(args.report, '--report', directory=True)
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
     options = reading_options(args)
-    records = prepare_records(load_records(args.files, topics, options), args.torque_constant,
-                              args.resample, args.speed_cutoff)
+    loaded, loss = load_records_reporting_loss(args.files, topics, options)
+    records, repairs = repair_all(prepare_records(loaded, args.torque_constant, args.resample,
+                                                  args.speed_cutoff))
+    for note in repairs:
+        print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
     progress = terminal_progress(args.max_time, quiet=args.quiet)
     try:
@@ -140,9 +200,17 @@ def _cmd_identify(args):
                               torque_constant=args.torque_constant,
                               discover=not args.no_discover, vocabulary=vocabulary,
                               progress=progress, initial_state=args.initial_state)
+    except TimeBudgetExceeded:
+        raise InputDataError(f'--max-time {args.max_time:g}: no fit finished within the time '
+                             'budget; give more time (e.g. --max-time 60), or shorten or '
+                             'decimate the records') from None
     finally:
         progress.close()
     result = identified.as_dict()
+    if loss or repairs:
+        result['warnings'] = loss + repairs + list(result.get('warnings') or [])
+    if loss:
+        result['data_loss'] = loss
     if options.gear_ratio != 1.0:
         result['gear_ratio'] = options.gear_ratio
         result['output_shaft'] = output_shaft(result['parameters'], options.gear_ratio)
@@ -170,6 +238,7 @@ def _cmd_identify(args):
 
 def reading_options(args: argparse.Namespace) -> ReadOptions:
     """Return the :class:`ReadOptions` of the reading options (identify, validate)."""
+    set_memory_budget(args.memory_budget * 1e9)
     return ReadOptions(
         columns=parse_assignments(args.column, '--column'), current_unit=args.current_unit,
         speed_unit=args.speed_unit, speed_counts_per_rev=args.speed_counts_per_rev,
@@ -207,22 +276,34 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
                             'its field (position, velocity, effort; default velocity as speed, '
                             'position; the current from effort only with current=effort), the '
                             'other channels from their Float64 topics; repeatable')
+    _add_memory_budget(group)
+
+
+def _add_memory_budget(group: Any) -> None:
+    group.add_argument('--memory-budget', type=_positive, default=DEFAULT_BUDGET_BYTES / 1e9,
+                       metavar='GB', help='largest allocation a file may ask for, estimated '
+                       'before reading (default %(default)g GB); larger files are refused')
 
 
 def _cmd_validate(args):
     from dcmotor_id.identification.validate import format_validation, load_model, validate
+    check_input_path(args.model, 'model ')
     if args.json:
-        check_output_path(args.json, '--json')
+        check_output_path(args.json, '--json', inputs=[args.model, *args.files])
     if args.report:
         check_output_path(args.report, '--report', directory=True)
     model = load_model(args.model)
     options = reading_options(args)
     records = []
-    for record in load_records(args.files, options=options):
+    loaded, loss = load_records_reporting_loss(args.files, options=options)
+    for record in loaded:
         mechanical = model.torque_constant if model.mechanical_only else None
         records += prepare_records([record], mechanical, args.resample, args.speed_cutoff)
     validation = validate(model, records, args.init_samples, options.position_factor)
     result = validation.as_dict()
+    if loss:
+        result['warnings'] = loss + list(result.get('warnings') or [])
+        result['data_loss'] = loss
     if args.json:
         write_json(args.json, result)
     if args.report:
@@ -233,6 +314,7 @@ def _cmd_validate(args):
 
 
 def _cmd_simulate(args):
+    check_output_path(args.out, '--out')
     params = PAPER_MOTORS[args.motor]
     t, voltage = make_excitation(args.excitation, args.duration, args.sample_period,
                                  amplitude_v=args.amplitude, frequency_hz=args.frequency,
@@ -262,6 +344,12 @@ def _cmd_simulate(args):
 def _cmd_design(args):
     from dcmotor_id.design import control as control_design
     from dcmotor_id.design.export import write_exports
+    check_input_path(args.result, 'RESULT.json ')
+    if args.json:
+        check_output_path(args.json, '--json', inputs=[args.result])
+    for option, place in (('--report', args.report), ('--export', args.export)):
+        if place:
+            check_output_path(place, option, directory=True)
     result = control_design.load_result(args.result)
     motor = control_design.motor_from_result(result, args.gear_ratio, args.output_shaft)
     options = control_design.DesignOptions(args.current_bandwidth, args.speed_bandwidth,
@@ -289,6 +377,15 @@ def _cmd_demo(args):
 def _cmd_plan(args):
     from dcmotor_id.design.experiment import DEFAULT_NOISE, design_experiment, load_prior
     from dcmotor_id.design.routines import Limits
+    if os.path.exists(args.prior) or os.path.islink(args.prior):
+        check_input_path(args.prior, '--prior ')
+    if args.json:
+        check_output_path(args.json, '--json', inputs=[args.prior])
+    set_memory_budget(args.memory_budget * 1e9)
+    samples = args.duration / args.sample_period
+    check_budget(PLAN_BYTES_PER_SAMPLE * samples, f'--duration {args.duration:g}',
+                 f'{samples:.3g} samples at --sample-period {args.sample_period:g} s',
+                 'else give a shorter --duration or a longer --sample-period')
     prior, noise = load_prior(args.prior)
     noise = dict(noise or DEFAULT_NOISE)
     noise.update({key: value for key, value in (('current', args.noise_current),
@@ -307,13 +404,21 @@ def _cmd_plan(args):
     return 0
 
 
+#: Peak memory of ``plan`` per simulated sample [bytes] (measured: 190 B, rounded up).
+PLAN_BYTES_PER_SAMPLE = 200.0
+
+
 def _cmd_fleet(args):
     from dcmotor_id.fleet import FleetOptions, run_fleet
     from dcmotor_id.fleet.progress import Progress
+    for path in args.paths:
+        check_input_path(path, 'fleet input ', directory=True)
+    check_output_path(args.history, '--history', directory=True)
     options = FleetOptions(args.motor_from, args.torque_constant, not args.no_discover,
                            args.window_s, args.min_window_s)
     summary = run_fleet(args.paths, args.history, options, scheduler=args.scheduler,
                         workers=args.workers, force=args.force,
+                        retry_errors=not args.no_retry_errors,
                         progress=None if args.quiet else Progress())
     print(summary.text())
     return 0
@@ -321,6 +426,8 @@ def _cmd_fleet(args):
 
 def _cmd_fleet_report(args):
     from dcmotor_id.reports.fleet import write_fleet_report
+    check_input_path(args.history, 'HISTORY_DIR ', directory=True)
+    check_output_path(args.out, '--out', directory=True)
     print(f'report: {write_fleet_report(args.history, args.out)}')
     return 0
 
@@ -345,6 +452,9 @@ def _add_fleet_commands(commands):
     fleet.add_argument('--no-discover', action='store_true', help='skip effect discovery')
     fleet.add_argument('--force', action='store_true',
                        help='identify recordings already in the history again')
+    fleet.add_argument('--no-retry-errors', action='store_true',
+                       help='skip recordings whose rows in the history are errors (default: '
+                            'identify them again, they may have been repaired)')
     fleet.add_argument('--window-s', type=_positive, default=10.0, metavar='S',
                        help='window length [s] (default 10, as the identifier node)')
     fleet.add_argument('--min-window-s', type=_positive, metavar='S',
@@ -498,6 +608,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help='share of the current/speed limits the simulation may reach')
     plan.add_argument('--seed', type=int, default=0)
     plan.add_argument('--json', metavar='OUT', help='write the plan here (exciter plan_file)')
+    _add_memory_budget(plan)
     plan.set_defaults(handler=_cmd_plan)
 
     demo = commands.add_parser('demo', help='simulate motor 2 and identify it with both methods')
@@ -518,6 +629,33 @@ _ENVIRONMENT_HINTS = (
                          'columns'),
     (OverflowError, 'the numbers overflow the computation; check the units of the columns'),
 )
+
+
+#: What to do about an error of the operating system, by errno.
+_OS_HINTS = {
+    errno.EACCES: 'permission denied: make it readable/writable for this user (chmod) or '
+                  'choose another place',
+    errno.EPERM: 'operation not permitted: choose another place or run as its owner',
+    errno.EEXIST: 'already exists and is in the way: remove it or choose another name',
+    errno.ENOENT: 'no such file or directory: check the path',
+    errno.ENOSPC: 'no space left on the device: free space or write elsewhere',
+    errno.EROFS: 'the file system is read-only: write elsewhere',
+    errno.ENOTDIR: 'a part of the path is a file, not a directory: check the path',
+    errno.EISDIR: 'is a directory: give a file',
+    errno.ELOOP: 'a symbolic link loop: give the real path',
+    errno.ENAMETOOLONG: 'the name is too long: choose a shorter path',
+}
+
+
+def os_error_message(error: OSError) -> str:
+    """Return an error of the operating system as a sentence naming the path and the fix."""
+    where = error.filename if error.filename is not None else ''
+    if error.filename2 is not None:
+        where = f'{where} -> {error.filename2}'
+    hint = _OS_HINTS.get(error.errno or 0)
+    if hint is None:
+        hint = f'{error.strerror or error}: check the path and the machine'
+    return f'{where}: {hint}' if where else hint
 
 
 def _bug_report(error: BaseException) -> str:
@@ -549,7 +687,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'dcmotor-id: error: {error}', file=sys.stderr)
         return 2
     except OSError as error:
-        print(f'dcmotor-id: error: {error}', file=sys.stderr)
+        print(f'dcmotor-id: error: {os_error_message(error)}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print('dcmotor-id: interrupted', file=sys.stderr)

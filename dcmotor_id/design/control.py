@@ -173,10 +173,10 @@ def load_result(path: str) -> dict:
 
 
 def _number(value: Any) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
+    """Return a JSON number as a float; anything else (``true``, ``"1.6"``, null) is NaN."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
         return float('nan')
+    return float(value)
 
 
 def motor_from_result(result: dict, gear_ratio: float = 1.0,
@@ -205,15 +205,25 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
     if not (np.isfinite(gear_ratio) and gear_ratio > 0):
         raise InputDataError(f'--gear-ratio must be a positive number, got {gear_ratio}')
     given = result['parameters']
-    mechanical = result.get('mode') == 'mechanical' or not any(
-        np.isfinite(_number(given.get(name))) for name in ('Ra', 'La', 'CPhi'))
+    # Mechanical only when the result says so (or, an older result without a mode, has no
+    # electrical parameter at all): NaN electrical values of a full result are refused, not
+    # silently designed around.
+    mode = result.get('mode')
+    if mode not in (None, 'full', 'mechanical'):
+        raise InputDataError(f'the result has mode {mode!r}; it must be "full" or '
+                             '"mechanical" (as `dcmotor-id identify --json` writes it)')
+    mechanical = mode == 'mechanical' or (mode is None and all(
+        given.get(name) is None for name in ('Ra', 'La', 'CPhi')))
     names = ('J', 'b', 'Mc') if mechanical else ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
     values, stderr, bad = {}, {}, []
     for name in names:
         value = _number(given.get(name))
         positive = name in ('Ra', 'La', 'CPhi', 'J')
         if not np.isfinite(value) or value < 0 or (positive and value == 0):
-            bad.append(f'{name} = {given.get(name)!r}')
+            raw = given.get(name)
+            typed = raw is None or (isinstance(raw, (int, float)) and not isinstance(raw, bool))
+            bad.append(f'{name} = {json.dumps(raw)}' + (
+                '' if typed else f' (a {type(raw).__name__}, not a number)'))
         values[name] = value
         error = _number((result.get('stderr') or {}).get(name))
         stderr[name] = abs(error) if np.isfinite(error) else float('nan')
@@ -818,7 +828,9 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
 def format_design(result: dict) -> str:
     """Render a design as a readable table."""
     dt = result['sample_period_s']
-    lines = [f"design: mode {result['mode']}, {result['shaft']} shaft (gear ratio "
+    made = ('current and speed loops' if result['mode'] == 'full' else
+            'speed loop only, on an ideal torque source: the result has no electrical model')
+    lines = [f"design: mode {result['mode']} ({made}), {result['shaft']} shaft (gear ratio "
              f"{result['gear_ratio']:g}), " + (f'sample period {dt:g} s (Tustin)' if dt
                                                else 'continuous')]
     request = result['requested']

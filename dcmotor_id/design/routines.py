@@ -19,7 +19,7 @@ any monotonic clock.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
-from typing import Any, Mapping, Optional
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -32,6 +32,8 @@ ROUTINES = ('quasistatic', 'dynamic', 'prbs', 'multisine', 'chirp')
 DIRECTIONS = ('forward', 'backward')
 #: States of a session, as reported on ``/diagnostics``.
 STATES = ('idle', 'ramping-in', 'running', 'stopped', 'stopped-by-limit', 'stale', 'done')
+#: Measured channels a session can watch.
+CHANNELS = ('current', 'speed', 'voltage')
 #: States in which the session drives the motor.
 ACTIVE_STATES = ('ramping-in', 'running')
 
@@ -223,23 +225,35 @@ class ExcitationSession:
         Ramp-in time at the start of a routine [s].
     stale_timeout_s : float
         Stop when no measurement arrived for this long [s].
+    watch : sequence of str
+        Channels (of :data:`CHANNELS`) that must each stay fresh and finite: the routine
+        stops at 0 V as soon as one of them has no finite sample for ``stale_timeout_s`` or
+        its latest sample is NaN or infinite. Empty: any :meth:`observe` call counts.
 
     """
 
     def __init__(self, limits: Limits, rate_hz: float = 200.0, ramp_in_s: float = 1.0,
-                 stale_timeout_s: float = 0.5) -> None:
+                 stale_timeout_s: float = 0.5, watch: Sequence[str] = ()) -> None:
         if rate_hz <= 0 or stale_timeout_s <= 0 or ramp_in_s < 0:
             raise ValueError('rate_hz and stale_timeout_s must be positive, ramp_in_s >= 0')
+        unknown = set(watch) - set(CHANNELS)
+        if unknown:
+            raise ValueError(f'cannot watch {sorted(unknown)}: choose from {", ".join(CHANNELS)}')
         self.limits = limits
         self.rate_hz = float(rate_hz)
         self.ramp_in_s = float(ramp_in_s)
         self.stale_timeout_s = float(stale_timeout_s)
+        self.watch = tuple(watch)
         self.state = 'idle'
         self.reason = ''
         self.routine: Optional[Routine] = None
         self.profile = np.zeros(0)
         self.started_s: Optional[float] = None
         self.last_sample_s: Optional[float] = None
+        #: Time of the latest finite sample of each channel [s].
+        self.last_seen: dict[str, float] = {}
+        #: Channels whose latest sample was NaN or infinite.
+        self.not_finite: set[str] = set()
         self.last_command_v = 0.0
         self.progress = 0.0
         self.peaks = {'current': 0.0, 'speed': 0.0, 'voltage': 0.0}
@@ -250,9 +264,28 @@ class ExcitationSession:
         return self.state in ACTIVE_STATES
 
     def fresh(self, now_s: float) -> bool:
-        """Whether a measurement arrived within the stale timeout."""
-        return self.last_sample_s is not None and \
-            now_s - self.last_sample_s <= self.stale_timeout_s
+        """Whether every watched channel has a finite sample within the stale timeout."""
+        return self.stale_reason(now_s) is None
+
+    def stale_reason(self, now_s: float) -> Optional[str]:
+        """Say which watched channel is stale or not finite, and since when; None if none."""
+        timeout = self.stale_timeout_s
+        if not self.watch:
+            if self.last_sample_s is None:
+                return f'no measurement within {timeout:g} s'
+            age = now_s - self.last_sample_s
+            return f'no measurement for {age:.3g} s (timeout {timeout:g} s)' \
+                if age > timeout else None
+        for channel in self.watch:
+            if channel in self.not_finite:
+                return f'{channel} is not finite (NaN or inf)'
+            seen = self.last_seen.get(channel)
+            if seen is None:
+                return f'no measurement on {channel} within {timeout:g} s'
+            if now_s - seen > timeout:
+                return (f'no measurement on {channel} for {now_s - seen:.3g} s '
+                        f'(timeout {timeout:g} s)')
+        return None
 
     def start(self, routine: Routine, now_s: float) -> tuple[bool, str]:
         """
@@ -264,10 +297,14 @@ class ExcitationSession:
         if self.active:
             running = self.routine.describe() if self.routine else ''
             return False, f'a routine is running ({running})'
-        if not self.fresh(now_s):
-            return False, (f'no measurement within {self.stale_timeout_s:g} s: not driving '
-                           'blind (check the current/speed or samples topics)')
+        stale = self.stale_reason(now_s)
+        if stale is not None:
+            return False, (f'{stale}: not driving blind (check the current/speed or samples '
+                           'topics)')
         _, profile = command_profile(routine, self.rate_hz, self.ramp_in_s)
+        if not np.all(np.isfinite(profile)):
+            return False, (f'the routine {routine.describe()} gives NaN or infinite voltages: '
+                           'check its offset and frequencies')
         peak = float(np.max(np.abs(profile))) if profile.size else 0.0
         if peak > self.limits.voltage_v:
             return False, (f'the routine peaks at {peak:.4g} V, beyond the voltage limit '
@@ -289,27 +326,38 @@ class ExcitationSession:
         self.last_command_v = 0.0
         return 0.0
 
-    def observe(self, now_s: float, current: ArrayLike = (), speed: ArrayLike = (),
-                voltage: ArrayLike = ()) -> bool:
+    def observe(self, now_s: float, current: Optional[ArrayLike] = None,
+                speed: Optional[ArrayLike] = None, voltage: Optional[ArrayLike] = None) -> bool:
         """
-        Take measured samples; return whether a limit tripped (the session is then stopped).
+        Take measured samples; return whether the session was stopped by them.
 
-        Any message counts as a fresh measurement, also an empty one.
+        A channel given (even empty) is fresh now unless a value is NaN or infinite, which
+        stops an active routine at once (``stopped-by-limit``, the channel named) and keeps a
+        watched channel stale until a finite sample comes. A call without channels counts
+        only for a session that watches none.
         """
         self.last_sample_s = now_s
+        given = {'current': current, 'speed': speed, 'voltage': voltage}
+        arrays = {channel: np.asarray(values, dtype=float).ravel()
+                  for channel, values in given.items() if values is not None}
+        for channel, values in arrays.items():
+            if np.all(np.isfinite(values)):
+                self.not_finite.discard(channel)
+                self.last_seen[channel] = now_s
+            else:
+                self.not_finite.add(channel)
         if not self.active:
             return False
-        for channel, values, limit, unit in (
-                ('current', current, self.limits.current_a, 'A'),
-                ('speed', speed, self.limits.speed_rad_s, 'rad/s'),
-                ('voltage', voltage, self.limits.voltage_v, 'V')):
-            values = np.asarray(values, dtype=float)
-            if not values.size:
+        for channel, limit, unit in (('current', self.limits.current_a, 'A'),
+                                     ('speed', self.limits.speed_rad_s, 'rad/s'),
+                                     ('voltage', self.limits.voltage_v, 'V')):
+            measured = arrays.get(channel)
+            if measured is None or not measured.size:
                 continue
-            peak = float(np.max(np.abs(values)))
-            if not np.isfinite(peak):
-                self.stop(f'{channel} is not finite', 'stopped-by-limit')
+            if channel in self.not_finite:
+                self.stop(f'{channel} is not finite (NaN or inf)', 'stopped-by-limit')
                 return True
+            peak = float(np.max(np.abs(measured)))
             self.peaks[channel] = max(self.peaks[channel], peak)
             # the voltage is measured after the command: tolerate rounding, not more
             tolerance = 1e-6 * limit if channel == 'voltage' else 0.0
@@ -327,10 +375,9 @@ class ExcitationSession:
         """
         if not self.active or self.started_s is None:
             return None
-        if not self.fresh(now_s):
-            age = now_s - (self.last_sample_s if self.last_sample_s is not None else now_s)
-            return self.stop(f'no measurement for {age:.3g} s (timeout '
-                             f'{self.stale_timeout_s:g} s)', 'stale')
+        stale = self.stale_reason(now_s)
+        if stale is not None:
+            return self.stop(stale, 'stale')
         elapsed = now_s - self.started_s
         index = int(np.floor(elapsed * self.rate_hz + 1e-9))
         if index >= self.profile.size:
@@ -340,6 +387,9 @@ class ExcitationSession:
         self.state = 'ramping-in' if elapsed < self.ramp_in_s else 'running'
         value = float(np.clip(self.profile[index], -self.limits.voltage_v,
                               self.limits.voltage_v))
+        if not np.isfinite(value):
+            return self.stop(f'the routine gave a non-finite command at {elapsed:.3g} s',
+                             'stopped-by-limit')
         self.last_command_v = value
         return value
 
@@ -356,4 +406,6 @@ class ExcitationSession:
             'command_v': f'{self.last_command_v:.6g}',
             'peak_current_a': f'{self.peaks["current"]:.6g}',
             'peak_speed_rad_s': f'{self.peaks["speed"]:.6g}',
+            'watched': ', '.join(self.watch),
+            'not_finite': ', '.join(sorted(self.not_finite)),
         }

@@ -23,6 +23,7 @@ import datetime
 import json
 import math
 import os
+import sys
 from typing import Any, Iterable, Mapping, Optional, Sequence
 import uuid
 
@@ -155,6 +156,37 @@ def part_files(history_dir: str) -> list[str]:
                   if name.startswith(PART_PREFIX) and name.endswith('.parquet'))
 
 
+#: Unreadable part files already reported (each is named once per process).
+_REPORTED: set[str] = set()
+
+
+def readable_parts(history_dir: str) -> tuple[list[str], list[pa.Schema]]:
+    """
+    Return the part files that are Parquet files of a compatible schema, and their schemas.
+
+    A damaged or foreign ``part-*.parquet`` (a truncated copy, another program's file) is
+    skipped and named once on stderr: one bad file never hides the rest of the history.
+    """
+    files, schemas = [], []
+    for path in part_files(history_dir):
+        try:
+            schema = pq.read_schema(path)
+            pa.unify_schemas([SCHEMA, schema])
+            if 'source_bag' not in schema.names or 'status' not in schema.names:
+                raise ValueError('no source_bag or status column: not a fleet history file')
+        except (OSError, ValueError, pa.ArrowException) as error:
+            if path not in _REPORTED:
+                _REPORTED.add(path)
+                print(f'dcmotor-id: warning: {path}: not a readable fleet history file '
+                      f'({str(error).splitlines()[0] if str(error) else type(error).__name__}); '
+                      'skipped: move it out of the history directory or delete it',
+                      file=sys.stderr)
+            continue
+        files.append(path)
+        schemas.append(schema)
+    return files, schemas
+
+
 def read_history(history_dir: str, latest: bool = True,
                  columns: Optional[Iterable[str]] = None) -> pa.Table:
     """
@@ -174,10 +206,10 @@ def read_history(history_dir: str, latest: bool = True,
         when ``latest`` needs them).
 
     """
-    files = part_files(history_dir)
+    files, schemas = readable_parts(history_dir)
     if not files:
         return SCHEMA.empty_table()
-    schema = pa.unify_schemas([pq.read_schema(path) for path in files])
+    schema = pa.unify_schemas(schemas)
     wanted = None
     if columns is not None:
         wanted = list(dict.fromkeys(list(columns) + (['source_bag', 'run_id', 'processed_at']
@@ -203,7 +235,21 @@ def _newest_runs(table: pa.Table) -> pa.Table:
     return table.filter(pa.array(keep))
 
 
-def known_sources(history_dir: str) -> set[str]:
-    """Return the bags (absolute paths) the history holds rows of."""
-    table = read_history(history_dir, latest=False, columns=['source_bag'])
-    return set(table.column('source_bag').to_pylist()) if table.num_rows else set()
+def known_sources(history_dir: str, retry_errors: bool = True) -> set[str]:
+    """
+    Return the bags (absolute paths) the history holds rows of.
+
+    With ``retry_errors`` (the default), a bag whose newest run has an error row is not
+    known: it is identified again on the next run (it may have been repaired, or have
+    vanished mid-run), instead of being skipped forever.
+    """
+    table = read_history(history_dir, latest=retry_errors,
+                         columns=['source_bag', 'status'])
+    if not table.num_rows:
+        return set()
+    bags = table.column('source_bag').to_pylist()
+    if not retry_errors:
+        return set(bags)
+    failed = {bag for bag, status in zip(bags, table.column('status').to_pylist())
+              if status != 'ok'}
+    return set(bags) - failed

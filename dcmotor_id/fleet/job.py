@@ -115,7 +115,7 @@ def run_fleet(paths: Iterable[str], history_dir: str, options: Optional[FleetOpt
               *, scheduler: Optional[str] = None, workers: Optional[int] = None,
               force: bool = False, client: Any = None, progress: Optional[Progress] = None,
               retries: int = RETRIES, flush_s: float = 30.0,
-              flush_rows: int = 2000) -> FleetSummary:
+              flush_rows: int = 2000, retry_errors: bool = True) -> FleetSummary:
     """
     Identify every window of every recording under ``paths``; append the rows to the history.
 
@@ -142,6 +142,9 @@ def run_fleet(paths: Iterable[str], history_dir: str, options: Optional[FleetOpt
     flush_s, flush_rows : float, int
         Append finished recordings to the history at least this often, or once this many
         rows wait.
+    retry_errors : bool
+        Identify again the recordings whose newest rows hold an error (default); False skips
+        every recording already in the history.
 
     Raises
     ------
@@ -158,7 +161,7 @@ def run_fleet(paths: Iterable[str], history_dir: str, options: Optional[FleetOpt
     sources = find_sources(paths)
     if not sources:
         raise InputDataError(f'no bags, .mcap, .db3 or CSV files under {", ".join(paths)}')
-    known = set() if force else history.known_sources(history_dir)
+    known = set() if force else history.known_sources(history_dir, retry_errors)
     todo = [source for source in sources if source.path not in known]
     summary = FleetSummary(found=len(sources), skipped=len(sources) - len(todo))
     if not todo:

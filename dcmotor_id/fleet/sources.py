@@ -19,6 +19,7 @@ from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.formats import BAG_SUFFIXES, detect_format
 from dcmotor_id.formats.bag import FLOAT64_TYPE, PARTIAL_PREFIX
 from dcmotor_id.formats.batch import BATCH_TYPE
+from dcmotor_id.formats.paths import check_input_path
 
 #: Last name component of each stream of a motor, as the identifier node names them.
 CHANNEL_TOPICS = ('voltage', 'current', 'speed')
@@ -81,9 +82,10 @@ def find_sources(paths: Iterable[str]) -> list[Source]:
     found: dict[str, Source] = {}
     for given in paths:
         path = os.path.abspath(given)
-        if not os.path.exists(path):
+        if not os.path.lexists(path):
             raise InputDataError(f'{given}: no such file or directory; give bag directories, '
                                  '.mcap files, CSV files or directories holding them')
+        check_input_path(given, directory=True)
         if os.path.isfile(path) or _is_bag_dir(path):
             found.setdefault(path, Source(path, os.path.dirname(path), detect_format(path)))
             continue

@@ -72,6 +72,9 @@ class BagWindows:
         ``(motor_id or '', message)`` of what could not be read.
     warnings : list of str
         Warnings while reading (a truncated MCAP file recovered), copied to every row.
+    data_loss : list of str
+        What of them says data were lost (a truncated or damaged bag): every row of the
+        recording gets it in its ``data_loss`` column, so the history marks the rows.
 
     """
 
@@ -79,6 +82,7 @@ class BagWindows:
     windows: list[FleetWindow] = field(default_factory=list)
     errors: list[tuple[str, str]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    data_loss: list[str] = field(default_factory=list)
 
     def plan(self) -> 'BagPlan':
         """Return the small summary the client schedules from (no samples)."""
@@ -129,7 +133,7 @@ def read_windows(source: Source, options: FleetOptions) -> BagWindows:
     the file's time starts there). Errors of the data are returned in :attr:`BagWindows.errors`.
     """
     from dcmotor_id.formats import read_record
-    from dcmotor_id.formats.bag import open_bag, read_bag
+    from dcmotor_id.formats.bag import DamagedBagWarning, open_bag, read_bag, TruncatedBagWarning
 
     result = BagWindows(source)
     with warnings.catch_warnings(record=True) as caught:
@@ -166,6 +170,9 @@ def read_windows(source: Source, options: FleetOptions) -> BagWindows:
         except Exception as error:  # noqa: BLE001  (any problem of the data: an error row)
             result.errors.append(('', error_message(error)))
     result.warnings.extend(str(item.message) for item in caught)
+    result.data_loss.extend(str(item.message) for item in caught
+                            if issubclass(item.category, (DamagedBagWarning,
+                                                          TruncatedBagWarning)))
     if not result.windows and not result.errors:
         result.errors.append(('', f'{source.path}: no window of at least '
                                   f'{options.shortest_s:g} s'))
@@ -186,6 +193,7 @@ def identify_window(bag: BagWindows, index: int, options: FleetOptions) -> dict[
     long it ran.
     """
     from dcmotor_id.fleet.history import error_row, result_row
+    from dcmotor_id.identification.dropouts import repair_all
     from dcmotor_id.identification.identify import identify, prepare_records
 
     window = bag.windows[index]
@@ -193,7 +201,10 @@ def identify_window(bag: BagWindows, index: int, options: FleetOptions) -> dict[
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
         try:
-            records = prepare_records([window.record], options.torque_constant)
+            records, repairs = repair_all(prepare_records([window.record],
+                                                          options.torque_constant))
+            for note in repairs:
+                warnings.warn(note)
             result = identify(records, torque_constant=options.torque_constant,
                               discover=options.discover)
             row = result_row(result.as_dict())
@@ -208,6 +219,8 @@ def identify_window(bag: BagWindows, index: int, options: FleetOptions) -> dict[
     row['n_samples'] = len(record)
     row['warnings'] = list(bag.warnings) + list(row.get('warnings') or []) + \
         [str(item.message) for item in caught]
+    if bag.data_loss:
+        row['data_loss'] = '; '.join(dict.fromkeys(bag.data_loss))
     row['worker'] = worker_name()
     row['elapsed_s'] = time.perf_counter() - began
     return row

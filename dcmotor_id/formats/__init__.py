@@ -16,9 +16,11 @@ from collections.abc import Iterable, Mapping
 import os
 from typing import Callable, Optional
 
+from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
 from dcmotor_id.formats import bag, csv, mat, parquet
 from dcmotor_id.formats.mapping import DEFAULT_OPTIONS, ReadOptions
+from dcmotor_id.formats.paths import check_input_path, same_file
 from dcmotor_id.formats.quality import check_channels
 
 #: Format name -> reader ``(path, topics=..., sample_period_s=..., options=...) -> Record``.
@@ -70,6 +72,11 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
         what to do.
 
     """
+    check_input_path(path, directory=True)
+    if os.path.isdir(path):
+        for entry in sorted(os.listdir(path)):
+            if not os.path.isdir(os.path.join(path, entry)):
+                check_input_path(os.path.join(path, entry))
     record = READERS[detect_format(path)](path, topics=topics, sample_period_s=sample_period_s,
                                           options=options)
     return check_channels(record)
@@ -78,5 +85,16 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
 def read_records(paths: Iterable[PathLike], *,
                  topics: Optional[Mapping[str, str]] = None,
                  options: ReadOptions = DEFAULT_OPTIONS) -> list[Record]:
-    """Read every path with :func:`read_record`, in order."""
+    """
+    Read every path with :func:`read_record`, in order.
+
+    The same file given twice (by two names, or a link) is refused: it would count its
+    samples twice and shrink the standard errors by the square root of two.
+    """
+    paths = list(paths)
+    for index, path in enumerate(paths):
+        twin = same_file(path, paths[:index])
+        if twin is not None:
+            raise InputDataError(f'{path}: the same file as {twin}, given twice; give each '
+                                 'recording once')
     return [read_record(path, topics=topics, options=options) for path in paths]

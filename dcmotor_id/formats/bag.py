@@ -25,6 +25,7 @@ from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record, record_from_stamps
 from dcmotor_id.formats.batch import (BATCH_CHANNELS, batch_message, BATCH_TYPE, BatchTypes,
                                       decode_batch_message)
+from dcmotor_id.formats.budget import check_budget
 from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
 
 #: Topic of every channel in a bag, as the identifier node names them (relative names match
@@ -53,6 +54,10 @@ DEFAULT_JOINT_STATE_FIELDS = {'speed': 'velocity', 'position': 'position'}
 MAX_CLOCK_OFFSET_NS = 1_000_000_000
 #: The first bytes of an MCAP file.
 MCAP_MAGIC = b'\x89MCAP0\r\n'
+
+
+class DamagedBagWarning(UserWarning):
+    """Messages of a bag were lost or could not be decoded; says how many, of which topic."""
 
 
 class TruncatedBagWarning(UserWarning):
@@ -104,6 +109,8 @@ class MessageSource(Protocol):
 
     topics: dict[str, str]
     recovery: Optional[Recovery]
+    #: What was lost reading a damaged bag (one sentence each), filled as messages are read.
+    damage: list[str]
     #: Message type -> its definition as stored in the bag (``ros2msg`` text, dependencies
     #: appended), for types the reader's type store does not know.
     definitions: dict[str, str]
@@ -119,13 +126,58 @@ class _RosbagsSource:
         self._reader = reader
         self.topics = {conn.topic: conn.msgtype for conn in reader.connections}
         self.recovery: Optional[Recovery] = None
+        self.damage: list[str] = []
         self.definitions = {conn.msgtype: getattr(conn.msgdef, 'data', '')
                             for conn in reader.connections}
 
     def messages(self, topics: Collection[str]) -> Iterator[tuple[str, int, bytes]]:
+        """
+        Yield the messages; count them against the bag's own counts.
+
+        A damaged bag (bytes overwritten mid-file) either stops rosbags' reader with an
+        exception or loses messages silently: both end the reading here, and what was lost
+        (how many messages of which topic, after which time) goes to :attr:`damage`.
+        """
         connections = [conn for conn in self._reader.connections if conn.topic in topics]
-        for connection, stamp, data in self._reader.messages(connections=connections):
-            yield connection.topic, int(stamp), bytes(data)
+        declared: dict[str, int] = {}
+        for connection in connections:
+            declared[connection.topic] = declared.get(connection.topic, 0) + int(
+                getattr(connection, 'msgcount', 0) or 0)
+        seen: dict[str, list[int]] = {topic: [] for topic in declared}
+        stopped = ''
+        try:
+            for connection, stamp, data in self._reader.messages(connections=connections):
+                seen[connection.topic].append(int(stamp))
+                yield connection.topic, int(stamp), bytes(data)
+        except Exception as error:  # noqa: BLE001  (rosbags raises anything on damaged bytes)
+            stopped = f'reading stopped ({type(error).__name__}: {error}); '
+        lost = {topic: declared[topic] - len(seen[topic]) for topic in declared
+                if declared[topic] > len(seen[topic])}
+        if stopped or lost:
+            starts = [stamps[0] for stamps in seen.values() if stamps]
+            origin = min(starts) if starts else 0
+            self.damage.append(f'the bag is damaged: {stopped}' + ', '.join(
+                f'{count} of {declared[topic]} messages of {topic} lost '
+                f'({_gaps(seen[topic], origin)})' for topic, count in sorted(lost.items())))
+
+
+def _gaps(stamps: list[int], origin: int, shown: int = 3) -> str:
+    """Say where a topic's messages are missing: its widest gaps, in s from ``origin``."""
+    if not stamps:
+        return 'none of them could be read'
+    times = np.asarray(stamps, dtype=np.int64)
+    if times.size < 3:
+        return f'only {times.size} read, up to t = {(times[-1] - origin) * 1e-9:.3f} s'
+    steps = np.diff(times)
+    typical = float(np.median(steps))
+    wide = np.flatnonzero(steps > 1.5 * typical)
+    if wide.size == 0:
+        return f'after t = {(times[-1] - origin) * 1e-9:.3f} s of the recording'
+    wide = wide[np.argsort(-steps[wide], kind='stable')][:shown]
+    return 'missing ' + ', '.join(
+        f'between t = {(times[k] - origin) * 1e-9:.3f} s and {(times[k + 1] - origin) * 1e-9:.3f}'
+        ' s' for k in sorted(wide)) + (' and elsewhere' if np.sum(
+            steps > 1.5 * typical) > shown else '')
 
 
 class _RecoveredSource:
@@ -136,6 +188,7 @@ class _RecoveredSource:
         self.topics = topics
         self._messages = messages
         self.recovery: Optional[Recovery] = recovery
+        self.damage: list[str] = []
         self.definitions = dict(definitions or {})
 
     def messages(self, topics: Collection[str]) -> Iterator[tuple[str, int, bytes]]:
@@ -230,6 +283,35 @@ def _recover_mcap(files: list[str], reason: str) -> Optional[_RecoveredSource]:
     return _RecoveredSource(topics, messages, recovery, definitions)
 
 
+def _check_mcap_budget(files: list[str]) -> None:
+    """
+    Refuse MCAP files whose chunks decompress beyond the memory budget, before reading them.
+
+    A chunk is decompressed whole (545 KB of zstd declared 3 GB): its declared uncompressed
+    size, from the summary at the end of the file, is checked against the budget, as is the
+    total of the chunks (the messages read are kept). Files without a summary (truncated)
+    are left to the recovery, which reads them whole (bounded by their size on disk).
+    """
+    from mcap.reader import SeekingReader
+    total = 0.0
+    for name in files:
+        try:
+            with open(name, 'rb') as stream:
+                summary = SeekingReader(stream).get_summary()
+        except Exception:  # noqa: BLE001, S112  (no or damaged summary: the recovery's case)
+            continue
+        if summary is None:
+            continue
+        for index in summary.chunk_indexes:
+            check_budget(float(index.uncompressed_size), name,
+                         f'a {index.compression or "uncompressed"} chunk of '
+                         f'{index.compressed_size} bytes declaring {index.uncompressed_size} '
+                         'bytes')
+            total += float(index.uncompressed_size)
+    if files:
+        check_budget(total, ', '.join(files), 'chunks totalling this many bytes')
+
+
 @contextmanager
 def open_bag(path: PathLike) -> Iterator[MessageSource]:
     """
@@ -255,6 +337,7 @@ def open_bag(path: PathLike) -> Iterator[MessageSource]:
     if not os.path.exists(path):
         raise InputDataError(f'{path}: no such file or directory; give a CSV file, a rosbag2 '
                              'directory or a .mcap file')
+    _check_mcap_budget(_mcap_files(path))
     try:
         reader = Reader(path)
         reader.open()
@@ -266,11 +349,19 @@ def open_bag(path: PathLike) -> Iterator[MessageSource]:
         if recovered is None or recovered.recovery is None or not recovered.recovery.messages:
             raise InputDataError(f'{path}: cannot open as a rosbag2 bag ({reason})')
         yield recovered
+        _warn_damage(path, recovered)
         return
     try:
-        yield _RosbagsSource(reader)
+        source = _RosbagsSource(reader)
+        yield source
+        _warn_damage(path, source)
     finally:
         reader.close()
+
+
+def _warn_damage(path: str, source: MessageSource) -> None:
+    for text in dict.fromkeys(source.damage):
+        warnings.warn(f'{path}: {text}', DamagedBagWarning, stacklevel=4)
 
 
 def _warn_recovered(path: str, recovery: Recovery, what: str, duration_s: float,
@@ -389,6 +480,36 @@ def read_bag(path: PathLike, topics: Optional[Mapping[str, str]] = None,
 
 def _read_bag_si(path: PathLike, topics: Optional[Mapping[str, str]],
                  sample_period_s: Optional[float], options: ReadOptions) -> Record:
+    try:
+        return _read_bag_topics(path, topics, sample_period_s, options)
+    except (AttributeError, KeyError, IndexError, TypeError, ValueError, RecursionError,
+            struct.error, UnicodeError) as error:
+        # A payload that decodes but holds the wrong fields (rosbags' SerdeError itself is
+        # caught where it is raised, in _deserialize).
+        raise InputDataError(f'{path}: a message does not decode as its declared type '
+                             f'({type(error).__name__}: {str(error)[:200]}); the bag is '
+                             'damaged or declares a wrong type: re-record it or give other '
+                             'topics') from None
+
+
+def _deserialize(typestore: Any, data: bytes, msgtype: str, topic: str, path: str,
+                 stamp: int) -> Any:
+    """Decode one CDR payload, or refuse it naming the topic and the time."""
+    try:
+        return typestore.deserialize_cdr(data, msgtype)
+    except RecursionError:
+        raise InputDataError(f'{path}: a message of {topic} (bag time {stamp} ns) nests without '
+                             f'end and is not a valid {msgtype}: the bag is damaged; re-record '
+                             'it or give other topics') from None
+    except Exception as error:  # noqa: BLE001  (SerdeError, struct.error, IndexError ...)
+        raise InputDataError(f'{path}: a message of {topic} (bag time {stamp} ns) is not a '
+                             f'valid {msgtype} ({type(error).__name__}: {str(error)[:200]}): '
+                             'the bag is damaged or declares a wrong type; re-record it or '
+                             'give other topics') from None
+
+
+def _read_bag_topics(path: PathLike, topics: Optional[Mapping[str, str]],
+                     sample_period_s: Optional[float], options: ReadOptions) -> Record:
     from dcmotor_id.formats.streams import align_timestamps
 
     names = dict(BAG_TOPICS)
@@ -574,7 +695,7 @@ def _dynamic_joint_state_values(source: MessageSource, topic: str, path: str,
     joint = options.joint
     present: list[str] = []
     for _, stamp, data in source.messages((topic,)):
-        message = typestore.deserialize_cdr(data, msgtype)
+        message = _deserialize(typestore, data, msgtype, topic, path, stamp)
         names = list(message.joint_names)
         joint = _choose_joint(names, joint, topic, path)
         entry = message.interface_values[names.index(joint)]
@@ -761,7 +882,7 @@ def _joint_state_values(source: MessageSource, topic: str, path: str, joint: Opt
     log_stamps: list[int] = []
     values: dict[str, list[float]] = {channel: [] for channel in fields}
     for _, stamp, data in source.messages((topic,)):
-        message = typestore.deserialize_cdr(data, JOINT_STATE_TYPE)
+        message = _deserialize(typestore, data, JOINT_STATE_TYPE, topic, path, stamp)
         names = list(message.name)
         joint = _choose_joint(names, joint, topic, path)
         index = names.index(joint)
@@ -819,18 +940,47 @@ def _read_float64(source: MessageSource, topics: Mapping[str, str], typestore: A
     stamps_by_channel, values_by_channel = {}, {}
     for channel, (stamps, payloads) in raw.items():
         if not stamps:
-            raise InputDataError(f'{path}: topic {topics[channel]} has no messages')
-        stamps_by_channel[channel] = np.array(stamps, dtype=np.int64)
-        values_by_channel[channel] = _decode_float64(payloads, typestore)
+            damage = '; '.join(getattr(source, 'damage', []))
+            raise InputDataError(f'{path}: topic {topics[channel]} has no messages' + (
+                f' that could be read: {damage}; re-record it or repair the file'
+                if damage else ''))
+        values, good = _decode_float64(payloads, typestore)
+        if not good.all():
+            bad = np.flatnonzero(~good)
+            getattr(source, 'damage', []).append(
+                f'the bag is damaged: {bad.size} of {len(payloads)} messages of '
+                f'{topics[channel]} are not valid {FLOAT64_TYPE} and were left out (the first '
+                f'at t = {(stamps[bad[0]] - stamps[0]) * 1e-9:.3f} s)')
+            if bad.size > len(payloads) // 2:
+                raise InputDataError(
+                    f'{path}: {bad.size} of {len(payloads)} messages of {topics[channel]} are '
+                    f'not valid {FLOAT64_TYPE}: the topic is damaged or of another type; '
+                    're-record it or give another topic')
+        stamps_by_channel[channel] = np.array(stamps, dtype=np.int64)[good]
+        values_by_channel[channel] = values[good]
     return stamps_by_channel, values_by_channel
 
 
-def _decode_float64(payloads: list[bytes], typestore: Any) -> np.ndarray:
+def _decode_float64(payloads: list[bytes], typestore: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Return the values and which payloads decoded (a damaged one is NaN, not decoded)."""
     # rosbags' deserializer, not a hand-written CDR decoder: bench/cdr_results.md measures a
     # whole bag (60 s x 3 channels at 1 kHz) read and written only 1.3 times faster with
     # one, some 0.1-0.2 s a minute of samples: not worth code of our own
-    return np.array([typestore.deserialize_cdr(data, FLOAT64_TYPE).data for data in payloads],
-                    dtype=float)
+    try:
+        values = np.array([typestore.deserialize_cdr(data, FLOAT64_TYPE).data
+                           for data in payloads], dtype=float)
+        return values, np.ones(values.size, dtype=bool)
+    except Exception:  # noqa: BLE001  (SerdeError, struct, index: a damaged payload)
+        pass
+    values = np.full(len(payloads), np.nan)
+    good = np.zeros(len(payloads), dtype=bool)
+    for index, data in enumerate(payloads):
+        try:
+            values[index] = float(typestore.deserialize_cdr(data, FLOAT64_TYPE).data)
+            good[index] = True
+        except Exception:  # noqa: BLE001, S112  (counted as damaged)
+            continue
+    return values, good
 
 
 def _read_batches(source: MessageSource, topic: str, typestore: Any, path: str,
@@ -839,7 +989,8 @@ def _read_batches(source: MessageSource, topic: str, typestore: Any, path: str,
 
     stamps, blocks = [], []
     for _, stamp, data in source.messages((topic,)):
-        block = decode_batch_message(typestore.deserialize_cdr(data, BATCH_TYPE))
+        block = decode_batch_message(_deserialize(typestore, data, BATCH_TYPE, topic, path,
+                                                  stamp))
         if block.shape[1] == 0:
             continue
         offsets = np.rint((block[0] - block[0, 0]) * 1e9).astype(np.int64)

@@ -98,6 +98,28 @@ def _encoding(path: PathLike) -> str:
     return 'utf-8-sig'
 
 
+def _refuse_nul(path: PathLike, block: int = 1 << 20) -> None:
+    """
+    Refuse a text file with a NUL byte anywhere (a NUL-padded or sparse file).
+
+    A run of NUL bytes has no line end: the parser would take gigabytes of it as one line.
+    Read in blocks of ``block`` bytes, so the scan needs no more memory than one block.
+    """
+    offset = 0
+    with open(path, 'rb') as stream:
+        while True:
+            data = stream.read(block)
+            if not data:
+                return
+            zero = data.find(b'\x00')
+            if zero >= 0:
+                raise InputDataError(
+                    f'{path}: not a CSV text file: a NUL byte at byte {offset + zero} (a file '
+                    'padded with zeros, or cut while written?); remove the padding (e.g. tr -d '
+                    "'\\000') or re-export the CSV")
+            offset += len(data)
+
+
 def _open_text(path: PathLike, encoding: str) -> IO[str]:
     return open(path, newline='', encoding=encoding, errors='strict')
 
@@ -123,6 +145,8 @@ def read_csv(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     if not os.path.isfile(path):
         raise InputDataError(f'{path}: no such file; give the path of a CSV file or a bag')
     encoding = _encoding(path)
+    if encoding != 'utf-16':
+        _refuse_nul(path)
     try:
         with _open_text(path, encoding) as stream:
             header, header_line = _header(path, stream)

@@ -10,12 +10,13 @@ takes column 7 (1-based, as in MATLAB) of the matrix ``data``.
 from __future__ import annotations
 
 import os
-from typing import Any, Callable
+from typing import Any, Callable, Collection
 
 import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
+from dcmotor_id.formats.budget import check_budget
 from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
 
 #: The first bytes of an HDF5 file (MATLAB v7.3 puts them after a 512-byte header).
@@ -28,13 +29,28 @@ def _is_hdf5(path: PathLike) -> bool:
     return head[512:520] == HDF5_MAGIC or head[:8] == HDF5_MAGIC
 
 
-def _load_v5(path: PathLike) -> Callable[[str], Any]:
-    from scipy.io import loadmat
+def _load_v5(path: PathLike, needed: Collection[str]) -> Callable[[str], Any]:
+    from scipy.io import loadmat, whosmat
+    if os.path.getsize(path) == 0:
+        raise InputDataError(f'{path}: the file is empty; give a MATLAB file with the record')
     try:
-        data = loadmat(path)
-    except (ValueError, TypeError, OSError, NotImplementedError) as error:
-        raise InputDataError(f'{path}: not a readable MATLAB file ({error})') from None
+        declared = {name: shape for name, shape, _ in whosmat(path)}
+        # only the variables of the channels, each within the memory budget
+        names = [name for name in declared if name in needed]
+        for name in names:
+            check_budget(8.0 * float(np.prod(declared[name], dtype=float)), path,
+                         f'variable {name!r} of shape {declared[name]}')
+        data = loadmat(path, variable_names=names)
+        data.update({name: None for name in declared if name not in data})
+    except (MemoryError, InputDataError):
+        raise
+    except Exception as error:  # noqa: BLE001  (MatReadError, ValueError, zlib, struct ...)
+        raise InputDataError(f'{path}: not a readable MATLAB file ({error}); it is damaged or '
+                             'truncated: save it again in MATLAB') from None
     variables = {key: value for key, value in data.items() if not key.startswith('__')}
+    if not variables and not declared:
+        raise InputDataError(f'{path}: a MATLAB file without variables; give the file with '
+                             'the record')
 
     def get(name: str) -> Any:
         return variables.get(name)
@@ -49,13 +65,24 @@ def _load_v73(path: PathLike) -> tuple[Callable[[str], Any], Any]:
         raise InputDataError(
             f'{path}: a MATLAB v7.3 (HDF5) file; reading it needs h5py: pip install h5py, or '
             "save the file as version 5 in MATLAB (save(..., '-v7'))") from None
-    handle = h5py.File(path, 'r')
+    try:
+        handle = h5py.File(path, 'r')
+    except Exception as error:  # noqa: BLE001  (OSError, ValueError of a damaged HDF5 file)
+        raise InputDataError(f'{path}: not a readable MATLAB v7.3 (HDF5) file ({error}); it is '
+                             'damaged or truncated: save it again in MATLAB') from None
 
     def get(name: str) -> Any:
         if name not in handle:
             return None
+        item = handle[name]
+        shape = getattr(item, 'shape', None)
+        if shape is None:
+            raise InputDataError(f'{path}: {name!r} is a group, not a numeric variable; map '
+                                 'a numeric one with --column')
+        check_budget(8.0 * float(np.prod(shape, dtype=float)), path,
+                     f'variable {name!r} of shape {tuple(reversed(shape))}')
         # HDF5 stores MATLAB arrays transposed (column-major): transpose back
-        return np.asarray(handle[name]).T
+        return np.asarray(item).T
     get.names = sorted(handle.keys())  # type: ignore[attr-defined]
     return get, handle
 
@@ -107,7 +134,8 @@ def read_mat(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     if _is_hdf5(path):
         get, handle = _load_v73(path)
     else:
-        get = _load_v5(path)
+        get = _load_v5(path, {options.column(channel).partition(':')[0]
+                              for channel in options.wanted()})
     try:
         columns = {}
         for channel in options.wanted():

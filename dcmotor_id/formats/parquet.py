@@ -7,15 +7,28 @@ pyarrow is already a dependency of the fleet history, so this format costs nothi
 from __future__ import annotations
 
 import os
+from typing import Any
 
 import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
+from dcmotor_id.formats.budget import check_budget
 from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
 
 #: File name endings of Parquet files.
 PARQUET_SUFFIXES = ('.parquet', '.pq')
+
+
+def _seconds(column: Any) -> np.ndarray:
+    """Return a timestamp, duration or date column in seconds from its first value."""
+    import pyarrow
+    import pyarrow.compute as pc
+    nanoseconds = pc.cast(column, pyarrow.timestamp('ns') if not pyarrow.types.is_duration(
+        column.type) else pyarrow.duration('ns')).cast(pyarrow.int64()).to_numpy(
+            zero_copy_only=False)
+    values = np.asarray(nanoseconds, dtype=np.int64)
+    return (values - values[0]).astype(float) * 1e-9 if values.size else values.astype(float)
 
 
 def read_parquet(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
@@ -46,11 +59,22 @@ def read_parquet(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Reco
             raise InputDataError(
                 f'{path}: no column {wanted[channel]!r} for {channel}; the file has '
                 f'{", ".join(names)}. Map it with --column {channel}=NAME')
+    try:
+        rows = pq.ParquetFile(path).metadata.num_rows
+    except (pyarrow.ArrowException, OSError) as error:
+        raise InputDataError(f'{path}: not a readable Parquet file ({error})') from None
+    check_budget(16.0 * rows * len(set(present.values())), path,
+                 f'{rows} rows of {len(set(present.values()))} columns')
     table = pq.read_table(path, columns=sorted(set(present.values())))
     columns = {}
     for channel, name in present.items():
         try:
-            columns[channel] = np.asarray(table.column(name).to_numpy(), dtype=float)
+            column = table.column(name)
+            if pyarrow.types.is_timestamp(column.type) or pyarrow.types.is_duration(
+                    column.type) or pyarrow.types.is_date(column.type):
+                columns[channel] = _seconds(column)
+                continue
+            columns[channel] = np.asarray(column.to_numpy(), dtype=float)
         except (TypeError, ValueError, pyarrow.ArrowException):
             raise InputDataError(f'{path}: column {name!r} ({channel}) is not numeric; give '
                                  'numbers in SI units or map another column') from None

@@ -212,7 +212,7 @@ class StreamAligner:
         slots = indices % self.capacity
         duplicate = self._have[slots, column]
         # a repeated index inside the block is a duplicate too
-        unique_slots, first = np.unique(slots, return_index=True)
+        unique_slots, first = unique_sorted(slots, return_index=True)
         self.stats.duplicates += int(np.count_nonzero(duplicate)) + slots.size - first.size
         take = np.zeros(slots.size, dtype=bool)
         take[first] = True
@@ -457,11 +457,28 @@ def contiguous_runs(indices: Any) -> list[slice]:
     return [slice(int(a), int(b)) for a, b in zip(starts, stops)]
 
 
+def unique_sorted(values: Any, return_index: bool = False) -> Any:
+    """
+    ``numpy.unique`` by a stable sort (and its ``return_index``: first occurrences).
+
+    numpy 2.4's hash-based ``unique`` takes seconds on 200 000 int64 stamps (a 1 M-sample
+    bag took 90 s to align); a sort takes milliseconds.
+    """
+    values = np.asarray(values)
+    order = np.argsort(values, kind='stable')
+    ordered = values[order]
+    keep = np.ones(ordered.size, dtype=bool)
+    keep[1:] = ordered[1:] != ordered[:-1]
+    if return_index:
+        return ordered[keep], order[keep]
+    return ordered[keep]
+
+
 def estimate_period_ns(stamps_by_channel: Mapping[str, Any]) -> float:
     """Median step of the timestamps over all channels [ns] (duplicates ignored)."""
     steps = []
     for stamps in stamps_by_channel.values():
-        stamps = np.unique(np.asarray(stamps, dtype=np.int64))
+        stamps = unique_sorted(np.asarray(stamps, dtype=np.int64))
         if stamps.size > 1:
             steps.append(np.diff(stamps))
     if not steps:
@@ -479,12 +496,12 @@ def refine_period_ns(stamps_by_channel: Mapping[str, Any], period_ns: float) -> 
     """
     slopes, weights = [], []
     for stamps in stamps_by_channel.values():
-        stamps = np.unique(np.asarray(stamps, dtype=np.int64))
+        stamps = unique_sorted(np.asarray(stamps, dtype=np.int64))
         if stamps.size < 3:
             continue
         offsets = (stamps - stamps[0]).astype(float)
         index = np.rint(offsets / period_ns)
-        if np.unique(index).size < 3:
+        if unique_sorted(index).size < 3:
             continue
         slopes.append(np.polyfit(index, offsets, 1)[0])
         weights.append(stamps.size)
@@ -556,7 +573,7 @@ def align_timestamps(stamps_by_channel: Mapping[str, Any], values_by_channel: Ma
                 'taken when each sample was measured')
         order = np.argsort(index, kind='stable')
         index, values = index[order], values[order]
-        unique, first = np.unique(index, return_index=True)
+        unique, first = unique_sorted(index, return_index=True)
         per_channel[channel] = (unique, values[first])
         common = unique if common is None else np.intersect1d(common, unique,
                                                               assume_unique=True)

@@ -42,6 +42,7 @@ from dcmotor_id.identification.identifiability import (assess_excitation, at_bou
 from dcmotor_id.identification.plausibility import check_plausibility
 from dcmotor_id.identification.residuals import (ChannelErrors, model_errors, output_channels,
                                                  simulate_records, simulation_error_pct)
+from dcmotor_id.identification.units_check import unit_warnings
 from dcmotor_id.signals.filters import noise_std, speed_from_position
 
 if TYPE_CHECKING:
@@ -504,6 +505,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
     warnings += [text for text in check_plausibility(final.parameters, final.stderr, records,
                                                      torque_constant)
                  if not any(text.startswith(f'{name} = ') for name in not_identifiable)]
+    warnings += unit_warnings(final.parameters, records, mechanical_only)
     if not useful(list(parameters), not_identifiable, mechanical_only):
         raise NotIdentifiableError(
             'nothing useful is identifiable from these data: '

@@ -130,7 +130,8 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
     parameters = {}
     for name in names:
         value = (block.get('parameters') or {}).get(name)
-        if not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0 or (
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or \
+                not np.isfinite(value) or value < 0 or (
                 value == 0 and name not in ('b', 'Mc')):
             raise InputDataError(f'{source}: parameter {name} is {value!r}; a model written by '
                                  'dcmotor-id identify --json is expected')
@@ -140,12 +141,29 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
         raise InputDataError(f'{source}: a mechanical-only model needs its torque_constant')
     effects = list(block.get('effects') or [])
     for effect in effects:
-        try:
-            make_effect(effect['name'], **effect.get('parameters', {}))
-        except (KeyError, TypeError, ValueError) as error:
-            raise InputDataError(f'{source}: effect {effect!r}: {error}') from None
+        _check_effect(effect, source)
     return Model(parameters, mode, None if constant is None else float(constant), effects,
                  block.get('sample_period_s'), dict(block))
+
+
+def _check_effect(effect: Any, source: str) -> None:
+    """Refuse an effect that is unknown, or whose parameters are not of their types."""
+    if not isinstance(effect, Mapping) or not isinstance(effect.get('parameters', {}), Mapping):
+        raise InputDataError(f'{source}: effect {effect!r} is not {{"name": ..., "parameters": '
+                             '{...}}; a model written by dcmotor-id identify --json is expected')
+    try:
+        made = make_effect(effect['name'], **effect.get('parameters', {}))
+    except (KeyError, TypeError, ValueError) as error:
+        raise InputDataError(f'{source}: effect {effect!r}: {error}') from None
+    for key, value in effect.get('parameters', {}).items():
+        default = made.PARAMETERS.get(key, ('', 0.0, ''))[1]
+        if isinstance(default, str):
+            continue
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or \
+                not np.isfinite(value):
+            raise InputDataError(f'{source}: effect {effect["name"]}: parameter {key} is '
+                                 f'{json.dumps(value)}, not a finite number; fix the model file '
+                                 '(as dcmotor-id identify --json writes it)')
 
 
 def load_model(path: str) -> Model:
@@ -315,6 +333,38 @@ class RecordValidation:
     init_samples: int
 
 
+def time_constants(model: Model) -> dict[str, float]:
+    """Return the model's electrical ``La/Ra`` and mechanical time constants [s]."""
+    p = model.parameters
+    if model.mechanical_only:
+        return {'mechanical': p['J'] / p['b'] if p['b'] > 0 else float('inf')}
+    damping = p['b'] + p['CPhi'] ** 2 / p['Ra']
+    return {'electrical': p['La'] / p['Ra'], 'mechanical': p['J'] / damping}
+
+
+def _simulate_checked(model: Model, record: Record, init_samples: int
+                      ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Estimate the initial state and simulate; refuse a simulation that is not finite."""
+    failure = ''
+    with np.errstate(all='ignore'):
+        try:
+            state = estimate_initial_state(model, record, init_samples)
+            simulated = simulate(model, record, state)
+        except (ValueError, FloatingPointError, OverflowError, ZeroDivisionError) as error:
+            failure = f' ({error})'
+    if not failure and all(np.all(np.isfinite(values)) for values in simulated.values()):
+        return state, simulated
+    constants = ', '.join(f'{name} {value:.3g} s' for name, value in
+                          time_constants(model).items())
+    raise InputDataError(
+        f'{record.source}: the model cannot be simulated on this record: the simulation is '
+        f'not finite{failure}. Its time constants ({constants}) against the sample period '
+        f'{record.sample_period_s:.3g} s and the record length '
+        f'{float(record.time_s[-1] - record.time_s[0]):.3g} s: '
+        'check the model file (parameters as identify --json wrote them, SI units) and the '
+        'time column of the record (seconds)')
+
+
 def validate_record(model: Model, record: Record, init_samples: int = INIT_SAMPLES,
                     position_scale: float = 1.0) -> RecordValidation:
     """
@@ -342,8 +392,7 @@ def validate_record(model: Model, record: Record, init_samples: int = INIT_SAMPL
     if not model.mechanical_only and record.voltage is None:
         raise InputDataError(f'{record.source}: no voltage column: the model is a full motor '
                              'model and needs the voltage as its input')
-    state = estimate_initial_state(model, record, init_samples)
-    simulated = simulate(model, record, state)
+    state, simulated = _simulate_checked(model, record, init_samples)
     scored = slice(init_samples, None)
     channels = [('current', None if model.mechanical_only else record.current),
                 ('speed', record.speed),

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import fields
+import errno
 import functools
+import os
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -16,11 +19,18 @@ import rclpy
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from dcmotor_id.core.errors import InputDataError
 
 #: Reliability names accepted by the ``qos_reliability`` parameters.
 RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
                'best_effort': ReliabilityPolicy.BEST_EFFORT}
+#: QoS of the nodes' services: the default (keep-last 10) drops the oldest requests of a
+#: burst before the executor takes them, so that those callers never get an answer.
+SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
 
 
 def declare(node: Node, name: str, default: Any, description: str, low: Optional[float] = None,
@@ -115,6 +125,46 @@ class ResultParameters:
             self._setting = False
 
 
+def read_regular_file(path: str, what: str, max_bytes: int = 16 * 2 ** 20) -> str:
+    """
+    Return the text of a regular file of at most ``max_bytes``, never blocking on it.
+
+    A FIFO, a device (``/dev/zero``), a directory or a symlink loop is refused by name: the
+    file is opened without blocking and checked before anything is read.
+
+    Raises
+    ------
+    InputDataError
+        Naming ``what`` (e.g. ``plan_file``), the path, what it is and what to give instead.
+
+    """
+    try:
+        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, 'O_CLOEXEC', 0))
+    except OSError as error:
+        why = 'a symlink loop' if error.errno == errno.ELOOP else \
+            (error.strerror or str(error)).lower()
+        raise InputDataError(f'{what} {path!r}: {why}; give a regular file') from None
+    try:
+        mode = os.fstat(descriptor).st_mode
+        if not stat.S_ISREG(mode):
+            kind = 'a FIFO' if stat.S_ISFIFO(mode) else 'a directory' if stat.S_ISDIR(mode) \
+                else 'a device' if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else \
+                'a socket' if stat.S_ISSOCK(mode) else 'a special file'
+            raise InputDataError(f'{what} {path!r} is {kind}, not a regular file; give a '
+                                 'regular file')
+        with os.fdopen(descriptor, 'rb', closefd=False) as stream:
+            data = stream.read(max_bytes + 1)
+    finally:
+        os.close(descriptor)
+    if len(data) > max_bytes:
+        raise InputDataError(f'{what} {path!r} is larger than {max_bytes} bytes; give the '
+                             'file that dcmotor-id wrote')
+    try:
+        return data.decode('utf-8')
+    except UnicodeDecodeError as error:
+        raise InputDataError(f'{what} {path!r} is not UTF-8 text ({error})') from None
+
+
 def check_choice(name: str, value: Any, choices: Any) -> None:
     """Raise ``ValueError`` naming the choices when ``value`` is not one of them."""
     if value not in choices:
@@ -143,6 +193,9 @@ class BulkInput:
                                       namespace=node.get_namespace(), context=node.context,
                                       start_parameter_services=False)
         self._inputs: list[tuple[Any, Callable[[Any, dict], None]]] = []
+        #: Messages that could not be taken or handled (each logged, throttled).
+        self.errors = 0
+        self._logger = node.get_logger()
 
     def add(self, message_type: Any, topic: str, qos: QoSProfile,
             handler: Callable[[Any, dict], None]) -> None:
@@ -151,16 +204,28 @@ class BulkInput:
         self._inputs.append((subscription, handler))
 
     def take(self, limit: int = 200_000) -> int:
-        """Take every queued message (at most ``limit``), hand it to its handler; count them."""
+        """
+        Take every queued message (at most ``limit``), hand it to its handler; count them.
+
+        A message that cannot be taken or handled is logged with its topic and skipped; the
+        others are still taken.
+        """
         taken = 0
         for subscription, handler in self._inputs:
-            with subscription.handle:
-                while taken < limit:
-                    item = subscription.handle.take_message(subscription.msg_type, False)
+            while taken < limit:
+                try:
+                    with subscription.handle:
+                        item = subscription.handle.take_message(subscription.msg_type, False)
                     if item is None:
                         break
                     taken += 1
                     handler(*item)
+                except Exception as error:  # noqa: BLE001  (one bad message, not the node)
+                    taken += 1
+                    self.errors += 1
+                    self._logger.error(
+                        f'{subscription.topic_name}: message skipped: {type(error).__name__}: '
+                        f'{error}', throttle_duration_sec=5.0)
         return taken
 
     def destroy(self) -> None:

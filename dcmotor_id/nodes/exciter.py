@@ -9,34 +9,40 @@ running, stopped, stopped-by-limit, stale, done), the routine and its progress g
 ``/diagnostics``.  It reads the measurements the drive publishes, ``current`` and ``speed``
 (``std_msgs/msg/Float64``, ``input: float64``) or the batches on ``samples`` (``input:
 batch``, :mod:`dcmotor_id.formats.batch`, which carry the voltage too), and commands 0 V and
-stops at once when one exceeds its limit, when none arrived for ``stale_timeout_s``, on
-``~/stop``, at the end of the routine, and when the node is shut down or receives SIGINT or
-SIGTERM.  ``exciter --plan [plan options]`` prints an experiment plan without starting ROS
-(the same as ``dcmotor-id plan``).
+stops at once when one exceeds its limit or is NaN/inf, when one of them (each channel on
+its own) had no finite sample for ``stale_timeout_s`` (at the next command tick; the state
+``stale`` and the log name the channel), on ``~/stop``, at the end of the routine, and when
+the node is shut down or receives SIGINT or SIGTERM.  ``~/stop`` has a callback group of its
+own and the command tick another: neither waits behind ``~/start`` (which reads
+``plan_file``), and a burst of calls is queued (:data:`~dcmotor_id.nodes.common.SERVICE_QOS`),
+so that every call is answered.  ``exciter --plan [plan options]`` prints an experiment plan
+without starting ROS (the same as ``dcmotor-id plan``).
 """
 
 from __future__ import annotations
 
+import json
 import signal
 import sys
+import threading
 import time
 from typing import Any, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
-from dcmotor_id.core.errors import DcMotorIdError
-from dcmotor_id.design.experiment import read_plan
+from dcmotor_id.core.errors import DcMotorIdError, InputDataError
 from dcmotor_id.design.routines import DIRECTIONS, ExcitationSession, Limits, Routine, ROUTINES
 from dcmotor_id.formats.batch import decode_batch_message
-from dcmotor_id.nodes.common import BulkInput, declare, guarded, sample_qos
+from dcmotor_id.nodes.common import BulkInput, declare, read_regular_file, sample_qos, SERVICE_QOS
 
 #: QoS of ``voltage_command``: reliable, so that the final 0 V is delivered.
 COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
@@ -48,6 +54,27 @@ LEVELS = {'idle': DiagnosticStatus.OK, 'ramping-in': DiagnosticStatus.OK,
           'stopped-by-limit': DiagnosticStatus.ERROR}
 #: Zero commands sent after a stop (one a tick), in case the first one is lost.
 ZERO_REPEATS = 5
+#: Channels watched (each must stay fresh and finite) by ``input``.
+WATCHED = {'float64': ('current', 'speed'), 'batch': ('current', 'speed', 'voltage')}
+
+
+def load_plan(path: str) -> Routine:
+    """
+    Return the routine of a plan JSON (``dcmotor-id plan --json``) given as ``plan_file``.
+
+    Only a regular file is read (a FIFO, a device or a symlink loop is refused by name, never
+    waited on); the routine is checked as :meth:`Routine.from_dict` does.
+    """
+    try:
+        data = json.loads(read_regular_file(path, 'plan_file'))
+    except json.JSONDecodeError as error:
+        raise InputDataError(f'plan_file {path!r} is not JSON: {error}') from None
+    if not isinstance(data, dict) or not isinstance(data.get('routine'), dict):
+        raise InputDataError(f'plan_file {path!r}: not a plan (no "routine")')
+    try:
+        return Routine.from_dict(data['routine'])
+    except (TypeError, ValueError) as error:
+        raise InputDataError(f'plan_file {path!r}: bad routine: {error}') from None
 
 
 class Exciter(Node):
@@ -93,7 +120,10 @@ class Exciter(Node):
                               choices=('reliable', 'best_effort'))
         self.autostart = declare(self, 'autostart', False, 'start the routine at once (when '
                                  'measurements arrive)')
-        self.session = ExcitationSession(limits, rate, ramp_in, stale)
+        self.session = ExcitationSession(limits, rate, ramp_in, stale, watch=WATCHED[source])
+        #: Guards the session: held for microseconds, by the tick, ~/start and ~/stop.
+        self._lock = threading.RLock()
+        self.stop_calls = 0
         self._zeros_due = 0
         self._last_state = self.session.state
         self.command_publisher = self.create_publisher(Float64, 'voltage_command',
@@ -108,8 +138,12 @@ class Exciter(Node):
                             lambda message, _: self._observe(speed=[message.data]))
         else:
             self.inputs.add(Float64MultiArray, 'samples', qos, self._on_batch)
-        self.create_service(Trigger, '~/start', self._on_start)
-        self.create_service(Trigger, '~/stop', self._on_stop)
+        # ~/stop and ~/start each in a group of their own: a stop is never queued behind a
+        # start (reading plan_file) nor behind the tick, and the tick never waits for either.
+        self.create_service(Trigger, '~/start', self._on_start, qos_profile=SERVICE_QOS,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_service(Trigger, '~/stop', self._on_stop, qos_profile=SERVICE_QOS,
+                            callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(1.0 / rate, self._tick)
         self.create_timer(0.5, self._report)
         self.get_logger().info(f'exciter ready: {source} input, limits {limits}, '
@@ -121,14 +155,16 @@ class Exciter(Node):
         return time.monotonic()
 
     def _observe(self, **channels: Any) -> None:
-        if self.session.observe(self.now_s(), **channels):
-            self._halt()
+        with self._lock:
+            if self.session.observe(self.now_s(), **channels):
+                self._halt()
 
     def _on_batch(self, message: Float64MultiArray, _: Any) -> None:
         try:
             _, voltage, current, speed = decode_batch_message(message)
-        except DcMotorIdError as error:
-            self.get_logger().warning(f'samples: {error}', throttle_duration_sec=5.0)
+        except (DcMotorIdError, ValueError, TypeError) as error:
+            self.get_logger().warning(f'samples: batch refused (not counted as a '
+                                      f'measurement): {error}', throttle_duration_sec=5.0)
             return
         self._observe(current=current, speed=speed, voltage=voltage)
 
@@ -137,30 +173,34 @@ class Exciter(Node):
         values = {name: self.get_parameter(name).value for name in self._routine_parameters}
         plan_file = values.pop('plan_file')
         if plan_file:
-            return Routine.from_dict(read_plan(plan_file)['routine'])
+            return load_plan(plan_file)
         values['kind'] = values.pop('routine')
         return Routine(**values)
 
     def _on_start(self, request: Trigger.Request,
                   response: Trigger.Response) -> Trigger.Response:
-        self.inputs.take()
         try:
-            routine = self.routine()
-        except (ValueError, OSError, DcMotorIdError) as error:
+            routine = self.routine()  # may read plan_file: outside the lock
+        except Exception as error:  # noqa: BLE001  (any bad routine is an answer, not a crash)
             response.success, response.message = False, f'bad routine: {error}'
+            self.get_logger().warning(f'~/start refused: {response.message}')
             return response
-        response.success, response.message = self.session.start(routine, self.now_s())
+        with self._lock:
+            self.inputs.take()
+            response.success, response.message = self.session.start(routine, self.now_s())
+            self._report()
         self.get_logger().info(f'~/start: {response.message}')
-        self._report()
         return response
 
     def _on_stop(self, request: Trigger.Request,
                  response: Trigger.Response) -> Trigger.Response:
-        was = self.session.state
-        self.session.stop()
-        self._halt()
-        response.success = True
-        response.message = f'0 V commanded; state {self.session.state} (was {was})'
+        with self._lock:
+            self.stop_calls += 1
+            was = self.session.state
+            self.session.stop()
+            self._halt()
+            response.success = True
+            response.message = f'0 V commanded; state {self.session.state} (was {was})'
         return response
 
     def _halt(self) -> None:
@@ -174,8 +214,19 @@ class Exciter(Node):
         """Publish one voltage command [V]."""
         self.command_publisher.publish(Float64(data=float(value)))
 
-    @guarded
     def _tick(self) -> None:
+        try:
+            with self._lock:
+                self._tick_locked()
+        except Exception as error:  # noqa: BLE001  (the watchdog must outlive any fault)
+            with self._lock:
+                self.session.stop(f'internal error: {type(error).__name__}: {error}',
+                                  'stopped-by-limit')
+                self.publish_command(0.0)
+            self.get_logger().error(f'tick: {type(error).__name__}: {error}; 0 V commanded',
+                                    throttle_duration_sec=5.0)
+
+    def _tick_locked(self) -> None:
         self.inputs.take()
         if self.autostart and self.session.state == 'idle' and \
                 self.session.fresh(self.now_s()):
@@ -194,6 +245,10 @@ class Exciter(Node):
             self._report()
 
     def _report(self) -> None:
+        with self._lock:
+            self._report_locked()
+
+    def _report_locked(self) -> None:
         values = self.session.status()
         self._last_state = self.session.state
         status = DiagnosticStatus(level=LEVELS[self.session.state],
@@ -209,8 +264,9 @@ class Exciter(Node):
 
     def shutdown_command(self, reason: str) -> None:
         """Stop with 0 V before the node goes away and wait until the command is delivered."""
-        self.session.stop(reason)
-        self.publish_command(0.0)
+        with self._lock:
+            self.session.stop(reason)
+            self.publish_command(0.0)
         try:
             self._report()
             self.command_publisher.wait_for_all_acked(Duration(seconds=1.0))
@@ -245,7 +301,8 @@ def main(args: Optional[list[str]] = None) -> int:
     previous = {number: signal.signal(number, on_signal)
                 for number in (signal.SIGINT, signal.SIGTERM)}
     code = 0
-    executor = SingleThreadedExecutor()
+    # threads: the command tick, ~/stop and ~/start (see the module docstring), one spare
+    executor = MultiThreadedExecutor(num_threads=4)
     try:
         node = Exciter()
         executor.add_node(node)

@@ -33,7 +33,10 @@ at ``online_rate_hz``.
 Service ``~/identify`` (``std_srvs/srv/Trigger``): closes the current window and identifies
 the most recent windows (at least ``window_s`` of data). The callback is a coroutine: a thread
 waits for the bags and runs the fit (the default method, and the paper's for comparison) in a
-separate process (``identify_in_subprocess``); a second call meanwhile is refused.
+separate process (``identify_in_subprocess``); a second call meanwhile is answered at once
+with success false and a message starting ``busy:``. A burst of calls is queued
+(:data:`~dcmotor_id.nodes.common.SERVICE_QOS`), never dropped: every call gets an answer, also
+when the fit fails in an unexpected way.
 """
 
 from __future__ import annotations
@@ -59,7 +62,7 @@ from dcmotor_id.core.records import MIN_SAMPLES
 from dcmotor_id.formats.batch import decode_batch
 from dcmotor_id.formats.streams import SampleInbox, StreamAligner
 from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters, run,
-                                     sample_qos)
+                                     sample_qos, SERVICE_QOS)
 from dcmotor_id.nodes.settings import IdentifierSettings
 from dcmotor_id.streaming.input_health import InputHealth
 from dcmotor_id.streaming.monitoring import LEVELS, monitor_from_settings
@@ -130,7 +133,7 @@ class Identifier(Node):
         self.online_pub = self.create_publisher(DiagnosticStatus, '~/online_parameters', 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         # reentrant: a second request is taken (and refused) while the first one is running
-        self.create_service(Trigger, '~/identify', self._on_identify,
+        self.create_service(Trigger, '~/identify', self._on_identify, qos_profile=SERVICE_QOS,
                             callback_group=ReentrantCallbackGroup())
         # housekeeping runs on the steady clock: under use_sim_time a /clock that stops (end
         # of a replay) must not stop the node from taking and aligning what has arrived
@@ -169,16 +172,21 @@ class Identifier(Node):
     def _on_joint_state(self, message):
         names, joint = list(message.name), self.settings.joint_name
         if joint and joint not in names:
-            self._log('error', f'joint_states has no joint {joint!r} (has {names})')
+            self._refuse_joint_state(f'no joint {joint!r} (has {names})')
             return
         position = names.index(joint) if joint else 0
         if len(message.velocity) <= position or len(message.effort) <= position:
-            self._log('error', 'joint_states lacks velocity or effort for the joint')
+            self._refuse_joint_state(f'{len(message.velocity)} velocities and '
+                                     f'{len(message.effort)} efforts for joint {position}')
             return
         stamp = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
         index = self.inbox.index_of_stamp(stamp)
         self.inbox.put('current', index, self.settings.effort_scale * message.effort[position])
         self.inbox.put('speed', index, message.velocity[position])
+
+    def _refuse_joint_state(self, why):
+        self.health.refuse_joint_state(why)
+        self._log('error', f'joint_states refused: {why}')
 
     # ------------------------------------------------------------------ processing
     @guarded
@@ -211,38 +219,53 @@ class Identifier(Node):
     async def _on_identify(self, request, response):
         if not self._identify_busy.acquire(blocking=False):
             response.success = False
-            response.message = (f'an identification is already running (started '
+            response.message = (f'busy: an identification is already running (started '
                                 f'{time.monotonic() - self._identify_started:.1f} s ago); '
                                 'call again when it has finished')
             return response
         try:
             self._identify_started = time.monotonic()
-            self._close_window(keep_short=True)
-            windows = self.cutter.select()
-            if not windows:
-                response.success = False
-                response.message = self.health.not_enough_data()
-                self._publish_failure(response.message)
-                return response
-            future = Future(executor=self.executor)
-            future.add_done_callback(lambda _: None)  # wakes the executor when done
-            arguments = (windows, self.settings.method, self.settings.torque_constant if
-                         self.mechanical else None, self.settings.discover,
-                         self.settings.compare_paper)
-            threading.Thread(target=lambda: future.set_result(self._fits.identify(*arguments)),
-                             name='identify', daemon=True).start()
-            outcome = await future
-            response.success = not isinstance(outcome, str)
-            if response.success:  # what was refused or lost is said, never a silent success
-                outcome['summary'] = self.health.with_problems(outcome['summary'])
-                self._publish_result(outcome)
-                response.message = outcome['summary']
-            else:
-                response.message = outcome
-                self._publish_failure(outcome)
+            return await self._identify(response)
+        except Exception as error:  # noqa: BLE001  (every call is answered; the node lives on)
+            response.success = False
+            response.message = (f'identification failed unexpectedly: '
+                                f'{type(error).__name__}: {error}')
+            self._publish_failure(response.message)
             return response
         finally:
             self._identify_busy.release()
+
+    async def _identify(self, response):
+        """Identify from the latest windows; fill ``response``."""
+        self._close_window(keep_short=True)
+        windows = self.cutter.select()
+        if not windows:
+            response.success = False
+            response.message = self.health.not_enough_data()
+            self._publish_failure(response.message)
+            return response
+        future = Future(executor=self.executor)
+        future.add_done_callback(lambda _: None)  # wakes the executor when done
+        arguments = (windows, self.settings.method, self.settings.torque_constant if
+                     self.mechanical else None, self.settings.discover,
+                     self.settings.compare_paper)
+
+        def fit():
+            try:
+                future.set_result(self._fits.identify(*arguments))
+            except BaseException as error:  # noqa: BLE001  (answered by _on_identify)
+                future.set_exception(error)
+        threading.Thread(target=fit, name='identify', daemon=True).start()
+        outcome = await future
+        response.success = not isinstance(outcome, str)
+        if response.success:  # what was refused or lost is said, never a silent success
+            outcome['summary'] = self.health.with_problems(outcome['summary'])
+            self._publish_result(outcome)
+            response.message = outcome['summary']
+        else:
+            response.message = outcome
+            self._publish_failure(outcome)
+        return response
 
     def _status(self, what, level='OK', message='', pairs=()):
         """Build a status of this node; ``level`` is a name of :data:`LEVELS`."""

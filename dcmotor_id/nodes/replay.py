@@ -8,6 +8,14 @@ timestamp, so a node with ``use_sim_time`` sees the bag's own time. Topics keep 
 recorded names (give ``topic_prefix`` to publish under another namespace). The node exits
 when the bag is done (unless ``loop``).
 
+Only the measurement topics are played: those named ``voltage``, ``current``, ``speed``,
+``samples`` or ``joint_states`` (in any namespace, :data:`MEASUREMENTS`). Anything else a bag
+holds (``voltage_command`` above all: a recorded command must not drive a motor again,
+``/diagnostics``, ``/clock``, ...) is played only when ``extra_topics`` names it exactly.
+Every message is checked before playing: a topic whose name is not a valid ROS name is
+skipped with a warning naming it, and a payload that does not decode as its declared type is
+skipped and counted.
+
 Only the message types of :data:`MESSAGE_TYPES` are played: a bag names its types itself, and
 an untrusted bag must not choose what is imported; any other type is refused by name.
 """
@@ -17,13 +25,18 @@ from __future__ import annotations
 from collections.abc import Mapping
 import threading
 import time
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import Log, ParameterEvent
+from rcl_interfaces.msg import Log, ParameterDescriptor, ParameterEvent
 import rclpy
+from rclpy.exceptions import NameValidationException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
+from rclpy.serialization import deserialize_message
+from rclpy.validate_full_topic_name import validate_full_topic_name
+from rclpy.validate_topic_name import validate_topic_name
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
@@ -42,6 +55,15 @@ MESSAGE_TYPES: dict[str, type] = {
     'rcl_interfaces/msg/Log': Log,
     'rcl_interfaces/msg/ParameterEvent': ParameterEvent,
 }
+
+
+#: Base names of the topics played by default: the measurements of a drive.
+MEASUREMENTS = ('voltage', 'current', 'speed', 'samples', 'joint_states')
+
+
+def is_measurement(topic: str) -> bool:
+    """Whether a recorded topic is a measurement (its last name is one of MEASUREMENTS)."""
+    return isinstance(topic, str) and topic.rstrip('/').rsplit('/', 1)[-1] in MEASUREMENTS
 
 
 class UnsupportedMessageType(ValueError):
@@ -68,11 +90,13 @@ def message_class(msgtype: str, topic: str = '') -> type:
             '(e.g. ros2 bag convert) or play it with ros2 bag play') from None
 
 
-def load_bag(path: str) -> tuple[dict[str, str], list[tuple[int, str, bytes]]]:
+def load_bag(path: str, selected: Optional[Callable[[str], bool]] = None,
+             ) -> tuple[dict[str, str], list[tuple[int, str, bytes]]]:
     """
     Read a whole bag: ``(topics {name: msgtype}, [(stamp_ns, topic, bytes), ...])``.
 
-    Every declared type is checked against :data:`MESSAGE_TYPES` before any message is read.
+    The type of every topic that ``selected`` accepts (all without it) is checked against
+    :data:`MESSAGE_TYPES` before any message is read; only those topics are returned.
 
     Raises
     ------
@@ -84,8 +108,58 @@ def load_bag(path: str) -> tuple[dict[str, str], list[tuple[int, str, bytes]]]:
     """
     def check(topics: Mapping[str, str]) -> None:
         for topic, msgtype in topics.items():
-            message_class(msgtype, topic)
-    return load_messages(path, check=check)
+            if selected is None or selected(topic):
+                message_class(msgtype, topic)
+    topics, messages = load_messages(path, check=check)
+    if selected is None:
+        return topics, messages
+    keep = {topic: msgtype for topic, msgtype in topics.items() if selected(topic)}
+    return keep, [item for item in messages if item[1] in keep]
+
+
+def name_problem(name: str) -> Optional[str]:
+    """Say why ``name`` is not a valid ROS topic name (None when it is)."""
+    try:
+        if name.startswith('/'):
+            validate_full_topic_name(name)
+        else:
+            validate_topic_name(name)
+    except (NameValidationException, AttributeError, TypeError, ValueError) as error:
+        return f'not a valid ROS topic name ({str(error).splitlines()[0].rstrip(":")})'
+    return None
+
+
+def playable(topics: Mapping[str, str], messages: list[tuple[int, str, bytes]],
+             prefix: str = '') -> tuple[dict[str, str], list[tuple[int, str, bytes]], list[str]]:
+    """
+    Drop what cannot be played: topics with invalid names, payloads that do not decode.
+
+    Returns the topics (recorded name -> published name), the messages left and one warning
+    per problem (naming the topic, and how many messages were skipped and from when).
+    """
+    warnings, names = [], {}
+    for topic in topics:
+        name = prefix.rstrip('/') + topic if prefix else topic
+        invalid = name_problem(name)
+        if invalid:
+            warnings.append(f'topic {topic!r} skipped: {invalid}')
+        else:
+            names[topic] = name
+    bad: dict[str, list[int]] = {}
+    kept = []
+    for stamp, topic, data in messages:
+        if topic not in names:
+            continue
+        try:
+            deserialize_message(bytes(data), message_class(topics[topic], topic))
+        except Exception:  # noqa: BLE001  (rmw raises RMWError on any malformed CDR)
+            bad.setdefault(topic, []).append(stamp)
+            continue
+        kept.append((stamp, topic, data))
+    for topic, stamps in bad.items():
+        warnings.append(f'topic {topic}: {len(stamps)} message(s) skipped, their payload is '
+                        f'not a valid {topics[topic]} (first at stamp {stamps[0]} ns)')
+    return names, kept, warnings
 
 
 class Replay(Node):
@@ -104,23 +178,40 @@ class Replay(Node):
                                      'wait this long for subscribers before playing [s]',
                                      low=0.0)
         depth = declare(self, 'qos_depth', 1000, 'history depth of the publishers', low=1)
+        extra = self.declare_parameter(
+            'extra_topics', Parameter.Type.STRING_ARRAY, ParameterDescriptor(
+                description='recorded topics played besides the measurements (exact names, '
+                            'e.g. [/voltage_command])')).value or []
+        self.extra_topics = [topic for topic in extra if topic]
         if not self.bag:
             raise ValueError('parameter bag is empty: give the bag to play, e.g. '
                              '--ros-args -p bag:=/path/to/window_000001_...')
+        every: list[str] = []  # every topic of the bag, in its order
+
+        def wanted(topic: str) -> bool:
+            if topic not in every:
+                every.append(topic)
+            return is_measurement(topic) or topic in self.extra_topics
         try:
-            self.topics, self.messages = load_bag(self.bag)
+            self.topics, self.messages = load_bag(self.bag, wanted)
         except UnsupportedMessageType as error:
             raise ValueError(f'cannot play the bag {self.bag}: {error}') from None
         except Exception as error:  # noqa: BLE001  (rosbags raises several types)
             raise ValueError(f'cannot read the bag {self.bag}: {error}') from None
+        self._say_what_is_left_out(every)
+        names, self.messages, warnings = playable(self.topics, self.messages, self.topic_prefix)
+        for warning in warnings:
+            self.get_logger().warning(warning)
+        self.topics = {topic: self.topics[topic] for topic in names}
         if not self.messages:
-            raise ValueError(f'the bag {self.bag} holds no messages')
+            raise ValueError(f'the bag {self.bag} holds no message to play (measurement '
+                             f'topics: any named {", ".join(MEASUREMENTS)}; its topics: '
+                             f'{", ".join(map(str, every)) or "none"}); name others in '
+                             'extra_topics')
         qos = QoSProfile(depth=depth)
         self._topic_publishers = {
-            topic: self.create_publisher(message_class(msgtype, topic),
-                                         self.topic_prefix.rstrip('/') + topic
-                                         if self.topic_prefix else topic, qos)
-            for topic, msgtype in self.topics.items()}
+            topic: self.create_publisher(message_class(self.topics[topic], topic), name, qos)
+            for topic, name in names.items()}
         self._clock_publisher = self.create_publisher(Clock, '/clock', 10) if self.publish_clock \
             else None
         self.done = threading.Event()
@@ -129,6 +220,19 @@ class Replay(Node):
         self._thread.start()
         self.get_logger().info(f'playing {len(self.messages)} messages of '
                                f'{", ".join(self.topics)} from {self.bag}')
+
+    def _say_what_is_left_out(self, every: list[str]) -> None:
+        skipped = [topic for topic in every if topic not in self.topics]
+        for topic in skipped:
+            invalid = name_problem(topic)
+            if invalid:
+                self.get_logger().warning(f'topic {topic!r} skipped: {invalid}')
+        if skipped:
+            self.get_logger().info(f'not played (not measurements; name them in extra_topics '
+                                   f'to play them): {", ".join(map(str, skipped))}')
+        missing = [topic for topic in self.extra_topics if topic not in every]
+        if missing:
+            self.get_logger().warning(f'extra_topics not in the bag: {", ".join(missing)}')
 
     def _play(self):
         time.sleep(self.start_delay_s)

@@ -110,6 +110,7 @@ class SimMotor(Node):
         self._command = 0.0
         self._rng = np.random.default_rng(seed)
         self.published = 0
+        self.overflows = 0
         qos = sample_qos(depth, reliability)
         if self.transport == 'float64':
             self._sample_publishers = [self.create_publisher(Float64, topic, qos)
@@ -198,6 +199,22 @@ class SimMotor(Node):
                     index[part] * self.sample_period_s, voltage[part], current[part],
                     speed[part]))
         self.published += count
+        self._check_state(float(voltage[-1]) if count else 0.0)
+
+    def _check_state(self, voltage: float) -> None:
+        """Put the simulated motor back at rest when its state overflowed (say so)."""
+        state = self._state if self._stepper is None else np.asarray(self._measured)
+        if np.all(np.isfinite(state)):
+            return
+        self.get_logger().error(f'the simulated state overflowed (voltage {voltage:.4g} V): '
+                                'the motor is put back at rest', throttle_duration_sec=5.0)
+        self.overflows += 1
+        self._state = np.zeros(2)
+        if self._stepper is not None:
+            self._stepper = MotorStepper(self.params, self.sample_period_s,
+                                         effects=self.effects)
+            offset = self._stepper.effects.current_offset_A if self._stepper.effects else 0.0
+            self._measured = (offset, 0.0)
 
     def _follow_schedule(self, time_s: float) -> None:
         """Set the motor and the load torque (opposing positive rotation) of ``time_s``."""

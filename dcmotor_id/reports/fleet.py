@@ -17,6 +17,7 @@ Plots use matplotlib's object interface with the Agg canvas (no display, no glob
 from __future__ import annotations
 
 import datetime
+import hashlib
 import html
 import json
 import math
@@ -233,6 +234,23 @@ def _safe_name(motor_id: str) -> str:
     return re.sub(r'[^A-Za-z0-9_.-]+', '_', motor_id) or 'motor'
 
 
+def unique_names(motor_ids: Sequence[str]) -> dict[str, str]:
+    """
+    Map motor ids to file and anchor names that never collide.
+
+    The safe name of an id (``site/m1`` -> ``site_m1``) is kept while no other id shares it,
+    ignoring case (file systems that fold case); the ids that share one each get a digest of
+    the id appended, so ``cell/7`` and ``cell_7`` get two plots, not one.
+    """
+    safe = {motor: _safe_name(motor) for motor in motor_ids}
+    folded: dict[str, int] = {}
+    for name in safe.values():
+        folded[name.lower()] = folded.get(name.lower(), 0) + 1
+    return {motor: name if folded[name.lower()] == 1 else
+            f'{name}-{hashlib.sha1(motor.encode()).hexdigest()[:8]}'
+            for motor, name in safe.items()}
+
+
 def motor_trends(history_dir: str, settings: DetectorSettings = DetectorSettings()
                  ) -> tuple[list[MotorTrend], list[dict[str, Any]]]:
     """
@@ -300,6 +318,7 @@ def write_fleet_report(history_dir: str, directory: str,
         '<h2>Overview (most changed first)</h2><table><tr><th>motor</th><th>alarm</th>'
         '<th>largest change</th><th>alarms</th><th>effects (windows)</th><th>windows</th>'
         '<th>failed</th><th>last window</th></tr>']
+    names = unique_names([trend.motor_id for trend in trends])
     for trend in trends:
         parameter, value = trend.largest
         change = f'{parameter} {value:+.1f} %' if math.isfinite(value) else '-'
@@ -307,7 +326,7 @@ def write_fleet_report(history_dir: str, directory: str,
                             sorted(trend.effect_counts().items())) or '-'
         last = _when(trend.rows[-1]['window_start_ns']) if trend.rows else ''
         parts.append(
-            f'<tr><td><a href="#{_safe_name(trend.motor_id)}">'
+            f'<tr><td><a href="#{names[trend.motor_id]}">'
             f'{html.escape(trend.motor_id)}</a></td><td class="{trend.level}">{trend.level}'
             f'</td>{_cell(change)}{_cell("; ".join(a.summary() for a in trend.alarms) or "-")}'
             f'{_cell(effects)}{_cell(len(trend.rows))}{_cell(len(trend.failed))}'
@@ -318,7 +337,7 @@ def write_fleet_report(history_dir: str, directory: str,
             f'<li>{html.escape(row.get("source_bag") or "")}: '
             f'{html.escape(row.get("error") or "")}</li>' for row in unassigned) + '</ul>')
     for trend in trends:
-        anchor = _safe_name(trend.motor_id)
+        anchor = names[trend.motor_id]
         parts.append(f'<h2 id="{anchor}">Motor {html.escape(trend.motor_id)} '
                      f'<span class="{trend.level}">{trend.level}</span></h2>')
         if trend.rows:

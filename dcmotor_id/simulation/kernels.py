@@ -26,6 +26,22 @@ import math
 from numba import njit
 import numpy as np
 
+#: Most chunks of ``1.5 / omega`` one sample interval is searched in for a speed turn.  Modes
+#: oscillating faster (more than a few hundred turns per sample) belong to absurd trial
+#: parameters of a wandering fit (issue 21: ``Ra = 0, CPhi = 4.6e23`` took hours): the kernels
+#: return non-finite results for them at once, which the fits reject as a failed step.
+MAX_TURN_CHUNKS = 512
+
+
+@njit(cache=True)
+def too_fast(a, n, dt):
+    """Whether ``A``'s modes oscillate more than :data:`MAX_TURN_CHUNKS` times per ``dt``."""
+    if n != 2:
+        return False
+    half = 0.5 * (a[0, 0] + a[1, 1])
+    delta = half * half - (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0])
+    return delta < 0.0 and math.sqrt(-delta) * dt > 1.5 * MAX_TURN_CHUNKS
+
 
 @njit(cache=True)
 def _flow_state(a, n, x0, x1, f0, f1, t, out):
@@ -170,7 +186,9 @@ def _dip_time(a, x0, x1, f0, f1, upper, sign):
     delta = half * half - (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0])
     chunks = 1
     if delta < 0.0:
-        chunks = max(1, int(math.ceil(math.sqrt(-delta) * upper / 1.5)))
+        # Bounded: beyond MAX_TURN_CHUNKS the kernels refuse the parameters (too_fast).
+        count = math.sqrt(-delta) * upper / 1.5
+        chunks = MAX_TURN_CHUNKS if count > MAX_TURN_CHUNKS else max(1, int(math.ceil(count)))
     start0 = x0
     start1 = x1
     t_start = 0.0
@@ -306,6 +324,9 @@ def simulate_kernel(a, forcing, friction_pos, friction_neg, x_start, dt):
     states = np.empty((n_samples + 1, n))
     for column in range(n):
         states[0, column] = x_start[column]
+    if too_fast(a, n, dt):
+        states[1:, :] = np.nan
+        return states
     new = np.empty(2)
     # Modes oscillating fast against the sample period can turn the speed more than once per
     # sample: such systems always take the event path (see _dip_time).
@@ -493,6 +514,10 @@ def effects_kernel(a0, n, forcing, coulomb, inertia, inductance, effects, x_star
     theta = theta0
     angles[0] = theta
     step = dt / oversample
+    if too_fast(a0, n, step):
+        states[1:, :] = np.nan
+        angles[1:] = np.nan
+        return states, angles
     for k in range(n_samples):
         for sub in range(oversample):
             w = x[n - 1]

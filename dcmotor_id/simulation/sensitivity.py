@@ -34,7 +34,7 @@ import numpy as np
 
 from dcmotor_id.simulation.kernels import (_dip_time, _drive, _event_step, _flow_state, _forcing,
                                            _initial_sign, _root, _slip_sign, _speed_slope,
-                                           _stuck_time, discretise)
+                                           _stuck_time, discretise, too_fast)
 
 
 @njit(cache=True)
@@ -328,6 +328,9 @@ def normal_kernel(a, da, forcing, gscale, regs, reg_col, reg_row, reg_factor, or
     blocks = np.zeros((n_blocks, n, m))
     sums = np.zeros(n)
     cost = 0.0
+    if too_fast(a, n, dt):
+        sums[:] = np.inf
+        return hessian, gradient, np.inf, sums, blocks
     ad, gamma = discretise(a, n, dt)
     stick = discretise(a, 1, dt)
     stick_ad = stick[0][0, 0]

@@ -70,6 +70,9 @@ class InputHealth:
         self.cutter = cutter
         self.malformed: Counter[str] = Counter()
         self.last_malformed = ''
+        #: joint_states messages refused (no such joint, no velocity or effort for it).
+        self.malformed_joint_states = 0
+        self.last_malformed_joint_state = ''
         self.stalled: set[str] = set()
 
     def refuse_batch(self, text: str) -> str:
@@ -78,6 +81,11 @@ class InputHealth:
         self.malformed[reason] += 1
         self.last_malformed = text
         return reason
+
+    def refuse_joint_state(self, text: str) -> None:
+        """Count a joint_states message refused with the reason ``text``."""
+        self.malformed_joint_states += 1
+        self.last_malformed_joint_state = text
 
     def missing(self) -> list[str]:
         """Return the channels never received, in channel order."""
@@ -96,7 +104,8 @@ class InputHealth:
         seen = set(self.inbox.last_seen)
         problems = []
         missing = self.missing()
-        if missing and (seen or stats.invalid or self.malformed):
+        if missing and (seen or stats.invalid or self.malformed or
+                        self.malformed_joint_states):
             problems.append(f'nothing received on {", ".join(missing)}')
         elif missing and not seen:
             problems.append('nothing received yet')
@@ -109,6 +118,9 @@ class InputHealth:
                                 sorted(self.malformed.items()))
             problems.append(f'{sum(self.malformed.values())} malformed batches refused '
                             f'({reasons}; latest: {self.last_malformed})')
+        if self.malformed_joint_states:
+            problems.append(f'{self.malformed_joint_states} malformed joint_states refused '
+                            f'(latest: {self.last_malformed_joint_state})')
         if self.inbox.invalid_times:
             problems.append(f'{self.inbox.invalid_times} samples with NaN or absurd times '
                             'dropped')

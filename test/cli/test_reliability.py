@@ -349,3 +349,450 @@ def spin(condition, timeout_s):
             return True
         time.sleep(0.05)
     return False
+
+
+# ================================================================ issue 21: round 3 attacks
+def run_command(capsys, *args):
+    """Run any ``dcmotor-id`` command in-process; return exit code, stdout, stderr."""
+    code = cli.main([*map(str, args)])
+    captured = capsys.readouterr()
+    assert 'Traceback' not in captured.err + captured.out
+    return code, captured.out, captured.err
+
+
+def refused(capsys, *args, phrases=()):
+    """Assert exit 2 with a one-line ``dcmotor-id: error:`` naming every phrase."""
+    code, out, err = run_command(capsys, *args)
+    assert code == 2, (out, err)
+    assert err.startswith('dcmotor-id: error: '), err
+    for phrase in phrases:
+        assert phrase in err, (phrase, err)
+    return err
+
+
+# ---------------------------------------------------------------- 1. hangs
+HANG_SCRIPT = """
+import time
+import numpy as np
+from dcmotor_id.simulation.excitation import make_excitation
+from dcmotor_id.core.model import MotorParameters
+from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
+from dcmotor_id.identification.effects import parse_effect
+_, voltage = make_excitation('paper', 0.2, 1e-3)
+for cphi in (1e9, 4.6e23):
+    motor = MotorParameters(Ra=1e-300, La=0.016, CPhi=cphi, J=0.0315, b=0.3, Mc=1.0)
+    current, speed = simulate_motor(motor, voltage, 1e-3)
+    assert not np.isfinite(current[1:]).any(), current
+    current, speed, _ = simulate_motor_effects(motor, voltage, 1e-3,
+                                               [parse_effect('load_torque:torque_Nm=0.1')])
+    assert not np.isfinite(current[1:]).any(), current
+print('ended')
+"""
+
+
+def test_absurd_trial_motors_end_at_once_in_the_compiled_kernels():
+    """Ra = 0, CPhi = 4.6e23 (a wandering fit's trial point) spun for hours in _dip_time."""
+    completed = subprocess.run([sys.executable, '-c', HANG_SCRIPT], capture_output=True,
+                               text=True, timeout=240)
+    assert completed.returncode == 0 and 'ended' in completed.stdout, completed.stderr
+
+
+def test_the_normal_equations_of_an_absurd_trial_are_a_failed_step():
+    from dcmotor_id.simulation.kernels import MAX_TURN_CHUNKS, too_fast
+    a = np.array([[0.0, -4.6e23 / 0.016], [4.6e23 / 0.0315, -0.3 / 0.0315]])
+    assert too_fast(a, 2, 1e-3)
+    paper = np.array([[-1.6 / 0.016, -0.7 / 0.016], [0.7 / 0.0315, -0.3 / 0.0315]])
+    assert not too_fast(paper, 2, 1e-3) and MAX_TURN_CHUNKS >= 100
+
+
+def fifo(tmp_path, name='pipe.csv'):
+    path = tmp_path / name
+    os.mkfifo(path)
+    return path
+
+
+def loop(tmp_path, name='loop.csv'):
+    path = tmp_path / name
+    os.symlink(path, path)
+    return path
+
+
+@pytest.mark.parametrize('command', [
+    ['identify'], ['validate', 'MODEL'], ['design'], ['plan', '--prior'],
+    ['fleet', '--history', 'HISTORY']])
+@pytest.mark.parametrize('special, phrase', [
+    ('fifo', 'is a FIFO (named pipe), not a regular file'),
+    ('/dev/zero', 'is a character device, not a regular file'),
+    ('loop', 'is a symbolic link loop'),
+])
+def test_special_files_as_inputs_are_refused_by_name_without_blocking(
+        tmp_path, command, special, phrase):
+    target = {'fifo': lambda: fifo(tmp_path), 'loop': lambda: loop(tmp_path)}.get(
+        special, lambda: special)()
+    model = tmp_path / 'model.json'
+    model.write_text(json.dumps({'parameters': {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7,
+                                                'J': 0.0315, 'b': 0.3, 'Mc': 1.0}}))
+    args = [str(model) if item == 'MODEL' else str(tmp_path / 'h') if item == 'HISTORY'
+            else item for item in command] + [target]
+    completed = run_process(*args, timeout_s=120)
+    assert completed.returncode == 2, completed.stderr
+    assert str(target) in completed.stderr and phrase in completed.stderr, completed.stderr
+    assert 'no such file' not in completed.stderr
+
+
+def test_a_special_model_file_is_refused_by_name(tmp_path, capsys):
+    refused(capsys, 'validate', loop(tmp_path, 'm.json'), tmp_path / 'x.csv',
+            phrases=['m.json: is a symbolic link loop'])
+
+
+def test_a_special_file_inside_a_bag_directory_is_refused(tmp_path, capsys):
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    (bag / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+    os.mkfifo(bag / 'bag_0.mcap')
+    refused(capsys, 'identify', bag, phrases=['bag_0.mcap: is a FIFO'])
+
+
+# ---------------------------------------------------------------- 3. data lost or corrupted
+@pytest.mark.parametrize('make', ['symlink', 'device', 'input'])
+def test_json_never_replaces_a_link_a_device_or_an_input(table, tmp_path, capsys, monkeypatch,
+                                                         make):
+    monkeypatch.setattr(cli, 'identify', lambda *a, **k: pytest.fail('the fit ran'))
+    data = write(tmp_path / 'good.csv', HEADER, table)
+    before = open(data, 'rb').read()
+    if make == 'symlink':
+        (tmp_path / 'elsewhere.json').write_text('{"keep": 1}')
+        os.symlink(tmp_path / 'elsewhere.json', tmp_path / 'r.json')
+        target, phrase = tmp_path / 'r.json', 'is a symbolic link'
+    elif make == 'device':
+        target, phrase = '/dev/null', 'is a character device, not a regular file'
+    else:
+        target, phrase = data, 'is the input'
+    err = refused(capsys, 'identify', data, '--json', target, phrases=[str(target), phrase])
+    assert 'give' in err
+    assert open(data, 'rb').read() == before
+    if make == 'symlink':
+        assert os.path.islink(tmp_path / 'r.json')
+        assert (tmp_path / 'elsewhere.json').read_text() == '{"keep": 1}'
+
+
+def test_design_and_plan_check_their_outputs_before_the_work(tmp_path, capsys, monkeypatch):
+    from dcmotor_id.design import control as control_design, experiment
+    model = tmp_path / 'model.json'
+    model.write_text(json.dumps({'parameters': {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7,
+                                                'J': 0.0315, 'b': 0.3, 'Mc': 1.0},
+                                 'mode': 'full'}))
+    monkeypatch.setattr(control_design, 'design', lambda *a: pytest.fail('designed'))
+    monkeypatch.setattr(experiment, 'design_experiment', lambda *a: pytest.fail('planned'))
+    os.symlink(tmp_path / 'x', tmp_path / 'link.json')
+    refused(capsys, 'design', model, '--json', model, phrases=['is the input'])
+    refused(capsys, 'design', model, '--json', tmp_path / 'link.json',
+            phrases=['is a symbolic link'])
+    (tmp_path / 'file').write_text('x')
+    refused(capsys, 'design', model, '--export', tmp_path / 'file',
+            phrases=['--export', 'is not a directory'])
+    refused(capsys, 'plan', '--prior', model, '--json', model, phrases=['is the input'])
+    refused(capsys, 'plan', '--json', '/dev/null', phrases=['character device'])
+    assert json.loads(model.read_text())['mode'] == 'full'
+
+
+def test_the_same_recording_twice_is_refused(table, tmp_path, capsys):
+    data = write(tmp_path / 'good.csv', HEADER, table)
+    os.link(data, tmp_path / 'hard.csv')
+    refused(capsys, 'identify', data, data, phrases=['given twice'])
+    refused(capsys, 'identify', data, tmp_path / 'hard.csv', phrases=['the same file as'])
+
+
+def damaged_bag(tmp_path, at):
+    from dcmotor_id.formats.bag import write_bag
+    from support import motor_samples
+    stamps, channels = motor_samples(6.0)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    mcap = tmp_path / 'bag' / 'bag.mcap'
+    data = bytearray(mcap.read_bytes())
+    position = int(len(data) * at)
+    data[position:position + 16] = b'\xff' * 16
+    mcap.write_bytes(bytes(data))
+    return tmp_path / 'bag'
+
+
+def test_a_damaged_mcap_reports_the_lost_samples_in_the_json(tmp_path, capsys):
+    bag = damaged_bag(tmp_path, 0.4)   # a message of /current overwritten mid-file
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', bag, '--no-discover', '--json', out,
+                               '--resample')
+    assert code == 0, err
+    assert 'dcmotor-id: warning: ' in err and 'the bag is damaged' in err
+    result = json.loads(out.read_text())
+    loss = result['data_loss']
+    assert loss and '1 of 6000 messages of /current lost' in loss[0]
+    assert 'missing between t = 3.296 s and 3.298 s' in loss[0]
+    assert loss[0] in result['warnings']
+
+
+def test_a_bag_damaged_before_its_first_message_is_refused_saying_so(tmp_path, capsys):
+    bag = damaged_bag(tmp_path, 0.2)
+    refused(capsys, 'identify', bag, phrases=['has no messages that could be read',
+                                              'the bag is damaged', 'reading stopped',
+                                              'repair'])
+
+
+def test_fleet_marks_the_rows_of_a_damaged_bag(tmp_path):
+    from dcmotor_id.fleet.sources import Source
+    from dcmotor_id.fleet.tasks import FleetOptions, identify_window, read_windows
+    bag = damaged_bag(tmp_path, 0.4)
+    windows = read_windows(Source(str(bag), str(tmp_path), 'bag'), FleetOptions(
+        discover=False, window_s=3.0))
+    assert windows.data_loss and windows.windows
+    row = identify_window(windows, 0, FleetOptions(discover=False, window_s=3.0))
+    assert '1 of 6000 messages of /current lost' in row['data_loss']
+
+
+def test_fleet_report_gives_colliding_motor_names_their_own_plots():
+    from dcmotor_id.reports.fleet import unique_names
+    names = unique_names(['cell/7', 'cell_7', 'Cell_7', 'site/m1', 'other'])
+    assert len(set(names.values())) == 5 and len({n.lower() for n in names.values()}) == 5
+    assert names['site/m1'] == 'site_m1' and names['other'] == 'other'
+    assert names['cell/7'].startswith('cell_7-') and names['cell_7'].startswith('cell_7-')
+
+
+def test_a_garbage_part_file_in_the_history_is_skipped_and_named(tmp_path, capsys):
+    from dcmotor_id.fleet.history import read_history, result_row, write_rows
+    row = dict(result_row({'parameters': {'Ra': 1.0}, 'method': 'refined'}), motor_id='m',
+               source_bag='/a', run_id='r1')
+    write_rows(str(tmp_path), [row], 'r1')
+    (tmp_path / 'part-garbage.parquet').write_bytes(b'PAR1 not really' * 10)
+    table = read_history(str(tmp_path))
+    assert table.num_rows == 1
+    err = capsys.readouterr().err
+    assert 'part-garbage.parquet: not a readable fleet history file' in err and 'skipped' in err
+
+
+# ---------------------------------------------------------------- 5. internal errors
+def model_file(tmp_path, name='model.json', **changes):
+    parameters = {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7, 'J': 0.0315, 'b': 0.3, 'Mc': 1.0}
+    effects = changes.pop('effects', [])
+    parameters.update(changes)
+    path = tmp_path / name
+    path.write_text(json.dumps({'parameters': parameters, 'mode': 'full', 'effects': effects}))
+    return path
+
+
+@pytest.mark.parametrize('changes, phrases', [
+    ({'effects': [{'name': 'load_torque', 'parameters': {'torque_Nm': 'abc'}}]},
+     ['parameter torque_Nm is "abc", not a finite number']),
+    ({'J': 1e-300}, ['cannot be simulated on this record', 'mechanical 1.65e-300 s']),
+    ({'J': True}, ['parameter J is True']),
+])
+def test_validate_refuses_bad_model_files_by_name(table, tmp_path, capsys, changes, phrases):
+    data = write(tmp_path / 'good.csv', HEADER, table)
+    refused(capsys, 'validate', model_file(tmp_path, **changes), data, phrases=phrases)
+
+
+def test_validate_on_a_record_of_1000_s_steps_ends_with_a_message(table, tmp_path, capsys):
+    rows = table[:200].copy()
+    rows[:, 0] *= 1e6
+    data = write(tmp_path / 'slow.csv', HEADER, rows)
+    refused(capsys, 'validate', model_file(tmp_path), data,
+            phrases=['sample period 1e+03 s', 'time column'])
+
+
+def test_a_tiny_time_budget_is_a_message_not_a_bug(table, tmp_path, capsys):
+    data = write(tmp_path / 'good.csv', HEADER, table)
+    refused(capsys, 'identify', data, '--max-time', '1e-9',
+            phrases=['--max-time 1e-09', 'give more time'])
+
+
+@pytest.mark.parametrize('content, phrase', [
+    (b'', 'the file is empty'),
+    (b'MATLAB 5.0 MAT-file' + b' ' * 100 + b'\x00\x01IM' + b'\x0e\x00\x00\x00\xff\xff\x00',
+     'not a readable MATLAB file'),
+])
+def test_empty_and_truncated_mat_files_are_refused(tmp_path, capsys, content, phrase):
+    path = tmp_path / 'x.mat'
+    path.write_bytes(content)
+    refused(capsys, 'identify', path, phrases=[str(path), phrase])
+
+
+@pytest.mark.parametrize('payload', [b'', b'\x00\x01\x00\x00\x01', b'\xff' * 3])
+def test_malformed_cdr_payloads_end_as_a_message(tmp_path, capsys, payload):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    path = tmp_path / 'bag'
+    with Writer(path, version=9) as writer:
+        topics = {name: writer.add_connection(f'/{name}', 'std_msgs/msg/Float64',
+                                              typestore=typestore)
+                  for name in ('voltage', 'current', 'speed')}
+        good = typestore.serialize_cdr(typestore.types['std_msgs/msg/Float64'](data=1.0),
+                                       'std_msgs/msg/Float64')
+        for k in range(50):
+            for name, connection in topics.items():
+                data = payload if name == 'current' and k % 2 else good
+                writer.write(connection, 10 ** 9 + k * 10 ** 6, bytes(data))
+    code, _, err = run_command(capsys, 'identify', path, '--no-discover')
+    assert code == 2 and 'not valid std_msgs/msg/Float64' in err, err
+    assert '/current' in err and '25 of 50 messages' in err
+
+
+def test_a_batch_topic_with_garbage_payloads_is_refused_naming_it(tmp_path, capsys):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores
+    from dcmotor_id.formats.batch import BATCH_TYPE
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    path = tmp_path / 'bag'
+    with Writer(path, version=9) as writer:
+        connection = writer.add_connection('/samples', BATCH_TYPE, typestore=typestore)
+        writer.write(connection, 10 ** 9, b'\x00\x01\x00\x00' + b'\xff' * 40)
+    refused(capsys, 'identify', path, phrases=['/samples', 'not a valid', 're-record'])
+
+
+def test_os_errors_name_the_path_and_the_fix(tmp_path):
+    error = PermissionError(13, 'Permission denied', str(tmp_path / 'x.json'))
+    text = cli.os_error_message(error)
+    assert str(tmp_path / 'x.json') in text and 'chmod' in text and 'Errno' not in text
+    text = cli.os_error_message(FileExistsError(17, 'File exists', 'out'))
+    assert text.startswith('out: ') and 'remove it or choose another name' in text
+
+
+@pytest.mark.parametrize('parameters, phrase', [
+    ({'Ra': True}, 'Ra = true (a bool, not a number)'),
+    ({'Ra': None, 'La': None, 'CPhi': None}, 'Ra = null'),
+    ({'La': '0.016'}, 'La = "0.016" (a str, not a number)'),
+])
+def test_design_refuses_mistyped_and_nan_electrical_parameters(tmp_path, capsys, parameters,
+                                                               phrase):
+    values = {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7, 'J': 0.0315, 'b': 0.3, 'Mc': 1.0}
+    values.update(parameters)
+    path = tmp_path / 'result.json'
+    path.write_text(json.dumps({'parameters': values, 'mode': 'full'}))
+    refused(capsys, 'design', path, phrases=[phrase, 'Identify the motor again'])
+
+
+def test_design_says_which_design_it_makes(tmp_path, capsys):
+    path = tmp_path / 'result.json'
+    path.write_text(json.dumps({'parameters': {'J': 0.0315, 'b': 0.3, 'Mc': 1.0},
+                                'mode': 'mechanical', 'torque_constant': 0.7}))
+    code, out, err = run_command(capsys, 'design', path)
+    assert code == 0, err
+    assert 'mode mechanical (speed loop only, on an ideal torque source' in out
+
+
+# ---------------------------------------------------------------- 4. silent nonsense
+@pytest.mark.parametrize('column, factor, phrase, parameter, wrong', [
+    (1, 1e3, 'the voltage looks like millivolts', 'Ra', 1600.0),
+    (0, 1e3, 'the time looks like milliseconds', 'La', 16.0),
+    (2, 1e3, 'the current looks like milliamperes', 'Ra', 1.6e-3),
+])
+def test_units_off_by_1000_are_named_in_the_warnings(table, tmp_path, capsys, column, factor,
+                                                     phrase, parameter, wrong):
+    rows = table.copy()
+    rows[:, column] *= factor
+    out = tmp_path / 'r.json'
+    code, stdout, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, rows),
+                                    '--no-discover', '--json', out)
+    assert code == 0, err
+    result = json.loads(out.read_text())
+    assert result['parameters'][parameter] == pytest.approx(wrong, rel=0.01)
+    assert any(phrase in text for text in result['warnings']), result['warnings']
+    assert phrase in stdout
+
+
+def test_si_data_get_no_unit_warning(table, tmp_path, capsys):
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, table),
+                               '--no-discover', '--json', out)
+    assert code == 0, err
+    assert not any('looks like' in text for text in json.loads(out.read_text())['warnings'])
+
+
+@pytest.mark.parametrize('bad', [0.0, 1e-300])
+def test_current_dropouts_are_named_and_fitted_without(table, tmp_path, capsys, bad):
+    rows = table.copy()
+    rows[100 + 97 * np.arange(30), 2] = bad
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, rows),
+                               '--no-discover', '--json', out)
+    assert code == 0, err
+    result = json.loads(out.read_text())
+    assert result['parameters']['Ra'] == pytest.approx(1.6, rel=0.01)
+    assert not any('current limit' in text for text in result['warnings'])
+    note = [text for text in result['warnings'] if 'isolated dropout' in text]
+    assert note and 'the current has 30 isolated dropout(s) to zero' in note[0]
+    assert 'sample 100' in note[0] and 'check the sensor' in err
+
+
+def test_clean_excitations_have_no_isolated_samples():
+    from dcmotor_id.identification.dropouts import find_isolated
+    from dcmotor_id.simulation.excitation import EXCITATION_KINDS, make_excitation
+    from test_bad_input import simulate
+    for kind in EXCITATION_KINDS:
+        rows = simulate(make_excitation(kind, 3.0, 1e-3)[1])
+        assert find_isolated(rows[:, 2], rows[:, 1]).size == 0, kind
+        assert find_isolated(rows[:, 3], rows[:, 1]).size == 0, kind
+
+
+def test_a_parquet_time_column_typed_as_timestamp_is_read_in_seconds(table, tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from dcmotor_id.formats import read_record
+    stamps = 1_700_000_000_000_000_000 + np.round(table[:, 0] * 1e9).astype(np.int64)
+    pq.write_table(pa.table({'t': pa.array(stamps, pa.timestamp('ns')),
+                             'voltage': table[:, 1], 'current': table[:, 2],
+                             'speed': table[:, 3]}), tmp_path / 'x.parquet')
+    record = read_record(tmp_path / 'x.parquet')
+    assert record.sample_period_s == pytest.approx(1e-3, rel=1e-6)
+    assert record.time_s[0] == 0.0
+
+
+# ---------------------------------------------------------------- 2. memory before allocation
+def test_a_v73_mat_declaring_3e9_values_is_refused_before_reading(tmp_path, capsys):
+    h5py = pytest.importorskip('h5py')
+    path = tmp_path / 'big.mat'
+    with h5py.File(path, 'w', userblock_size=512) as handle:
+        for name in ('t', 'voltage', 'current', 'speed'):
+            handle.create_dataset(name, shape=(1, 3_000_000_000), dtype='f8', chunks=(1, 1000),
+                                  compression='gzip')
+    assert path.stat().st_size < 100_000
+    refused(capsys, 'identify', path, phrases=[
+        "variable 't' of shape (3000000000, 1)", '24 GB', '--memory-budget'])
+
+
+def test_a_v5_mat_reads_only_the_channels(tmp_path):
+    from scipy.io import savemat
+    from dcmotor_id.formats.mat import _load_v5
+    savemat(tmp_path / 'x.mat', {'t': np.arange(10.0), 'junk': np.zeros((5, 5))})
+    get = _load_v5(tmp_path / 'x.mat', {'t'})
+    assert get('t') is not None and get('junk') is None and 'junk' in get.names
+
+
+def test_a_parquet_of_many_rows_is_refused_before_reading(tmp_path, capsys):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    t = np.arange(200_000) * 1e-3
+    pq.write_table(pa.table({'t': t, 'voltage': t, 'current': t, 'speed': t}),
+                   tmp_path / 'x.parquet')
+    refused(capsys, 'identify', tmp_path / 'x.parquet', '--memory-budget', '0.001',
+            phrases=['200000 rows of 4 columns', 'beyond the memory budget of 0.001 GB'])
+
+
+def test_a_zstd_mcap_chunk_decompressing_beyond_the_budget_is_refused(tmp_path, capsys):
+    from dcmotor_id.formats.bag import write_bag
+    from support import motor_samples
+    stamps, channels = motor_samples(2.0)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    refused(capsys, 'identify', tmp_path / 'bag', '--memory-budget', '0.0001',
+            phrases=['bag.mcap', 'chunk of', 'declaring', '--memory-budget'])
+
+
+def test_a_nul_padded_csv_is_refused_in_bounded_memory(table, tmp_path, capsys):
+    path = write(tmp_path / 'padded.csv', HEADER, table)
+    os.truncate(path, 2 * 10 ** 9)   # sparse: 2 GB of NUL bytes after the data
+    refused(capsys, 'identify', path, phrases=['a NUL byte at byte', 'remove the padding'])
+
+
+def test_plan_refuses_a_duration_beyond_the_budget_at_once(capsys):
+    started = time.monotonic()
+    refused(capsys, 'plan', '--duration', '1e6', phrases=[
+        '--duration 1e+06', '1e+09 samples', '--memory-budget', 'shorter --duration'])
+    assert time.monotonic() - started < 5

@@ -103,3 +103,48 @@ def test_start_is_refused_blind_beyond_the_voltage_limit_and_twice():
     assert session.stop() == 0.0 and session.state == 'stopped'
     session.observe(1.2)
     assert session.start(Routine(amplitude_v=20.0), 1.2)[0]  # a stopped session re-arms
+
+
+def watching(channels=('current', 'speed')):
+    session = ExcitationSession(LIMITS, rate_hz=100.0, ramp_in_s=0.0, stale_timeout_s=0.2,
+                                watch=channels)
+    session.observe(0.0, current=[0.0])
+    ok, message = session.start(Routine('dynamic', 12.0, 10.0), 0.0)
+    assert not ok and 'no measurement on speed' in message  # one channel is not enough
+    session.observe(0.0, speed=[0.0])
+    assert session.start(Routine('dynamic', 12.0, 10.0), 0.0)[0]
+    return session
+
+
+def test_one_stale_channel_stops_the_routine_while_the_other_keeps_coming():
+    """Issue 21: speed stopped, current kept arriving: 0 V at the first tick past the timeout."""
+    session = watching()
+    for now in np.arange(0.01, 1.0, 0.01):  # 100 Hz ticks; speed stops at 0.5 s
+        session.observe(now, current=[1.0], **({'speed': [1.0]} if now < 0.5 else {}))
+        value = session.command(now)
+        if now - 0.49 > 0.2 + 1e-9:
+            assert value in (0.0, None), now
+    assert session.state == 'stale'
+    assert 'no measurement on speed' in session.reason and 'current' not in session.reason
+
+
+@pytest.mark.parametrize('bad', [np.nan, np.inf])
+def test_a_non_finite_channel_stops_at_once_and_blocks_a_start(bad):
+    session = watching()
+    assert session.observe(0.1, speed=[bad]) and session.state == 'stopped-by-limit'
+    assert 'speed is not finite' in session.reason
+    session.observe(0.15, current=[0.0])
+    ok, message = session.start(Routine('dynamic', 1.0, 1.0), 0.15)
+    assert not ok and 'speed is not finite' in message
+    assert session.status()['not_finite'] == 'speed'
+    session.observe(0.16, speed=[0.0])  # a finite sample clears it
+    assert session.start(Routine('dynamic', 1.0, 1.0), 0.16)[0]
+
+
+def test_a_routine_with_non_finite_voltages_is_refused():
+    session = watching()
+    session.stop()
+    ok, message = session.start(Routine('dynamic', 1.0, 1.0, offset_v=float('nan')), 0.01)
+    assert not ok and 'NaN or infinite voltages' in message
+    with pytest.raises(ValueError, match='cannot watch'):
+        ExcitationSession(LIMITS, watch=('torque',))

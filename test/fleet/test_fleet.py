@@ -117,15 +117,22 @@ def test_fleet_job_history_and_idempotence(tmp_path, client):
         assert row['Ra'] > 0 and row['Ra_stderr'] > 0 and row['method'] == 'refined'
         assert row['error_after_current_nrmse_pct'] is not None
         assert row['package_version'] and row['run_id'] and row['worker']
-    # a re-run skips every recording already there; --force identifies them again
+    # a re-run skips every recording already there but retries the one that failed (issue
+    # 21: it may have been repaired); --no-retry-errors skips it too; --force redoes them all
+    assert known_sources(history_dir) == set(bags)
+    assert known_sources(history_dir, retry_errors=False) == set(bags) | {str(broken)}
     files = sorted(os.listdir(history_dir))
+    skipping = run_fleet([str(fleet)], history_dir, OPTIONS, client=client,
+                         retry_errors=False)
+    assert (skipping.skipped, skipping.done) == (5, 0)
+    assert sorted(os.listdir(history_dir)) == files
     again = run_fleet([str(fleet)], history_dir, OPTIONS, client=client)
-    assert (again.skipped, again.done) == (5, 0) and sorted(os.listdir(history_dir)) == files
-    assert known_sources(history_dir) == set(bags) | {str(broken)}
+    assert (again.skipped, again.done, again.failures) == (4, 1, 1)
+    assert len(os.listdir(history_dir)) == len(files) + 1
     forced = run_fleet([bags[0]], history_dir, OPTIONS, client=client, force=True)
     assert forced.done == 1 and forced.windows == 2
     assert read_history(history_dir).num_rows == len(rows)
-    assert read_history(history_dir, latest=False).num_rows == len(rows) + 2
+    assert read_history(history_dir, latest=False).num_rows == len(rows) + 3
 
 
 def test_new_result_keys_reach_the_history(tmp_path):

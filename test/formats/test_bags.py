@@ -206,9 +206,14 @@ def test_cli_identifies_a_truncated_bag_and_says_so(tmp_path, capsys):
     mcap = tmp_path / 'bag' / 'bag.mcap'
     data = mcap.read_bytes()
     mcap.write_bytes(data[:int(len(data) * 0.99)])
-    with pytest.warns(TruncatedBagWarning):
-        code = cli_main(['identify', str(tmp_path / 'bag'), '--no-discover'])
-    assert code == 0, capsys.readouterr().err
+    code = cli_main(['identify', str(tmp_path / 'bag'), '--no-discover', '--json',
+                     str(tmp_path / 'r.json')])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert 'dcmotor-id: warning: ' in err and 'truncated' in err
+    result = json.loads((tmp_path / 'r.json').read_text())
+    assert any('truncated' in text for text in result['warnings'])
+    assert result['data_loss'] and 'the rest is lost' in result['data_loss'][0]
 
 
 def test_a_file_that_is_not_mcap_is_still_refused(tmp_path):

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 from support import (alive, call as trigger, children, remove_nodes, spinning_executor,
@@ -235,3 +236,90 @@ def test_sigint_stops_a_node_in_the_middle_of_a_fit(ros, ros_env, tmp_path):
         if node.poll() is None:
             node.kill()
             node.wait()
+
+
+# ---------------------------------------------------------------- issue 21
+def test_twenty_concurrent_identify_calls_are_all_answered(graph):
+    """Issue 21: 9 of 20 concurrent calls were never answered (a queue of 10 requests)."""
+    ident, probe = graph('storm', input='batch')
+    publish(probe, 'samples', [batch(*simulated(3.0))])
+    assert wait_for(lambda: ident.aligner.stats.emitted == 3000, 30.0)
+    # deep response readers: with the default 10, twenty clients of one process lose
+    # answers among themselves (every reader sees every response)
+    clients = [probe.create_client(Trigger, 'identifier/identify',
+                                   qos_profile=QoSProfile(depth=1000)) for _ in range(20)]
+    assert all(client.wait_for_service(timeout_sec=30.0) for client in clients)
+    time.sleep(1.0)  # let the response writer match every client
+    futures = [client.call_async(Trigger.Request()) for client in clients]
+    assert wait_for(lambda: all(future.done() for future in futures), 240.0), \
+        f'{sum(future.done() for future in futures)} of 20 answered'
+    answers = [future.result() for future in futures]
+    busy = [answer for answer in answers if answer.message.startswith('busy: ')]
+    assert busy and all(not answer.success for answer in busy)
+    done = [answer for answer in answers if answer not in busy]  # a result or why not
+    assert done and all(answer.success or answer.message.startswith('identification failed')
+                        for answer in done), [answer.message for answer in done]
+
+
+def test_a_fit_that_fails_unexpectedly_is_answered_and_the_node_lives_on(graph):
+    ident, probe = graph('broken', input='batch')
+    publish(probe, 'samples', [batch(*simulated(3.0))])
+    assert wait_for(lambda: ident.aligner.stats.emitted == 3000, 30.0)
+    fits = ident._fits.identify
+    ident._fits.identify = lambda *arguments: {'parameters': {}}  # a malformed result
+    response = call(probe, 'identifier/identify')
+    assert not response.success
+    assert response.message.startswith('identification failed unexpectedly: KeyError')
+    ident._fits.identify = fits
+    response = call(probe, 'identifier/identify')  # the node lives on and answers
+    assert response.success, response.message
+
+
+def test_bad_joint_states_are_said_and_the_node_lives_on(graph):
+    """NaN, inf and wrong sizes on joint_states: refused, counted and named."""
+    from sensor_msgs.msg import JointState
+
+    ident, probe = graph('joints', input='joint_state', torque_constant=0.5,
+                         joint_name='axis')
+    messages = []
+    for k, (velocity, effort) in enumerate([([float('nan')], [1.0]), ([1.0], [float('inf')]),
+                                            ([], [1.0]), ([1.0], [])]):
+        message = JointState(name=['axis'], velocity=velocity, effort=effort)
+        message.header.stamp.sec = 100 + k
+        messages.append(message)
+    publish(probe, 'joint_states', messages, JointState)
+    assert wait_for(lambda: ident.input_node.errors == 0 and
+                    ident.health.malformed_joint_states == 2, 20.0), \
+        (ident.input_node.errors, getattr(ident.health, 'malformed_joint_states', None))
+    response = call(probe, 'identifier/identify')
+    assert not response.success
+    for phrase in ('not enough data', '2 malformed joint_states refused',
+                   'invalid values (NaN/inf) refused: current 1, speed 1'):
+        assert phrase in response.message, (phrase, response.message)
+
+
+def test_sim_motor_survives_an_absurd_command_and_says_so(ros):
+    """A command of 1.7e308 V overflows the simulated state: reset to rest, said, and on."""
+    from dcmotor_id.formats.batch import decode_batch_message
+    from dcmotor_id.nodes.sim_motor import SimMotor
+
+    sim = SimMotor(namespace='huge', parameter_overrides=[
+        Parameter('use_voltage_command', value=True), Parameter('transport', value='batch')])
+    probe = rclpy.create_node('probe', namespace='huge')
+    received = []
+    probe.create_subscription(Float64MultiArray, 'samples', lambda message: received.append(
+        decode_batch_message(message)), 100)
+    for node in (sim, probe):
+        ros.add_node(node)
+    try:
+        command = probe.create_publisher(Float64, 'voltage_command', 10)
+        assert wait_for(lambda: command.get_subscription_count() > 0, 20.0)
+        command.publish(Float64(data=1.7e308))
+        assert wait_for(lambda: sim.overflows > 0, 20.0)
+        command.publish(Float64(data=0.0))
+        assert wait_for(lambda: sim._command == 0.0, 10.0)
+        seen = len(received)
+        assert wait_for(lambda: len(received) > seen + 5, 20.0)
+        assert np.all(np.isfinite(received[-1][1:]))  # the motor is simulated again
+    finally:
+        remove_nodes(ros, sim, probe)

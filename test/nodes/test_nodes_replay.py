@@ -295,3 +295,99 @@ def test_replay_executable_refuses_a_hostile_bag_without_running_it(ros_env, tmp
     assert result.returncode == 2, result.stderr
     assert "'unittest/__main__/Float64' (topic /voltage) is not played" in result.stderr
     assert 'Ran 0 tests' not in result.stdout + result.stderr  # unittest's CLI never ran
+
+
+def mixed_bag(path, samples=50, broken=()):
+    """
+    Write a drive's bag as recorded with ``-a``: measurements and a 200 V voltage_command.
+
+    Also a topic with an invalid name, and ``/current`` payloads truncated at ``broken``.
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    connections = {topic: writer.add_connection(topic, 'std_msgs/msg/Float64',
+                                                msgdef='float64 data',
+                                                rihs01='RIHS01_' + '0' * 64)
+                   for topic in ('/voltage', '/current', '/speed', '/voltage_command',
+                                 '/bad topic name!!')}
+    for k in range(samples):
+        for topic, connection in connections.items():
+            value = 200.0 if topic == '/voltage_command' else float(k)
+            data = b'\x00\x01\x00\x00' + struct.pack('<d', value)
+            if topic == '/current' and k in broken:
+                data = data[:7]
+            writer.write(connection, 10 ** 9 + k * 10 ** 6, data)
+    writer.close()
+    return path
+
+
+def play(bag, *parameters):
+    """Replay ``bag`` in-process; return what arrived on each topic (Float64 values)."""
+    from std_msgs.msg import Float64
+
+    executor = SingleThreadedExecutor()
+    listener = rclpy.create_node('listener')
+    seen = {topic: [] for topic in ('/voltage', '/current', '/speed', '/voltage_command')}
+    for topic, values in seen.items():
+        listener.create_subscription(Float64, topic, lambda m, v=values: v.append(m.data), 500)
+    executor.add_node(listener)
+    replay = Replay(parameter_overrides=[Parameter('bag', value=str(bag)),
+                                         Parameter('start_delay_s', value=1.0), *parameters])
+    executor.add_node(replay)
+    try:
+        deadline = time.monotonic() + 60
+        while not replay.done.is_set() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        assert replay.done.is_set()
+        quiet = time.monotonic() + 1.0  # take what is queued, until 1 s without any
+        while time.monotonic() < quiet:
+            count = sum(map(len, seen.values()))
+            executor.spin_once(timeout_sec=0.05)
+            if sum(map(len, seen.values())) > count:
+                quiet = time.monotonic() + 1.0
+        return replay, seen
+    finally:
+        for node in (replay, listener):
+            executor.remove_node(node)
+            node.destroy_node()
+
+
+def test_replay_plays_only_the_measurements_unless_a_topic_is_named(ros, tmp_path):
+    """Issue 21: a bag's voltage_command drove sim_motor at 200 V."""
+    bag = mixed_bag(tmp_path / 'recorded')
+    replay, seen = play(bag)
+    assert set(replay._topic_publishers) == {'/voltage', '/current', '/speed'}
+    assert seen['/voltage_command'] == []
+    assert len(seen['/voltage']) == len(seen['/speed']) == 50
+    replay, seen = play(bag, Parameter('extra_topics', value=['/voltage_command',
+                                                              '/bad topic name!!']))
+    assert set(replay._topic_publishers) == {'/voltage', '/current', '/speed',
+                                             '/voltage_command'}
+    assert seen['/voltage_command'] == [200.0] * 50
+
+
+def test_replay_skips_malformed_payloads_and_counts_them(ros, tmp_path):
+    bag = mixed_bag(tmp_path / 'damaged', broken=(3, 4, 40))
+    replay, seen = play(bag)
+    assert seen['/current'] == [float(k) for k in range(50) if k not in (3, 4, 40)]
+    assert replay.published == 147
+
+
+def test_replay_executable_skips_a_bad_topic_name_with_a_warning(ros_env, tmp_path):
+    """Issue 21: a topic named '/bad topic name!!' crashed replay with a traceback."""
+    bag = mixed_bag(tmp_path / 'recorded', broken=(7,))
+    for extra in ([], ['--ros-args', '-p', 'extra_topics:=["/bad topic name!!"]']):
+        result = subprocess.run(
+            [sys.executable, '-m', 'dcmotor_id.nodes.replay', '--ros-args', '-p',
+             f'bag:={bag}', '-p', 'start_delay_s:=0.0', *extra[1:]],
+            env=ros_env, capture_output=True, text=True, timeout=120)
+        output = result.stdout + result.stderr
+        assert result.returncode == 0, output
+        assert 'Traceback' not in output
+        assert "topic '/bad topic name!!' skipped: not a valid ROS topic name" in output
+        assert 'not played' in output or extra
+        assert 'topic /current: 1 message(s) skipped, their payload is not a valid ' \
+            'std_msgs/msg/Float64 (first at stamp 1007000000 ns)' in output, output
+        assert 'done: 149 messages played' in output

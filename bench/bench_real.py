@@ -1,0 +1,1129 @@
+"""
+Real recordings: a scorecard of ``dcmotor-id identify`` and ``validate`` (issue 19).
+
+Public laboratory recordings the project has never been tuned on, each with reference values:
+the HSM150 servo (12 open-loop torque steps, 6 per direction), the UBC MECH 467 ball-screw lab
+(Part A constant-velocity strokes, Part B a pulse doublet, Part C sines) and EMPS.  The tool is
+run as the README tells a user: the command line as a subprocess,
+``python -m dcmotor_id.cli identify FILE... --torque-constant K --json OUT`` with the reading
+options on the original files (a file that cannot be read that way is a finding, listed, and
+the row then uses a CSV converted from it, marked), and ``validate`` on records not fitted.
+For every single record, every pair of opposite directions, all records together and disjoint
+subsets: the parameters against the references (percent error), the stated standard errors
+against the spread between disjoint subsets (z), validation fit %, warnings, exit code and
+refusal text, run time (wall and CPU of the process).  Beside it, as the peer, a plain scipy
+output-error fit of the same mechanical model
+``J dw/dt = K i - b w - Mc sgn(w) - T`` (simulated from the measured current, fitted with
+``scipy.optimize.least_squares`` on the speed, or on the position where no speed is logged),
+on the same records.  A summary marks each goal of issue 19 met or not met.
+
+Set-up (the data are not part of this repository; their repositories carry no licence to
+redistribute them): clone the two public repositories at the named commits, and have the EMPS
+files (``DATA_EMPS.mat``, ``DATA_EMPS_PULSES.mat``)::
+
+    git clone https://github.com/malik-robert/HSM150-data && git -C HSM150-data checkout 35c3b1b
+    git clone https://github.com/brucecui97/mech467 && git -C mech467 checkout 36dde45
+
+Each repository path may be a work tree or a bare clone (``git clone --bare``; its files are
+then read at the named commit with ``git show``).  Run from the repository root (one command;
+``--quick`` for a subset, ``--only hsm150|mech467|emps``; progress on stderr)::
+
+    .venv/bin/python bench/bench_real.py --hsm150 HSM150-data --mech467 mech467 \
+        --emps ../shared/data/emps --out bench/real_results.md
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field
+import json
+import math
+import os
+import re
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any, Optional
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HSM150_COMMIT = '35c3b1b'
+MECH467_COMMIT = '36dde45'
+HSM150_K = 0.0458
+MECH467_K = 0.72
+MECH467_GAIN = 0.887
+MECH467_PITCH_MM = 20.0
+EMPS_GTAU = 35.1507
+#: References (J, b, Mc, load torque T; T > 0 opposes positive motion, as ``load_torque``).
+HSM150_REFS = {'J': 1.2e-4, 'b': 7.03e-5, 'Mc': 0.024, 'T': 0.009}
+MECH467_REFS = {'J': 7e-4, 'Mc': 0.22}
+EMPS_REFS = {'J': 95.1089, 'b': 203.5034, 'Mc': 20.3935, 'T': -3.1648}
+PARAMETERS = ('J', 'b', 'Mc', 'T')
+START = time.perf_counter()
+
+
+def log(message: str) -> None:
+    """Write one progress line on stderr."""
+    print(f'[{time.perf_counter() - START:6.0f} s] {message}', file=sys.stderr, flush=True)
+
+
+@dataclass
+class Rec:
+    """One record: the file given to the tool and the arrays the peer fits."""
+
+    name: str
+    path: str
+    direction: str
+    t: np.ndarray
+    torque: np.ndarray
+    y: np.ndarray
+    converted: bool = False
+
+
+@dataclass
+class Job:
+    """One identification: the records fitted and the records validated on, by group."""
+
+    label: str
+    kind: str
+    members: list[str]
+    heldout: dict[str, list[str]] = field(default_factory=dict)
+    family: Optional[str] = None
+
+
+@dataclass
+class DataSet:
+    """A data set: records, reading options, torque constant, references, jobs, findings."""
+
+    name: str
+    title: str
+    records: dict[str, Rec]
+    reading: list[str]
+    torque_constant: float
+    output: str
+    refs: dict[str, float]
+    jobs: list[Job]
+    note: str
+    findings: list[dict[str, Any]] = field(default_factory=list)
+
+
+class Repository:
+    """Files of a public repository: a work tree, or a bare clone read at a named commit."""
+
+    def __init__(self, path: str, commit: str, cache: str) -> None:
+        # cache: where the files of a bare clone are written (one directory per repository)
+        self.path, self.commit, self.cache = path, commit, cache
+        if not os.path.isdir(path):
+            raise SystemExit(f'{path}: no such directory (see the set-up in bench_real.py)')
+        # a directory without .git that git reads as a repository: a bare clone
+        self.bare = not os.path.isdir(os.path.join(path, '.git')) and bool(self._git(
+            'rev-parse', '--git-dir', check=False).strip())
+
+    def _git(self, *args: str, check: bool = True) -> str:
+        where = ['--git-dir', self.path] if not os.path.isdir(
+            os.path.join(self.path, '.git')) else ['-C', self.path]
+        done = subprocess.run(['git', *where, *args], capture_output=True, text=True)
+        if check and done.returncode != 0:
+            raise SystemExit(f'{self.path}: git {" ".join(args)} failed: {done.stderr.strip()}')
+        return done.stdout
+
+    def revision(self) -> str:
+        """Return the commit the files are read at."""
+        if self.bare:
+            return self.commit
+        return self._git('rev-parse', '--short', 'HEAD', check=False).strip() or 'unknown'
+
+    def files(self, folder: str, suffix: str = '.mat') -> list[str]:
+        """Return the paths (relative to the repository) of the files of a folder."""
+        if self.bare:
+            names = self._git('ls-tree', '-r', '--name-only', self.commit, '--', folder).split()
+        else:
+            base = os.path.join(self.path, folder)
+            names = [os.path.join(folder, name) for name in sorted(os.listdir(base))] \
+                if os.path.isdir(base) else []
+        names = [name for name in names if name.endswith(suffix)]
+        if not names:
+            raise SystemExit(f'{self.path}: no {suffix} files under {folder}; check out '
+                             f'commit {self.commit} (see the set-up in bench_real.py)')
+        return names
+
+    def local(self, name: str) -> str:
+        """Return a local path of a file (read from the bare clone into the cache)."""
+        if not self.bare:
+            return os.path.join(self.path, name)
+        target = os.path.join(self.cache, name)
+        if not os.path.exists(target):
+            os.makedirs(os.path.dirname(target), exist_ok=True)
+            with open(target, 'wb') as stream:
+                subprocess.run(['git', '--git-dir', self.path, 'show',
+                                f'{self.commit}:{name}'], stdout=stream, check=True)
+        return target
+
+
+def direction_of(y: np.ndarray, is_position: bool) -> str:
+    """Return 'pos', 'neg' or 'both': the directions a record moves in."""
+    speed = np.diff(y) if is_position else np.asarray(y)
+    moving = np.abs(speed) > 0.1 * np.max(np.abs(speed))
+    share = max(int(moving.sum()), 1)
+    pos = np.count_nonzero(speed[moving] > 0) > 0.05 * share
+    neg = np.count_nonzero(speed[moving] < 0) > 0.05 * share
+    return 'both' if pos and neg else ('pos' if pos else 'neg')
+
+
+def _hsm150_records(repo: Repository) -> dict[str, Rec]:
+    """Read the 12 identification records (data columns: t, speed 4, current 7)."""
+    from scipy.io import loadmat
+    records = {}
+    for name in repo.files('Data/Identification'):
+        path = repo.local(name)
+        data = np.asarray(loadmat(path)['data'], dtype=float)
+        stem = os.path.basename(name)[:-4]
+        records[stem] = Rec(stem, path, 'neg' if '_neg_' in stem else 'pos', data[:, 0],
+                            HSM150_K * data[:, 6], data[:, 3])
+    return records
+
+
+def _hsm150_jobs(names: list[str], quick: bool) -> list[Job]:
+    """Every record, the six pos+neg pairs, all 12, the three runs as disjoint subsets."""
+    pos = sorted(n for n in names if '_pos_' in n)
+    neg = sorted(n for n in names if '_neg_' in n)
+    jobs = []
+    for name in (pos[:1] + neg[:1] if quick else sorted(names)):
+        same = [n for n in (pos if name in pos else neg) if n != name]
+        other = neg if name in pos else pos
+        jobs.append(Job(name, 'single', [name], {'same dir.': same, 'opposite': other}))
+    # idf_pos_0.06_k with idf_neg_0.04_k, idf_pos_0.065_k with idf_neg_0.045_k
+    pairs = list(zip(pos, neg))
+    for a, b in (pairs[:1] if quick else pairs):
+        rest = [n for n in names if n not in (a, b)]
+        jobs.append(Job(f'{a[4:]} + {b[4:]}', 'pair', [a, b], {'other 10': rest},
+                        family='pairs'))
+    jobs.append(Job('all 12', 'all', sorted(names)))
+    for run in ('1', '2') if quick else ('1', '2', '3'):
+        members = [n for n in sorted(names) if n.endswith('_' + run)]
+        rest = [n for n in names if n not in members]
+        jobs.append(Job(f'run {run} (4 records)', 'subset', members, {'other 8': rest},
+                        family='runs'))
+    return jobs
+
+
+def hsm150_set(path: str, cache: str, quick: bool) -> DataSet:
+    """Return the HSM150 servo data set (the original .mat files, read as recorded)."""
+    repo = Repository(path, HSM150_COMMIT, os.path.join(cache, 'HSM150-data'))
+    records = _hsm150_records(repo)
+    reading = ['--column', 't=data:1', '--column', 'current=data:7', '--column',
+               'speed=data:4']
+    note = (f'github malik-robert/HSM150-data at {repo.revision()}, `Data/Identification/'
+            'idf_{pos,neg}_*.mat`: 1 kHz, 20 s, a torque step from rest and a second step '
+            'halfway, current (column 7) and speed (column 4). References: catalog J 1.2e-4 '
+            'kg m^2, B 7.03e-5 N m s/rad (the authors fit J 1.2153e-4, B 6.95e-5); Coulomb '
+            '0.024 N m and offset 0.009 N m from a steady-state regression over all 12 files. '
+            'On one-direction fits Mc is the total friction of the direction, compared with '
+            'Mc + T = 0.033 N m (positive) or Mc - T = 0.015 N m (negative).')
+    findings = [{'data': 'HSM150', 'file': 'every idf_*.mat', 'attempt':
+                 'original .mat, ' + ' '.join(reading), 'exit': 0,
+                 'message': 'read as recorded'}]
+    return DataSet('hsm150', 'HSM150 servo', records, reading, HSM150_K, 'speed', HSM150_REFS,
+                   _hsm150_jobs(list(records), quick), note, findings)
+
+
+MECH467_FIELDS = ('time', 'CH1in', 'CH1out', 'CH1sig')
+MECH467_READING = ['--column', 't=time', '--column', 'current=CH1sig', '--column',
+                   'position=CH1out', '--position-counts-per-rev', f'{MECH467_PITCH_MM:g}']
+
+
+def mech467_csv(mat_path: str, csv_path: str, drop_repeated: bool = True) -> np.ndarray:
+    """
+    Write the struct ``output`` of a lab file as a CSV (its fields as columns).
+
+    The hand work a user has to do: the reader takes no struct fields, and every file repeats
+    its first timestamp (``drop_repeated`` removes the repeated sample).  Returns the columns.
+    """
+    from scipy.io import loadmat
+    struct = loadmat(mat_path)['output'][0, 0]
+    columns = np.column_stack([np.ravel(struct[name]).astype(float)
+                               for name in MECH467_FIELDS])
+    if drop_repeated:
+        keep = np.concatenate([[True], np.diff(columns[:, 0]) > 0])
+        columns = columns[keep]
+    os.makedirs(os.path.dirname(csv_path), exist_ok=True)
+    np.savetxt(csv_path, columns, delimiter=',', header=','.join(MECH467_FIELDS),
+               comments='', fmt='%.12g')
+    return columns
+
+
+def _mech467_records(repo: Repository, cache: str, parts: dict[str, list[str]]) -> dict:
+    """Convert the chosen files of each part to CSV; the peer's arrays in SI at the motor."""
+    records = {}
+    scale = 2.0 * math.pi / MECH467_PITCH_MM
+    for part, stems in parts.items():
+        for stem in stems:
+            name = f'lab1/Group2/Part_{part}/{stem}.mat'
+            csv_path = os.path.join(cache, 'mech467_csv', f'Part_{part}', f'{stem}.csv')
+            cols = mech467_csv(repo.local(name), csv_path)
+            position = scale * cols[:, 2]
+            key = f'{part}/{stem}'
+            records[key] = Rec(key, csv_path, direction_of(position, True), cols[:, 0],
+                               MECH467_K * MECH467_GAIN * cols[:, 3], position, converted=True)
+    return records
+
+
+def _mech467_stems(repo: Repository, quick: bool) -> dict[str, list[str]]:
+    """Return the file stems of each part (numbers in numeric order)."""
+    stems = {}
+    for part in ('A', 'B', 'C'):
+        names = [os.path.basename(n)[:-4] for n in repo.files(f'lab1/Group2/Part_{part}')]
+        stems[part] = sorted(names, key=lambda s: (not s.isdigit(), int(s) if s.isdigit()
+                                                   else 0, s))
+    if quick:
+        stems = {'A': [], 'B': stems['B'], 'C': [s for s in stems['C'] if s in ('1', '5', '40')]}
+    return stems
+
+
+def _mech467_jobs(stems: dict[str, list[str]], quick: bool) -> list[Job]:
+    """Every record, all of Part C, Part C in two disjoint halves, all parts together."""
+    c_names = [f'C/{s}' for s in stems['C']]
+    b_names = [f'B/{s}' for s in stems['B']]
+    jobs = [Job(name, 'single', [name], {'Part B': b_names}) for name in c_names]
+    jobs += [Job(name, 'single', [name], {'Part C': c_names}) for name in b_names]
+    jobs += [Job(f'A/{s}', 'single', [f'A/{s}'], {'Part B': b_names}) for s in stems['A']]
+    jobs.append(Job('all Part C', 'all', c_names, {'Part B': b_names}))
+    if not quick:
+        for half, members in (('odd', c_names[0::2]), ('even', c_names[1::2])):
+            jobs.append(Job(f'Part C, {half} positions ({len(members)})', 'subset', members,
+                            {'Part B': b_names}, family='halves'))
+        every = [f'A/{s}' for s in stems['A']] + b_names + c_names
+        jobs.append(Job(f'all parts ({len(every)})', 'all', every))
+    return jobs
+
+
+def _mech467_findings(repo: Repository, cache: str, stems: dict[str, list[str]],
+                      options: list[str]) -> list[dict[str, Any]]:
+    """Try the first file of each part as a user would: the .mat, then the plain CSV."""
+    findings = []
+    struct = ['--column', 't=output.time', '--column', 'current=output.CH1sig', '--column',
+              'position=output.CH1out'] + MECH467_READING[6:]
+    for part, names in stems.items():
+        if not names:
+            continue
+        name = f'lab1/Group2/Part_{part}/{names[0]}.mat'
+        plain = os.path.join(cache, 'mech467_plain', f'{part}_{names[0]}.csv')
+        mech467_csv(repo.local(name), plain, drop_repeated=False)
+        for label, path, reading in (('original .mat, struct fields', repo.local(name), struct),
+                                     ('CSV of the struct fields, as recorded', plain,
+                                      MECH467_READING)):
+            run = run_cli(['identify', path, *reading, *options, '--json',
+                           os.path.join(cache, 'finding.json')])
+            findings.append({'data': 'MECH 467', 'file': f'Part_{part}/{names[0]}.mat',
+                             'attempt': f'{label}: ' + ' '.join(reading),
+                             'exit': run['rc'], 'message': run['message'] or 'read'})
+    return findings
+
+
+def mech467_set(path: str, cache: str, quick: bool) -> DataSet:
+    """Return the UBC MECH 467 ball-screw lab, Group 2 (CSVs converted from the .mat files)."""
+    repo = Repository(path, MECH467_COMMIT, os.path.join(cache, 'mech467'))
+    stems = _mech467_stems(repo, quick)
+    records = _mech467_records(repo, cache, stems)
+    k = MECH467_K * MECH467_GAIN
+    options = ['--torque-constant', f'{k:.6g}']
+    note = (f'github brucecui97/mech467 at {repo.revision()}, `lab1/Group2/Part_{{A,B,C}}/'
+            '*.mat`: 2 kHz, struct `output` with `time`, `CH1sig` (the commanded current in V, '
+            f'amplifier {MECH467_GAIN} A/V), `CH1out` (table position, mm), `CH1in` (the '
+            'reference).  Torque constant 0.72 N m/A times the amplifier gain: '
+            f'`--torque-constant {k:.6g}` with the command in V as the current (no current-gain '
+            'option); the screw pitch 20 mm/rev as `--position-counts-per-rev 20` (mm counted '
+            '20 per revolution; `--position-unit` has no mm, and `m` is kept as metres), so J '
+            'is at the motor shaft.  References: lab manual J about 7e-4 kg m^2, the Coulomb '
+            'friction of the group about 0.22 N m.  Every record moves both ways (no direction '
+            'pairs); Part B is the validation record of the Part C fits.  Every row uses the '
+            'converted CSV (marked c).')
+    findings = _mech467_findings(repo, cache, stems, options)
+    findings.append({'data': 'MECH 467', 'file': 'every file', 'attempt': 'CSV of the struct '
+                     'fields without the repeated first sample: ' + ' '.join(MECH467_READING),
+                     'exit': 0, 'message': 'used for every MECH 467 row (c)'})
+    return DataSet('mech467', 'UBC MECH 467 ball screw', records, MECH467_READING, k,
+                   'position', MECH467_REFS, _mech467_jobs(stems, quick), note, findings)
+
+
+EMPS_FILES = ('DATA_EMPS', 'DATA_EMPS_PULSES')
+
+
+def emps_set(path: str, quick: bool) -> DataSet:
+    """EMPS: the estimation and the pulses record (the original .mat files)."""
+    from scipy.io import loadmat
+    records = {}
+    for stem in EMPS_FILES:
+        file = os.path.join(path, stem + '.mat')
+        if not os.path.isfile(file):
+            raise SystemExit(f'{file}: missing (EMPS data: see shared/data/emps/README.md)')
+        data = loadmat(file)
+        gtau = float(np.ravel(data['gtau'])[0])
+        records[stem] = Rec(stem, file, 'both', np.ravel(data['t']).astype(float),
+                            gtau * np.ravel(data['vir']), np.ravel(data['qm']).astype(float))
+    reading = ['--column', 'current=vir', '--column', 'position=qm', '--position-unit', 'm']
+    jobs = [Job(stem, 'single', [stem], {'other record': [s for s in EMPS_FILES if s != stem]},
+                family='records') for stem in EMPS_FILES[:1 if quick else 2]]
+    if not quick:
+        jobs.append(Job('both records', 'all', list(EMPS_FILES)))
+    note = ('EMPS (Janot, Gautier, Brunot 2019; the copy in shared/data/emps): a '
+            'current-controlled ball-screw drive in closed position loop, 1 kHz, force '
+            f'`gtau vir` (gtau {EMPS_GTAU} N/V as the torque constant), carriage position `qm` '
+            'in m (M, Fv, Fc, offset in the roles of J, b, Mc, T).  References: the published '
+            'IDIM-LS M 95.1089 kg, Fv 203.5034 N s/m, Fc 20.3935 N, offset -3.1648 N.  Both '
+            'records move both ways (no direction pairs); the two records are the disjoint '
+            'subsets.')
+    findings = [{'data': 'EMPS', 'file': 'DATA_EMPS*.mat', 'attempt': 'original .mat, '
+                 + ' '.join(reading), 'exit': 0, 'message': 'read as recorded'}]
+    return DataSet('emps', 'EMPS', records, reading, EMPS_GTAU, 'position', EMPS_REFS, jobs,
+                   note, findings)
+
+
+PATH_PATTERN = re.compile(r'(?:/[^\s:\'"/]+)+/([^\s:\'"/]+\.(?:mat|csv|json))')
+
+
+def shorten(text: str) -> str:
+    """Replace absolute file paths in a message by the file names."""
+    return PATH_PATTERN.sub(r'\1', text)
+
+
+def cli_module() -> str:
+    """Return the module behind ``python -m`` for the command line of this checkout."""
+    package = os.path.join(ROOT, 'dcmotor_id', 'cli')
+    if os.path.isdir(package) and not os.path.exists(os.path.join(package, '__main__.py')):
+        return 'dcmotor_id.cli.main'
+    return 'dcmotor_id.cli'
+
+
+def run_cli(args: list[str], timeout_s: float = 900.0) -> dict[str, Any]:
+    """
+    Run ``python -m dcmotor_id.cli ARGS`` from this checkout; return exit code and times.
+
+    ``message`` is the error line of a refusal (exit code other than 0), else ''; ``wall``
+    and ``cpu`` are the process's wall-clock and CPU seconds (user + system).
+    """
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [ROOT] + ([os.environ['PYTHONPATH']] if os.environ.get('PYTHONPATH') else [])))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    try:
+        done = subprocess.run([sys.executable, '-m', cli_module(), *args], cwd=ROOT, env=env,
+                              capture_output=True, text=True, timeout=timeout_s)
+        rc, stderr = done.returncode, done.stderr
+    except subprocess.TimeoutExpired:
+        rc, stderr = -1, f'killed after {timeout_s:g} s'
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    errors = [line for line in lines if 'error' in line.lower()]
+    message = '' if rc == 0 else shorten((errors or lines or ['(no message)'])[-1])
+    return {'rc': rc, 'message': message, 'wall': wall, 'cpu': cpu}
+
+
+def validate_fits(ds: DataSet, model_json: str, names: list[str], work: str) -> dict:
+    """Run ``validate`` on records not fitted; return {record name: fit %} or an error."""
+    out = os.path.join(work, 'validate.json')
+    files = [ds.records[name].path for name in names]
+    run = run_cli(['validate', model_json, *files, *ds.reading, '--json', out])
+    if run['rc'] != 0:
+        return {'error': run['message'] or f'exit {run["rc"]}'}
+    with open(out) as stream:
+        records = json.load(stream)['records']
+    if len(records) != len(names):
+        return {'error': f'{len(records)} results for {len(names)} records'}
+    fits = {}
+    for name, record in zip(names, records):
+        value = record['fit_pct'].get(ds.output)
+        fits[name] = float('nan') if value is None else float(value)
+    return fits
+
+
+def validate_groups(ds: DataSet, model_json: str, groups: dict[str, list[str]],
+                    work: str) -> dict[str, dict]:
+    """Validate on the records of every group in one run; return the fits by group."""
+    names = list(dict.fromkeys(name for members in groups.values() for name in members))
+    if not names:
+        return {}
+    fits = validate_fits(ds, model_json, names, work)
+    if 'error' in fits:
+        return dict.fromkeys(groups, fits)
+    return {group: {name: fits[name] for name in members} for group, members in groups.items()}
+
+
+def simulate(theta: np.ndarray, rec: Rec, position: bool) -> np.ndarray:
+    """
+    Simulate ``J dw/dt = torque - b w - Mc sgn(w) - T`` from the record's first state.
+
+    Exact for a torque held over each sample; the speed stops at zero when it would change
+    sign within a sample and sticks while the torque is within the Coulomb friction.  Returns
+    the speed, or the position (trapezoidal integral from the first measured position).
+    """
+    j, b, mc, t_load = (float(v) for v in theta)
+    dt = float(np.median(np.diff(rec.t)))
+    a = math.exp(-b * dt / j)
+    g = (1.0 - a) / b if b > 0 else dt / j
+    w = 0.0 if position else float(rec.y[0])
+    x = float(rec.y[0]) if position else 0.0
+    out = [0.0] * len(rec.t)
+    for k, torque in enumerate(rec.torque.tolist()):
+        out[k] = x if position else w
+        drive = torque - t_load
+        if w > 0.0 or (w == 0.0 and drive > mc):
+            sign = 1.0
+        elif w < 0.0 or drive < -mc:
+            sign = -1.0
+        else:
+            continue
+        new = a * w + g * (drive - mc * sign)
+        if new * sign < 0.0:
+            new = 0.0
+        x += 0.5 * dt * (w + new)
+        w = new
+    return np.asarray(out)
+
+
+def fit_pct(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """Return MATLAB's fit percent ``100 (1 - |y - y_hat| / |y - mean(y)|)``."""
+    return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / np.linalg.norm(y - np.mean(y))))
+
+
+def _equation_error(recs: list[Rec], both: bool, position: bool) -> np.ndarray:
+    """Least squares on ``torque = J dw + b w + Mc sgn(w) + T``, Savitzky-Golay derivatives."""
+    from scipy.signal import savgol_filter
+    rows, targets = [], []
+    for rec in recs:
+        dt = float(np.median(np.diff(rec.t)))
+        window = max(11, int(0.02 / dt) | 1)
+        order = 1 if position else 0
+        w = savgol_filter(rec.y, window, 3, deriv=order, delta=dt)
+        dw = savgol_filter(rec.y, window, 3, deriv=order + 1, delta=dt)
+        moving = np.abs(w) > 0.05 * np.max(np.abs(w))
+        columns = [dw, w, np.sign(w)] + ([np.ones_like(w)] if both else [])
+        rows.append(np.column_stack(columns)[moving])
+        targets.append(rec.torque[moving])
+    theta = np.linalg.lstsq(np.vstack(rows), np.concatenate(targets), rcond=None)[0]
+    j = abs(theta[0]) or 1.0
+    b = abs(theta[1]) or j
+    return np.array([j, b, abs(theta[2]), theta[3] if both else 0.0])
+
+
+def peer_fit(recs: list[Rec], both: bool, position: bool) -> dict[str, Any]:
+    """
+    Fit the peer: a plain output-error fit with ``scipy.optimize.least_squares``.
+
+    Parameters J, b, Mc (and T when both directions are present; on one direction Mc is that
+    direction's total friction), started from the equation-error fit, scaled by it, residuals
+    normalised by each record's spread; Gauss-Newton standard errors.
+    """
+    from scipy.optimize import least_squares
+    start = time.perf_counter()
+    theta0 = _equation_error(recs, both, position)
+    scale = np.array([theta0[0], theta0[1], max(theta0[2], 1e-3 * theta0[1]),
+                      max(theta0[2], abs(theta0[3]), 1e-3 * theta0[1])])
+    free = 4 if both else 3
+    spreads = [float(np.std(rec.y)) or 1.0 for rec in recs]
+
+    def residual(p: np.ndarray) -> np.ndarray:
+        theta = np.append(p * scale[:free], [0.0] * (4 - free))
+        return np.concatenate([(simulate(theta, rec, position) - rec.y) / spread
+                               for rec, spread in zip(recs, spreads)])
+
+    lower = [1e-6, 0.0, 0.0, -np.inf][:free]
+    p0 = np.clip(theta0[:free] / scale[:free], np.array(lower) + 1e-9, None)
+    try:
+        fit = least_squares(residual, p0, bounds=(lower, np.inf), x_scale='jac')
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as error:
+        return {'status': f'failed: {error}', 'wall': time.perf_counter() - start}
+    theta = np.append(fit.x * scale[:free], [0.0] * (4 - free))
+    dof = max(fit.fun.size - free, 1)
+    covariance = np.linalg.pinv(fit.jac.T @ fit.jac) * float(fit.fun @ fit.fun) / dof
+    errors = np.sqrt(np.abs(np.diag(covariance))) * scale[:free]
+    values = dict(zip(PARAMETERS, theta.tolist()))
+    if not both:
+        values['T'] = None
+    return {'status': 'ok' if fit.success else f'not converged: {fit.message}',
+            'theta': theta, 'values': values, 'stderr': dict(zip(PARAMETERS, errors.tolist())),
+            'fit': float(np.mean([fit_pct(rec.y, simulate(theta, rec, position))
+                                  for rec in recs])),
+            'wall': time.perf_counter() - start}
+
+
+def job_direction(ds: DataSet, job: Job) -> str:
+    """Return 'pos', 'neg' or 'both': the directions the fitted records cover."""
+    directions = {ds.records[name].direction for name in job.members}
+    return directions.pop() if len(directions) == 1 else 'both'
+
+
+def reference(ds: DataSet, key: str, direction: str) -> Optional[float]:
+    """Return the reference of a parameter; on one direction Mc is compared with Mc +- T."""
+    ref = ds.refs.get(key)
+    if ref is None or direction == 'both':
+        return ref
+    if key == 'T':
+        return None
+    if key == 'Mc' and 'T' in ds.refs:
+        return ref + ds.refs['T'] if direction == 'pos' else ref - ds.refs['T']
+    return ref
+
+
+def tool_values(result: dict[str, Any]) -> tuple[dict, dict]:
+    """Return the tool's J, b, Mc and load torque T (load_torque or Coulomb asymmetry)."""
+    parameters, stderr = result.get('parameters', {}), result.get('stderr', {})
+    values = {key: parameters.get(key) for key in ('J', 'b', 'Mc')}
+    errors = {key: stderr.get(key) for key in ('J', 'b', 'Mc')}
+    values['T'] = None
+    for effect in result.get('effects') or []:
+        if effect['name'] == 'load_torque':
+            values['T'] = effect['parameters'].get('torque_Nm')
+        elif effect['name'] == 'coulomb_asymmetry' and values['T'] is None:
+            values['T'] = effect['parameters'].get('delta_Nm')
+    return values, errors
+
+
+def _peer_validation(ds: DataSet, job: Job, peer: dict[str, Any]) -> dict[str, dict]:
+    """Simulate the peer's parameters on the held-out records: fit % by group."""
+    if 'theta' not in peer:
+        return {}
+    position = ds.output == 'position'
+    return {group: {name: fit_pct(ds.records[name].y,
+                                  simulate(peer['theta'], ds.records[name], position))
+                    for name in names} for group, names in job.heldout.items()}
+
+
+def evaluate(ds: DataSet, job: Job, work: str) -> dict[str, Any]:
+    """Identify one job with the tool, validate it, fit the peer; return the row."""
+    recs = [ds.records[name] for name in job.members]
+    out = os.path.join(work, f'{ds.name}_{re.sub(r"[^A-Za-z0-9.]+", "_", job.label)}.json')
+    run = run_cli(['identify', *[rec.path for rec in recs], *ds.reading,
+                   '--torque-constant', f'{ds.torque_constant:.6g}', '--json', out])
+    row: dict[str, Any] = {'ds': ds, 'job': job, 'run': run,
+                           'samples': sum(len(rec.t) for rec in recs),
+                           'direction': job_direction(ds, job), 'validate': {}, 'result': None}
+    if run['rc'] == 0 and os.path.isfile(out):
+        with open(out) as stream:
+            row['result'] = json.load(stream)
+        row['values'], row['stderr'] = tool_values(row['result'])
+        row['validate'] = validate_groups(ds, out, job.heldout, work)
+    row['peer'] = peer_fit(recs, row['direction'] == 'both', ds.output == 'position')
+    row['peer_validate'] = _peer_validation(ds, job, row['peer'])
+    log(f'{ds.name} {job.label}: exit {run["rc"]} in {run["wall"]:.1f} s '
+        f'(CPU {run["cpu"]:.1f} s){", " + run["message"][:80] if run["message"] else ""}; '
+        f'peer {row["peer"]["status"]} in {row["peer"]["wall"]:.1f} s')
+    return row
+
+
+def num(value: Optional[float], digits: int = 3) -> str:
+    """Format a number compactly ('-' for none)."""
+    if value is None or not np.isfinite(value):
+        return '-'
+    return f'{value:.{digits}g}'
+
+
+def error_pct(value: Optional[float], ref: Optional[float]) -> Optional[float]:
+    """Signed error of a value against its reference [%], or None."""
+    if value is None or ref is None or not np.isfinite(value) or ref == 0:
+        return None
+    return 100.0 * (value - ref) / abs(ref)
+
+
+def with_error(value: Optional[float], ref: Optional[float]) -> str:
+    """Format ``value (error %)``."""
+    error = error_pct(value, ref)
+    return num(value) + ('' if error is None else f' ({error:+.0f} %)')
+
+
+def warning_kind(text: str) -> str:
+    """Return the kind of a warning: its first words, without file names and numbers."""
+    text = re.sub(r'^\S+\.(?:mat|csv): ', '', shorten(text))
+    words = [word for word in re.split(r'[\s()]+', text) if not re.search(r'\d', word)]
+    return ' '.join(words[:5]).rstrip(':,;')
+
+
+def warnings_short(result: Optional[dict[str, Any]]) -> str:
+    """Return ``count: kind xN; kind`` for the warnings of a result."""
+    if result is None:
+        return '-'
+    texts = result.get('warnings') or []
+    kinds: dict[str, int] = {}
+    for text in texts:
+        kinds[warning_kind(text)] = kinds.get(warning_kind(text), 0) + 1
+    parts = [kind + (f' x{count}' if count > 1 else '') for kind, count in kinds.items()]
+    return f'{len(texts)}' + (': ' + '; '.join(parts) if parts else '')
+
+
+def group_fits(fits: dict[str, dict]) -> str:
+    """Format validation fit % by group: the median and the lowest."""
+    parts = []
+    for group, values in fits.items():
+        if 'error' in values:
+            parts.append(f'{group}: {values["error"][:60]}')
+            continue
+        array = np.array(list(values.values()), dtype=float)
+        text = f'{group} {num(float(np.median(array)), 3)}'
+        parts.append(text + (f' (min {num(float(array.min()), 3)})' if array.size > 1 else ''))
+    return '; '.join(parts) or '-'
+
+
+TOOL_HEADER = ('fit', 'records', 'samples', 'exit', 'J', 'b', 'Mc', 'T (load)', 'effects',
+               'held-out NRMSE %', 'whole-record fit %', 'validate fit %', 'warnings',
+               'wall s (CPU)')
+PEER_HEADER = ('fit', 'J', 'b', 'Mc', 'T', 'fit % (fitted)', 'validate fit %', 'plausible',
+               'wall s')
+
+
+def row_label(row: dict[str, Any]) -> str:
+    """Return the row's label, marked c when the tool read CSVs converted from the originals."""
+    converted = any(row['ds'].records[n].converted for n in row['job'].members)
+    return row['job'].label + (' (c)' if converted else '')
+
+
+def _mc_text(row: dict[str, Any], value: Optional[float], ref: Optional[float]) -> str:
+    """Format Mc: F+ / F- for a direction's total friction, 'at 0' at its bound."""
+    text = with_error(value, ref)
+    missing = (row['result'] or {}).get('not_identifiable') or {}
+    if 'Mc' in missing and 'bound' in missing['Mc']:
+        return text + ' at 0'
+    if row['direction'] != 'both':
+        return text + (' F+' if row['direction'] == 'pos' else ' F-')
+    return text
+
+
+def tool_cells(row: dict[str, Any]) -> list[str]:
+    """One row of the tool's table."""
+    ds, run, result = row['ds'], row['run'], row['result']
+    head = [row_label(row), str(len(row['job'].members)), str(row['samples'])]
+    times = f'{run["wall"]:.1f} ({run["cpu"]:.1f})'
+    if result is None:
+        refusal = f'{run["rc"]}: {run["message"][:160]}'
+        return head + [refusal] + ['-'] * 9 + [times]
+    values = row['values']
+    refs = {key: reference(ds, key, row['direction']) for key in PARAMETERS}
+    effects = ', '.join(map(effect_text, result.get('effects') or [])) or '-'
+    heldout = (result.get('error_after') or {}).get('speed_nrmse_pct')
+    whole = [r['after']['whole_record'].get('speed_fit_pct')
+             for r in (result.get('errors') or {}).get('records', [])]
+    whole_mean = float(np.mean(whole)) if whole and None not in whole else None
+    return head + ['0', with_error(values['J'], refs['J']), with_error(values['b'], refs['b']),
+                   _mc_text(row, values['Mc'], refs['Mc']), with_error(values['T'], refs['T']),
+                   effects, num(heldout), num(whole_mean), group_fits(row['validate']),
+                   warnings_short(result), times]
+
+
+def effect_text(effect: dict[str, Any]) -> str:
+    """Format an effect with its parameters: ``name(key=value, ...)``."""
+    values = ', '.join(f'{key}={num(value) if isinstance(value, (int, float)) else value}'
+                       for key, value in (effect.get('parameters') or {}).items())
+    return f'{effect["name"]}({values})'
+
+
+def peer_plausible(row: dict[str, Any]) -> bool:
+    """Say if the peer is plausible: J, b > 0 and within 2x of the references, fit >= 50 %."""
+    peer = row['peer']
+    if 'values' not in peer:
+        return False
+    for key in ('J', 'b'):
+        value, ref = peer['values'][key], row['ds'].refs.get(key)
+        if not value > 0 or (ref is not None and not 0.5 <= value / ref <= 2.0):
+            return False
+    return bool(peer['fit'] >= 50.0)
+
+
+def peer_cells(row: dict[str, Any]) -> list[str]:
+    """One row of the peer's table."""
+    peer, ds = row['peer'], row['ds']
+    if 'values' not in peer:
+        return [row_label(row), peer['status'][:100]] + ['-'] * 6 + [f'{peer["wall"]:.1f}']
+    values = peer['values']
+    refs = {key: reference(ds, key, row['direction']) for key in PARAMETERS}
+    mc = with_error(values['Mc'], refs['Mc'])
+    if row['direction'] != 'both':
+        mc += ' F+' if row['direction'] == 'pos' else ' F-'
+    status = '' if peer['status'] == 'ok' else f' ({peer["status"][:40]})'
+    return [row_label(row), with_error(values['J'], refs['J']),
+            with_error(values['b'], refs['b']), mc, with_error(values['T'], refs['T']),
+            num(peer['fit']), group_fits(row['peer_validate']),
+            ('yes' if peer_plausible(row) else 'no') + status, f'{peer["wall"]:.1f}']
+
+
+def markdown(header: tuple[str, ...], rows: list[list[str]]) -> list[str]:
+    """Render a markdown table (cells with '|' escaped)."""
+    lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+    for cells in rows:
+        lines.append('| ' + ' | '.join(cell.replace('|', '/') for cell in cells) + ' |')
+    return lines
+
+
+def max_z(entries: list[tuple[Optional[float], Optional[float]]]) -> Optional[float]:
+    """Largest ``|a - b| / sqrt(sa^2 + sb^2)`` over the pairs with both known; None if none."""
+    known = [(float(a), float(s)) for a, s in entries if a is not None and s is not None
+             and np.isfinite([a, s]).all()]
+    zs = []
+    for i, (a, sa) in enumerate(known):
+        for b, sb in known[i + 1:]:
+            zs.append(abs(a - b) / math.hypot(sa, sb) if (sa or sb) else math.inf)
+    return max(zs) if zs else None
+
+
+def _entries(rows: list[dict[str, Any]], key: str, peer: bool) -> list[tuple]:
+    """(value, stderr) of a parameter over rows, from the tool or from the peer."""
+    entries = []
+    for row in rows:
+        source = row['peer'] if peer else row
+        values, errors = source.get('values'), source.get('stderr')
+        entries.append((values.get(key), errors.get(key)) if values and errors else
+                       (None, None))
+    return entries
+
+
+def z_rows(rows: list[dict[str, Any]]) -> list[list[str]]:
+    """Per family of disjoint subsets and parameter: values +- stderr and the largest z."""
+    cells = []
+    families = sorted({row['job'].family for row in rows if row['job'].family})
+    for family in families:
+        members = [row for row in rows if row['job'].family == family]
+        for key in ('J', 'b', 'Mc'):
+            text = []
+            for peer in (False, True):
+                entries = _entries(members, key, peer)
+                text += ['; '.join(f'{num(v)} +- {num(s, 2)}' for v, s in entries),
+                         num(max_z(entries), 2)]
+            cells.append([f'{family} ({len(members)})', key] + text)
+    return cells
+
+
+Z_HEADER = ('disjoint subsets', 'parameter', 'tool: value +- stated stderr', 'tool max z',
+            'peer: value +- Gauss-Newton stderr', 'peer max z')
+
+
+def _errors(row: dict[str, Any], keys: tuple[str, ...]) -> dict[str, Optional[float]]:
+    """Percent errors of the tool's parameters against the row's references."""
+    if row['result'] is None:
+        return dict.fromkeys(keys)
+    return {key: error_pct(row['values'][key], reference(row['ds'], key, row['direction']))
+            for key in keys}
+
+
+def _failures(rows: list[dict[str, Any]], keys: tuple[str, ...], limit: float) -> list[str]:
+    """Rows refused or with a parameter error beyond ``limit`` percent."""
+    failed = []
+    for row in rows:
+        if row['result'] is None:
+            failed.append(f'{row_label(row)}: refused ({row["run"]["message"][:70]})')
+            continue
+        errors = _errors(row, keys)
+        bad = {k: e for k, e in errors.items() if e is None or abs(e) > limit}
+        if bad:
+            failed.append(f'{row_label(row)}: ' + ', '.join(
+                f'{k} {"n/a" if e is None else f"{e:+.0f} %"}' for k, e in bad.items()))
+    return failed
+
+
+def _friction_missing(row: dict[str, Any]) -> Optional[str]:
+    """Why Coulomb friction and offset were not both found on a two-direction fit, or None."""
+    if row['result'] is None:
+        return f'{row_label(row)}: refused'
+    missing = row['result'].get('not_identifiable') or {}
+    if row['values']['T'] is None or 'Mc' in missing:
+        return (f'{row_label(row)}: Mc {num(row["values"]["Mc"])}'
+                f'{" (at its bound)" if "Mc" in missing else ""}, T {num(row["values"]["T"])}')
+    return None
+
+
+def goal_hsm150(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
+    """J and b within 15 %; Coulomb and offset found on both directions; z <= 3."""
+    rows = [row for row in rows if row['ds'].name == 'hsm150']
+    if not rows:
+        return 'not run', []
+    core = [row for row in rows if row['job'].kind in ('single', 'pair', 'all')]
+    within = _failures(core, ('J', 'b'), 15.0)
+    both = [row for row in rows if row['direction'] == 'both']
+    missing = [text for text in map(_friction_missing, both) if text]
+    zs = {key: max_z(_entries([r for r in rows if r['job'].family == 'runs'], key, False))
+          for key in ('J', 'b')}
+    z_bad = [f'{k} z = {num(z, 2)}' for k, z in zs.items() if z is None or z > 3]
+    details = [f'J and b within 15 % ({len(core) - len(within)}/{len(core)} fits): '
+               + ('yes' if not within else 'no: ' + '; '.join(within)),
+               f'Coulomb and offset found on both directions ({len(both) - len(missing)}/'
+               f'{len(both)}): ' + ('yes' if not missing else 'no: ' + '; '.join(missing)),
+               'z <= 3 between the runs (J, b): '
+               + ('yes' if not z_bad else 'no: ' + ', '.join(z_bad))]
+    return ('met' if not (within or missing or z_bad) else 'not met'), details
+
+
+def goal_mech467(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
+    """J and Coulomb within 30 % on every Part C record; validate on Part B reported."""
+    part_c = [row for row in rows if row['ds'].name == 'mech467'
+              and row['job'].kind == 'single' and row['job'].label.startswith('C/')]
+    if not part_c:
+        return 'not run', []
+    failed = _failures(part_c, ('J', 'Mc'), 30.0)
+    on_b = []
+    for row in part_c:
+        fits = row['validate'].get('Part B', {})
+        on_b.append(next(iter(fits.values())) if fits and 'error' not in fits else None)
+    reported = [v for v in on_b if v is not None]
+    details = [f'J and Mc within 30 % ({len(part_c) - len(failed)}/{len(part_c)} Part C '
+               'records): ' + ('yes' if not failed else 'no: ' + '; '.join(failed)),
+               f'validate on Part B reported for {len(reported)}/{len(part_c)} Part C fits'
+               + (f': position fit % median {num(float(np.median(reported)))}, '
+                  f'{num(min(reported))} .. {num(max(reported))}' if reported else '')]
+    met = not failed and len(reported) == len(part_c)
+    return ('met' if met else 'not met'), details
+
+
+def _off_by_2x(row: dict[str, Any]) -> list[str]:
+    """Parameters more than 2x off their reference (or of the wrong sign)."""
+    off = []
+    for key in PARAMETERS:
+        value, ref = row['values'][key], reference(row['ds'], key, row['direction'])
+        if value is None or ref is None:
+            continue
+        ratio = value / ref
+        if not 0.5 <= ratio <= 2.0:
+            off.append(f'{key} {num(ratio, 2)}x')
+    return off
+
+
+def goal_honest(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
+    """No refusal where the peer is plausible; nothing > 2x off without a warning."""
+    refused = [f'{row["ds"].name} {row_label(row)}: {row["run"]["message"][:80]}'
+               for row in rows if row['result'] is None and peer_plausible(row)]
+    silent: list[str] = []
+    said: list[str] = []
+    for row in rows:
+        if row['result'] is None:
+            continue
+        off = _off_by_2x(row)
+        if off:
+            warned = bool(row['result'].get('warnings'))
+            target = said if warned else silent
+            target.append(f'{row["ds"].name} {row_label(row)} ({", ".join(off)})')
+    details = ['refusals of records the peer fits plausibly: '
+               + ('none' if not refused else f'{len(refused)}: ' + '; '.join(refused)),
+               'answers > 2x off a reference without any warning: '
+               + ('none' if not silent else f'{len(silent)}: ' + '; '.join(silent)),
+               f'(answers > 2x off with warnings, not counted: {len(said)}'
+               + (': ' + '; '.join(said) if said else '') + ')']
+    return ('met' if not (refused or silent) else 'not met'), details
+
+
+def goal_time(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
+    """Every identify run of up to 300k samples under 30 s (wall clock, and CPU beside)."""
+    runs = [row for row in rows if row['samples'] <= 300_000]
+    slow = [row for row in runs if row['run']['wall'] >= 30.0]
+    slow_cpu = [row for row in slow if row['run']['cpu'] >= 30.0]
+    details = [f'{len(runs) - len(slow)}/{len(runs)} runs under 30 s of wall-clock time, '
+               f'{len(runs) - len(slow_cpu)}/{len(runs)} under 30 s of CPU']
+    details += [f'slow: {row["ds"].name} {row_label(row)} ({row["samples"]} samples): '
+                f'{row["run"]["wall"]:.1f} s (CPU {row["run"]["cpu"]:.1f} s)' for row in slow]
+    if not runs:
+        return 'not run', details
+    if not slow:
+        return 'met', details
+    if not slow_cpu:
+        return 'met on CPU time, not met on wall-clock time (load of the machine)', details
+    return 'not met', details
+
+
+GOALS = (
+    ('HSM150: J and b within 15 % of the catalog for every single record, every opposite pair, '
+     'all 12 together; Coulomb and offset found when both directions are present; z <= 3 '
+     'between disjoint subsets', goal_hsm150),
+    ('MECH 467: J within 30 % of 7e-4 and Coulomb within 30 % of 0.22 for every Part C '
+     'record; validate on Part B fit % reported', goal_mech467),
+    ('No refusal of a record that a plain output-error fit identifies plausibly; no answer '
+     'more than 2x off a reference without a warning', goal_honest),
+    ('Any record up to 300k samples under 30 s', goal_time),
+)
+
+LEGEND = (
+    'Columns.  *exit*: the exit code of `identify` (refusal text after it).  *J, b, Mc, T*: '
+    'the value and its error against the reference in %; on one-direction fits Mc is the '
+    "direction's total friction (F+ / F-, the tool's `combined.friction_torque_Nm`); *at 0*: "
+    'Mc at its bound; *T*: the `load_torque` effect (or the `coulomb_asymmetry` delta) when '
+    'found.  *held-out NRMSE %*: the headline `error_after.speed_nrmse_pct`; *whole-record '
+    'fit %*: the mean over the fitted records of `errors.records[].after.whole_record.'
+    'speed_fit_pct`; *validate fit %*: `dcmotor-id validate` of the result on records not '
+    'fitted (speed fit % for HSM150, position fit % for MECH 467 and EMPS), the median and '
+    'the lowest per group; *warnings*: the count and their kinds; *wall s (CPU)*: the whole '
+    'process (imports included) as a user waits for it.  The peer: the plain scipy output-'
+    'error fit on the same records (speed for HSM150, position for MECH 467 and EMPS), fit % '
+    'on the fitted records, the same validation; *plausible*: J and b positive and within 2x '
+    'of the references (where known), fit >= 50 %.  (c): the tool read CSVs converted from '
+    'the original files (see "Reading the files as recorded").  z: |a - b| / sqrt(sa^2 + '
+    'sb^2) over the pairs of disjoint subsets, with the stated standard errors.')
+
+
+def goal_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """Return the summary block: every goal of issue 19, met or not met, with the details."""
+    lines = ['## Goals of issue 19', '']
+    for text, check in GOALS:
+        status, details = check(rows)
+        lines.append(f'- **{text}**: **{status}**')
+        lines += [f'  - {detail}' for detail in details]
+    return lines + ['']
+
+
+def finding_lines(data_sets: list[DataSet]) -> list[str]:
+    """Return the table of the reading attempts (files read as recorded, or the hand work)."""
+    cells = [[f['data'], f['file'], f['attempt'], str(f['exit']), f['message']]
+             for ds in data_sets for f in ds.findings]
+    return (['## Reading the files as recorded', ''] + markdown(
+        ('data', 'file', 'reading options tried', 'exit', 'message'), cells) + [''])
+
+
+def text_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """Return the refusal texts and every kind of warning with one example and its fits."""
+    lines = []
+    for row in rows:
+        if row['result'] is None:
+            lines.append(f'- refused, {row_label(row)}: exit {row["run"]["rc"]}, '
+                         f'"{row["run"]["message"]}"')
+        for group, fits in row['validate'].items():
+            if 'error' in fits:
+                lines.append(f'- validate failed, {row_label(row)} on {group}: '
+                             f'"{fits["error"]}"')
+    kinds: dict[str, tuple[str, list[str]]] = {}
+    for row in rows:
+        for text in (row['result'] or {}).get('warnings') or []:
+            example, labels = kinds.setdefault(warning_kind(text), (shorten(text), []))
+            if row_label(row) not in labels:
+                labels.append(row_label(row))
+    for kind, (example, labels) in kinds.items():
+        lines.append(f'- warning "{kind}" ({len(labels)} fits: {", ".join(labels)}); e.g. '
+                     f'"{example[:400]}"')
+    return lines or ['- none']
+
+
+def data_set_lines(ds: DataSet, rows: list[dict[str, Any]]) -> list[str]:
+    """Return the section of one data set: the tool, the peer, disjoint subsets, texts."""
+    lines = [f'## {ds.title}', '', ds.note, '', '### The tool (`identify`, then `validate`)',
+             ''] + markdown(TOOL_HEADER, [tool_cells(row) for row in rows])
+    lines += ['', '### The peer (plain scipy output-error fit)', '']
+    lines += markdown(PEER_HEADER, [peer_cells(row) for row in rows])
+    families = z_rows(rows)
+    if families:
+        lines += ['', '### Disjoint subsets: stated standard errors against the spread', '']
+        lines += markdown(Z_HEADER, families)
+    return lines + ['', '### Refusals and warnings, text', ''] + text_lines(rows) + ['']
+
+
+def cpu_seconds() -> float:
+    """Return the CPU seconds of this process and of the processes it ran."""
+    return sum(usage.ru_utime + usage.ru_stime for usage in (
+        resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)))
+
+
+def code_version() -> str:
+    """Return the commit of this checkout (and whether the package has local changes)."""
+    def git(*args: str) -> str:
+        done = subprocess.run(['git', '-C', ROOT, *args], capture_output=True, text=True)
+        return done.stdout.strip() if done.returncode == 0 else ''
+    commit = git('rev-parse', '--short', 'HEAD') or 'unknown'
+    dirty = git('status', '--porcelain', '--', 'dcmotor_id')
+    return commit + (' with local changes to dcmotor_id/' if dirty else '')
+
+
+def public_command(args: argparse.Namespace) -> str:
+    """Return the command line, with the data directories named as in the set-up."""
+    parts = ['.venv/bin/python', 'bench/bench_real.py']
+    for option, value in (('--hsm150', 'HSM150-data' if args.hsm150 else None),
+                          ('--mech467', 'mech467' if args.mech467 else None),
+                          ('--emps', '../shared/data/emps' if args.emps else None),
+                          ('--only', args.only), ('--out', args.out)):
+        if value:
+            parts += [option, value]
+    if args.quick:
+        parts.append('--quick')
+    if args.label != DEFAULT_LABEL:
+        parts += ['--label', f"'{args.label}'"]
+    return ' '.join(parts)
+
+
+DEFAULT_LABEL = 'a run of the code at the commit below'
+
+
+def parse(argv: Optional[list[str]]) -> argparse.Namespace:
+    """Parse the command line of the benchmark."""
+    parser = argparse.ArgumentParser(description=__doc__.strip().split('\n')[0])
+    parser.add_argument('--hsm150', metavar='DIR', help='HSM150-data (work tree or bare clone)')
+    parser.add_argument('--mech467', metavar='DIR', help='mech467 (work tree or bare clone)')
+    parser.add_argument('--emps', metavar='DIR', default=os.environ.get('EMPS_DATA_DIR'),
+                        help='directory of DATA_EMPS.mat (default $EMPS_DATA_DIR)')
+    parser.add_argument('--only', choices=('hsm150', 'mech467', 'emps'))
+    parser.add_argument('--quick', action='store_true', help='a subset of the fits')
+    parser.add_argument('--out', metavar='FILE.md', help='also write the report here')
+    parser.add_argument('--label', default=DEFAULT_LABEL, help='what this run is, for the title')
+    parser.add_argument('--work', metavar='DIR', help='keep the JSON results and converted '
+                        'files here (default: a temporary directory)')
+    return parser.parse_args(argv)
+
+
+def data_sets(args: argparse.Namespace, work: str) -> tuple[list[DataSet], list[str]]:
+    """Build the data sets asked for; return them and the notes on those not run."""
+    built, skipped = [], []
+    makers = (('hsm150', args.hsm150, lambda: hsm150_set(args.hsm150, work, args.quick)),
+              ('mech467', args.mech467, lambda: mech467_set(args.mech467, work, args.quick)),
+              ('emps', args.emps, lambda: emps_set(args.emps, args.quick)))
+    for name, given, make in makers:
+        if args.only and args.only != name:
+            continue
+        if not given:
+            skipped.append(f'{name}: not run (pass --{name} DIR)')
+            continue
+        log(f'{name}: reading the records')
+        built.append(make())
+    return built, skipped
+
+
+def report(args: argparse.Namespace, sets: list[DataSet], rows: list[dict[str, Any]],
+           skipped: list[str], load: tuple[float, ...]) -> str:
+    """Return the whole markdown report."""
+    import numpy
+    import scipy
+    end = os.getloadavg()
+    lines = [f'# Real recordings: the scorecard of issue 19 ({args.label})', '',
+             f'Command: `{public_command(args)}`  ', f'Code: commit {code_version()}  ',
+             f'Machine: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}, numpy '
+             f'{numpy.__version__}, scipy {scipy.__version__}; load average (1, 5, 15 min) at '
+             f'the start {", ".join(f"{v:.2f}" for v in load)}, at the end '
+             f'{", ".join(f"{v:.2f}" for v in end)}  ',
+             f'Run time: {time.perf_counter() - START:.0f} s wall clock, {cpu_seconds():.0f} s CPU'
+             + (' (--quick)' if args.quick else ''), '']
+    lines += [f'- {text}' for text in skipped] + ([''] if skipped else [])
+    lines += goal_lines(rows) + finding_lines(sets) + [LEGEND, '']
+    for ds in sets:
+        lines += data_set_lines(ds, [row for row in rows if row['ds'] is ds])
+    return '\n'.join(lines)
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    """Run the scorecard; print the report (and write it with --out)."""
+    args = parse(argv)
+    load = os.getloadavg()
+    work = args.work or tempfile.mkdtemp(prefix='bench_real_')
+    try:
+        sets, skipped = data_sets(args, work)
+        rows = []
+        for ds in sets:
+            for number, job in enumerate(ds.jobs, 1):
+                log(f'{ds.name} {number}/{len(ds.jobs)}: {job.label}')
+                rows.append(evaluate(ds, job, work))
+        text = report(args, sets, rows, skipped, load)
+    finally:
+        if not args.work:
+            shutil.rmtree(work, ignore_errors=True)
+    print(text)
+    if args.out:
+        with open(args.out, 'w') as stream:
+            stream.write(text + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

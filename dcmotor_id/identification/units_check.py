@@ -1,0 +1,72 @@
+"""
+Units checked against the answer's physics: a column off by 1000 is named, not fitted silently.
+
+Every channel scaled by 1000 still fits a DC motor (the model is scale invariant), so the
+fit alone cannot tell millivolts from volts.  What gives them away is the answer measured
+against what DC motors are: an electrical time constant ``La/Ra`` of seconds (DC motors have
+0.01 ms to 100 ms) with a sample period of a second says the time is in milliseconds;
+thousands of volts across an armature of kilo-ohms say millivolts; thousands of amperes
+through milli-ohms say milliamperes.  Each finding is a warning naming the channel, the
+numbers behind it and what to do.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+#: Longest electrical time constant La/Ra of a DC motor armature [s] (large motors: 0.1 s).
+MAX_ELECTRICAL_S = 1.0
+#: Longest sample period of a drive recording [s].
+MAX_SAMPLE_PERIOD_S = 0.5
+
+__all__ = ['unit_warnings']
+
+
+def _peak(records: Sequence[Any], channel: str) -> float:
+    values = [np.abs(np.asarray(getattr(rec, channel))) for rec in records
+              if getattr(rec, channel, None) is not None]
+    return float(max((np.max(v) for v in values if v.size), default=0.0))
+
+
+def unit_warnings(parameters: Mapping[str, float], records: Sequence[Any],
+                  mechanical_only: bool = False) -> list[str]:
+    """
+    Return a warning for every channel whose units look off by 1000, by the answer's physics.
+
+    Parameters
+    ----------
+    parameters : dict
+        The identified parameters (SI).
+    records : list of Record
+        The records fitted.
+    mechanical_only : bool
+        The current is the input: the electrical checks do not apply.
+
+    """
+    found = []
+    dt = float(np.median([rec.sample_period_s for rec in records]))
+    ra, la = parameters.get('Ra', np.nan), parameters.get('La', np.nan)
+    tau_e = la / ra if not mechanical_only and ra > 0 else np.nan
+    if dt > MAX_SAMPLE_PERIOD_S or (np.isfinite(tau_e) and tau_e > MAX_ELECTRICAL_S):
+        shown = f', La/Ra = {tau_e:.3g} s' if np.isfinite(tau_e) else ''
+        found.append(
+            f'the time looks like milliseconds (or another unit than seconds): the sample '
+            f'period is {dt:.3g} s{shown}, where DC motors have electrical time constants of '
+            '0.01 ms to 100 ms and drives sample at 0.01 ms to 100 ms; give the time column in '
+            'seconds (divide by 1000 for ms), else La and J are off by that factor')
+    if mechanical_only:
+        return found
+    voltage, current = _peak(records, 'voltage'), _peak(records, 'current')
+    if voltage > 1000.0 and ra > 100.0:
+        found.append(
+            f'the voltage looks like millivolts: it reaches {voltage:.4g} "V" across an '
+            f'armature of Ra = {ra:.4g} Ohm; give it in volts (divide by 1000), else Ra, La, '
+            'CPhi, J, b and Mc are 1000 times too large')
+    if current > 1000.0 and ra < 0.01:
+        found.append(
+            f'the current looks like milliamperes: it reaches {current:.4g} "A" through an '
+            f'armature of Ra = {ra:.4g} Ohm; give --current-unit mA, else Ra, La, J, b and Mc '
+            'are 1000 times too small')
+    return found
