@@ -31,7 +31,7 @@ from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWa
 from dcmotor_id.formats.budget import check_budget, DEFAULT_BUDGET_BYTES, set_memory_budget
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
-                                        POSITION_UNITS, ReadOptions, SPEED_UNITS)
+                                        POSITION_UNITS, ReadingNote, ReadOptions, SPEED_UNITS)
 from dcmotor_id.formats.paths import check_input_path, kind_of, same_file
 from dcmotor_id.identification.dropouts import repair_all
 from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
@@ -44,13 +44,32 @@ from dcmotor_id.streaming.summary import format_table
 
 
 def load_records(paths: Sequence[str], topics: Mapping[str, str] | None = None,
-                 options: ReadOptions | None = None) -> list[Record]:
-    """Read every input path (CSV, .mat, rosbag2 directories, .mcap or .db3 files)."""
-    return read_records(paths, topics=topics, options=options or ReadOptions())
+                 options: ReadOptions | None = None,
+                 mechanical_only: bool = False) -> list[Record]:
+    """
+    Read every input path (CSV, .mat, rosbag2 directories, .mcap or .db3 files).
+
+    How a file was read when it was not as expected (a matrix transposed, a semicolon
+    dialect) is printed as a note on stderr.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always', ReadingNote)
+        records = read_records(paths, topics=topics, options=options or ReadOptions(),
+                               mechanical_only=mechanical_only)
+    shown = set()
+    for item in caught:
+        if issubclass(item.category, ReadingNote):
+            if str(item.message) not in shown:
+                print(f'dcmotor-id: note: {item.message}', file=sys.stderr)
+            shown.add(str(item.message))
+        else:
+            warnings.warn_explicit(item.message, item.category, item.filename, item.lineno)
+    return records
 
 
 def load_records_reporting_loss(paths: Sequence[str], topics: Mapping[str, str] | None = None,
-                                options: ReadOptions | None = None
+                                options: ReadOptions | None = None,
+                                mechanical_only: bool = False
                                 ) -> tuple[list[Record], list[str]]:
     """
     Read the inputs as :func:`load_records`; return them and what was lost reading them.
@@ -62,7 +81,7 @@ def load_records_reporting_loss(paths: Sequence[str], topics: Mapping[str, str] 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always', TruncatedBagWarning)
         warnings.simplefilter('always', DamagedBagWarning)
-        records = load_records(paths, topics, options)
+        records = load_records(paths, topics, options, mechanical_only)
     loss = []
     for item in caught:
         if issubclass(item.category, (TruncatedBagWarning, DamagedBagWarning)):
@@ -188,7 +207,8 @@ def _cmd_identify(args):
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
     options = reading_options(args)
-    loaded, loss = load_records_reporting_loss(args.files, topics, options)
+    loaded, loss = load_records_reporting_loss(args.files, topics, options,
+                                               args.torque_constant is not None)
     records, repairs = repair_all(prepare_records(loaded, args.torque_constant, args.resample,
                                                   args.speed_cutoff))
     for note in repairs:
@@ -244,7 +264,8 @@ def reading_options(args: argparse.Namespace) -> ReadOptions:
         speed_unit=args.speed_unit, speed_counts_per_rev=args.speed_counts_per_rev,
         position_unit=args.position_unit, position_counts_per_rev=args.position_counts_per_rev,
         gear_ratio=args.gear_ratio, bus_voltage=args.voltage_from_duty, joint=args.joint,
-        interfaces=parse_assignments(args.interface, '--interface'))
+        interfaces=parse_assignments(args.interface, '--interface'),
+        sample_period_s=args.sample_period)
 
 
 def _add_reading_options(command: argparse.ArgumentParser) -> None:
@@ -252,8 +273,12 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
     group = command.add_argument_group('reading recordings as they come')
     group.add_argument('--column', action='append', metavar='CHANNEL=NAME',
                        help='take a channel (t, voltage, current, speed, position, duty, '
-                            'direction) from the column NAME (.mat: VARIABLE or VARIABLE:COLUMN, '
-                            '1-based); repeatable')
+                            'direction) from the column NAME (.mat: VARIABLE, VARIABLE:COLUMN '
+                            '1-based, or STRUCT.FIELD[:COLUMN]); repeatable')
+    group.add_argument('--sample-period', type=_positive, metavar='S',
+                       help='the samples are S seconds apart: time = k*S (.mat, CSV without '
+                            'or with broken time stamps; a time column is then not used); for '
+                            'bags the grid step')
     group.add_argument('--current-unit', choices=sorted(CURRENT_UNITS), default='A')
     group.add_argument('--speed-unit', choices=sorted(SPEED_UNITS), default='rad/s')
     group.add_argument('--speed-counts-per-rev', type=_positive, metavar='N',
@@ -295,7 +320,8 @@ def _cmd_validate(args):
     model = load_model(args.model)
     options = reading_options(args)
     records = []
-    loaded, loss = load_records_reporting_loss(args.files, options=options)
+    loaded, loss = load_records_reporting_loss(args.files, options=options,
+                                               mechanical_only=model.mechanical_only)
     for record in loaded:
         mechanical = model.torque_constant if model.mechanical_only else None
         records += prepare_records([record], mechanical, args.resample, args.speed_cutoff)

@@ -143,7 +143,9 @@ def check_record(record: Record, need_voltage: bool = True,
     if np.any(steps == 0):
         row = int(np.flatnonzero(steps == 0)[0]) + 1
         raise InputDataError(f'{name}: duplicate timestamp t = {record.time_s[row]} at sample '
-                             f'{row}; remove duplicated samples')
+                             f'{row}; remove duplicated samples, or, if the samples are '
+                             'uniformly spaced and only the stamps are wrong, give the sample '
+                             'period with --sample-period S (the time column is then not used)')
     if np.any(steps < 0):
         row = int(np.flatnonzero(steps < 0)[0]) + 1
         raise InputDataError(f'{name}: timestamps go backwards at sample {row} '

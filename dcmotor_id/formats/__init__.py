@@ -50,7 +50,7 @@ def detect_format(path: PathLike) -> str:
 
 def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
                 sample_period_s: Optional[float] = None,
-                options: ReadOptions = DEFAULT_OPTIONS) -> Record:
+                options: ReadOptions = DEFAULT_OPTIONS, mechanical_only: bool = False) -> Record:
     """
     Read one record from a CSV, MATLAB or rosbag2 file, choosing the reader by the path.
 
@@ -61,9 +61,13 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
     topics : dict, optional
         Channel -> topic name, for bags (see :func:`dcmotor_id.formats.bag.read_bag`).
     sample_period_s : float, optional
-        Grid step of a bag's timestamps [s]; default their median step.
+        Grid step of a bag's timestamps [s]; default ``options.sample_period_s``, else their
+        median step.
     options : ReadOptions
         Column mapping, units, duty and gear (default: standard names in SI units).
+    mechanical_only : bool
+        The record is for the mechanical-only mode (``--torque-constant``): its voltage is not
+        used, so it is not checked.
 
     Raises
     ------
@@ -77,14 +81,17 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
         for entry in sorted(os.listdir(path)):
             if not os.path.isdir(os.path.join(path, entry)):
                 check_input_path(os.path.join(path, entry))
+    if sample_period_s is None:
+        sample_period_s = options.sample_period_s
     record = READERS[detect_format(path)](path, topics=topics, sample_period_s=sample_period_s,
                                           options=options)
-    return check_channels(record)
+    return check_channels(record, mechanical_only)
 
 
 def read_records(paths: Iterable[PathLike], *,
                  topics: Optional[Mapping[str, str]] = None,
-                 options: ReadOptions = DEFAULT_OPTIONS) -> list[Record]:
+                 options: ReadOptions = DEFAULT_OPTIONS,
+                 mechanical_only: bool = False) -> list[Record]:
     """
     Read every path with :func:`read_record`, in order.
 
@@ -97,4 +104,5 @@ def read_records(paths: Iterable[PathLike], *,
         if twin is not None:
             raise InputDataError(f'{path}: the same file as {twin}, given twice; give each '
                                  'recording once')
-    return [read_record(path, topics=topics, options=options) for path in paths]
+    return [read_record(path, topics=topics, options=options, mechanical_only=mechanical_only)
+            for path in paths]

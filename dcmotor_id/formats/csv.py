@@ -26,7 +26,7 @@ import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import COLUMNS, PathLike, Record
-from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
+from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, note, ReadOptions
 
 #: Other names seen for the columns, for the hint of a refusal (never accepted silently).
 _ALIASES = {
@@ -149,28 +149,43 @@ def read_csv(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
         _refuse_nul(path)
     try:
         with _open_text(path, encoding) as stream:
-            header, header_line = _header(path, stream)
+            header, header_line, delimiter = _header(path, stream)
             index = _column_index(path, header, options)
             columns = _parse(path, stream, header_line, index,
-                             lambda: _open_text(path, encoding))
+                             lambda: _open_text(path, encoding), delimiter)
     except UnicodeDecodeError as error:
         raise InputDataError(f'{path}: not a CSV text file (bytes that are not {encoding} '
                              f'text: {error.reason}); give a comma-separated UTF-8 file'
                              ) from None
+    if delimiter != ',':
+        note(f'{path}: read as {SEPARATORS[delimiter]}-separated (decimal commas accepted)')
     return build_record(columns, options, source=str(path))
 
 
-def _header(path: PathLike, stream: IO[str]) -> tuple[list[str], int]:
-    """Return the header's names and its line number (1-based); refuse an empty file."""
+#: Separators recognised besides the comma, by name (a decimal comma comes with them).
+SEPARATORS = {';': 'semicolon', '\t': 'tab'}
+
+
+def _header(path: PathLike, stream: IO[str]) -> tuple[list[str], int, str]:
+    """
+    Return the header's names, its line number (1-based) and the column separator.
+
+    The separator is the comma, or a semicolon or tab when the header has no comma but one
+    of those (the spreadsheet dialect of locales with a decimal comma); an empty file is
+    refused.
+    """
     for number, line in enumerate(stream, start=1):
-        cells = next(csv.reader([line]), [])
+        delimiter = ','
+        if ',' not in line:
+            delimiter = next((mark for mark in SEPARATORS if mark in line), ',')
+        cells = next(csv.reader([line], delimiter=delimiter), [])
         if cells and any(cell.strip() for cell in cells):
             header = [name.strip() for name in cells]
-            if len(header) == 1 and any(mark in header[0] for mark in (';', '\t', ' ')):
+            if len(header) == 1 and ' ' in header[0].strip():
                 raise InputDataError(
                     f'{path}: the header {header[0]!r} is one single column: the file must be '
-                    'comma-separated (t,voltage,current,speed)')
-            return header, number
+                    'separated by commas, semicolons or tabs (t,voltage,current,speed)')
+            return header, number, delimiter
     raise InputDataError(f'{path}: the file is empty; it needs a header row '
                          f'({", ".join(COLUMNS)}) and samples')
 
@@ -190,23 +205,25 @@ def _column_index(path: PathLike, header: list[str], options: ReadOptions) -> di
                                  f'the header; it has {", ".join(header)}')
     standard = {channel: number for channel, number in index.items() if channel in COLUMNS}
     _check_names(path, header, standard)
-    if 't' not in index:
+    if 't' not in index and options.sample_period_s is None:
         near = [name for name in header if name.lower() in ('t', 'time', 'time_s', 'timestamp')]
         hint = f' (found {near[0]!r}: rename it to t or map it with --column t={near[0]})' \
             if near else ''
         raise InputDataError(f'{path}: no time column t in the header {header}{hint}; the '
-                             f'columns must be named {", ".join(COLUMNS)}')
+                             f'columns must be named {", ".join(COLUMNS)}, or give the sample '
+                             'period with --sample-period S')
     return index
 
 
 def _parse(path: PathLike, stream: IO[str], header_line: int, index: dict[str, int],
-           reopen: Callable[[], IO[str]]) -> dict[str, np.ndarray]:
+           reopen: Callable[[], IO[str]], delimiter: str = ',') -> dict[str, np.ndarray]:
     """
     Parse the samples of the chosen columns in blocks; return channel -> values.
 
     numpy's C parser reads each block of lines into one small array; each column of it is
     kept as its own piece and the pieces are joined once per channel at the end, so the
-    peak is about the numbers themselves plus one column and one block.
+    peak is about the numbers themselves plus one column and one block.  With a separator
+    other than the comma, a comma is a decimal comma.
     """
     channels = list(index)
     usecols = [index[channel] for channel in channels]
@@ -215,15 +232,17 @@ def _parse(path: PathLike, stream: IO[str], header_line: int, index: dict[str, i
         lines = list(islice(stream, BLOCK_ROWS))
         if not lines:
             break
+        if delimiter != ',':
+            lines = [line.replace(',', '.') for line in lines]
         try:
-            block = np.loadtxt(lines, delimiter=',', usecols=usecols, ndmin=2, comments=None,
+            block = np.loadtxt(lines, delimiter=delimiter, usecols=usecols, ndmin=2, comments=None,
                                quotechar='"', dtype=float)
         except ValueError:
             block = None
         if block is None or block.shape[1] != len(channels):
             del lines, pieces
             with reopen() as again:
-                return _parse_slowly(path, again, header_line, index)
+                return _parse_slowly(path, again, header_line, index, delimiter)
         for column, channel in enumerate(channels):
             pieces[channel].append(np.ascontiguousarray(block[:, column]))
         del block, lines
@@ -237,7 +256,7 @@ def _parse(path: PathLike, stream: IO[str], header_line: int, index: dict[str, i
 
 
 def _parse_slowly(path: PathLike, stream: IO[str], header_line: int,
-                  index: dict[str, int]) -> dict[str, np.ndarray]:
+                  index: dict[str, int], delimiter: str = ',') -> dict[str, np.ndarray]:
     """
     Parse row by row with the csv module, to name the first bad cell (or skip blank rows).
 
@@ -245,19 +264,21 @@ def _parse_slowly(path: PathLike, stream: IO[str], header_line: int,
     the file, and rows of empty cells (``,,,``) are skipped here as blank lines.
     """
     values: dict[str, list[float]] = {channel: [] for channel in index}
-    reader = csv.reader(stream)
+    reader = csv.reader(stream, delimiter=delimiter)
+    decimal_comma = delimiter != ','
     for row_number, row in enumerate(reader, start=1):
         if row_number <= header_line or not row or not any(cell.strip() for cell in row):
             continue
         for name, column in index.items():
             try:
-                values[name].append(float(row[column]))
+                cell = row[column]
+                values[name].append(float(cell.replace(',', '.') if decimal_comma else cell))
             except (IndexError, ValueError):
                 cell = row[column] if column < len(row) else '(missing)'
                 raise InputDataError(
                     f'{path}: line {row_number}, column {name!r}: {cell!r} is not a number; '
                     'fix or remove that line') from None
-    if not values['t']:
+    if not any(values.values()):
         raise InputDataError(f'{path}: the file has a header but no samples; record or '
                              'export the data again')
     return {name: np.array(items, dtype=float) for name, items in values.items()}
@@ -284,7 +305,7 @@ def read_csv_text(text: str, options: ReadOptions = DEFAULT_OPTIONS,
                   source: str = '<text>') -> Record:
     """Read a record from CSV text (tests, small in-memory tables)."""
     stream = io.StringIO(text)
-    header, header_line = _header(source, stream)
+    header, header_line, delimiter = _header(source, stream)
     index = _column_index(source, header, options)
-    columns = _parse(source, stream, header_line, index, lambda: io.StringIO(text))
+    columns = _parse(source, stream, header_line, index, lambda: io.StringIO(text), delimiter)
     return build_record(columns, options, source=source)

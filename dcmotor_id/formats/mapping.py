@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 import math
 from typing import Optional
+import warnings
 
 import numpy as np
 
@@ -63,6 +64,10 @@ class ReadOptions:
     interfaces : dict
         Bags: channel -> interface name of the joint (default: the channel's own name, and
         ``velocity`` for speed, ``effort`` for nothing).
+    sample_period_s : float or None
+        The samples are this far apart [s]: the time is ``k * sample_period_s`` (for a file
+        without a time column, or one whose time stamps are broken; a time column is then not
+        used); for bags the grid step.
 
     """
 
@@ -76,6 +81,7 @@ class ReadOptions:
     bus_voltage: Optional[float] = None
     joint: Optional[str] = None
     interfaces: Mapping[str, str] = field(default_factory=dict)
+    sample_period_s: Optional[float] = None
 
     def __post_init__(self) -> None:
         """Refuse unknown channels and units with a message naming the choices."""
@@ -91,7 +97,8 @@ class ReadOptions:
         for value, option in ((self.speed_counts_per_rev, '--speed-counts-per-rev'),
                               (self.position_counts_per_rev, '--position-counts-per-rev'),
                               (self.gear_ratio, '--gear-ratio'),
-                              (self.bus_voltage, '--voltage-from-duty')):
+                              (self.bus_voltage, '--voltage-from-duty'),
+                              (self.sample_period_s, '--sample-period')):
             if value is not None and not (np.isfinite(value) and value > 0):
                 raise InputDataError(f'{option} must be a positive number, got {value}')
 
@@ -121,6 +128,15 @@ class ReadOptions:
 
 #: The options that read an SI file as it is.
 DEFAULT_OPTIONS = ReadOptions()
+
+
+class ReadingNote(UserWarning):
+    """A note on how a file was read (e.g. a matrix transposed): shown to the user."""
+
+
+def note(text: str) -> None:
+    """Tell the user how a file was read (:class:`ReadingNote`; the CLI prints it)."""
+    warnings.warn(text, ReadingNote, stacklevel=2)
 
 
 def parse_assignments(items: Optional[list[str]], option: str) -> dict[str, str]:
@@ -168,8 +184,13 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
         return values
 
     time_s = columns.get('t')
+    others = [values for channel, values in columns.items() if channel != 't']
+    if options.sample_period_s is not None and others:
+        # the samples are this far apart: a time column (if any) is not used
+        time_s = np.arange(np.asarray(others[0]).shape[0]) * options.sample_period_s
     if time_s is None:
-        raise InputDataError(f'{source}: no time column; map it with --column t=NAME')
+        raise InputDataError(f'{source}: no time column; map it with --column t=NAME, or give '
+                             'the sample period with --sample-period S')
     voltage = scaled('voltage', 1.0)
     if options.bus_voltage is not None:
         voltage = _voltage_from_duty(columns, options, source)

@@ -4,7 +4,10 @@ MATLAB ``.mat`` records: variables (or columns of a matrix) mapped to the channe
 Version 5 files are read with :func:`scipy.io.loadmat`; version 7.3 files are HDF5 and need
 the optional ``h5py`` (``pip install h5py``). By default the variables are named as the
 channels (``t``, ``voltage``, ``current``, ``speed``, ``position``); ``--column current=data:7``
-takes column 7 (1-based, as in MATLAB) of the matrix ``data``.
+takes column 7 (1-based, as in MATLAB) of the matrix ``data`` (a matrix stored one channel a
+row, e.g. 11 x N, is transposed and said so); ``--column t=output.time`` takes a field of a
+struct (``data.signals.values:2`` a column of a field).  Without a time variable, the time
+comes from ``--sample-period``.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import numpy as np
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
 from dcmotor_id.formats.budget import check_budget
-from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
+from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, note, ReadOptions
 
 #: The first bytes of an HDF5 file (MATLAB v7.3 puts them after a 512-byte header).
 HDF5_MAGIC = b'\x89HDF\r\n\x1a\n'
@@ -29,18 +32,26 @@ def _is_hdf5(path: PathLike) -> bool:
     return head[512:520] == HDF5_MAGIC or head[:8] == HDF5_MAGIC
 
 
+def _field_names(value: Any, prefix: str) -> list[str]:
+    """Return ``prefix`` or, for a struct (a dict), the dotted names of its fields."""
+    if isinstance(value, dict):
+        return [name for key in sorted(value) if not key.startswith('__')
+                for name in _field_names(value[key], f'{prefix}.{key}')]
+    return [prefix]
+
+
 def _load_v5(path: PathLike, needed: Collection[str]) -> Callable[[str], Any]:
     from scipy.io import loadmat, whosmat
     if os.path.getsize(path) == 0:
         raise InputDataError(f'{path}: the file is empty; give a MATLAB file with the record')
     try:
         declared = {name: shape for name, shape, _ in whosmat(path)}
-        # only the variables of the channels, each within the memory budget
-        names = [name for name in declared if name in needed]
+        # only the variables of the channels (a struct's by its name), each within the budget
+        names = [name for name in declared if name in {item.split('.')[0] for item in needed}]
         for name in names:
             check_budget(8.0 * float(np.prod(declared[name], dtype=float)), path,
                          f'variable {name!r} of shape {declared[name]}')
-        data = loadmat(path, variable_names=names)
+        data = loadmat(path, variable_names=names, simplify_cells=True)
         data.update({name: None for name in declared if name not in data})
     except (MemoryError, InputDataError):
         raise
@@ -53,8 +64,20 @@ def _load_v5(path: PathLike, needed: Collection[str]) -> Callable[[str], Any]:
                              'the record')
 
     def get(name: str) -> Any:
-        return variables.get(name)
-    get.names = sorted(variables)  # type: ignore[attr-defined]
+        # ``output.time``, ``data.signals.values``: fields of MATLAB structs
+        value: Any = variables
+        for part in name.split('.'):
+            array_of_structs = isinstance(value, np.ndarray) and value.dtype == object
+            if isinstance(value, (list, tuple)) or array_of_structs:
+                raise InputDataError(
+                    f'{path}: {name!r}: {part!r} is a field of an array of structs; save the '
+                    'signal as its own variable or as a struct of one element')
+            if not isinstance(value, dict) or part not in value:
+                return None
+            value = value[part]
+        return value
+    get.names = [name for key in sorted(variables)  # type: ignore[attr-defined]
+                 for name in _field_names(variables[key], key)]
     return get
 
 
@@ -72,18 +95,22 @@ def _load_v73(path: PathLike) -> tuple[Callable[[str], Any], Any]:
                              'damaged or truncated: save it again in MATLAB') from None
 
     def get(name: str) -> Any:
-        if name not in handle:
+        key = name.replace('.', '/')  # a struct's fields are an HDF5 group's members
+        if key not in handle:
             return None
-        item = handle[name]
-        shape = getattr(item, 'shape', None)
-        if shape is None:
-            raise InputDataError(f'{path}: {name!r} is a group, not a numeric variable; map '
-                                 'a numeric one with --column')
-        check_budget(8.0 * float(np.prod(shape, dtype=float)), path,
-                     f'variable {name!r} of shape {tuple(reversed(shape))}')
+        item = handle[key]
+        if not isinstance(item, h5py.Dataset):
+            raise InputDataError(f'{path}: {name!r} is a group (a struct), not a numeric '
+                                 'variable; map one of its fields with --column CHANNEL='
+                                 f'{name}.FIELD')
+        check_budget(8.0 * float(np.prod(item.shape, dtype=float)), path,
+                     f'variable {name!r} of shape {tuple(reversed(item.shape))}')
         # HDF5 stores MATLAB arrays transposed (column-major): transpose back
         return np.asarray(item).T
-    get.names = sorted(handle.keys())  # type: ignore[attr-defined]
+    names: list[str] = []
+    handle.visititems(lambda key, item: names.append(key.replace('/', '.'))
+                      if isinstance(item, h5py.Dataset) and not key.startswith('#') else None)
+    get.names = sorted(names)  # type: ignore[attr-defined]
     return get, handle
 
 
@@ -104,9 +131,7 @@ def _column(path: PathLike, get: Callable[[str], Any], spec: str,
         except ValueError:
             raise InputDataError(f'{path}: --column {channel}={spec}: the column after ":" '
                                  'must be a number (1-based, as in MATLAB)') from None
-        matrix = np.atleast_2d(array)
-        if matrix.shape[0] == 1 and matrix.shape[1] > 1 and number > 1:
-            matrix = matrix.T
+        matrix = _samples_as_rows(path, name, np.atleast_2d(array))
         if not 1 <= number <= matrix.shape[1]:
             raise InputDataError(f'{path}: --column {channel}={spec}: {name!r} has '
                                  f'{matrix.shape[1]} column(s) (1-based)')
@@ -115,6 +140,28 @@ def _column(path: PathLike, get: Callable[[str], Any], spec: str,
         raise InputDataError(f'{path}: variable {name!r} ({channel}) is a {array.shape} matrix; '
                              f'pick a column with --column {channel}={name}:N (1-based)')
     return np.array(np.ravel(array), dtype=float)
+
+
+#: Most channels a matrix stored channels-as-rows is taken to have.
+MAX_CHANNELS = 64
+
+
+def _samples_as_rows(path: PathLike, name: str, matrix: np.ndarray) -> np.ndarray:
+    """
+    Return a matrix with one sample a row, transposing one stored channels-as-rows.
+
+    A matrix with few rows (at most :data:`MAX_CHANNELS`) and many more columns holds one
+    channel a row (e.g. 11 x 20000): it is transposed, said in a note.  A row vector is a
+    single channel.
+    """
+    rows, columns = matrix.shape[:2]
+    if rows == 1 and columns > 1:
+        return matrix.T
+    if 1 < rows <= MAX_CHANNELS and columns > 4 * rows:
+        note(f'{path}: {name!r} is a {rows} x {columns} matrix: read as {rows} channels '
+             f'stored as rows of {columns} samples (column N of --column is its row N)')
+        return matrix.T
+    return matrix
 
 
 def read_mat(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
@@ -141,11 +188,14 @@ def read_mat(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
         for channel in options.wanted():
             values = _column(path, get, options.column(channel), channel)
             if values is None:
-                if channel in options.columns or channel == 't':
+                timed = channel == 't' and options.sample_period_s is None
+                if channel in options.columns or timed:
                     raise InputDataError(
                         f'{path}: no variable {options.column(channel).partition(":")[0]!r} for '
                         f'{channel}; the file has {", ".join(get.names)}'  # type: ignore
-                        f'. Map it with --column {channel}=NAME (or NAME:COLUMN)')
+                        f'. Map it with --column {channel}=NAME (or NAME:COLUMN, or '
+                        'STRUCT.FIELD)' + (', or give the sample period with --sample-period '
+                                           'S' if channel == 't' else ''))
                 continue
             columns[channel] = values
     finally:

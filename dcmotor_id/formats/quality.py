@@ -6,9 +6,12 @@ Three ways a channel carries no usable information although it holds numbers:
 * a **current sampled inside the PWM cycle**: the ADC catches the on- or the off-phase of the
   switching, so many samples are exactly zero between non-zero neighbours (a bimodal signal);
 * a **speed quantised so coarsely** (encoder pulses counted per sample) that most differences
-  between consecutive samples are zero: the dynamics between the steps are invisible;
+  between consecutive samples are zero and it spans fewer than :data:`REFUSED_LEVELS` steps
+  (a coarse speed with more levels is kept, :func:`coarse_speed` words its warning);
 * a **voltage that is a command never reaching the motor**: constant while the current
-  changes (a set-point, or the input of a current-controlled drive).
+  changes in a way the armature balance ``u = Ra i + La di/dt + CPhi w`` cannot explain (a
+  set-point, or the input of a current-controlled drive); a constant voltage logged from the
+  instant it was applied, the motor starting from rest, satisfies the balance and is kept.
 
 :func:`check_channels` raises :class:`~dcmotor_id.core.errors.InputDataError` with a message that
 names the channel, what was seen and what to do.
@@ -27,8 +30,10 @@ from dcmotor_id.core.records import Record
 PWM_ZERO_FRACTION = 0.1
 #: Fraction of consecutive differences of a moving shaft exactly zero: too coarse a speed.
 QUANTISED_ZERO_FRACTION = 0.4
-#: Fewest distinct levels over the speed's range that a usable speed has.
+#: Distinct levels over the speed's range below which a speed counts as coarse (a warning).
 QUANTISED_LEVELS = 64
+#: Distinct levels below which a coarse speed is refused (nothing can be drawn from it).
+REFUSED_LEVELS = 8
 #: Relative spread of the current that counts as changing (of its largest magnitude).
 CURRENT_CHANGE = 0.1
 #: Fewest samples the checks look at.
@@ -65,8 +70,13 @@ def pwm_sampled_current(record: Record) -> Optional[str]:
             'PWM, ADC triggered by the timer) or low-pass it over a PWM period before the ADC')
 
 
-def quantised_speed(record: Record) -> Optional[str]:
-    """Return the message when the speed is quantised too coarsely to identify from."""
+def speed_steps(record: Record) -> Optional[tuple[float, float, float]]:
+    """
+    Return ``(zero share, step, levels)`` of a coarsely quantised speed, else None.
+
+    Coarse: at least :data:`QUANTISED_ZERO_FRACTION` of the differences of the moving shaft
+    are zero and the speed spans fewer than :data:`QUANTISED_LEVELS` of its steps.
+    """
     speed = record.speed
     if speed is None or len(speed) < MIN_CHECK_SAMPLES:
         return None
@@ -83,6 +93,22 @@ def quantised_speed(record: Record) -> Optional[str]:
     levels = float(np.ptp(speed)) / quantum
     if levels >= QUANTISED_LEVELS:
         return None
+    return fraction, quantum, levels
+
+
+def quantised_speed(record: Record) -> Optional[str]:
+    """
+    Return the message when the speed is quantised too coarsely to draw anything from.
+
+    Fewer than :data:`REFUSED_LEVELS` levels over its range: the steps say little more than
+    the direction.  A speed with more levels is kept (:func:`coarse_speed` words the
+    warning): its steady states carry the back-EMF constant and the friction, and the
+    current carries the dynamics.
+    """
+    found = speed_steps(record)
+    if found is None or found[2] >= REFUSED_LEVELS:
+        return None
+    fraction, quantum, levels = found
     return (f"{record.source or 'record'}: channel 'speed' is quantised so coarsely that "
             f'{100 * fraction:.0f} % of the differences between consecutive samples are zero '
             f'(steps of {quantum:.4g} rad/s, {levels:.0f} levels over its range, as encoder '
@@ -92,8 +118,72 @@ def quantised_speed(record: Record) -> Optional[str]:
             'a finer encoder, or log at a lower rate')
 
 
+def coarse_speed(record: Record) -> Optional[str]:
+    """Return the warning for a coarse speed that is still used (None if it is not coarse)."""
+    found = speed_steps(record)
+    if found is None or found[2] < REFUSED_LEVELS:
+        return None
+    fraction, quantum, levels = found
+    return (f"{record.source or 'record'}: channel 'speed' is coarse (steps of {quantum:.4g} "
+            f'rad/s, {levels:.0f} levels over its range, {100 * fraction:.0f} % of the '
+            'differences between samples zero): its steady states and the current carry the '
+            'parameters, the speed between its steps does not; parameters the data do not '
+            'determine are listed as not identifiable. A finer speed (or the encoder count '
+            'as position, --position-counts-per-rev N) identifies them better')
+
+
+#: Share of the voltage the back-EMF of a step response must visibly carry.
+BACK_EMF_SHARE = 0.05
+#: Residual RMS of the armature balance (of the voltage) below which a constant voltage is
+#: a step response logged from its start, not a command that never reaches the motor.
+BALANCE_RESIDUAL = 0.1
+
+
+def back_emf_balance(voltage: float, current: np.ndarray, speed: Optional[np.ndarray],
+                     sample_period_s: float) -> Optional[float]:
+    """
+    Return how well a constant voltage explains the current and speed, or None if it cannot.
+
+    The armature balance ``u = Ra i + La di/dt + CPhi w`` is fitted to the constant voltage
+    by least squares (no offset).  A step response logged from its start (the voltage applied
+    as the log began, current and speed rising from rest) satisfies it with positive Ra and
+    CPhi, and its back-EMF carries a visible share of the voltage (the current falls as the
+    speed rises); a set-point that never reaches the motor does not (a current held by a
+    current controller while the speed rises needs a back-EMF constant of zero).
+
+    Returns
+    -------
+    float or None
+        The fit's residual RMS relative to the voltage (0 is a perfect balance), or None when
+        the fitted Ra or CPhi is not positive, the back-EMF stays below
+        :data:`BACK_EMF_SHARE` of the voltage (physics rules the voltage out), or there is
+        no speed to check against.
+
+    """
+    if speed is None or voltage == 0.0:
+        return None
+    sign = np.sign(voltage)
+    current = sign * np.asarray(current, dtype=float)
+    speed = sign * np.asarray(speed, dtype=float)
+    rate = np.gradient(current, sample_period_s)
+    regressors = np.column_stack([current, rate, speed])
+    target = np.full(current.shape, abs(voltage))
+    scale = np.maximum(np.sqrt(np.mean(regressors ** 2, axis=0)), 1e-300)
+    coefficients = np.linalg.lstsq(regressors / scale, target, rcond=None)[0] / scale
+    back_emf = coefficients[2] * float(np.ptp(speed))
+    if not (coefficients[0] > 0 and back_emf > BACK_EMF_SHARE * abs(voltage)):
+        return None
+    residual = target - regressors @ coefficients
+    return float(np.sqrt(np.mean(residual ** 2)) / abs(voltage))
+
+
 def command_voltage(record: Record) -> Optional[str]:
-    """Return the message when the voltage is constant while the current changes."""
+    """
+    Return the message when the voltage is constant while current or speed change unexplained.
+
+    A constant voltage whose current and speed follow the armature balance (a step response
+    logged from the instant the voltage was applied) is usable and not refused.
+    """
     voltage, current = record.voltage, record.current
     if voltage is None or current is None or len(voltage) < MIN_CHECK_SAMPLES:
         return None
@@ -103,35 +193,59 @@ def command_voltage(record: Record) -> Optional[str]:
     if float(np.ptp(voltage)) > 1e-9 * max(level, 1e-300) and level > 0:
         return None
     spread = float(np.ptp(current))
-    if not spread > CURRENT_CHANGE * float(np.max(np.abs(current))) or spread == 0:
+    changes = spread > CURRENT_CHANGE * float(np.max(np.abs(current))) and spread > 0
+    speed = None if record.speed is None else np.asarray(record.speed, dtype=float)
+    if speed is not None and not changes:
+        # a current held constant while the speed rises: the voltage cannot be what drives it
+        speed_spread = float(np.ptp(speed))
+        changes = speed_spread > CURRENT_CHANGE * float(np.max(np.abs(speed))) and \
+            speed_spread > 0
+    if not changes:
         return None
+    period = float(np.median(np.diff(record.time_s))) if len(record) > 1 else 1.0
+    residual = back_emf_balance(float(voltage[0]), current, record.speed, period)
+    if residual is not None and residual < BALANCE_RESIDUAL:
+        return None
+    seen = ('no positive Ra with a visible back-EMF balances it' if residual is None else
+            f'the best balance leaves {100 * residual:.0f} % of it unexplained')
     return (f"{record.source or 'record'}: channel 'voltage' is constant ({voltage[0]:.6g} V) "
-            f'while the current changes ({spread:.4g} A peak to peak): it looks like a '
-            'command or set-point that never reaches the motor (e.g. the input of a '
-            'current-controlled drive). Record the armature voltage at the motor terminals '
-            '(or the PWM duty with --voltage-from-duty BUS_V), or identify the mechanical '
-            'part only with --torque-constant K')
+            f'while the current or speed changes (current {spread:.4g} A peak to peak), and '
+            'the current and '
+            f'speed do not follow it as a motor does (u = Ra i + La di/dt + CPhi w: {seen}): '
+            'it looks like a command or set-point that never reaches the motor (e.g. the '
+            'input of a current-controlled drive). Record the armature voltage at the motor '
+            'terminals (or the PWM duty with --voltage-from-duty BUS_V), or identify the '
+            'mechanical part only with --torque-constant K (the voltage column is then not '
+            'used)')
 
 
 #: The checks in the order they are applied.
 CHECKS = (pwm_sampled_current, quantised_speed, command_voltage)
 
 
-def channel_problems(record: Record) -> list[str]:
+#: Checks that do not apply in the mechanical-only mode (the voltage is not used there).
+VOLTAGE_CHECKS = (command_voltage,)
+
+
+def channel_problems(record: Record, mechanical_only: bool = False) -> list[str]:
     """
     Return the message of every unusable channel of a record (empty when all are usable).
 
     A record with NaN/inf values is left to :func:`dcmotor_id.core.records.check_record`, which
-    names those samples.
+    names those samples.  In the mechanical-only mode (``--torque-constant``) the voltage is
+    not used, so it is not checked.
     """
     if not all(np.all(np.isfinite(values)) for values in record.columns().values()):
         return []
-    return [message for message in (check(record) for check in CHECKS) if message]
+    checks = [check for check in CHECKS if not (mechanical_only and check in VOLTAGE_CHECKS)]
+    return [message for message in (check(record) for check in checks) if message]
 
 
-def check_channels(record: Record) -> Record:
+def check_channels(record: Record, mechanical_only: bool = False) -> Record:
     """
     Refuse a record with a channel that cannot identify the motor; return it otherwise.
+
+    ``mechanical_only`` skips the checks of the voltage (:data:`VOLTAGE_CHECKS`).
 
     Raises
     ------
@@ -139,7 +253,7 @@ def check_channels(record: Record) -> Record:
         Naming the channel, what it looks like and what to record instead.
 
     """
-    problems = channel_problems(record)
+    problems = channel_problems(record, mechanical_only)
     if problems:
         raise InputDataError('; '.join(problems))
     return record

@@ -26,6 +26,8 @@ from dcmotor_id.core.model import (DERIVED_NAMES, derived_values, inadmissible, 
                                    PARAMETER_NAMES, parameter_names, POSITIVE_NAMES, UNITS)
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.core.records import check_record
+from dcmotor_id.formats.held import restore_held
+from dcmotor_id.formats.quality import coarse_speed
 from dcmotor_id.identification.discovery import DiscoveryLoop, DiscoveryResult
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.estimators.paper import PaperEstimator
@@ -145,6 +147,42 @@ def check_excitation(records: Sequence[Record], mechanical_only: bool) -> Excita
             'identifiable and Ra cannot be separated from CPhi. Excite the motor with a '
             'changing voltage (sine, sawtooth, PRBS, chirp; see dcmotor-id simulate).')
     return excitation
+
+
+#: Samples at the start of a record a current step may take to settle.
+SETTLE_SAMPLES = 3
+
+
+def single_current_level(records: Sequence[Record]) -> float | None:
+    """
+    Return the level when every record's current is one constant value, else None.
+
+    A current held by a current-controlled drive at one level (a torque step from rest, the
+    first samples rising to it) is constant within its noise (or 2 % of the level).
+    """
+    settled = [np.asarray(rec.current, dtype=float)[SETTLE_SAMPLES:] for rec in records
+               if rec.current is not None and len(rec) > 4 * SETTLE_SAMPLES]
+    if not settled or len(settled) != len(records):
+        return None
+    joined = np.concatenate(settled)
+    level = float(np.median(joined))
+    band = max(6.0 * max(noise_std(values) for values in settled), 0.02 * abs(level))
+    smooth = np.concatenate([np.convolve(values, np.ones(9) / 9, mode='valid')
+                             for values in settled if len(values) >= 9])
+    if level == 0.0 or smooth.size == 0 or np.max(np.abs(smooth - level)) > band:
+        return None
+    return level
+
+
+def one_level_reason(level: float, failure: str) -> str:
+    """Say why one constant current cannot separate J, b and Mc, and what to record."""
+    return (f'the current is one constant level ({level:.4g} A) in every record and the fit '
+            f'failed ({failure.split(":")[0]}): with a known torque constant a constant current '
+            'shows only two numbers in the speed, the mechanical time constant J/b and the '
+            'final speed (K i - Mc)/b; J, b and Mc are then separated only by the '
+            "current's small fluctuations, too little here. Record a second current "
+            'level (a step between two non-zero levels, or a step in the other '
+            'direction) and give the records together')
 
 
 def simulation_errors(estimate: Estimate, records: Sequence[Record],
@@ -393,8 +431,10 @@ def identify(records: Sequence[Record], method: str = 'refined',
                              f'{initial_state!r}')
     progress = progress if progress is not None else Progress(max_time_s)
     mechanical_only = torque_constant is not None
+    # Sensors refreshing slower than the log: fit on their real updates (said in a warning).
+    records, warnings = restore_held(list(records))
+    warnings += [text for text in map(coarse_speed, records) if text]
     excitation = check_excitation(records, mechanical_only)
-    warnings: list[str] = []
     not_identifiable: dict[str, str] = {}
     vocabulary = list(vocabulary or VOCABULARY)
     limited = None if mechanical_only or estimator is not None or method != 'refined' else \
@@ -408,6 +448,11 @@ def identify(records: Sequence[Record], method: str = 'refined',
     progress.set_stage('base fit', _names(records))
     try:
         estimate = estimator.fit(records, torque_constant=torque_constant)
+    except FitError as error:
+        level = single_current_level(records) if mechanical_only else None
+        if level is None:
+            raise
+        raise NotIdentifiableError(one_level_reason(level, str(error))) from None
     except TimeBudgetExceeded:
         raise FitError(f'no fit finished within the time budget ({progress.max_time_s:g} s): '
                        'give more time with --max-time, or shorten or decimate the records'

@@ -179,24 +179,29 @@ def _transients(values: np.ndarray, count: int, width: int) -> list[int]:
     """
     Return where the ``count`` largest input changes are, ``width`` samples apart.
 
-    A change is measured over a tenth of the window (so a fast ramp counts as well as a
-    step, and one noisy sample does not), and only where the window fits in the record after
-    it (the window starts a fifth of its width before the change).
+    A change is the difference between the input's means over a tenth of the window after
+    and before a sample (so a fast ramp counts as well as a step, and a noise spike, which
+    moves one sample of a mean, does not), and only where the window fits in the record
+    after it (the window starts a fifth of its width before the change).
     """
     values = np.asarray(values, dtype=float)
     lag = max(1, width // 10)
     lead = width // 5
     if values.size < width + lag:
         return []
-    change = np.abs(values[lag:] - values[:-lag])
-    change[~np.isfinite(change)] = 0.0
-    change[np.arange(change.size) + lag + width - lead > values.size] = 0.0
+    finite = np.where(np.isfinite(values), values, 0.0)
+    total = np.concatenate([[0.0], np.cumsum(finite)])
+    # change[k]: mean of samples k .. k+lag-1 minus mean of k-lag .. k-1 (k = lag .. n-lag)
+    after = (total[2 * lag:] - total[lag:-lag]) / lag
+    before = (total[lag:-lag] - total[:-2 * lag]) / lag
+    change = np.abs(after - before)
+    steps = np.arange(change.size) + lag
+    change[steps + width - lead > values.size] = 0.0
     chosen: list[int] = []
     for index in np.argsort(-change, kind='stable'):  # the earliest of equal changes
         if change[index] <= 0 or len(chosen) >= count:
             break
-        # the first sample after the sharpest sample-to-sample change inside the span
-        step = int(index) + 1 + int(np.argmax(np.abs(np.diff(values[index:index + lag + 1]))))
+        step = int(steps[index])
         if all(abs(step - other) >= width for other in chosen):
             chosen.append(step)
     return sorted(chosen)

@@ -272,6 +272,113 @@ def pwm_sampled_current(record: Record, duty_threshold: float = 0.6,
     return record.replace(current=current)
 
 
+def voltage_step_from_rest(seed: int = 0, sample_period_s: float = 1e-3,
+                           level_v: float = 12.0, duration_s: float = 1.0) -> Scenario:
+    """Simulate a step test logged from the instant the voltage was applied (motor at rest)."""
+    rng = np.random.default_rng(seed)
+    truth = SMALL_MOTOR
+    command = np.full(int(round(duration_s / sample_period_s)), level_v)
+    out = simulate_drive(truth, command, sample_period_s)
+    t = np.arange(command.shape[0]) * sample_period_s
+    record = Record(t, current=_noisy(out['current'], 0.01, rng), voltage=command,
+                    speed=_noisy(out['speed'], 0.5, rng), source='voltage_step_from_rest')
+    return Scenario('voltage_step_from_rest', [record], truth,
+                    note='constant voltage from t = 0, current and speed rising from rest')
+
+
+def current_steps_from_rest(seed: int = 0, sample_period_s: float = 1e-3,
+                            setpoint_v: float = 5.0) -> Scenario:
+    """
+    Simulate torque steps from rest of a current-controlled drive, one record per direction.
+
+    Each record holds one constant current from t = 0 (the step happened as the log started)
+    and logs the drive's constant set-point voltage beside it (a column the mechanical-only
+    mode does not use).
+    """
+    rng = np.random.default_rng(seed)
+    truth = MotorParameters(Ra=1.0, La=1e-3, CPhi=0.08, J=2.5e-4, b=4e-4, Mc=0.015)
+    n = int(round(3.0 / sample_period_s))
+    t = np.arange(n) * sample_period_s
+    records = []
+    for name, level in (('forward', 1.0), ('back', -0.6)):
+        out = simulate_drive(truth, np.full(n, level), sample_period_s, torque_input=True)
+        current = _noisy(out['current'], 0.01, rng)
+        current[0] = level + rng.normal(0.0, 0.01)  # the set-point is logged from t = 0
+        records.append(Record(t, current=current, voltage=np.full(n, setpoint_v),
+                              speed=_noisy(out['speed'], 0.05, rng),
+                              source=f'current_steps_from_rest_{name}'))
+    return Scenario('current_steps_from_rest', records, truth, torque_constant=truth.CPhi,
+                    note='one constant current per record from t = 0, set-point voltage logged')
+
+
+def coarse_speed_steps(seed: int = 0, sample_period_s: float = 1e-3,
+                       levels: int = 10) -> Scenario:
+    """
+    Simulate voltage steps in both directions logged with a coarse speed sensor.
+
+    The speed is rounded to steps of a tenth of its range (``levels``), as a tachometer read
+    by a coarse ADC or a low-resolution speed estimate gives; the current is fine.
+    """
+    rng = np.random.default_rng(seed)
+    truth = HOBBY_MOTOR
+    command = step_levels([0.0, 6.0, 10.0, 3.0, -4.0, -10.0, -7.0, 2.0, 8.0, 0.0, -5.0], 0.5,
+                          sample_period_s)
+    out = simulate_drive(truth, command, sample_period_s, bus_voltage_v=12.0)
+    speed = _noisy(out['speed'], 2.0, rng)
+    step = float(np.ptp(speed)) / levels
+    t = np.arange(command.shape[0]) * sample_period_s
+    record = Record(t, current=_noisy(out['current'], 0.005, rng), voltage=command,
+                    speed=np.round(speed / step) * step, source='coarse_speed_steps')
+    return Scenario('coarse_speed_steps', [record], truth,
+                    note=f'speed in steps of a {levels}th of its range')
+
+
+def hold_samples(values: np.ndarray, sample_period_s: float, refresh_s: float,
+                 phase_s: float = 0.0) -> np.ndarray:
+    """
+    Return a channel as a sensor refreshing every ``refresh_s`` logs it (sample and hold).
+
+    Each logged row shows the sensor's latest update: the value of the true signal at the
+    last update instant ``phase_s + m refresh_s`` not after the row (linearly interpolated
+    between the logged instants).  A refresh period slightly off a multiple of the logging
+    period makes the phase drift (values held for one, two or three rows).
+    """
+    values = np.asarray(values, dtype=float)
+    t = np.arange(values.shape[0]) * sample_period_s
+    latest = np.floor((t - phase_s) / refresh_s) * refresh_s + phase_s
+    return np.interp(np.maximum(latest, 0.0), t, values)
+
+
+def geared_motor_held_sensors(seed: int = 0, sample_period_s: float = 1e-3,
+                              refresh_s: float = 2.07e-3,
+                              supply_ohm: float = 1.0) -> Scenario:
+    """
+    Simulate a small geared motor logged at 1 kHz whose sensors refresh at about 500 Hz.
+
+    Voltage steps in both directions from a supply that sags under the inrush current (an
+    internal resistance: the terminal voltage is logged); current and speed are held by
+    sensors refreshing every ``refresh_s`` (each value on two rows, sometimes three, the
+    phase drifting).  Speed is at the motor shaft.
+    """
+    rng = np.random.default_rng(seed)
+    truth = HOBBY_MOTOR
+    command = step_levels([0.0, 9.0, -6.0, 12.0, 4.0, -12.0, 0.0, 7.0, -9.0, 0.0], 0.4,
+                          sample_period_s)
+    # A supply resistance in series with the armature: the motor sees the sagged voltage.
+    sagging = MotorParameters(Ra=truth.Ra + supply_ohm, La=truth.La, CPhi=truth.CPhi,
+                              J=truth.J, b=truth.b, Mc=truth.Mc)
+    out = simulate_drive(sagging, command, sample_period_s)
+    terminal = command - supply_ohm * out['current']
+    t = np.arange(command.shape[0]) * sample_period_s
+    current = hold_samples(_noisy(out['current'], 0.01, rng), sample_period_s, refresh_s,
+                           0.3e-3)
+    speed = hold_samples(_noisy(out['speed'], 1.0, rng), sample_period_s, refresh_s, 1.1e-3)
+    record = Record(t, current=current, voltage=_noisy(terminal, 0.02, rng), speed=speed,
+                    source='geared_motor_held_sensors')
+    return Scenario('geared_motor_held_sensors', [record], truth,
+                    note=f'sensors refresh every {refresh_s * 1e3:g} ms, logged at 1 kHz')
+
+
 SCENARIOS = {
     'servo_torque_steps': servo_torque_steps,
     'small_motor_pwm_steps': small_motor_pwm_steps,
@@ -279,4 +386,8 @@ SCENARIOS = {
     'small_motor_low_rate': small_motor_low_rate,
     'coloured_disturbance': coloured_disturbance,
     'directions_with_load': directions_with_load,
+    'voltage_step_from_rest': voltage_step_from_rest,
+    'current_steps_from_rest': current_steps_from_rest,
+    'geared_motor_held_sensors': geared_motor_held_sensors,
+    'coarse_speed_steps': coarse_speed_steps,
 }

@@ -174,10 +174,11 @@ def test_empty_file_and_header_only(tmp_path, out, capsys):
 
 def test_missing_file_and_wrong_delimiter(table, tmp_path, out, capsys):
     expect_refusal(capsys, [tmp_path / 'nothere.csv', '--json', out], 'no such file')
-    path = tmp_path / 'semicolon.csv'
-    path.write_text(';'.join(HEADER) + '\n'
-                    + '\n'.join(';'.join(repr(v) for v in row) for row in table[:200]))
-    expect_refusal(capsys, [path, '--json', out], 'comma-separated')
+    # Issue 19: semicolon- and tab-separated files are read now; spaces still are not.
+    path = tmp_path / 'spaces.csv'
+    path.write_text(' '.join(HEADER) + '\n'
+                    + '\n'.join(' '.join(repr(v) for v in row) for row in table[:200]))
+    expect_refusal(capsys, [path, '--json', out], 'separated by commas, semicolons or tabs')
 
 
 def test_constant_voltage(tmp_path, out, capsys):

@@ -44,7 +44,20 @@ from dcmotor_id.simulation import (combine_contributions, EXACT_FIELDS, HybridSy
 
 __all__ = ['OutputErrorModel', 'RefinedEstimator', 'StateTerm', 'STATE_OVERSAMPLE']
 _MISFIT = ('the motor model does not reproduce the data. Check that the columns are what their '
-           'names say (units, signs: current and speed positive for a positive voltage)')
+           'names say (units, signs: current and speed positive for a positive voltage), and '
+           'that the input changes between at least two levels (a single constant input '
+           'cannot separate all parameters: record a step between two non-zero levels)')
+
+
+def _diverged(error: BaseException) -> str:
+    """Describe a failure of the simulation during the fit (its message may be empty)."""
+    text = str(error)
+    if text:
+        return text
+    return (f'{type(error).__name__} in the simulation: a parameter ran to zero or infinity '
+            'on the way')
+
+
 #: Channels of exogenous terms: the linear ones of :class:`ExogenousTerm` and ``state``
 #: (:class:`StateTerm`, an effect simulated exactly inside the model).
 _CHANNELS = ('voltage', 'torque', 'current', 'speed', 'state')
@@ -433,7 +446,8 @@ class RefinedEstimator:
             except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
                 # A parameter ran to zero or infinity on the way (the simulation kernels raise
                 # on a division by zero): the data do not fit this model.
-                raise FitError(f'the output-error fit diverged ({error}): ' + _MISFIT) from None
+                raise FitError(f'the output-error fit diverged ({_diverged(error)}): '
+                               + _MISFIT) from None
 
         # Tolerances of 1e-8 leave the parameters within 1e-3 of a standard error of the
         # converged optimum (noise-free: round-off); tighter ones only add iterations spent in
