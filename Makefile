@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed-stamp
 # Where `make bench` writes its tables (the committed ones in bench/ stay as they are).
 BENCH_OUT := out/bench
 
-.PHONY: demo demo-loop demo-offline test test-fast typecheck warmup bench clean
+.PHONY: demo demo-loop demo-offline test test-fast typecheck warmup bench docs clean
 
 # The install also compiles the numba kernels into their on-disk cache (dcmotor_id.cli.warmup),
 # and the identify path's kernels ahead of time (dcmotor_id/simulation/compiled.py, needs a C
@@ -48,6 +48,12 @@ test-fast: $(STAMP)
 typecheck: $(STAMP)
 	$(PY) -m mypy
 
+# The manual (docs/, Sphinx with MyST pages and API pages from the docstrings) as HTML in
+# docs/_build/html; any warning fails the build (test/test_docs.py builds it the same way).
+docs: $(STAMP)
+	$(PY) -m sphinx -b html -W --keep-going docs docs/_build/html
+	@echo "the manual: docs/_build/html/index.html"
+
 # Every benchmark of bench/README.md, each table written to $(BENCH_OUT) (long: about an hour).
 bench: $(STAMP)
 	mkdir -p $(BENCH_OUT)
@@ -62,4 +68,4 @@ bench: $(STAMP)
 	$(PY) bench/bench_experiment.py > $(BENCH_OUT)/experiment_results.md
 
 clean:
-	rm -rf $(VENV) build install log
+	rm -rf $(VENV) build install log docs/_build
