@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from dcmotor_id.cli import main
+from dcmotor_id.cli.main import main
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.records import Record

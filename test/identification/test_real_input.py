@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from dcmotor_id.cli import main as cli_main
+from dcmotor_id.cli.main import main as cli_main
 from dcmotor_id.core.errors import NotIdentifiableError
 from dcmotor_id.formats import read_record
 from dcmotor_id.formats.csv import write_csv
