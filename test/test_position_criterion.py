@@ -182,8 +182,8 @@ def test_loop_finds_a_load_on_position_only_data_and_reports_its_gains(tmp_path)
                  voltage, None, np.round(angle / lsb) * lsb, source='load')
     result = identify(prepare_records([rec]))
     assert result.criterion == 'position'
-    assert [effect['name'] for effect in result.effects][:1] in (['load_torque'],
-                                                                  ['coulomb_asymmetry'])
+    first = [effect['name'] for effect in result.effects][:1]
+    assert first in (['load_torque'], ['coulomb_asymmetry'])
     found = result.discovery_result
     assert found is not None and found.final.heldout_cost <= found.base.heldout_cost
     added = found.steps[0]['added']['name']
