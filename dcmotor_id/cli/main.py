@@ -565,8 +565,8 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument('--criterion', choices=CRITERIA, default='auto',
                        help='channels the fit compares: speed (and current), position (the '
                             'integral of the simulated speed, and current), both; auto '
-                            '(default): position when the speed was derived from it, both when '
-                            'speed and position were measured, else speed')
+                            '(default): position when the speed was derived from it, else '
+                            'speed')
     ident.set_defaults(handler=_cmd_identify)
 
     val = commands.add_parser('validate', help='simulate an identified model on new records '

@@ -7,8 +7,9 @@ position (:func:`integrate_speed`); the speed is not compared (it was derived fr
 position, so its noise and filter lag are the position's).  ``both``: current, speed and
 position.  Each compared channel is weighted by its own noise level (re-estimated from its
 residual).  ``auto`` (the default of ``identify``) picks ``position`` when every record has a
-position and some speed was derived from it, ``both`` when every record also measured its
-speed, else ``speed``.
+position and some speed was derived from it, else ``speed`` (a measured speed keeps the speed
+criterion: ``both`` on simulated records with speed, position and a Stribeck friction missed
+the friction in the discovery loop, so it is only used when asked for).
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ def resolve_criterion(records: Sequence[Any], criterion: str = 'auto') -> str:
         if not has_position:
             return 'speed'
         derived = any(getattr(rec, 'speed_derived', False) for rec in records)
-        return 'position' if derived else 'both'
+        return 'position' if derived else 'speed'
     if criterion != 'speed' and not has_position:
         missing = next(rec for rec in records if rec.position is None)
         raise InputDataError(

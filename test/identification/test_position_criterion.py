@@ -40,7 +40,8 @@ def test_auto_criterion_follows_the_channels():
     assert derived.speed_derived
     assert resolve_criterion([derived]) == 'position'
     measured = derived.replace(speed_derived=False)
-    assert resolve_criterion([measured]) == 'both'
+    assert resolve_criterion([measured]) == 'speed'
+    assert resolve_criterion([measured], 'both') == 'both'
     assert resolve_criterion([measured.replace(position=None)]) == 'speed'
     with pytest.raises(InputDataError, match='--criterion position needs a position'):
         resolve_criterion([measured.replace(position=None)], 'position')

@@ -410,9 +410,19 @@ class RefinedEstimator:
         as ``dcmotor-id validate`` starts its simulations; ``info['initial_state']`` then says
         ``measured`` and ``info['moved_start']`` why.
         """
-        estimate = self._fit(records, torque_constant, terms, self.initial_state)
-        if self.initial_state != 'estimate' or 'position' not in fitted_outputs(
-                torque_constant is not None, self.criterion):
+        position = 'position' in fitted_outputs(torque_constant is not None, self.criterion)
+        try:
+            estimate = self._fit(records, torque_constant, terms, self.initial_state)
+        except FitError as error:
+            if not position or terms or 'did not converge' not in str(error):
+                raise
+            # The position's initial state (a record that starts at rest: the speed's
+            # sensitivity vanishes while stuck) can take the fit many small steps near its
+            # optimum: once more, with POSITION_NFEV_FACTOR times the evaluations (the base
+            # model; the discovery loop's candidate refits keep their bound).
+            estimate = self._fit(records, torque_constant, terms, self.initial_state,
+                                 POSITION_NFEV_FACTOR * self.max_nfev)
+        if self.initial_state != 'estimate' or not position:
             return estimate
         moved = moved_start(records, [state[-1] for state in estimate.initial_states])
         if moved is None:
@@ -421,8 +431,9 @@ class RefinedEstimator:
         pinned.info['moved_start'] = moved
         return pinned
 
-    def _fit(self, records, torque_constant, terms, initial_state):
+    def _fit(self, records, torque_constant, terms, initial_state, max_nfev=None):
         """Fit with the initial states estimated or pinned (``initial_state``)."""
+        max_nfev = self.max_nfev if max_nfev is None else max_nfev
         model = OutputErrorModel(records, torque_constant, terms, self.quasi_static,
                                  self.criterion)
         names = list(model.base_names) + [term.name for term in model.terms]
@@ -525,7 +536,7 @@ class RefinedEstimator:
         damping = None
         for _ in range(max(1, self.reweight_passes)):
             z, current, nfev, converged, damping = _levenberg_marquardt(
-                lambda point, with_sens: evaluate(point, noise, with_sens), z, self.max_nfev,
+                lambda point, with_sens: evaluate(point, noise, with_sens), z, max_nfev,
                 current=current, damping=damping)
             total_nfev += nfev
             if not np.all(np.isfinite(z)):
@@ -689,6 +700,8 @@ def free_states(states: Sequence[str], initial_state: str) -> list[bool]:
     return [initial_state != 'measured'] * len(states)
 
 
+#: Evaluations of a position-criterion fit that did not converge, retried, per the usual ones.
+POSITION_NFEV_FACTOR = 4
 #: Distance of a fitted initial position from the first samples, in their noise levels, beyond
 #: which the fit moved the start to absorb a misfit.
 MOVED_START_NOISE = 10.0
