@@ -32,6 +32,11 @@ def _is_hdf5(path: PathLike) -> bool:
     return head[512:520] == HDF5_MAGIC or head[:8] == HDF5_MAGIC
 
 
+#: Bound of a struct's size in memory against the file's size [bytes per byte]: compressed
+#: MATLAB files hold numbers at about 1-10 times their stored size.
+STRUCT_EXPANSION = 20.0
+
+
 def _field_names(value: Any, prefix: str) -> list[str]:
     """Return ``prefix`` or, for a struct (a dict), the dotted names of its fields."""
     if isinstance(value, dict):
@@ -45,12 +50,20 @@ def _load_v5(path: PathLike, needed: Collection[str]) -> Callable[[str], Any]:
     if os.path.getsize(path) == 0:
         raise InputDataError(f'{path}: the file is empty; give a MATLAB file with the record')
     try:
-        declared = {name: shape for name, shape, _ in whosmat(path)}
-        # only the variables of the channels (a struct's by its name), each within the budget
-        names = [name for name in declared if name in {item.split('.')[0] for item in needed}]
+        listed = whosmat(path)
+        declared = {name: shape for name, shape, _ in listed}
+        # only the variables of the channels, each within the budget; structs too (their
+        # fields name the channels), whose size whosmat does not give: bounded by the file's
+        wanted = {item.split('.')[0] for item in needed}
+        structs = [name for name, _, kind in listed if kind == 'struct']
+        names = [name for name in declared if name in wanted or name in structs]
         for name in names:
-            check_budget(8.0 * float(np.prod(declared[name], dtype=float)), path,
-                         f'variable {name!r} of shape {declared[name]}')
+            if name not in structs:
+                check_budget(8.0 * float(np.prod(declared[name], dtype=float)), path,
+                             f'variable {name!r} of shape {declared[name]}')
+        if structs:
+            check_budget(STRUCT_EXPANSION * float(os.path.getsize(path)), path,
+                         f'the structs {", ".join(structs)}')
         data = loadmat(path, variable_names=names, simplify_cells=True)
         data.update({name: None for name in declared if name not in data})
     except (MemoryError, InputDataError):
