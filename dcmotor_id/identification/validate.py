@@ -296,10 +296,12 @@ def check_delays(model: Model, record: Record, init_samples: int = INIT_SAMPLES)
 
     """
     for item in model.effects:
+        if item['name'] != 'sensor_delay':
+            continue
         samples = float((item.get('parameters') or {}).get('samples', 0))
-        if item['name'] == 'sensor_delay' and samples < 0:
+        if samples < 0:
             raise InputDataError(
-                f'{record.source}: the model\'s effect sensor_delay has samples={samples}: a '
+                f"{record.source}: the model's effect sensor_delay has samples={samples:g}: a "
                 'sensor that reports the signal before it happens is not physical; remove '
                 'that effect from the model file, or identify again (identify no longer '
                 'proposes a negative delay)')
@@ -307,7 +309,7 @@ def check_delays(model: Model, record: Record, init_samples: int = INIT_SAMPLES)
     for channel, samples in delays.items():
         if samples >= len(record) - init_samples:
             raise InputDataError(
-                f'{record.source}: the model\'s effect sensor_delay delays the {channel} by '
+                f"{record.source}: the model's effect sensor_delay delays the {channel} by "
                 f'{samples} samples ({samples * record.sample_period_s:.4g} s), not less than '
                 f'the {len(record) - init_samples} samples scored of this record of '
                 f'{len(record)}; validate on a longer record, or remove or correct that '

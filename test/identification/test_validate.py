@@ -125,8 +125,8 @@ def test_a_sensor_delay_longer_than_the_initial_samples_is_simulated():
 
 
 @pytest.mark.parametrize('samples, phrases', [
-    (-1500, ('sensor_delay has samples=-1500', 'not physical', 'remove that effect')),
-    (-16, ('sensor_delay has samples=-16', 'not physical', 'identify again')),
+    (-1500, ('sensor_delay has samples=-1500:', 'not physical', 'remove that effect')),
+    (-16, ('sensor_delay has samples=-16:', 'not physical', 'identify again')),
     (1000, ('delays the speed by 1000 samples', 'the 980 samples scored', 'longer record')),
     (5000, ('delays the speed by 5000 samples', 'remove or correct that effect')),
 ])
