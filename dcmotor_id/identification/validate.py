@@ -268,12 +268,52 @@ def _effects_for(model: Model, sample_period_s: float) -> tuple[list[Any], dict[
 
 
 def _shift(values: np.ndarray, samples: int) -> np.ndarray:
-    """Return what a sensor ``samples`` late (``< 0``: early) reports of ``values``."""
-    if samples == 0:
+    """
+    Return what a sensor ``samples`` late (``< 0``: early) reports of ``values``.
+
+    The result has the length of ``values`` for any delay: the samples a delay reaches
+    beyond the series repeat its first (late) or last (early) value.
+    """
+    n = len(values)
+    if samples == 0 or n == 0:
         return values
+    k = min(abs(int(samples)), n)
     if samples > 0:
-        return np.concatenate([np.full(samples, values[0]), values[:-samples]])
-    return np.concatenate([values[-samples:], np.full(-samples, values[-1])])
+        return np.concatenate([np.full(k, values[0]), values[:n - k]])
+    return np.concatenate([values[k:], np.full(k, values[-1])])
+
+
+def check_delays(model: Model, record: Record, init_samples: int = INIT_SAMPLES) -> None:
+    """
+    Refuse a ``sensor_delay`` the record cannot be validated with.
+
+    Raises
+    ------
+    InputDataError
+        A negative delay (a sensor ahead of the true signal: not causal, and not proposed by
+        identify), or a delay (converted to the record's sample period) that leaves no
+        scored sample after the ``init_samples`` initial ones.
+
+    """
+    for item in model.effects:
+        if item['name'] != 'sensor_delay':
+            continue
+        samples = float((item.get('parameters') or {}).get('samples', 0))
+        if samples < 0:
+            raise InputDataError(
+                f"{record.source}: the model's effect sensor_delay has samples={samples:g}: a "
+                'sensor that reports the signal before it happens is not physical; remove '
+                'that effect from the model file, or identify again (identify no longer '
+                'proposes a negative delay)')
+    _, delays = _effects_for(model, record.sample_period_s)
+    for channel, samples in delays.items():
+        if samples >= len(record) - init_samples:
+            raise InputDataError(
+                f"{record.source}: the model's effect sensor_delay delays the {channel} by "
+                f'{samples} samples ({samples * record.sample_period_s:.4g} s), not less than '
+                f'the {len(record) - init_samples} samples scored of this record of '
+                f'{len(record)}; validate on a longer record, or remove or correct that '
+                'effect in the model file')
 
 
 def simulate(model: Model, record: Record,
@@ -461,6 +501,7 @@ def validate_record(model: Model, record: Record, init_samples: int = INIT_SAMPL
     if not model.mechanical_only and record.voltage is None:
         raise InputDataError(f'{record.source}: no voltage column: the model is a full motor '
                              'model and needs the voltage as its input')
+    check_delays(model, record, init_samples)
     state, simulated = _simulate_checked(model, record, init_samples)
     scored = slice(init_samples, None)
     channels = [('current', None if model.mechanical_only else record.current),

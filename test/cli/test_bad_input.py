@@ -18,7 +18,7 @@ from dcmotor_id.cli.main import main
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.records import Record
-from dcmotor_id.identification.identify import prepare_records
+from dcmotor_id.identification.identify import PERIOD_RTOL, prepare_records
 from dcmotor_id.simulation import simulate_motor
 from dcmotor_id.simulation.excitation import make_excitation
 
@@ -239,6 +239,40 @@ def test_records_with_different_sample_periods(table, tmp_path, out, capsys):
     first = write(tmp_path / 'a.csv', HEADER, table)
     slow = table[::2].copy()
     second = write(tmp_path / 'b.csv', HEADER, slow)
+    expect_refusal(capsys, [first, second, '--json', out], 'different sample periods',
+                   'identify them separately or resample')
+
+
+def stretched(table, stretch):
+    """Return the table with its time column stretched by ``1 + stretch``."""
+    rows = table.copy()
+    rows[:, 0] *= 1.0 + stretch
+    return rows
+
+
+@pytest.mark.parametrize('stretch', [2.6e-5, -0.9 * PERIOD_RTOL])
+def test_sample_periods_within_clock_jitter_are_one_period(table, stretch):
+    # EMPS's two records: 0.999984 ms and 1.00001 ms, one clock logged with rounding.
+    first = Record(table[:, 0], table[:, 2], table[:, 1], table[:, 3], source='a')
+    second = first.replace(time_s=stretched(table, stretch)[:, 0], source='b')
+    prepared = prepare_records([first, second])
+    assert prepared[0].sample_period_s == pytest.approx(prepared[1].sample_period_s, rel=1e-12)
+    assert prepared[1].sample_period_s == pytest.approx(DT * (1.0 + stretch / 2), rel=1e-9)
+    assert np.array_equal(prepared[1].speed, second.speed)
+    assert prepared[1].time_s[0] == second.time_s[0]
+
+
+def test_records_at_one_period_within_clock_jitter_are_identified(table, tmp_path, out, capsys):
+    first = write(tmp_path / 'a.csv', HEADER, table)
+    second = write(tmp_path / 'b.csv', HEADER, stretched(table, 2.6e-5))
+    code, message = run(capsys, first, second, '--no-discover', '--json', out)
+    assert code == 0, message
+    assert len(json.loads(out.read_text(encoding='utf-8'))['records']) == 2
+
+
+def test_periods_beyond_the_tolerance_are_refused(table, tmp_path, out, capsys):
+    first = write(tmp_path / 'a.csv', HEADER, table)
+    second = write(tmp_path / 'b.csv', HEADER, stretched(table, 3 * PERIOD_RTOL))
     expect_refusal(capsys, [first, second, '--json', out], 'different sample periods',
                    'identify them separately or resample')
 

@@ -190,3 +190,18 @@ def test_friction_guard_never_fires_on_a_parameter_already_at_zero():
     assert loop._problem(fit({'Mc': 5e-193}), fit({'Mc': 1e-200})) is None
     # A real friction that collapses is still caught.
     assert 'collapses' in loop._problem(fit({'Mc': 1.0}), fit({'Mc': 1e-4}))
+
+
+def test_an_early_sensor_is_not_accepted_as_a_negative_delay():
+    # The speed sensor 3 samples ahead of the input: a negative delay would undo it, but no
+    # sensor reports a signal before it happens (real HSM150 records drew -16 and -1500).
+    record = motor_records([], {'kind': 'prbs', 'frequency_hz': 20, 'amplitude_v': 43})[0]
+    early = record.slice(0, len(record) - 3).replace(speed=record.speed[3:])
+    found = discover([early])
+    assert 'sensor_delay' not in [effect.name for effect in found.effects]
+    delays = [candidate for step in found.steps for candidate in step['candidates']
+              if candidate['name'] == 'sensor_delay']
+    assert delays and all(candidate['inner']['samples'] > 0 or
+                          'not causal' in (candidate['rejected'] or '')
+                          for candidate in delays)
+    assert any(candidate['inner']['samples'] < 0 for candidate in delays)

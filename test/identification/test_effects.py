@@ -216,3 +216,9 @@ def test_contributions_are_typed_and_combine_by_the_field_rule():
         assert isinstance(contribution, MotorEffects)
     assert FIELD_RULES.keys() == set(MotorEffects._fields)
     assert isinstance(combine_effects([SensorDelay(samples=2)]).speed_delay_samples, int)
+
+
+def test_a_negative_sensor_delay_is_not_physical():
+    assert SensorDelay(channel='speed', samples=3).problem({}, []) is None
+    reason = SensorDelay(channel='current', samples=-16).problem({}, [])
+    assert reason is not None and 'not causal' in reason and 'current' in reason

@@ -106,6 +106,42 @@ def test_sensor_delay_and_offset_are_simulated():
     assert item['fit_pct']['speed'] > 99.99 and item['fit_pct']['current'] > 99.99
 
 
+def delay_model(samples):
+    params = PAPER_MOTORS['paper2']
+    return {'mode': 'full', 'sample_period_s': DT,
+            'parameters': {n: getattr(params, n) for n in ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')},
+            'effects': [{'name': 'sensor_delay',
+                         'parameters': {'channel': 'speed', 'samples': samples}}]}
+
+
+def test_a_sensor_delay_longer_than_the_initial_samples_is_simulated():
+    # 50 samples late, beyond the 20 initial samples (it crashed in the initial-state fit)
+    delayed = [make_effect('sensor_delay', channel='speed', samples=50)]
+    t, voltage = make_excitation('prbs', 3.0, DT, amplitude_v=20.0, seed=4)
+    current, speed, _ = simulate_motor_effects(PAPER_MOTORS['paper2'], voltage, DT, delayed)
+    record = Record(t, current=current, voltage=voltage, speed=speed, source='d')
+    item = validate(model_from_dict(delay_model(50)), [record]).as_dict()['records'][0]
+    assert item['fit_pct']['speed'] > 99.99 and item['fit_pct']['current'] > 99.99
+
+
+@pytest.mark.parametrize('samples, phrases', [
+    (-1500, ('sensor_delay has samples=-1500:', 'not physical', 'remove that effect')),
+    (-16, ('sensor_delay has samples=-16:', 'not physical', 'identify again')),
+    (1000, ('delays the speed by 1000 samples', 'the 980 samples scored', 'longer record')),
+    (5000, ('delays the speed by 5000 samples', 'remove or correct that effect')),
+])
+def test_a_negative_or_too_long_sensor_delay_is_refused_clearly(tmp_path, capsys, samples,
+                                                                phrases):
+    model = tmp_path / 'model.json'
+    model.write_text(json.dumps(delay_model(samples)), encoding='utf-8')
+    data = tmp_path / 'data.csv'
+    write_csv(str(data), simulated('sine', 0, 1.0))
+    assert cli_main(['validate', str(model), str(data)]) == 2
+    err = capsys.readouterr().err
+    assert all(phrase in err for phrase in phrases), err
+    assert 'not finite' not in err
+
+
 @pytest.mark.parametrize('content, phrase', [
     ('not json', 'not a JSON file'),
     ('{"parameters": {"Ra": -1}}', 'parameter Ra'),

@@ -9,7 +9,12 @@ from dcmotor_id.simulation.coefficients import MotorEffects
 
 
 class SensorDelay(Effect):
-    """A sensor that reports a whole number of samples late (or early) against the others."""
+    """
+    A sensor that reports a whole number of samples late against the others.
+
+    The data transform also undoes an early sensor (``samples < 0``), but such a delay is not
+    physical (:meth:`problem`): discovery does not accept it and ``validate`` refuses it.
+    """
 
     name = 'sensor_delay'
     RANK = 70
@@ -61,6 +66,20 @@ class SensorDelay(Effect):
                 trimmed = rec.slice(-samples, n)
             out.append(trimmed.replace(**{channel: shifted}))
         return out
+
+    def problem(self, base: Values, records: Records) -> str | None:
+        """
+        Refuse an early sensor (``samples < 0``): it would report the signal before it happens.
+
+        On real records the linearised estimate can point to an early sensor (HSM150: -16 and
+        -1500 samples) where the model lacks something else; a sensor is never ahead of the
+        input it responds to, so such a delay is not physical.
+        """
+        samples = self.parameters['samples']
+        if samples < 0:
+            return (f'a negative delay ({samples} samples) would put the '
+                    f"{self.parameters['channel']} sensor ahead of the input: not causal")
+        return None
 
     @classmethod
     def from_fit(cls, values: Values, inner: Inner) -> Effect:
