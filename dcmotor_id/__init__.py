@@ -44,8 +44,9 @@ floor and the floors below (:data:`LAYERS`, bottom first; ``test/test_layers.py`
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
+
+from dcmotor_id.core.lazy import LazyNames
 
 #: The layers, bottom first: a subpackage imports only from its own layer and those below.
 LAYERS: tuple[tuple[str, ...], ...] = (
@@ -71,16 +72,13 @@ _HOME = {
     'make_estimator': 'streaming.online', 'OnlineEstimator': 'streaming.online',
 }
 
-__all__ = sorted(_HOME, key=str.lower)
+_NAMES = LazyNames(__name__, _HOME)
+__all__ = _NAMES.names
 
 
 def __getattr__(name: str) -> Any:
     """Import a public name from its module on first use."""
-    if name not in _HOME:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
-    value = getattr(importlib.import_module(f'{__name__}.{_HOME[name]}'), name)
-    globals()[name] = value
-    return value
+    return _NAMES.load(name)
 
 
 def __dir__() -> list[str]:

@@ -19,8 +19,9 @@ only :data:`INTERVAL_SIGMAS`) does not load the estimators' numerics.
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
+
+from dcmotor_id.core.lazy import LazyNames
 
 #: Public name -> module of this package that defines it.
 _HOME = {
@@ -36,16 +37,13 @@ _HOME = {
     'WindowEstimator': 'window',
 }
 
-__all__ = sorted(_HOME, key=str.lower)
+_NAMES = LazyNames(__name__, _HOME)
+__all__ = _NAMES.names
 
 
 def __getattr__(name: str) -> Any:
-    """Import a public name from its module on first use (PEP 562)."""
-    if name not in _HOME:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
-    value = getattr(importlib.import_module(f'{__name__}.{_HOME[name]}'), name)
-    globals()[name] = value
-    return value
+    """Import a public name from its module on first use."""
+    return _NAMES.load(name)
 
 
 def __dir__() -> list[str]:
