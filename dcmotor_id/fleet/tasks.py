@@ -194,7 +194,7 @@ def identify_window(bag: BagWindows, index: int, options: FleetOptions) -> dict[
     long it ran.
     """
     from dcmotor_id.fleet.history import error_row, result_row
-    from dcmotor_id.identification.dropouts import repair_all
+    from dcmotor_id.identification.checks.dropouts import repair_all
     from dcmotor_id.identification.identify import identify, prepare_records
 
     window = bag.windows[index]

@@ -1,10 +1,10 @@
 """
 Layer 4: identifying the motor from records (no ROS).
 
-:mod:`~dcmotor_id.identification.identify` runs the pipeline: the checks of the data
-(:mod:`~dcmotor_id.identification.identifiability`), an estimator of
-:mod:`~dcmotor_id.identification.estimators` (all behind one ``Estimator`` interface), the
-checks of the answer (:mod:`~dcmotor_id.identification.plausibility`), the residual analysis
+:mod:`~dcmotor_id.identification.identify` runs the pipeline: the checks of the data, an
+estimator of :mod:`~dcmotor_id.identification.estimators` (all behind one ``Estimator``
+interface), the checks of the answer (the checks in one place,
+:mod:`~dcmotor_id.identification.checks`, which says which runs when), the residual analysis
 (:mod:`~dcmotor_id.identification.residuals`) and the effect discovery loop
 (:mod:`~dcmotor_id.identification.discovery`) over the effect vocabulary
 (:mod:`~dcmotor_id.identification.effects`, one module per effect).

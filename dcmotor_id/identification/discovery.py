@@ -498,7 +498,7 @@ class DiscoveryLoop:
 
     def misfit(self, fitted: Fit) -> bool:
         """Whether the held-out residual is far above the sensor noise on some channel."""
-        from dcmotor_id.identification.identifiability import noise_level
+        from dcmotor_id.identification.checks.identifiability import noise_level
 
         for channel in self.outputs:
             residual = fitted.channel_residual(channel, 'heldout')
@@ -1005,7 +1005,7 @@ class DiscoveryLoop:
         it brings comes from moving the other parameters (extra freedom, not an effect).  None
         for data effects (delays), which are not judged so.
         """
-        from dcmotor_id.identification.identifiability import noise_level
+        from dcmotor_id.identification.checks.identifiability import noise_level
 
         fitted = candidate.fitted
         prefix = f'{candidate.name}.'
@@ -1175,7 +1175,7 @@ def excited_stop(record: Record, holdout_fraction: float = HOLDOUT_FRACTION,
     within :data:`TRAIN_SHARE_BOUNDS` of the moving extent; without measurable excitation,
     at ``1 - holdout_fraction`` of the extent.
     """
-    from dcmotor_id.identification.identifiability import noise_level
+    from dcmotor_id.identification.checks.identifiability import noise_level
 
     first, last = moving_extent(np.asarray(record.speed, dtype=float))
     size = last - first

@@ -5,11 +5,10 @@ From checked records to the identification result (the CLI's and the node's comm
 :func:`check_excitation` refuses data that cannot identify anything (no motion, steady state);
 :func:`identify` runs an estimator (and the discovery loop) within a time budget, replaces the
 standard errors by data-based ones (:mod:`dcmotor_id.identification.estimators.uncertainty`), says
-what is
-not identifiable (:mod:`dcmotor_id.identification.identifiability`: one direction only, bounds, La
-below the
-sample period, correlations, misfit) and returns an :class:`IdentificationResult`, whose
-:meth:`~IdentificationResult.as_dict` is the JSON layout of the CLI contract.
+what is not identifiable (:mod:`dcmotor_id.identification.checks.identifiability`: one direction
+only, bounds, La below the sample period, correlations, misfit) and returns an
+:class:`IdentificationResult`, whose :meth:`~IdentificationResult.as_dict` is the JSON layout of
+the CLI contract.
 """
 
 from __future__ import annotations
@@ -28,7 +27,19 @@ from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.core.records import check_record
 from dcmotor_id.formats.held import restore_held
 from dcmotor_id.formats.quality import coarse_speed
-from dcmotor_id.identification.basin import bic, regression_evidence, regression_start, suspect
+from dcmotor_id.identification.checks.identifiability import (assess_excitation, at_bound,
+                                                              correlated_pairs,
+                                                              current_limit_warning, Excitation,
+                                                              IDENTIFIABLE_REL_STDERR,
+                                                              initial_state_warnings,
+                                                              limited_samples, loose,
+                                                              misfit_warning,
+                                                              ONE_DIRECTION_CONFOUNDED,
+                                                              one_direction_note, useful)
+from dcmotor_id.identification.checks.plausibility import check_plausibility
+from dcmotor_id.identification.checks.start import (bic, regression_evidence, regression_start,
+                                                    suspect)
+from dcmotor_id.identification.checks.units import unit_warnings
 from dcmotor_id.identification.criterion import resolve_criterion
 from dcmotor_id.identification.discovery import (DiscoveryLoop, DiscoveryResult, refit_all_data,
                                                  refit_start, Structure)
@@ -37,17 +48,8 @@ from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.estimators.uncertainty import (block_scores, robust_covariance,
                                                               with_robust_stderr)
-from dcmotor_id.identification.identifiability import (assess_excitation, at_bound,
-                                                       correlated_pairs, current_limit_warning,
-                                                       Excitation, IDENTIFIABLE_REL_STDERR,
-                                                       initial_state_warnings, limited_samples,
-                                                       loose, misfit_warning,
-                                                       ONE_DIRECTION_CONFOUNDED,
-                                                       one_direction_note, useful)
-from dcmotor_id.identification.plausibility import check_plausibility
 from dcmotor_id.identification.residuals import (ChannelErrors, model_errors, output_channels,
                                                  simulate_records, simulation_error_pct)
-from dcmotor_id.identification.units_check import unit_warnings
 from dcmotor_id.identification.validate import operating_range
 from dcmotor_id.signals.filters import noise_std, speed_from_position
 
@@ -318,7 +320,7 @@ class IdentificationResult:
         for ``validate``).
     start_check : dict or None
         The fit checked against model-free evidence
-        (:mod:`~dcmotor_id.identification.basin`): ``evidence``
+        (:mod:`~dcmotor_id.identification.checks.start`): ``evidence``
         (the regression's values), ``doubts``, and when doubted ``second_start``, ``bic`` and
         ``chosen``; None when not checked (pinned initial states, other estimators).
     estimate : Estimate
@@ -854,7 +856,7 @@ def _check_start(records, torque_constant, quasi, discover, vocabulary, progress
 
     Returns ``(found, base estimate, discovery summary, start_check)``, the first three
     replaced by the second start's when it explains all of the data better (lower BIC).
-    ``start_check`` is the JSON account (:mod:`dcmotor_id.identification.basin`).
+    ``start_check`` is the JSON account (:mod:`dcmotor_id.identification.checks.start`).
     """
     evidence = regression_evidence(records, torque_constant)
     first = found.estimate if found is not None else estimate

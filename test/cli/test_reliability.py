@@ -23,8 +23,8 @@ from dcmotor_id.core.errors import FitError, InputDataError
 from dcmotor_id.core.records import Record
 from dcmotor_id.formats.batch import decode_batch, encode_batch
 from dcmotor_id.formats.streams import SampleInbox, StreamAligner
+from dcmotor_id.identification.checks.plausibility import check_plausibility
 from dcmotor_id.identification.identify import prepare_records
-from dcmotor_id.identification.plausibility import check_plausibility
 from dcmotor_id.streaming.windowing import WindowCutter
 
 CHANNELS = ('voltage', 'current', 'speed')
@@ -723,7 +723,7 @@ def test_current_dropouts_are_named_and_fitted_without(table, tmp_path, capsys, 
 
 
 def test_clean_excitations_have_no_isolated_samples():
-    from dcmotor_id.identification.dropouts import find_isolated
+    from dcmotor_id.identification.checks.dropouts import find_isolated
     from dcmotor_id.simulation.excitation import EXCITATION_KINDS, make_excitation
     from test_bad_input import simulate
     for kind in EXCITATION_KINDS:

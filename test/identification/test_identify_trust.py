@@ -13,10 +13,12 @@ from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.core.records import Record
+from dcmotor_id.identification.checks.identifiability import (assess_excitation,
+                                                              correlated_pairs,
+                                                              current_limit_warning,
+                                                              initial_state_warnings,
+                                                              misfit_warning)
 from dcmotor_id.identification.estimators.uncertainty import block_scores, robust_covariance
-from dcmotor_id.identification.identifiability import (assess_excitation, correlated_pairs,
-                                                       current_limit_warning,
-                                                       initial_state_warnings, misfit_warning)
 from dcmotor_id.identification.identify import identify
 from dcmotor_id.simulation import simulate_motor
 from dcmotor_id.simulation.lab_scenarios import (coloured_disturbance, servo_torque_steps,

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from dcmotor_id.core.records import Record
-from dcmotor_id.identification.basin import regression_evidence
+from dcmotor_id.identification.checks.identifiability import initial_state_warnings, noise_level
+from dcmotor_id.identification.checks.start import regression_evidence
 from dcmotor_id.identification.discovery import DiscoveryLoop, excited_stop
-from dcmotor_id.identification.identifiability import initial_state_warnings, noise_level
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.validate import (model_from_dict, operating_range, range_warnings,
                                                 validate)
