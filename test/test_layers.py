@@ -98,3 +98,11 @@ def test_layer_check_catches_an_upward_import(tmp_path):
     found = [(line, module) for line, module in imports(fake)]
     assert found == [(1, 'dcmotor_id.nodes.identifier')]
     assert floor_of('nodes') > floor_of('core')
+
+
+def test_the_nodes_do_not_run_the_command_line():
+    """The command line is an entry point, not a library: nodes call the layers below it."""
+    found = [f'{path.relative_to(PACKAGE.parent)}:{line} imports {module}'
+             for path in sorted((PACKAGE / 'nodes').rglob('*.py'))
+             for line, module in imports(path) if module.startswith('dcmotor_id.cli')]
+    assert not found, 'nodes that import the command line:\n' + '\n'.join(found)

@@ -8,31 +8,26 @@ saying what is wrong and what to do), 1 an unexpected failure.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import errno
-import json
-import os
-import platform
-import stat
 import sys
-import tempfile
-import traceback
 from typing import Any, Mapping, Sequence
 import warnings
 
 import numpy as np
 
-from dcmotor_id.core.errors import DcMotorIdError, InputDataError
+from dcmotor_id.core.command_line import non_negative, positive, run_reporting
+from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.progress import terminal_progress, TimeBudgetExceeded
 from dcmotor_id.core.records import Record
+from dcmotor_id.design.plan import add_plan_arguments, run_plan
 from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
-from dcmotor_id.formats.budget import check_budget, DEFAULT_BUDGET_BYTES, set_memory_budget
+from dcmotor_id.formats.budget import add_memory_budget, set_memory_budget
 from dcmotor_id.formats.csv import write_csv
+from dcmotor_id.formats.json_file import write_json
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
                                         POSITION_UNITS, ReadingNote, ReadOptions, SPEED_UNITS)
-from dcmotor_id.formats.paths import check_input_path, kind_of, same_file
+from dcmotor_id.formats.paths import check_input_path, check_output_path
 from dcmotor_id.identification.checks.dropouts import repair_all
 from dcmotor_id.identification.criterion import CRITERIA
 from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
@@ -91,112 +86,6 @@ def load_records_reporting_loss(paths: Sequence[str], topics: Mapping[str, str] 
         else:
             warnings.showwarning(item.message, item.category, item.filename, item.lineno)
     return records, list(dict.fromkeys(loss))
-
-
-def _json_safe(value):
-    """Replace non-finite floats by None (JSON has no NaN), recursively."""
-    if isinstance(value, dict):
-        return {key: _json_safe(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(item) for item in value]
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
-
-
-def _nearest_existing(path: str) -> str:
-    """Return ``path`` or its nearest ancestor that exists."""
-    while not os.path.exists(path):
-        parent = os.path.dirname(path)
-        if parent == path:
-            break
-        path = parent
-    return path
-
-
-def check_output_path(path: str, option: str, directory: bool = False,
-                      inputs: Sequence[str] = ()) -> None:
-    """
-    Refuse an output path that cannot be written, before any work is done.
-
-    A file option (``--json``) must not name a directory, and may only replace a regular file
-    that is not one of the ``inputs`` (never a symlink, a device, a FIFO nor a recording);
-    for both kinds, the nearest existing ancestor must be a directory in which a file can be
-    created (tried with a temporary file, which also catches read-only file systems and
-    running as root).
-
-    Raises
-    ------
-    InputDataError
-        Naming the option, the path and what is wrong.
-
-    """
-    target = os.path.abspath(path)
-    if not directory:
-        _check_replaceable(path, option, inputs)
-    if not directory and (os.path.isdir(target) or path.endswith(os.sep)):
-        raise InputDataError(f'{option} {path}: is a directory; give a file name, e.g. '
-                             f'{os.path.join(path, "result.json")}')
-    if directory and os.path.exists(target) and not os.path.isdir(target):
-        raise InputDataError(f'{option} {path}: exists and is not a directory; give a '
-                             'directory for the report')
-    where = target if directory and os.path.isdir(target) else os.path.dirname(target)
-    existing = _nearest_existing(where)
-    if not os.path.isdir(existing):
-        raise InputDataError(f'{option} {path}: {existing} is a file, not a directory; choose '
-                             'another place')
-    try:
-        handle, probe = tempfile.mkstemp(dir=existing, prefix='.dcmotor_id_probe_')
-        os.close(handle)
-        os.unlink(probe)
-    except OSError as error:
-        raise InputDataError(f'{option} {path}: cannot write in {existing} '
-                             f'({error.strerror or error}); choose a writable place') from None
-
-
-def _check_replaceable(path: str, option: str, inputs: Sequence[str] = ()) -> None:
-    """Refuse an output file that exists and is not a regular file, or is an input."""
-    try:
-        mode = os.lstat(path).st_mode
-    except OSError:
-        return
-    if stat.S_ISLNK(mode):
-        raise InputDataError(f'{option} {path}: is a symbolic link (to '
-                             f'{os.readlink(path)}); it is not replaced: give the path of a '
-                             'new or regular file')
-    if stat.S_ISDIR(mode):
-        return  # refused as a directory by the caller
-    if not stat.S_ISREG(mode):
-        raise InputDataError(f'{option} {path}: is {kind_of(mode)}, not a regular file; it is '
-                             'not replaced: give the path of a new or regular file')
-    twin = same_file(path, inputs)
-    if twin is not None:
-        raise InputDataError(f'{option} {path}: is the input {twin}; writing there would '
-                             'destroy the recording: give another file name')
-
-
-def write_json(path: str, result: Mapping[str, Any]) -> None:
-    """
-    Write the result as strict JSON, atomically.
-
-    The text goes to a temporary file of a unique name in the target directory (so concurrent
-    runs never share one), then is renamed into place: a reader sees the old file or the whole
-    new one, never a torn one.
-    """
-    _check_replaceable(path, 'the output')
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=directory, suffix='.partial',
-                                         prefix=f'.{os.path.basename(path)}.')
-    try:
-        with os.fdopen(handle, 'w', encoding='utf-8') as stream:
-            json.dump(_json_safe(result), stream, indent=2, allow_nan=False)
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(temporary)
-        raise
 
 
 def _cmd_identify(args):
@@ -287,21 +176,21 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
                        help='take a channel (t, voltage, current, speed, position, duty, '
                             'direction) from the column NAME (.mat: VARIABLE, VARIABLE:COLUMN '
                             '1-based, or STRUCT.FIELD[:COLUMN]); repeatable')
-    group.add_argument('--sample-period', type=_positive, metavar='S',
+    group.add_argument('--sample-period', type=positive, metavar='S',
                        help='the samples are S seconds apart: time = k*S (.mat, CSV without '
                             'or with broken time stamps; a time column is then not used); for '
                             'bags the grid step')
     group.add_argument('--current-unit', choices=sorted(CURRENT_UNITS), default='A')
     group.add_argument('--speed-unit', choices=sorted(SPEED_UNITS), default='rad/s')
-    group.add_argument('--speed-counts-per-rev', type=_positive, metavar='N',
+    group.add_argument('--speed-counts-per-rev', type=positive, metavar='N',
                        help='the speed column holds encoder pulses per sample, N per rev')
     group.add_argument('--position-unit', choices=sorted(POSITION_UNITS), default='rad')
-    group.add_argument('--position-counts-per-rev', type=_positive, metavar='N',
+    group.add_argument('--position-counts-per-rev', type=positive, metavar='N',
                        help='the position column holds encoder counts, N per revolution')
-    group.add_argument('--gear-ratio', type=_positive, default=1.0, metavar='N',
+    group.add_argument('--gear-ratio', type=positive, default=1.0, metavar='N',
                        help='speed and position measured at the output shaft of an N:1 gear; '
                             'parameters at the motor shaft, output-shaft values alongside')
-    group.add_argument('--voltage-from-duty', type=_positive, metavar='BUS_V',
+    group.add_argument('--voltage-from-duty', type=positive, metavar='BUS_V',
                        help='voltage = duty column in [-1, 1] (or 0..1 with a direction '
                             'column) times the bus voltage BUS_V')
     group.add_argument('--joint', metavar='NAME',
@@ -313,13 +202,7 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
                             'its field (position, velocity, effort; default velocity as speed, '
                             'position; the current from effort only with current=effort), the '
                             'other channels from their Float64 topics; repeatable')
-    _add_memory_budget(group)
-
-
-def _add_memory_budget(group: Any) -> None:
-    group.add_argument('--memory-budget', type=_positive, default=DEFAULT_BUDGET_BYTES / 1e9,
-                       metavar='GB', help='largest allocation a file may ask for, estimated '
-                       'before reading (default %(default)g GB); larger files are refused')
+    add_memory_budget(group)
 
 
 def _cmd_validate(args):
@@ -412,40 +295,6 @@ def _cmd_demo(args):
     return run_demo()
 
 
-def _cmd_plan(args):
-    from dcmotor_id.design.experiment import DEFAULT_NOISE, design_experiment, load_prior
-    from dcmotor_id.design.routines import Limits
-    if os.path.exists(args.prior) or os.path.islink(args.prior):
-        check_input_path(args.prior, '--prior ')
-    if args.json:
-        check_output_path(args.json, '--json', inputs=[args.prior])
-    set_memory_budget(args.memory_budget * 1e9)
-    samples = args.duration / args.sample_period
-    check_budget(PLAN_BYTES_PER_SAMPLE * samples, f'--duration {args.duration:g}',
-                 f'{samples:.3g} samples at --sample-period {args.sample_period:g} s',
-                 'else give a shorter --duration or a longer --sample-period')
-    prior, noise = load_prior(args.prior)
-    noise = dict(noise or DEFAULT_NOISE)
-    noise.update({key: value for key, value in (('current', args.noise_current),
-                                                ('speed', args.noise_speed)) if value})
-    try:
-        plan = design_experiment(
-            prior, Limits(args.voltage_limit, args.current_limit, args.speed_limit), noise,
-            args.duration, args.kinds.split(','), args.parameters.split(','), args.rate,
-            args.ramp_in, args.sample_period, args.margin, args.seed)
-    except ValueError as error:
-        raise InputDataError(str(error)) from None
-    print(plan.describe())
-    if args.json:
-        write_json(args.json, plan.as_dict())
-        print(f'plan written to {args.json} (exciter -p plan_file:={args.json})')
-    return 0
-
-
-#: Peak memory of ``plan`` per simulated sample [bytes] (measured: 190 B, rounded up).
-PLAN_BYTES_PER_SAMPLE = 200.0
-
-
 def _cmd_fleet(args):
     from dcmotor_id.fleet import FleetOptions, run_fleet
     from dcmotor_id.fleet.progress import Progress
@@ -485,7 +334,7 @@ def _add_fleet_commands(commands):
     fleet.add_argument('--motor-from', default='namespace', metavar='namespace|path|PATTERN',
                        help="name motors by the topics' namespace (default), the directory "
                             'of the recording, or a regular expression on its path')
-    fleet.add_argument('--torque-constant', type=_positive, metavar='K',
+    fleet.add_argument('--torque-constant', type=positive, metavar='K',
                        help='mechanical-only mode: identify J, b, Mc [N m/A]')
     fleet.add_argument('--no-discover', action='store_true', help='skip effect discovery')
     fleet.add_argument('--force', action='store_true',
@@ -493,9 +342,9 @@ def _add_fleet_commands(commands):
     fleet.add_argument('--no-retry-errors', action='store_true',
                        help='skip recordings whose rows in the history are errors (default: '
                             'identify them again, they may have been repaired)')
-    fleet.add_argument('--window-s', type=_positive, default=10.0, metavar='S',
+    fleet.add_argument('--window-s', type=positive, default=10.0, metavar='S',
                        help='window length [s] (default 10, as the identifier node)')
-    fleet.add_argument('--min-window-s', type=_positive, metavar='S',
+    fleet.add_argument('--min-window-s', type=positive, metavar='S',
                        help='shortest last window kept [s] (default half a window)')
     fleet.add_argument('--quiet', action='store_true', help='no progress bar on stderr')
     fleet.set_defaults(handler=_cmd_fleet)
@@ -504,20 +353,6 @@ def _add_fleet_commands(commands):
     report.add_argument('history', metavar='HISTORY_DIR')
     report.add_argument('--out', required=True, metavar='DIR')
     report.set_defaults(handler=_cmd_fleet_report)
-
-
-def _positive(text):
-    value = float(text)
-    if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f'must be a positive number, got {text}')
-    return value
-
-
-def _non_negative(text):
-    value = float(text)
-    if not (np.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f'must be zero or a positive number, got {text}')
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -533,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument('--json', metavar='OUT', help='write the result as JSON here')
     ident.add_argument('--method', choices=sorted(METHODS), default='refined',
                        help='refined (default: exact output error) or paper (the baseline)')
-    ident.add_argument('--torque-constant', type=_positive, metavar='K',
+    ident.add_argument('--torque-constant', type=positive, metavar='K',
                        help='mechanical-only mode: identify J, b, Mc with torque K*current '
                             '[N m/A]')
     ident.add_argument('--no-discover', action='store_true',
@@ -546,7 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
                             'vocabulary (viscous_asymmetry)')
     ident.add_argument('--resample', action='store_true',
                        help='interpolate irregularly sampled data onto a uniform grid')
-    ident.add_argument('--speed-cutoff', type=_positive, metavar='HZ',
+    ident.add_argument('--speed-cutoff', type=positive, metavar='HZ',
                        help='cut-off of the filter deriving speed from position [Hz]')
     for channel, kind in (('voltage', 'Float64'), ('current', 'Float64'),
                           ('speed', 'Float64'), ('samples', 'batched Float64MultiArray')):
@@ -554,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
                            help=f'bags: {kind} topic of the {channel} (default '
                                 f'{BAG_TOPICS[channel]!r}, any namespace)')
     _add_reading_options(ident)
-    ident.add_argument('--max-time', type=_positive, default=DEFAULT_MAX_TIME_S, metavar='S',
+    ident.add_argument('--max-time', type=positive, default=DEFAULT_MAX_TIME_S, metavar='S',
                        help='time budget [s]: past it the best result so far is returned with '
                             f'a warning (default {DEFAULT_MAX_TIME_S:g})')
     ident.add_argument('--quiet', action='store_true',
@@ -580,7 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help='samples at the start for the initial state, not scored (20)')
     val.add_argument('--resample', action='store_true',
                      help='interpolate irregularly sampled data onto a uniform grid')
-    val.add_argument('--speed-cutoff', type=_positive, metavar='HZ',
+    val.add_argument('--speed-cutoff', type=positive, metavar='HZ',
                      help='cut-off of the filter deriving speed from position [Hz]')
     _add_reading_options(val)
     val.set_defaults(handler=_cmd_validate)
@@ -588,15 +423,15 @@ def build_parser() -> argparse.ArgumentParser:
     sim = commands.add_parser('simulate', help='simulate a motor of the paper to CSV')
     sim.add_argument('--motor', choices=sorted(PAPER_MOTORS), default='paper2')
     sim.add_argument('--excitation', choices=EXCITATION_KINDS, default='paper')
-    sim.add_argument('--duration', type=_positive, default=8.0, metavar='S')
-    sim.add_argument('--sample-period', type=_positive, default=1e-4, metavar='S')
-    sim.add_argument('--noise', type=_non_negative, default=0.0, metavar='REL',
+    sim.add_argument('--duration', type=positive, default=8.0, metavar='S')
+    sim.add_argument('--sample-period', type=positive, default=1e-4, metavar='S')
+    sim.add_argument('--noise', type=non_negative, default=0.0, metavar='REL',
                      help='white noise on current and speed, relative to their std')
-    sim.add_argument('--amplitude', type=_positive, metavar='V')
-    sim.add_argument('--frequency', type=_positive, metavar='HZ')
-    sim.add_argument('--current-lsb', type=_non_negative, default=0.0, metavar='A',
+    sim.add_argument('--amplitude', type=positive, metavar='V')
+    sim.add_argument('--frequency', type=positive, metavar='HZ')
+    sim.add_argument('--current-lsb', type=non_negative, default=0.0, metavar='A',
                      help='quantisation step of the current sensor')
-    sim.add_argument('--speed-lsb', type=_non_negative, default=0.0, metavar='RAD_S',
+    sim.add_argument('--speed-lsb', type=non_negative, default=0.0, metavar='RAD_S',
                      help='quantisation step of the speed sensor')
     sim.add_argument('--seed', type=int, default=0)
     sim.add_argument('--effect', action='append', metavar='NAME[:param=value,...]',
@@ -609,18 +444,18 @@ def build_parser() -> argparse.ArgumentParser:
     ctl = commands.add_parser('design', help='controller gains and model export from an '
                               'identify result (python-control)')
     ctl.add_argument('result', metavar='RESULT.json', help='JSON of `dcmotor-id identify --json`')
-    ctl.add_argument('--current-bandwidth', type=_positive, metavar='HZ',
+    ctl.add_argument('--current-bandwidth', type=positive, metavar='HZ',
                      help='closed current-loop bandwidth (default 200 Hz, at most a 20th of '
                           'the sampling rate; mechanical mode: default an ideal torque loop)')
-    ctl.add_argument('--speed-bandwidth', type=_positive, metavar='HZ',
+    ctl.add_argument('--speed-bandwidth', type=positive, metavar='HZ',
                      help='closed speed-loop -3 dB bandwidth (default a 10th of the current '
                           'bandwidth)')
-    ctl.add_argument('--phase-margin', type=_positive, default=60.0, metavar='DEG',
+    ctl.add_argument('--phase-margin', type=positive, default=60.0, metavar='DEG',
                      help='phase margin of the speed loop (default 60)')
-    ctl.add_argument('--sample-period', type=_positive, metavar='S',
+    ctl.add_argument('--sample-period', type=positive, metavar='S',
                      help='discrete gains (Tustin) for this controller period [s]; default '
                           'continuous')
-    ctl.add_argument('--gear-ratio', type=_positive, default=1.0, metavar='N',
+    ctl.add_argument('--gear-ratio', type=positive, default=1.0, metavar='N',
                      help='motor speed / output speed (default 1)')
     ctl.add_argument('--output-shaft', action='store_true',
                      help='express speeds, gains and the model on the output shaft')
@@ -632,86 +467,13 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.set_defaults(handler=_cmd_design)
     plan = commands.add_parser('plan', help='design a D-optimal PRBS/multisine for the exciter '
                                'within limits; print it and the expected standard errors')
-    plan.add_argument('--prior', default='paper2', metavar='SOURCE',
-                      help='prior parameters: paper1, paper2, a result JSON or a datasheet '
-                           'JSON/YAML with Ra, La, CPhi, J, b, Mc (default paper2)')
-    for name, default, unit in (('voltage-limit', 48.0, 'V'), ('current-limit', 10.0, 'A'),
-                                ('speed-limit', 100.0, 'RAD_S'), ('duration', 10.0, 'S'),
-                                ('rate', 200.0, 'HZ'), ('sample-period', 1e-3, 'S')):
-        plan.add_argument(f'--{name}', type=_positive, default=default, metavar=unit)
-    plan.add_argument('--ramp-in', type=_non_negative, default=1.0, metavar='S')
-    plan.add_argument('--noise-current', type=_positive, metavar='A',
-                      help='current noise std (default: from a result file, else 0.01)')
-    plan.add_argument('--noise-speed', type=_positive, metavar='RAD_S',
-                      help='speed noise std (default: from a result file, else 0.02)')
-    plan.add_argument('--parameters', default='Ra,La,CPhi,J,b,Mc',
-                      help='parameters of the D-criterion, comma-separated')
-    plan.add_argument('--kinds', default='prbs,multisine', help='prbs and/or multisine')
-    plan.add_argument('--margin', type=_positive, default=0.9,
-                      help='share of the current/speed limits the simulation may reach')
-    plan.add_argument('--seed', type=int, default=0)
-    plan.add_argument('--json', metavar='OUT', help='write the plan here (exciter plan_file)')
-    _add_memory_budget(plan)
-    plan.set_defaults(handler=_cmd_plan)
+    add_plan_arguments(plan)
+    plan.set_defaults(handler=run_plan)
 
     demo = commands.add_parser('demo', help='simulate motor 2 and identify it with both methods')
     demo.set_defaults(handler=_cmd_demo)
     _add_fleet_commands(commands)
     return parser
-
-
-#: Unexpected exceptions that come from the data or the machine, not from a bug: exit 2.
-_ENVIRONMENT_HINTS = (
-    (MemoryError, 'not enough memory for these data; identify a shorter record or fewer '
-                  'files at a time, or free memory'),
-    (UnicodeError, 'the input is not text in UTF-8; save it as a UTF-8 CSV'),
-    (np.linalg.LinAlgError, 'the numbers do not fit a DC motor model; check that the columns '
-                            'are what their names say (current in A, speed in rad/s, not '
-                            'swapped) and that the data come from one drive'),
-    (FloatingPointError, 'the numbers overflow the computation; check the units of the '
-                         'columns'),
-    (OverflowError, 'the numbers overflow the computation; check the units of the columns'),
-)
-
-
-#: What to do about an error of the operating system, by errno.
-_OS_HINTS = {
-    errno.EACCES: 'permission denied: make it readable/writable for this user (chmod) or '
-                  'choose another place',
-    errno.EPERM: 'operation not permitted: choose another place or run as its owner',
-    errno.EEXIST: 'already exists and is in the way: remove it or choose another name',
-    errno.ENOENT: 'no such file or directory: check the path',
-    errno.ENOSPC: 'no space left on the device: free space or write elsewhere',
-    errno.EROFS: 'the file system is read-only: write elsewhere',
-    errno.ENOTDIR: 'a part of the path is a file, not a directory: check the path',
-    errno.EISDIR: 'is a directory: give a file',
-    errno.ELOOP: 'a symbolic link loop: give the real path',
-    errno.ENAMETOOLONG: 'the name is too long: choose a shorter path',
-}
-
-
-def os_error_message(error: OSError) -> str:
-    """Return an error of the operating system as a sentence naming the path and the fix."""
-    where = error.filename if error.filename is not None else ''
-    if error.filename2 is not None:
-        where = f'{where} -> {error.filename2}'
-    hint = _OS_HINTS.get(error.errno or 0)
-    if hint is None:
-        hint = f'{error.strerror or error}: check the path and the machine'
-    return f'{where}: {hint}' if where else hint
-
-
-def _bug_report(error: BaseException) -> str:
-    """Return a short report of an unexpected exception: where it happened and versions."""
-    frames = traceback.extract_tb(error.__traceback__)
-    where = ', '.join(f'{os.path.basename(frame.filename)}:{frame.lineno} {frame.name}'
-                      for frame in frames[-3:])
-    return (f'dcmotor-id: internal error: {type(error).__name__}: {error}\n'
-            f'  at {where or "?"}\n'
-            f'  python {platform.python_version()}, numpy {np.__version__}, '
-            f'{platform.system()} {platform.machine()}\n'
-            '  This is a bug of dcmotor-id: please report it with this text, the command line '
-            'and, if you can, the input files.')
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -724,25 +486,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return args.handler(args)
-    except DcMotorIdError as error:
-        print(f'dcmotor-id: error: {error}', file=sys.stderr)
-        return 2
-    except OSError as error:
-        print(f'dcmotor-id: error: {os_error_message(error)}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print('dcmotor-id: interrupted', file=sys.stderr)
-        return 130
-    except Exception as error:  # noqa: BLE001  (the top-level handler: a message, not a trace)
-        for kind, hint in _ENVIRONMENT_HINTS:
-            if isinstance(error, kind):
-                print(f'dcmotor-id: error: {type(error).__name__}: {error}: {hint}',
-                      file=sys.stderr)
-                return 2
-        print(_bug_report(error), file=sys.stderr)
-        return 1
+    return run_reporting(args.handler, args)
 
 
 if __name__ == '__main__':

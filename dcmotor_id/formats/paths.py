@@ -13,12 +13,14 @@ from __future__ import annotations
 import errno
 import os
 import stat
-from typing import Iterable, Optional
+import tempfile
+from typing import Iterable, Optional, Sequence
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike
 
-__all__ = ['check_input_path', 'kind_of', 'same_file']
+__all__ = ['check_input_path', 'check_output_path', 'check_replaceable', 'kind_of',
+           'same_file']
 
 
 def kind_of(mode: int) -> str:
@@ -95,3 +97,74 @@ def same_file(path: PathLike, others: Iterable[PathLike]) -> Optional[str]:
         if (mine.st_dev, mine.st_ino) == (theirs.st_dev, theirs.st_ino):
             return str(other)
     return None
+
+
+def _nearest_existing(path: str) -> str:
+    """Return ``path`` or its nearest ancestor that exists."""
+    while not os.path.exists(path):
+        parent = os.path.dirname(path)
+        if parent == path:
+            break
+        path = parent
+    return path
+
+
+def check_output_path(path: str, option: str, directory: bool = False,
+                      inputs: Sequence[str] = ()) -> None:
+    """
+    Refuse an output path that cannot be written, before any work is done.
+
+    A file option (``--json``) must not name a directory, and may only replace a regular file
+    that is not one of the ``inputs`` (never a symlink, a device, a FIFO nor a recording);
+    for both kinds, the nearest existing ancestor must be a directory in which a file can be
+    created (tried with a temporary file, which also catches read-only file systems and
+    running as root).
+
+    Raises
+    ------
+    InputDataError
+        Naming the option, the path and what is wrong.
+
+    """
+    target = os.path.abspath(path)
+    if not directory:
+        check_replaceable(path, option, inputs)
+    if not directory and (os.path.isdir(target) or path.endswith(os.sep)):
+        raise InputDataError(f'{option} {path}: is a directory; give a file name, e.g. '
+                             f'{os.path.join(path, "result.json")}')
+    if directory and os.path.exists(target) and not os.path.isdir(target):
+        raise InputDataError(f'{option} {path}: exists and is not a directory; give a '
+                             'directory for the report')
+    where = target if directory and os.path.isdir(target) else os.path.dirname(target)
+    existing = _nearest_existing(where)
+    if not os.path.isdir(existing):
+        raise InputDataError(f'{option} {path}: {existing} is a file, not a directory; choose '
+                             'another place')
+    try:
+        handle, probe = tempfile.mkstemp(dir=existing, prefix='.dcmotor_id_probe_')
+        os.close(handle)
+        os.unlink(probe)
+    except OSError as error:
+        raise InputDataError(f'{option} {path}: cannot write in {existing} '
+                             f'({error.strerror or error}); choose a writable place') from None
+
+
+def check_replaceable(path: str, option: str, inputs: Sequence[str] = ()) -> None:
+    """Refuse an output file that exists and is not a regular file, or is an input."""
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return
+    if stat.S_ISLNK(mode):
+        raise InputDataError(f'{option} {path}: is a symbolic link (to '
+                             f'{os.readlink(path)}); it is not replaced: give the path of a '
+                             'new or regular file')
+    if stat.S_ISDIR(mode):
+        return  # refused as a directory by the caller
+    if not stat.S_ISREG(mode):
+        raise InputDataError(f'{option} {path}: is {kind_of(mode)}, not a regular file; it is '
+                             'not replaced: give the path of a new or regular file')
+    twin = same_file(path, inputs)
+    if twin is not None:
+        raise InputDataError(f'{option} {path}: is the input {twin}; writing there would '
+                             'destroy the recording: give another file name')

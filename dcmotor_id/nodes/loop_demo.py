@@ -24,10 +24,10 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from std_srvs.srv import Trigger
 
-from dcmotor_id.cli.main import write_json
 from dcmotor_id.core.model import DERIVED_NAMES, PAPER_MOTORS, PARAMETER_NAMES, UNITS
 from dcmotor_id.design.experiment import DEFAULT_NOISE, design_experiment
 from dcmotor_id.design.routines import Limits
+from dcmotor_id.formats.json_file import write_json
 from dcmotor_id.nodes.common import spin_until
 from dcmotor_id.nodes.demo import close_demo, local_ros_domain, status_values
 from dcmotor_id.nodes.identifier import LATCHED

@@ -19,6 +19,7 @@ from support import children
 from test_bad_input import good_table, HEADER, write
 
 from dcmotor_id.cli import main as cli
+from dcmotor_id.core.command_line import os_error_message
 from dcmotor_id.core.errors import FitError, InputDataError
 from dcmotor_id.core.records import Record
 from dcmotor_id.formats.batch import decode_batch, encode_batch
@@ -649,9 +650,9 @@ def test_a_batch_topic_with_garbage_payloads_is_refused_naming_it(tmp_path, caps
 
 def test_os_errors_name_the_path_and_the_fix(tmp_path):
     error = PermissionError(13, 'Permission denied', str(tmp_path / 'x.json'))
-    text = cli.os_error_message(error)
+    text = os_error_message(error)
     assert str(tmp_path / 'x.json') in text and 'chmod' in text and 'Errno' not in text
-    text = cli.os_error_message(FileExistsError(17, 'File exists', 'out'))
+    text = os_error_message(FileExistsError(17, 'File exists', 'out'))
     assert text.startswith('out: ') and 'remove it or choose another name' in text
 
 

@@ -422,3 +422,23 @@ def test_forty_concurrent_stops_are_all_answered(ros_env, client, tmp_path):
         for item in clients:
             node.destroy_client(item)
         process.stop(exciter)
+
+
+@pytest.mark.parametrize('options, code', [
+    (['--duration', '2', '--rate', '100', '--kinds', 'prbs'], 0),
+    (['--prior', 'no_such_prior.json'], 2),
+    (['--duration', '-1'], 2),
+])
+def test_exciter_plan_is_the_plan_command(tmp_path, options, code):
+    """``exciter --plan`` prints what ``dcmotor-id plan`` prints, without the command line."""
+    check = ('import sys\nfrom dcmotor_id.nodes.exciter import main\ncode = main(sys.argv[1:])\n'
+             'assert "dcmotor_id.cli.main" not in sys.modules\nsys.exit(code)\n')
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    runs = [subprocess.run(command, capture_output=True, text=True, env=env, cwd=tmp_path,
+                           timeout=300)
+            for command in ([sys.executable, '-c', check, '--plan', *options],
+                            [sys.executable, '-m', 'dcmotor_id.cli', 'plan', *options])]
+    assert [run.returncode for run in runs] == [code, code], runs[0].stderr
+    assert runs[0].stdout == runs[1].stdout and runs[0].stderr == runs[1].stderr
+    assert ('plan: prbs' in runs[0].stdout) if code == 0 else \
+        runs[0].stderr.rstrip().splitlines()[-1].startswith('dcmotor-id')
