@@ -355,12 +355,8 @@ def _add_fleet_commands(commands):
     report.set_defaults(handler=_cmd_fleet_report)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the argument parser (the CLI contract)."""
-    parser = argparse.ArgumentParser(
-        prog='dcmotor-id', description='Identify DC motor parameters (Ra, La, CPhi, J, b, Mc).')
-    commands = parser.add_subparsers(dest='command', required=True)
-
+def _add_identify_command(commands: Any) -> None:
+    """Add the ``identify`` subcommand and its arguments."""
     ident = commands.add_parser('identify', help='identify the motor from CSV files or bags')
     ident.add_argument('files', nargs='+', metavar='FILE',
                        help='CSV with columns t, voltage, current, speed (position optional), '
@@ -404,6 +400,9 @@ def build_parser() -> argparse.ArgumentParser:
                             'speed')
     ident.set_defaults(handler=_cmd_identify)
 
+
+def _add_validate_command(commands: Any) -> None:
+    """Add the ``validate`` subcommand and its arguments."""
     val = commands.add_parser('validate', help='simulate an identified model on new records '
                                                'and score it (NRMSE, fit %%, position RMSE)')
     val.add_argument('model', metavar='MODEL.json', help='the JSON identify --json wrote')
@@ -420,6 +419,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_reading_options(val)
     val.set_defaults(handler=_cmd_validate)
 
+
+def _add_simulate_command(commands: Any) -> None:
+    """Add the ``simulate`` subcommand and its arguments."""
     sim = commands.add_parser('simulate', help='simulate a motor of the paper to CSV')
     sim.add_argument('--motor', choices=sorted(PAPER_MOTORS), default='paper2')
     sim.add_argument('--excitation', choices=EXCITATION_KINDS, default='paper')
@@ -441,6 +443,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument('--out', required=True, metavar='FILE.csv')
     sim.set_defaults(handler=_cmd_simulate)
 
+
+def _add_design_command(commands: Any) -> None:
+    """Add the ``design`` subcommand and its arguments."""
     ctl = commands.add_parser('design', help='controller gains and model export from an '
                               'identify result (python-control)')
     ctl.add_argument('result', metavar='RESULT.json', help='JSON of `dcmotor-id identify --json`')
@@ -465,6 +470,17 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument('--export', metavar='DIR', help='write model_statespace.json, '
                      'sim_motor.yaml and urdf_dynamics.xml to DIR')
     ctl.set_defaults(handler=_cmd_design)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the argument parser (the CLI contract)."""
+    parser = argparse.ArgumentParser(
+        prog='dcmotor-id', description='Identify DC motor parameters (Ra, La, CPhi, J, b, Mc).')
+    commands = parser.add_subparsers(dest='command', required=True)
+    _add_identify_command(commands)
+    _add_validate_command(commands)
+    _add_simulate_command(commands)
+    _add_design_command(commands)
     plan = commands.add_parser('plan', help='design a D-optimal PRBS/multisine for the exciter '
                                'within limits; print it and the expected standard errors')
     add_plan_arguments(plan)
