@@ -215,6 +215,34 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
     mechanical = mode == 'mechanical' or (mode is None and all(
         given.get(name) is None for name in ('Ra', 'La', 'CPhi')))
     names = ('J', 'b', 'Mc') if mechanical else ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
+    values, stderr = _checked_values(result, names)
+    torque_constant = None
+    if mechanical:
+        torque_constant = _number(result.get('torque_constant'))
+        if not (np.isfinite(torque_constant) and torque_constant > 0):
+            torque_constant = None
+    if output_shaft:
+        scale = {'CPhi': gear_ratio, 'J': gear_ratio ** 2, 'b': gear_ratio ** 2,
+                 'Mc': gear_ratio}
+        values = {name: value * scale.get(name, 1.0) for name, value in values.items()}
+        stderr = {name: value * scale.get(name, 1.0) for name, value in stderr.items()}
+        if torque_constant is not None:
+            torque_constant *= gear_ratio
+    return Motor(values, stderr, 'mechanical' if mechanical else 'full', torque_constant,
+                 float(gear_ratio), 'output' if output_shaft else 'motor')
+
+
+def _checked_values(result: dict, names: tuple[str, ...]) -> tuple[dict, dict]:
+    """
+    Return the values and standard errors of ``names`` in an identify JSON.
+
+    Raises
+    ------
+    InputDataError
+        Naming every missing, non-finite or non-physical value.
+
+    """
+    given = result['parameters']
     values, stderr, bad = {}, {}, []
     for name in names:
         value = _number(given.get(name))
@@ -232,20 +260,7 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
             f'the result holds unusable parameters ({", ".join(bad)}): Ra, La, CPhi, J must be '
             'finite and positive, b and Mc finite and >= 0. Identify the motor again (more '
             'excitation, `dcmotor-id identify ... --json OUT`) before designing a controller.')
-    torque_constant = None
-    if mechanical:
-        torque_constant = _number(result.get('torque_constant'))
-        if not (np.isfinite(torque_constant) and torque_constant > 0):
-            torque_constant = None
-    if output_shaft:
-        scale = {'CPhi': gear_ratio, 'J': gear_ratio ** 2, 'b': gear_ratio ** 2,
-                 'Mc': gear_ratio}
-        values = {name: value * scale.get(name, 1.0) for name, value in values.items()}
-        stderr = {name: value * scale.get(name, 1.0) for name, value in stderr.items()}
-        if torque_constant is not None:
-            torque_constant *= gear_ratio
-    return Motor(values, stderr, 'mechanical' if mechanical else 'full', torque_constant,
-                 float(gear_ratio), 'output' if output_shaft else 'motor')
+    return values, stderr
 
 
 def resolve_options(motor: Motor, options: DesignOptions) -> DesignOptions:
@@ -748,7 +763,6 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
     """
     options = resolve_options(motor, options)
     dt = options.sample_period_s
-    notes = []
     full = motor.mode == 'full'
     # resolve_options sets the speed bandwidth always and the current one in full mode.
     current_bandwidth, speed_bandwidth = options.current_bandwidth_hz, options.speed_bandwidth_hz
@@ -759,16 +773,7 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
         assert current_bandwidth is not None
         current, correction = sampled_current_pi(motor, current_bandwidth, dt)
     torque_loop = None if full else current_bandwidth
-    if not full:
-        notes.append('mechanical-only result (J, b, Mc): the speed loop acts on a torque '
-                     'command; the current loop needs Ra and La (identify with voltage).')
-        notes.append('torque loop assumed ideal' if torque_loop is None else
-                     f'torque loop assumed first order with {torque_loop:g} Hz bandwidth')
-    fastest = current_bandwidth or speed_bandwidth
-    if dt is not None and fastest > 0.1 / dt:
-        notes.append(f'{fastest:g} Hz is above a tenth of the sampling rate {1 / dt:g} Hz: the '
-                     'sampled loop keeps the bandwidth but loses gain margin (see the table); '
-                     'a computation delay in the drive would cost more.')
+    notes = _design_notes(full, torque_loop, current_bandwidth or speed_bandwidth, dt)
     reference = 'i_ref' if full else 'torque_ref'
     inner = inner_loop(motor, current, torque_loop, dt)
     kp, ki, crossover = design_speed(inner, speed_bandwidth,
@@ -778,32 +783,72 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
     if not all(values['stable'] for values in nominal.values()):
         raise DesignError('the designed loops are unstable at this sample period: lower the '
                           'bandwidths or sample faster.')
-    result: dict[str, Any] = {
+    result = _design_header(motor, options)
+    if full:
+        assert current is not None and current_bandwidth is not None
+        result['current_loop'] = _current_loop(motor, current, correction, current_bandwidth, dt)
+    result['speed_loop'] = _speed_loop(motor, (kp, ki), crossover, options, reference)
+    result['feedforward'] = feedforward(motor)
+    result['nominal'] = nominal
+    result['robustness'] = robustness(motor, gains)
+    result['notes'] = notes + result['robustness']['notes']
+    return result, gains
+
+
+def _design_notes(full: bool, torque_loop: float | None, fastest: float,
+                  dt: float | None) -> list[str]:
+    """Return the notes on the mode and on a bandwidth close to the sampling rate."""
+    notes = []
+    if not full:
+        notes.append('mechanical-only result (J, b, Mc): the speed loop acts on a torque '
+                     'command; the current loop needs Ra and La (identify with voltage).')
+        notes.append('torque loop assumed ideal' if torque_loop is None else
+                     f'torque loop assumed first order with {torque_loop:g} Hz bandwidth')
+    if dt is not None and fastest > 0.1 / dt:
+        notes.append(f'{fastest:g} Hz is above a tenth of the sampling rate {1 / dt:g} Hz: the '
+                     'sampled loop keeps the bandwidth but loses gain margin (see the table); '
+                     'a computation delay in the drive would cost more.')
+    return notes
+
+
+def _design_header(motor: Motor, options: DesignOptions) -> dict[str, Any]:
+    """Return the design's first keys: the mode, the shaft, the request and the motor."""
+    return {
         'mode': motor.mode, 'shaft': motor.shaft, 'gear_ratio': motor.gear_ratio,
-        'sample_period_s': dt,
+        'sample_period_s': options.sample_period_s,
         'requested': {'current_bandwidth_hz': options.current_bandwidth_hz,
                       'speed_bandwidth_hz': options.speed_bandwidth_hz,
                       'phase_margin_deg': options.phase_margin_deg},
         'motor': {'values': dict(motor.values), 'stderr': dict(motor.stderr),
                   'torque_constant': motor.torque_constant},
     }
-    if full:
-        assert current is not None and current_bandwidth is not None
-        pi = pi_controller(*current, dt, 'e_i', 'u')
-        result['current_loop'] = {
-            'kp': current[0], 'ki': current[1], 'ti_s': current[0] / current[1],
-            'units': {'kp': 'V/A', 'ki': 'V/(A s)'}, 'input': 'i_ref - i [A]', 'output': 'u [V]',
-            'method': 'pole-zero cancellation of the armature pole (Ti = La/Ra, '
-                      'Kp = 2 pi f_c La)' + ('' if dt is None else
-                                             ', f_c scaled for the sampled loop'),
-            'closed_form': dict(zip(('kp', 'ki'),
-                                    current_pi(motor, current_bandwidth))),
-            'sampling_correction': correction,
-            'discrete': _difference_equation(pi) if dt is not None else None,
-            'back_emf_feedforward_v_per_rad_s': motor.values['CPhi'],
-        }
+
+
+def _current_loop(motor: Motor, current: tuple[float, float], correction: float | None,
+                  bandwidth_hz: float, dt: float | None) -> dict[str, Any]:
+    """Return the ``current_loop`` entry of the design (full mode)."""
+    pi = pi_controller(*current, dt, 'e_i', 'u')
+    return {
+        'kp': current[0], 'ki': current[1], 'ti_s': current[0] / current[1],
+        'units': {'kp': 'V/A', 'ki': 'V/(A s)'}, 'input': 'i_ref - i [A]', 'output': 'u [V]',
+        'method': 'pole-zero cancellation of the armature pole (Ti = La/Ra, '
+                  'Kp = 2 pi f_c La)' + ('' if dt is None else
+                                         ', f_c scaled for the sampled loop'),
+        'closed_form': dict(zip(('kp', 'ki'),
+                                current_pi(motor, bandwidth_hz))),
+        'sampling_correction': correction,
+        'discrete': _difference_equation(pi) if dt is not None else None,
+        'back_emf_feedforward_v_per_rad_s': motor.values['CPhi'],
+    }
+
+
+def _speed_loop(motor: Motor, speed: tuple[float, float], crossover: float,
+                options: DesignOptions, reference: str) -> dict[str, Any]:
+    """Return the ``speed_loop`` entry of the design (and its current gains if known)."""
+    kp, ki = speed
+    dt = options.sample_period_s
     pi = pi_controller(kp, ki, dt, 'e_w', reference)
-    unit = 'A' if full else 'N m'
+    unit = 'A' if motor.mode == 'full' else 'N m'
     speed_loop = {
         'kp': kp, 'ki': ki, 'ti_s': kp / ki,
         'units': {'kp': f'{unit} s/rad', 'ki': f'{unit}/rad'},
@@ -813,16 +858,11 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
         'design_crossover_hz': crossover,
         'discrete': _difference_equation(pi) if dt is not None else None,
     }
-    if not full and motor.torque_constant:
+    if motor.mode != 'full' and motor.torque_constant:
         speed_loop['current'] = {'kp': kp / motor.torque_constant,
                                  'ki': ki / motor.torque_constant,
                                  'units': {'kp': 'A s/rad', 'ki': 'A/rad'}}
-    result['speed_loop'] = speed_loop
-    result['feedforward'] = feedforward(motor)
-    result['nominal'] = nominal
-    result['robustness'] = robustness(motor, gains)
-    result['notes'] = notes + result['robustness']['notes']
-    return result, gains
+    return speed_loop
 
 
 def format_design(result: dict) -> str:
