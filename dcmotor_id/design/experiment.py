@@ -311,6 +311,24 @@ def design_experiment(prior: MotorParameters, limits: Limits,
         When no candidate stays within the limits, or an argument is out of range.
 
     """
+    _check_request(kinds, parameters, margin)
+    noise = dict(DEFAULT_NOISE if noise_std is None else noise_std)
+    trials = _Trials(prior, limits, duration_s, rate_hz, ramp_in_s, sample_period_s, margin, seed)
+    best, candidates = _best_band(trials, candidate_bands(prior, rate_hz, kinds), noise,
+                                  parameters)
+    if best is None:
+        raise ValueError('no PRBS or multisine keeps the current and speed within '
+                         f'{margin:g} of their limits: raise the limits or check the prior')
+    criterion, routine, stderr, peak_i, peak_w = best
+    return Plan(routine=routine, expected_stderr=stderr, criterion=criterion,
+                peak_current_a=peak_i, peak_speed_rad_s=peak_w,
+                prior=prior.as_dict(), noise_std=noise, limits=limits,
+                parameters=list(parameters), rate_hz=rate_hz, ramp_in_s=ramp_in_s,
+                sample_period_s=sample_period_s, candidates=candidates)
+
+
+def _check_request(kinds: Sequence[str], parameters: Sequence[str], margin: float) -> None:
+    """Raise ValueError for unknown kinds or parameters, or a margin outside (0, 1]."""
     unknown = [kind for kind in kinds if kind not in DESIGN_KINDS]
     if unknown or not kinds:
         raise ValueError(f'design kinds must be among {", ".join(DESIGN_KINDS)}')
@@ -319,37 +337,69 @@ def design_experiment(prior: MotorParameters, limits: Limits,
         raise ValueError(f'parameters must be among {", ".join(PARAMETER_NAMES)}')
     if not 0 < margin <= 1:
         raise ValueError('margin must be in (0, 1]')
-    noise = dict(DEFAULT_NOISE if noise_std is None else noise_std)
-    best: Optional[tuple[float, Routine, dict[str, float], float, float]] = None
-    candidates = []
-    for kind, low, high in candidate_bands(prior, rate_hz, kinds):
-        def trial(amplitude: float, kind: str = kind, low: float = low,
-                  high: float = high) -> tuple[bool, Routine, Record, dict[str, Any]]:
-            routine = Routine(kind=kind, amplitude_v=amplitude, duration_s=duration_s,
-                              frequency_hz=low, max_frequency_hz=high, seed=seed)
-            record = planned_record(routine, prior, rate_hz, ramp_in_s, sample_period_s)
-            assert record.current is not None and record.speed is not None
-            peak_i = float(np.max(np.abs(record.current)))
-            peak_w = float(np.max(np.abs(record.speed)))
-            ok = peak_i <= margin * limits.current_a and peak_w <= margin * limits.speed_rad_s
-            return ok, routine, record, {'peak_current_a': peak_i, 'peak_speed_rad_s': peak_w}
 
-        # the largest amplitude within the limits: a descending grid, then bisection
+
+#: A band's best routine: (criterion, routine, expected stderr, peak current, peak speed).
+_Scored = tuple[float, Routine, dict[str, float], float, float]
+#: One simulated trial: (within the limits, routine, record, peaks).
+_Trial = tuple[bool, Routine, Record, dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class _Trials:
+    """What every trial of a band shares: the prior, the limits and the exciter's settings."""
+
+    prior: MotorParameters
+    limits: Limits
+    duration_s: float
+    rate_hz: float
+    ramp_in_s: float
+    sample_period_s: float
+    margin: float
+    seed: int
+
+    def run(self, kind: str, low: float, high: float, amplitude: float) -> _Trial:
+        """Simulate a routine of the band at ``amplitude``; say whether it stays in limits."""
+        routine = Routine(kind=kind, amplitude_v=amplitude, duration_s=self.duration_s,
+                          frequency_hz=low, max_frequency_hz=high, seed=self.seed)
+        record = planned_record(routine, self.prior, self.rate_hz, self.ramp_in_s,
+                                self.sample_period_s)
+        assert record.current is not None and record.speed is not None
+        peak_i = float(np.max(np.abs(record.current)))
+        peak_w = float(np.max(np.abs(record.speed)))
+        ok = (peak_i <= self.margin * self.limits.current_a
+              and peak_w <= self.margin * self.limits.speed_rad_s)
+        return ok, routine, record, {'peak_current_a': peak_i, 'peak_speed_rad_s': peak_w}
+
+    def largest(self, kind: str, low: float, high: float) -> _Trial:
+        """Return the trial of the largest amplitude within the limits (grid, bisection)."""
+        voltage = self.limits.voltage_v
         above = None
         for fraction in AMPLITUDE_FRACTIONS:
-            ok, routine, record, peaks = trial(fraction * limits.voltage_v)
+            ok, routine, record, peaks = self.run(kind, low, high, fraction * voltage)
             if ok:
                 break
-            above = fraction * limits.voltage_v
+            above = fraction * voltage
         if ok and above is not None:
             below = routine.amplitude_v
             for _ in range(6):
                 middle = 0.5 * (below + above)
-                good = trial(middle)
+                good = self.run(kind, low, high, middle)
                 if good[0]:
                     below, (ok, routine, record, peaks) = middle, good
                 else:
                     above = middle
+        return ok, routine, record, peaks
+
+
+def _best_band(trials: _Trials, bands: Sequence[tuple[str, float, float]],
+               noise: Mapping[str, float],
+               parameters: Sequence[str]) -> tuple[Optional[_Scored], list[dict[str, Any]]]:
+    """Return the most informative band's routine (None: none fits) and every candidate."""
+    best: Optional[_Scored] = None
+    candidates = []
+    for kind, low, high in bands:
+        ok, routine, record, peaks = trials.largest(kind, low, high)
         entry: dict[str, Any] = {'description': routine.describe(),
                                  'routine': routine.as_dict(), **peaks}
         if not ok:
@@ -358,7 +408,7 @@ def design_experiment(prior: MotorParameters, limits: Limits,
             candidates.append(entry)
             continue
         try:
-            stderr, criterion = expected_stderr(record, prior, noise, parameters)
+            stderr, criterion = expected_stderr(record, trials.prior, noise, parameters)
         except (ValueError, np.linalg.LinAlgError) as error:
             entry['rejected'] = f'not informative: {error}'
             candidates.append(entry)
@@ -369,15 +419,7 @@ def design_experiment(prior: MotorParameters, limits: Limits,
         if best is None or criterion > best[0]:
             best = (criterion, routine, stderr, peaks['peak_current_a'],
                     peaks['peak_speed_rad_s'])
-    if best is None:
-        raise ValueError('no PRBS or multisine keeps the current and speed within '
-                         f'{margin:g} of their limits: raise the limits or check the prior')
-    criterion, routine, stderr, peak_i, peak_w = best
-    return Plan(routine=routine, expected_stderr=stderr, criterion=criterion,
-                peak_current_a=peak_i, peak_speed_rad_s=peak_w,
-                prior=prior.as_dict(), noise_std=noise, limits=limits,
-                parameters=list(parameters), rate_hz=rate_hz, ramp_in_s=ramp_in_s,
-                sample_period_s=sample_period_s, candidates=candidates)
+    return best, candidates
 
 
 def read_plan(path: str) -> dict[str, Any]:
