@@ -334,44 +334,11 @@ def plot_residuals(series: list[dict], outputs: Sequence[str], directory: str,
         driving = np.asarray(values[:len(item['time'])], dtype=float)[part]
         label = _record_label(labels, number) + (' (held-out part)' if stop else '')
         for row, channel in enumerate(outputs):
-            unit = units.get(channel, '')
             residuals = {side: item[side][channel][part] - item['measured'][channel][part]
                          for side, _ in sides}
-            row_axes = axes[number * len(outputs) + row]
-            ax = row_axes[0]
-            for side, text in sides:
-                ax.plot(time, residuals[side], color=_COLOURS[side], lw=0.6, label=text)
-            ax.set_ylabel(f'{channel} residual [{unit}]', fontsize=8)
-            rms = ', '.join(f'{text} {_rms(residuals[side]):.3g}' for side, text in sides)
-            ax.grid(True, lw=0.3)
-            ax.xaxis.set_major_locator(MaxNLocator(5))
-            ax.tick_params(labelsize=7)
-            if channel in INTEGRATED:
-                # hidden axes are left out of the layout; a text beside would widen it
-                for other in row_axes[1:]:
-                    other.set_visible(False)
-                ax.set_title(f'{label}\nrms {rms} {unit} (not tested for whiteness: it '
-                             'integrates the speed error)', fontsize=8, loc='left')
-                continue
-            ax.set_title(f'{label}\nrms {rms} {unit}', fontsize=8)
-            ax = row_axes[1]
-            band = confidence_band(residuals[sides[-1][0]].size)
-            _acf_axis(ax, [(autocorrelation(residuals[side], max_lag)[1:], _COLOURS[side],
-                            text) for side, text in sides], band)
-            ax.set_ylabel('autocorrelation', fontsize=8)
-            ax.set_title(f'record {number + 1}, {channel}: whiteness (band +-{band:.2g})',
-                         fontsize=8)
-            ax = row_axes[2]
-            for side, text in sides:
-                lag_axis, rho = cross_correlation(residuals[side], driving, max_lag)
-                ax.plot(lag_axis, rho, marker='o', ms=2.0, lw=0.7, color=_COLOURS[side],
-                        label=text, zorder=2)
-            ax.axhspan(-band, band, color=_COLOURS['band'], alpha=0.8, lw=0, zorder=0)
-            ax.axhline(0.0, color='k', lw=0.5)
-            ax.set_ylabel(f'corr(residual, {input_name})', fontsize=8)
-            ax.set_title(f'record {number + 1}, {channel} residual vs {input_name}', fontsize=8)
-            for ax in row_axes:
-                ax.tick_params(labelsize=7)
+            _residual_row(axes[number * len(outputs) + row], channel, units.get(channel, ''),
+                          time, residuals, driving, sides, (label, f'record {number + 1}'),
+                          input_name, max_lag)
     axes[-1, 0].set_xlabel('time [s]', fontsize=8)
     axes[-1, 1].set_xlabel('lag [samples]', fontsize=8)
     axes[-1, 2].set_xlabel('lag [samples]', fontsize=8)
@@ -384,6 +351,51 @@ def plot_residuals(series: list[dict], outputs: Sequence[str], directory: str,
     _title_and_legend(figure, 'Residual (model - measured) per record: structure left = bars '
                       'or dots outside the grey band', handles, texts)
     return _save(figure, directory, name)
+
+
+def _residual_row(row_axes: Sequence[Any], channel: str, unit: str, time: np.ndarray,
+                  residuals: Mapping[str, np.ndarray], driving: np.ndarray,
+                  sides: Sequence[tuple[str, str]], names: tuple[str, str], input_name: str,
+                  max_lag: int) -> None:
+    """
+    Draw one channel of one record: its residual, their autocorrelation, input correlation.
+
+    ``names`` are the record's label (the title of the residual) and its short name.
+    """
+    label, record = names
+    ax = row_axes[0]
+    for side, text in sides:
+        ax.plot(time, residuals[side], color=_COLOURS[side], lw=0.6, label=text)
+    ax.set_ylabel(f'{channel} residual [{unit}]', fontsize=8)
+    rms = ', '.join(f'{text} {_rms(residuals[side]):.3g}' for side, text in sides)
+    ax.grid(True, lw=0.3)
+    ax.xaxis.set_major_locator(MaxNLocator(5))
+    ax.tick_params(labelsize=7)
+    if channel in INTEGRATED:
+        # hidden axes are left out of the layout; a text beside would widen it
+        for other in row_axes[1:]:
+            other.set_visible(False)
+        ax.set_title(f'{label}\nrms {rms} {unit} (not tested for whiteness: it '
+                     'integrates the speed error)', fontsize=8, loc='left')
+        return
+    ax.set_title(f'{label}\nrms {rms} {unit}', fontsize=8)
+    ax = row_axes[1]
+    band = confidence_band(residuals[sides[-1][0]].size)
+    _acf_axis(ax, [(autocorrelation(residuals[side], max_lag)[1:], _COLOURS[side],
+                    text) for side, text in sides], band)
+    ax.set_ylabel('autocorrelation', fontsize=8)
+    ax.set_title(f'{record}, {channel}: whiteness (band +-{band:.2g})', fontsize=8)
+    ax = row_axes[2]
+    for side, text in sides:
+        lag_axis, rho = cross_correlation(residuals[side], driving, max_lag)
+        ax.plot(lag_axis, rho, marker='o', ms=2.0, lw=0.7, color=_COLOURS[side],
+                label=text, zorder=2)
+    ax.axhspan(-band, band, color=_COLOURS['band'], alpha=0.8, lw=0, zorder=0)
+    ax.axhline(0.0, color='k', lw=0.5)
+    ax.set_ylabel(f'corr(residual, {input_name})', fontsize=8)
+    ax.set_title(f'{record}, {channel} residual vs {input_name}', fontsize=8)
+    for ax in row_axes:
+        ax.tick_params(labelsize=7)
 
 
 def plot_steps(found: DiscoveryResult, outputs: Sequence[str], directory: str) -> str:
@@ -587,6 +599,19 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
     units = dict(CHANNEL_UNITS, **(channel_units or {}))
     series, outputs = _series(found, records, result)
     errors = {'before': result['error_before'], 'after': result['error_after']}
+    images = _figures(directory, result, found, records, units, series, outputs, errors)
+    parts = _summary_parts(title, result, found, errors, images)
+    parts += _effect_parts(result)
+    parts += _residual_parts(found, images)
+    if validation is not None:
+        parts += _validation_parts(directory, validation, units)
+    return _write_page(directory, 'index.html', 'dcmotor_id report', parts)
+
+
+def _figures(directory: str, result: dict[str, Any], found: DiscoveryResult | None,
+             records: Sequence[Record] | None, units: Mapping[str, str], series: list[dict],
+             outputs: Sequence[str], errors: dict[str, Any]) -> list[str]:
+    """Draw the figures of the page; return fit, residuals, steps ('' if none), transients."""
     labels = [str(source) for source in result.get('records') or []]
     images = [plot_fit(series, outputs, directory, errors, units, labels=labels,
                        scores=_record_scores(result, outputs))]
@@ -596,8 +621,45 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
                                  units=units, labels=labels, sides=sides))
     images.append(plot_steps(found, outputs, directory) if found is not None and found.steps
                   else '')
-    transients = plot_transients(series, outputs, input_values, directory, input_name, units,
-                                 labels=labels)
+    images.append(plot_transients(series, outputs, input_values, directory, input_name, units,
+                                  labels=labels))
+    return images
+
+
+def _summary_parts(title: str, result: dict[str, Any], found: DiscoveryResult | None,
+                   errors: dict[str, Any], images: list[str]) -> list[str]:
+    """Return the page's head: the records, the verdict, the errors, fit and parameters."""
+    verdict, verdict_class = _verdict(result, found, errors)
+    where = '' if found is None else \
+        f', on the held-out last {found.holdout_fraction * 100:.0f} % of each record'
+    parts = [f'<h1>{html.escape(title)}</h1>',
+             f'<p>{len(result["records"])} record(s): '
+             f'{html.escape(", ".join(str(r) for r in result["records"]))}; '
+             f'{result["n_samples"]} samples, dt {result["sample_period_s"]:.6g} s; mode '
+             f'{html.escape(result["mode"])}; method {html.escape(result["method"])}; '
+             f'criterion {html.escape(_criterion_text(result.get("criterion", "speed")))}.</p>',
+             f'<p class="{verdict_class}">{verdict}</p>',
+             '<h2>Simulation error</h2>',
+             _table(['', 'current NRMSE', 'speed NRMSE'],
+                    [['base model', _pct(errors['before']['current_nrmse_pct']),
+                      _pct(errors['before']['speed_nrmse_pct'])],
+                     ['final model', _pct(errors['after']['current_nrmse_pct']),
+                      _pct(errors['after']['speed_nrmse_pct'])]]),
+             '<p>NRMSE: root-mean-square of (simulated - measured) in percent of the measured '
+             "signal's standard deviation" + where + '.</p>',
+             f'<img src="{images[0]}" alt="measured vs model">',
+             '<h2>Transients</h2>',
+             f'<img src="{images[3]}" alt="transients">',
+             '<h2>Parameters (final model, all data)</h2>',
+             _flags(result),
+             _table(['parameter', 'value', 'std. error', '95 % interval', 'rel. error',
+                     'unit', 'flag'], _parameter_rows(result))]
+    return parts
+
+
+def _verdict(result: dict[str, Any], found: DiscoveryResult | None,
+             errors: dict[str, Any]) -> tuple[str, str]:
+    """Return the page's verdict (HTML) on the effect search and its CSS class."""
     effects = result.get('effects', [])
     if found is None:
         reason = (result.get('discovery') or {}).get('skipped',
@@ -618,30 +680,13 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
                     '(see the whiteness test below): the model lacks something outside the '
                     'vocabulary.')
         verdict_class = 'verdict warn'
-    where = '' if found is None else \
-        f', on the held-out last {found.holdout_fraction * 100:.0f} % of each record'
-    parts = [f'<h1>{html.escape(title)}</h1>',
-             f'<p>{len(result["records"])} record(s): '
-             f'{html.escape(", ".join(str(r) for r in result["records"]))}; '
-             f'{result["n_samples"]} samples, dt {result["sample_period_s"]:.6g} s; mode '
-             f'{html.escape(result["mode"])}; method {html.escape(result["method"])}; '
-             f'criterion {html.escape(_criterion_text(result.get("criterion", "speed")))}.</p>',
-             f'<p class="{verdict_class}">{verdict}</p>',
-             '<h2>Simulation error</h2>',
-             _table(['', 'current NRMSE', 'speed NRMSE'],
-                    [['base model', _pct(errors['before']['current_nrmse_pct']),
-                      _pct(errors['before']['speed_nrmse_pct'])],
-                     ['final model', _pct(errors['after']['current_nrmse_pct']),
-                      _pct(errors['after']['speed_nrmse_pct'])]]),
-             '<p>NRMSE: root-mean-square of (simulated - measured) in percent of the measured '
-             "signal's standard deviation" + where + '.</p>',
-             f'<img src="{images[0]}" alt="measured vs model">',
-             '<h2>Transients</h2>',
-             f'<img src="{transients}" alt="transients">',
-             '<h2>Parameters (final model, all data)</h2>',
-             _flags(result),
-             _table(['parameter', 'value', 'std. error', '95 % interval', 'rel. error',
-                     'unit', 'flag'], _parameter_rows(result))]
+    return verdict, verdict_class
+
+
+def _effect_parts(result: dict[str, Any]) -> list[str]:
+    """Return the output-shaft values and the table of the effects found."""
+    parts = []
+    effects = result.get('effects', [])
     if result.get('output_shaft'):
         parts.append(f'<p>At the output shaft (gear ratio {result.get("gear_ratio")}): '
                      + html.escape(', '.join(f'{k} = {_number(v)}' for k, v in
@@ -654,34 +699,38 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
         parts.append(_table(['effect (in the order added)', 'parameters'], rows))
     else:
         parts.append('<p>none</p>')
-    parts.append('<h2>Residual analysis (held-out part, each record on its own)</h2>')
-    parts.append(f'<img src="{images[1]}" alt="residuals and whiteness">')
-    if found is not None:
-        parts.append(_table(['model', 'channel', 'NRMSE', 'one-step NRMSE', 'Ljung-Box Q',
-                             'p-value', 'AR-predictable share', 'lags outside 99 % band',
-                             'max |corr| with input'], _evidence_rows(found)))
-        parts.append('<p>White residual: Ljung-Box p-value above 0.01 (per channel, '
-                     'Bonferroni). Structure that matters: not white and at least 5 % of the '
-                     'residual predictable from its own past. The one-step error (the '
-                     'measured state propagated over one sample by the model) localises '
-                     'errors in time and ignores slow drifts of the simulation; n/a where the '
-                     'model has an effect it does not represent.</p>')
-        if found.steps:
-            parts.append('<h2>Search rounds</h2>')
-            parts.append(f'<img src="{images[2]}" alt="error per step">')
-            parts.append(_table(['round', 'candidate', 'inner parameters',
-                                 'linearised screen', 'in-sample gain', 'held-out gain',
-                                 'held-out noise', 'BIC change', 'verdict'],
-                                _step_rows(found)))
-            parts.append(f'<p>A candidate is added when it lowers the held-out error by at '
-                         f'least {found.min_gain * 100:.0f} % and by more than its noise (two '
-                         'standard errors of the drop over blocks of the held-out part), and '
-                         'the BIC of the training fit; in-sample gain: on the training part '
-                         'it was fitted on. The loop stopped because '
-                         f'{html.escape(found.reason)}.</p>')
-    if validation is not None:
-        parts += _validation_parts(directory, validation, units)
-    return _write_page(directory, 'index.html', 'dcmotor_id report', parts)
+    return parts
+
+
+def _residual_parts(found: DiscoveryResult | None, images: list[str]) -> list[str]:
+    """Return the residual analysis and, with a search, its evidence and rounds."""
+    parts = ['<h2>Residual analysis (held-out part, each record on its own)</h2>',
+             f'<img src="{images[1]}" alt="residuals and whiteness">']
+    if found is None:
+        return parts
+    parts.append(_table(['model', 'channel', 'NRMSE', 'one-step NRMSE', 'Ljung-Box Q',
+                         'p-value', 'AR-predictable share', 'lags outside 99 % band',
+                         'max |corr| with input'], _evidence_rows(found)))
+    parts.append('<p>White residual: Ljung-Box p-value above 0.01 (per channel, '
+                 'Bonferroni). Structure that matters: not white and at least 5 % of the '
+                 'residual predictable from its own past. The one-step error (the '
+                 'measured state propagated over one sample by the model) localises '
+                 'errors in time and ignores slow drifts of the simulation; n/a where the '
+                 'model has an effect it does not represent.</p>')
+    if found.steps:
+        parts.append('<h2>Search rounds</h2>')
+        parts.append(f'<img src="{images[2]}" alt="error per step">')
+        parts.append(_table(['round', 'candidate', 'inner parameters',
+                             'linearised screen', 'in-sample gain', 'held-out gain',
+                             'held-out noise', 'BIC change', 'verdict'],
+                            _step_rows(found)))
+        parts.append(f'<p>A candidate is added when it lowers the held-out error by at '
+                     f'least {found.min_gain * 100:.0f} % and by more than its noise (two '
+                     'standard errors of the drop over blocks of the held-out part), and '
+                     'the BIC of the training fit; in-sample gain: on the training part '
+                     'it was fitted on. The loop stopped because '
+                     f'{html.escape(found.reason)}.</p>')
+    return parts
 
 
 def _write_page(directory: str, name: str, title: str, parts: list[str]) -> str:
