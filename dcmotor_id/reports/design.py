@@ -165,10 +165,30 @@ def write_design_report(directory: str, result: dict, motor: Motor, gains: Gains
                  f"{result['gear_ratio']:g}, "
                  + (f'sample period {dt:g} s (Tustin PIs, ZOH plant)' if dt else 'continuous')
                  + f"; source {html.escape(str(result.get('source', '')))}</p>")
-    parts.append('<h2>Gains</h2><table>' + _row(['loop', 'kp', 'ki', 'Ti [s]', 'asked [Hz]',
-                                                 'bandwidth [Hz]', 'crossover [Hz]',
-                                                 'phase margin [deg]', 'gain margin [dB]'],
-                                                True))
+    parts += _gain_rows(result)
+    ff = result['feedforward']
+    parts.append(f"<h2>Feedforward</h2><p>{html.escape(ff['convention'])}: kS = "
+                 f"{ff['kS']:.5g} {ff['units']['kS']}, kV = {ff['kV']:.5g} {ff['units']['kV']}, "
+                 f"kA = {ff['kA']:.5g} {ff['units']['kA']}</p>")
+    parts.append(f'<h2>Step responses</h2><img src="{steps}" alt="step responses">')
+    parts.append(f'<h2>Open loops</h2><img src="{bode}" alt="Bode plots">')
+    parts += _robustness_rows(result['robustness'])
+    if result['notes']:
+        parts.append('<h2>Notes</h2><ul>' + ''.join(f'<li>{html.escape(note)}</li>'
+                                                    for note in result['notes']) + '</ul>')
+    parts.append('</body></html>')
+    path = os.path.join(directory, 'design.html')
+    with open(path, 'w', encoding='utf-8') as stream:
+        stream.write('\n'.join(parts))
+    return path
+
+
+def _gain_rows(result: dict) -> list[str]:
+    """Return the table of the gains and the nominal loop metrics."""
+    parts = ['<h2>Gains</h2><table>' + _row(['loop', 'kp', 'ki', 'Ti [s]', 'asked [Hz]',
+                                             'bandwidth [Hz]', 'crossover [Hz]',
+                                             'phase margin [deg]', 'gain margin [dB]'],
+                                            True)]
     for name, loop in (('current_loop', 'current'), ('speed_loop', 'speed')):
         if name not in result:
             continue
@@ -181,16 +201,14 @@ def write_design_report(directory: str, result: dict, motor: Motor, gains: Gains
                            _fmt(metrics['phase_margin_deg']),
                            _fmt(metrics['gain_margin_db'])]))
     parts.append('</table>')
-    ff = result['feedforward']
-    parts.append(f"<h2>Feedforward</h2><p>{html.escape(ff['convention'])}: kS = "
-                 f"{ff['kS']:.5g} {ff['units']['kS']}, kV = {ff['kV']:.5g} {ff['units']['kV']}, "
-                 f"kA = {ff['kA']:.5g} {ff['units']['kA']}</p>")
-    parts.append(f'<h2>Step responses</h2><img src="{steps}" alt="step responses">')
-    parts.append(f'<h2>Open loops</h2><img src="{bode}" alt="Bode plots">')
-    robust = result['robustness']
+    return parts
+
+
+def _robustness_rows(robust: dict) -> list[str]:
+    """Return the table of the nominal gains' metrics across the 95 % intervals."""
     keys = list(robust['range'])
-    parts.append('<h2>Robustness: the nominal gains across the 95 % intervals</h2><table>'
-                 + _row(['parameter', 'end', 'value'] + keys, True))
+    parts = ['<h2>Robustness: the nominal gains across the 95 % intervals</h2><table>'
+             + _row(['parameter', 'end', 'value'] + keys, True)]
     for row in robust['one_at_a_time']:
         parts.append(_row([row['parameter'], row['end'], _fmt(row['value'])]
                           + [_fmt(row.get(key)) for key in keys]))
@@ -199,11 +217,4 @@ def write_design_report(directory: str, result: dict, motor: Motor, gains: Gains
     parts.append(_row(['all', f"max over ends and {robust['corners']} corners", '']
                       + [_fmt(robust['range'][key][1]) for key in keys]))
     parts.append('</table>')
-    if result['notes']:
-        parts.append('<h2>Notes</h2><ul>' + ''.join(f'<li>{html.escape(note)}</li>'
-                                                    for note in result['notes']) + '</ul>')
-    parts.append('</body></html>')
-    path = os.path.join(directory, 'design.html')
-    with open(path, 'w', encoding='utf-8') as stream:
-        stream.write('\n'.join(parts))
-    return path
+    return parts

@@ -137,38 +137,60 @@ def plot_motor(trend: MotorTrend, directory: str, name: str) -> str:
     axes = figure.subplots(rows, columns, sharex=True, squeeze=False).ravel()
     times = [_time(row['window_start_ns']) for row in trend.rows]
     alarms = {alarm.name: alarm for alarm in trend.alarms}
-    base = trend.baseline_windows
     for axis, parameter in zip(axes, trend.parameters):
-        points = trend.series[parameter]
-        values = np.array([point[1] for point in points])
-        band = Z95 * np.nan_to_num(np.array([point[2] for point in points]), nan=0.0)
-        axis.fill_between(times, values - band, values + band, color='#9ecae1', alpha=0.6,
-                          step=None, label='95 % band', linewidth=0)
-        axis.errorbar(times, values, yerr=band, fmt='o', markersize=3, color='#1f77b4',
-                      ecolor='#1f77b4', elinewidth=0.8, capsize=2, label='window')
-        if len(values) > base:
-            reference = float(np.nanmean(values[:base]))
-            axis.axhline(reference, color='0.4', linestyle='--', linewidth=0.8,
-                         label='baseline')
-            axis.axvspan(times[0], times[base - 1], color='0.9', zorder=0)
-        title = f'{parameter} [{UNITS.get(parameter, "")}]'
-        alarm = alarms.get(parameter)
-        if alarm is not None:
-            colour = _LEVEL_COLOURS[alarm.level]
-            axis.axvline(_time(alarm.raised), color=colour, linewidth=1.5,
-                         label=f'{alarm.level} decided')
-            if math.isfinite(alarm.since_s) and alarm.since_s != alarm.raised:
-                axis.axvline(_time(alarm.since_s), color=colour, linewidth=1.0, linestyle=':',
-                             label='since')
-            title += f'   {alarm.level} {alarm.change_pct:+.1f} %'
-            axis.set_title(title, color=colour, fontsize=10, fontweight='bold')
-        else:
-            axis.set_title(title, fontsize=10)
-        axis.grid(alpha=0.3)
-        axis.ticklabel_format(axis='y', style='sci', scilimits=(-3, 4), useOffset=False)
+        _parameter_axis(axis, trend, parameter, times, alarms)
     if trend.parameters:
         axes[0].legend(fontsize=7, loc='best')
-    effect_axis = axes[len(trend.parameters)]
+    _effects_axis(axes[len(trend.parameters)], trend, times, alarms)
+    _error_axis(axes[len(trend.parameters) + 1], trend, times)
+    for axis in axes[panels:]:
+        axis.set_visible(False)
+    for axis in axes:
+        for label in axis.get_xticklabels():
+            label.set_rotation(20)
+            label.set_fontsize(8)
+    figure.suptitle(f'motor {trend.motor_id}: {len(trend.rows)} windows, '
+                    f'{len(trend.failed)} failed, alarms: {trend.level}', fontsize=12)
+    figure.tight_layout()
+    return _save(figure, directory, name)
+
+
+def _parameter_axis(axis: Any, trend: MotorTrend, parameter: str, times: list,
+                    alarms: dict[str, Any]) -> None:
+    """Draw a parameter's windows with their 95 % band, the baseline and its alarm."""
+    base = trend.baseline_windows
+    points = trend.series[parameter]
+    values = np.array([point[1] for point in points])
+    band = Z95 * np.nan_to_num(np.array([point[2] for point in points]), nan=0.0)
+    axis.fill_between(times, values - band, values + band, color='#9ecae1', alpha=0.6,
+                      step=None, label='95 % band', linewidth=0)
+    axis.errorbar(times, values, yerr=band, fmt='o', markersize=3, color='#1f77b4',
+                  ecolor='#1f77b4', elinewidth=0.8, capsize=2, label='window')
+    if len(values) > base:
+        reference = float(np.nanmean(values[:base]))
+        axis.axhline(reference, color='0.4', linestyle='--', linewidth=0.8,
+                     label='baseline')
+        axis.axvspan(times[0], times[base - 1], color='0.9', zorder=0)
+    title = f'{parameter} [{UNITS.get(parameter, "")}]'
+    alarm = alarms.get(parameter)
+    if alarm is not None:
+        colour = _LEVEL_COLOURS[alarm.level]
+        axis.axvline(_time(alarm.raised), color=colour, linewidth=1.5,
+                     label=f'{alarm.level} decided')
+        if math.isfinite(alarm.since_s) and alarm.since_s != alarm.raised:
+            axis.axvline(_time(alarm.since_s), color=colour, linewidth=1.0, linestyle=':',
+                         label='since')
+        title += f'   {alarm.level} {alarm.change_pct:+.1f} %'
+        axis.set_title(title, color=colour, fontsize=10, fontweight='bold')
+    else:
+        axis.set_title(title, fontsize=10)
+    axis.grid(alpha=0.3)
+    axis.ticklabel_format(axis='y', style='sci', scilimits=(-3, 4), useOffset=False)
+
+
+def _effects_axis(effect_axis: Any, trend: MotorTrend, times: list,
+                  alarms: dict[str, Any]) -> None:
+    """Draw the effects found per window (an appeared effect's alarm in orange)."""
     names = sorted({name for _, found in trend.effects for name in found})
     for position, effect in enumerate(names):
         found_times = [time for time, (_, found) in zip(times, trend.effects)
@@ -183,7 +205,10 @@ def plot_motor(trend: MotorTrend, directory: str, name: str) -> str:
     effect_axis.set_title('effects found per window' + ('' if names else ': none')
                           + (' (orange: appeared, an alarm)' if appeared else ''), fontsize=10)
     effect_axis.grid(alpha=0.3)
-    error_axis = axes[len(trend.parameters) + 1]
+
+
+def _error_axis(error_axis: Any, trend: MotorTrend, times: list) -> None:
+    """Draw the held-out simulation errors of the base and final models."""
     for key, label, colour in (('error_before', 'base model', '#d62728'),
                                ('error_after', 'final model', '#1f77b4')):
         for channel, marker in (('current', 'o'), ('speed', '^')):
@@ -194,16 +219,6 @@ def plot_motor(trend: MotorTrend, directory: str, name: str) -> str:
     error_axis.set_title('held-out simulation error [% of std]', fontsize=10)
     error_axis.legend(fontsize=7, loc='best')
     error_axis.grid(alpha=0.3)
-    for axis in axes[panels:]:
-        axis.set_visible(False)
-    for axis in axes:
-        for label in axis.get_xticklabels():
-            label.set_rotation(20)
-            label.set_fontsize(8)
-    figure.suptitle(f'motor {trend.motor_id}: {len(trend.rows)} windows, '
-                    f'{len(trend.failed)} failed, alarms: {trend.level}', fontsize=12)
-    figure.tight_layout()
-    return _save(figure, directory, name)
 
 
 def plot_overview(trends: Sequence[MotorTrend], directory: str, limit: int = 30) -> str:
@@ -295,10 +310,30 @@ def write_fleet_report(history_dir: str, directory: str,
                              'files); run dcmotor-id fleet --history first')
     os.makedirs(directory, exist_ok=True)
     overview = plot_overview(trends, directory)
+    parts = _fleet_head(trends, unassigned, history_dir, settings, overview)
+    names = unique_names([trend.motor_id for trend in trends])
+    parts += [_overview_row(trend, names[trend.motor_id]) for trend in trends]
+    parts.append('</table>')
+    if unassigned:
+        parts.append('<h2>Recordings that could not be read</h2><ul>' + ''.join(
+            f'<li>{html.escape(row.get("source_bag") or "")}: '
+            f'{html.escape(row.get("error") or "")}</li>' for row in unassigned) + '</ul>')
+    for trend in trends:
+        parts += _motor_parts(trend, names[trend.motor_id], directory)
+    parts.append('</body></html>')
+    page = os.path.join(directory, 'index.html')
+    with open(page, 'w', encoding='utf-8') as stream:
+        stream.write('\n'.join(parts))
+    return page
+
+
+def _fleet_head(trends: Sequence[MotorTrend], unassigned: Sequence[Mapping[str, Any]],
+                history_dir: str, settings: DetectorSettings, overview: str) -> list[str]:
+    """Return the page's head: the counts, the alarm rule, the overview and its table head."""
     alarmed = sum(trend.level != 'OK' for trend in trends)
     windows = sum(len(trend.rows) for trend in trends)
     failures = sum(len(trend.failed) for trend in trends) + len(unassigned)
-    parts = [
+    return [
         '<!DOCTYPE html><html><head><meta charset="utf-8"><title>dcmotor_id fleet report'
         '</title><style>body{font-family:sans-serif;max-width:1200px;margin:auto}'
         'table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;'
@@ -318,53 +353,47 @@ def write_fleet_report(history_dir: str, directory: str,
         '<h2>Overview (most changed first)</h2><table><tr><th>motor</th><th>alarm</th>'
         '<th>largest change</th><th>alarms</th><th>effects (windows)</th><th>windows</th>'
         '<th>failed</th><th>last window</th></tr>']
-    names = unique_names([trend.motor_id for trend in trends])
-    for trend in trends:
-        parameter, value = trend.largest
-        change = f'{parameter} {value:+.1f} %' if math.isfinite(value) else '-'
-        effects = ', '.join(f'{name} ({count})' for name, count in
-                            sorted(trend.effect_counts().items())) or '-'
-        last = _when(trend.rows[-1]['window_start_ns']) if trend.rows else ''
-        parts.append(
-            f'<tr><td><a href="#{names[trend.motor_id]}">'
+
+
+def _overview_row(trend: MotorTrend, anchor: str) -> str:
+    """Return a motor's row of the overview table."""
+    parameter, value = trend.largest
+    change = f'{parameter} {value:+.1f} %' if math.isfinite(value) else '-'
+    effects = ', '.join(f'{name} ({count})' for name, count in
+                        sorted(trend.effect_counts().items())) or '-'
+    last = _when(trend.rows[-1]['window_start_ns']) if trend.rows else ''
+    return (f'<tr><td><a href="#{anchor}">'
             f'{html.escape(trend.motor_id)}</a></td><td class="{trend.level}">{trend.level}'
             f'</td>{_cell(change)}{_cell("; ".join(a.summary() for a in trend.alarms) or "-")}'
             f'{_cell(effects)}{_cell(len(trend.rows))}{_cell(len(trend.failed))}'
             f'{_cell(last)}</tr>')
-    parts.append('</table>')
-    if unassigned:
-        parts.append('<h2>Recordings that could not be read</h2><ul>' + ''.join(
-            f'<li>{html.escape(row.get("source_bag") or "")}: '
-            f'{html.escape(row.get("error") or "")}</li>' for row in unassigned) + '</ul>')
-    for trend in trends:
-        anchor = names[trend.motor_id]
-        parts.append(f'<h2 id="{anchor}">Motor {html.escape(trend.motor_id)} '
-                     f'<span class="{trend.level}">{trend.level}</span></h2>')
-        if trend.rows:
-            image = plot_motor(trend, directory, f'motor_{anchor}.png')
-            parts.append(f'<img src="{image}" alt="trends of {html.escape(trend.motor_id)}"'
-                         ' width="1000">')
-        if trend.alarms:
-            parts.append('<table><tr><th>alarm</th><th>level</th><th>since</th>'
-                         '<th>decided</th></tr>')
-            for alarm in trend.alarms:
-                parts.append(f'<tr>{_cell(alarm.summary())}<td class="{alarm.level}">'
-                             f'{alarm.level}</td>{_cell(_when(alarm.since_s))}'
-                             f'{_cell(_when(alarm.raised))}</tr>')
-            parts.append('</table>')
-        else:
-            parts.append('<p>No change alarm.</p>')
-        parts.append(_effects_table(trend))
-        if trend.failed:
-            parts.append('<p>Failed:</p><ul>' + ''.join(
-                f'<li>{html.escape(row.get("source_bag") or "")} window '
-                f'{row.get("window_index")}: {html.escape(row.get("error") or "")}</li>'
-                for row in trend.failed[:20]) + '</ul>')
-    parts.append('</body></html>')
-    page = os.path.join(directory, 'index.html')
-    with open(page, 'w', encoding='utf-8') as stream:
-        stream.write('\n'.join(parts))
-    return page
+
+
+def _motor_parts(trend: MotorTrend, anchor: str, directory: str) -> list[str]:
+    """Return a motor's section: its figure, alarms, effects and failed windows."""
+    parts = [f'<h2 id="{anchor}">Motor {html.escape(trend.motor_id)} '
+             f'<span class="{trend.level}">{trend.level}</span></h2>']
+    if trend.rows:
+        image = plot_motor(trend, directory, f'motor_{anchor}.png')
+        parts.append(f'<img src="{image}" alt="trends of {html.escape(trend.motor_id)}"'
+                     ' width="1000">')
+    if trend.alarms:
+        parts.append('<table><tr><th>alarm</th><th>level</th><th>since</th>'
+                     '<th>decided</th></tr>')
+        for alarm in trend.alarms:
+            parts.append(f'<tr>{_cell(alarm.summary())}<td class="{alarm.level}">'
+                         f'{alarm.level}</td>{_cell(_when(alarm.since_s))}'
+                         f'{_cell(_when(alarm.raised))}</tr>')
+        parts.append('</table>')
+    else:
+        parts.append('<p>No change alarm.</p>')
+    parts.append(_effects_table(trend))
+    if trend.failed:
+        parts.append('<p>Failed:</p><ul>' + ''.join(
+            f'<li>{html.escape(row.get("source_bag") or "")} window '
+            f'{row.get("window_index")}: {html.escape(row.get("error") or "")}</li>'
+            for row in trend.failed[:20]) + '</ul>')
+    return parts
 
 
 def _effects_table(trend: MotorTrend) -> str:
