@@ -1,0 +1,58 @@
+"""
+The effect discovery loop: trace the residual to an effect the model lacks, add it, repeat.
+
+1. Split every record in time: the first part (70 % by default) trains, the rest is held out.
+2. Fit the base model on the training part; simulate the whole record (the held-out part continues
+   the simulation from the training part) and analyse the held-out residual
+   (:mod:`dcmotor_id.identification.residuals`): Ljung-Box whiteness, predictable share,
+   correlation with the inputs and with every candidate's regressor.
+3. If the residual is not white, try every effect of the vocabulary
+   (:mod:`dcmotor_id.identification.effects`) not yet in the model.  A cheap linearised screen (the
+   residual
+   regressed on the sensitivities of the base parameters and of the candidate's terms) picks
+   each candidate's inner parameters (Stribeck velocity, cogging period, delay); then *all*
+   parameters are refitted on the training part and the candidate is scored by the weighted
+   mean squared simulation error on the **held-out** part.
+4. The best candidate is added when it lowers the held-out error by at least ``min_gain``
+   (5 %) and the Bayesian information criterion of the training fit; candidates within 2 % of
+   the best one's improvement are a tie, won by the earlier in the vocabulary and reported as
+   equivalent.  Repeat until the residual is white or nothing helps.
+5. Refit the final structure on all the data (the reported parameters).
+
+``unexplained`` is true when the final held-out residual is still not white *and* an
+autoregressive predictor explains at least 5 % of it from its own past (structure of a size
+that matters) while no candidate helps: the evidence says how much and where.
+
+:class:`DiscoveryLoop` does all the fitting; what it found is plain data
+(:class:`DiscoveryResult`, its search rounds :class:`Round` of screened and refitted
+:class:`Candidate` effects).
+"""
+
+from dcmotor_id.identification.discovery.judging import (GAIN_NOISE_FACTOR, HELDOUT_BLOCKS,
+                                                         heldout_gain_noise, never_worse)
+from dcmotor_id.identification.discovery.loop import (CANDIDATE_MAX_NFEV, discover,
+                                                      DiscoveryLoop, GAIN_BLOCKS, GAIN_T,
+                                                      MATERIAL_FRACTION, MAX_EFFECTS, MIN_GAIN,
+                                                      MISFIT_FACTOR, NEGLIGIBLE_NRMSE_PCT,
+                                                      ONE_STEP_TERMS, OWN_PART_SHARE,
+                                                      OWN_PART_STRONG, SCREEN_SHARE, SCREEN_TOP,
+                                                      SCREEN_TOP_MISFIT, TIE_SHARE)
+from dcmotor_id.identification.discovery.parts import (EXCITATION_BLOCKS, excited_stop,
+                                                       HOLDOUT_FRACTION, moving_extent,
+                                                       TRAIN_SHARE_BOUNDS)
+from dcmotor_id.identification.discovery.refitting import (friction_floors, open_loop_outputs,
+                                                           refit_all_data, refit_start)
+from dcmotor_id.identification.discovery.result import (DiscoveryResult, errors_by_step,
+                                                        structure_errors)
+from dcmotor_id.identification.discovery.structure import Candidate, Fit, Round, Structure
+
+__all__ = [
+    'CANDIDATE_MAX_NFEV', 'Candidate', 'discover', 'DiscoveryLoop', 'DiscoveryResult',
+    'errors_by_step', 'EXCITATION_BLOCKS', 'excited_stop', 'Fit', 'friction_floors',
+    'GAIN_BLOCKS', 'GAIN_NOISE_FACTOR', 'GAIN_T', 'HELDOUT_BLOCKS', 'heldout_gain_noise',
+    'HOLDOUT_FRACTION', 'MATERIAL_FRACTION', 'MAX_EFFECTS', 'MIN_GAIN', 'MISFIT_FACTOR',
+    'moving_extent', 'NEGLIGIBLE_NRMSE_PCT', 'never_worse', 'ONE_STEP_TERMS', 'open_loop_outputs',
+    'OWN_PART_SHARE', 'OWN_PART_STRONG', 'refit_all_data', 'refit_start', 'Round',
+    'SCREEN_SHARE', 'SCREEN_TOP', 'SCREEN_TOP_MISFIT', 'Structure', 'structure_errors',
+    'TIE_SHARE', 'TRAIN_SHARE_BOUNDS',
+]
