@@ -28,31 +28,33 @@ that matters) while no candidate helps: the evidence says how much and where.
 :class:`Candidate` effects).
 """
 
-from dcmotor_id.identification.discovery.judging import (GAIN_NOISE_FACTOR, HELDOUT_BLOCKS,
-                                                         heldout_gain_noise, never_worse)
-from dcmotor_id.identification.discovery.loop import (CANDIDATE_MAX_NFEV, discover,
-                                                      DiscoveryLoop, GAIN_BLOCKS, GAIN_T,
-                                                      MATERIAL_FRACTION, MAX_EFFECTS, MIN_GAIN,
-                                                      MISFIT_FACTOR, NEGLIGIBLE_NRMSE_PCT,
-                                                      ONE_STEP_TERMS, OWN_PART_SHARE,
-                                                      OWN_PART_STRONG, SCREEN_SHARE, SCREEN_TOP,
-                                                      SCREEN_TOP_MISFIT, TIE_SHARE)
+from dcmotor_id.identification.discovery.analysis import (MATERIAL_FRACTION, MISFIT_FACTOR,
+                                                          NEGLIGIBLE_NRMSE_PCT, ONE_STEP_TERMS)
+from dcmotor_id.identification.discovery.judging import (GAIN_BLOCKS, GAIN_NOISE_FACTOR, GAIN_T,
+                                                         HELDOUT_BLOCKS, heldout_gain_noise,
+                                                         never_worse, OWN_PART_SHARE,
+                                                         OWN_PART_STRONG, TIE_SHARE)
+from dcmotor_id.identification.discovery.loop import discover, DiscoveryLoop
 from dcmotor_id.identification.discovery.parts import (EXCITATION_BLOCKS, excited_stop,
                                                        HOLDOUT_FRACTION, moving_extent,
                                                        TRAIN_SHARE_BOUNDS)
-from dcmotor_id.identification.discovery.refitting import (friction_floors, open_loop_outputs,
-                                                           refit_all_data, refit_start)
+from dcmotor_id.identification.discovery.refitting import (CANDIDATE_MAX_NFEV, friction_floors,
+                                                           open_loop_outputs, refit_all_data,
+                                                           refit_start)
 from dcmotor_id.identification.discovery.result import (DiscoveryResult, errors_by_step,
                                                         structure_errors)
+from dcmotor_id.identification.discovery.screening import (SCREEN_SHARE, SCREEN_TOP,
+                                                           SCREEN_TOP_MISFIT)
+from dcmotor_id.identification.discovery.state import LoopState, MAX_EFFECTS, MIN_GAIN
 from dcmotor_id.identification.discovery.structure import Candidate, Fit, Round, Structure
 
 __all__ = [
     'CANDIDATE_MAX_NFEV', 'Candidate', 'discover', 'DiscoveryLoop', 'DiscoveryResult',
     'errors_by_step', 'EXCITATION_BLOCKS', 'excited_stop', 'Fit', 'friction_floors',
     'GAIN_BLOCKS', 'GAIN_NOISE_FACTOR', 'GAIN_T', 'HELDOUT_BLOCKS', 'heldout_gain_noise',
-    'HOLDOUT_FRACTION', 'MATERIAL_FRACTION', 'MAX_EFFECTS', 'MIN_GAIN', 'MISFIT_FACTOR',
-    'moving_extent', 'NEGLIGIBLE_NRMSE_PCT', 'never_worse', 'ONE_STEP_TERMS', 'open_loop_outputs',
-    'OWN_PART_SHARE', 'OWN_PART_STRONG', 'refit_all_data', 'refit_start', 'Round',
-    'SCREEN_SHARE', 'SCREEN_TOP', 'SCREEN_TOP_MISFIT', 'Structure', 'structure_errors',
+    'HOLDOUT_FRACTION', 'LoopState', 'MATERIAL_FRACTION', 'MAX_EFFECTS', 'MIN_GAIN',
+    'MISFIT_FACTOR', 'moving_extent', 'NEGLIGIBLE_NRMSE_PCT', 'never_worse', 'ONE_STEP_TERMS',
+    'open_loop_outputs', 'OWN_PART_SHARE', 'OWN_PART_STRONG', 'refit_all_data', 'refit_start',
+    'Round', 'SCREEN_SHARE', 'SCREEN_TOP', 'SCREEN_TOP_MISFIT', 'Structure', 'structure_errors',
     'TIE_SHARE', 'TRAIN_SHARE_BOUNDS',
 ]
