@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Sequence
+from typing import Any, cast, Sequence
 
 import numpy as np
 
@@ -99,6 +99,49 @@ def choose(loop: LoopState, current, admissible, order):
             noise is None or winner.gain > noise):
         return winner, [candidate for candidate in ties if candidate is not winner]
     return None, []
+
+
+def decide(loop: LoopState, current: Fit, refitted: list[Candidate],
+           order: dict[str, int]) -> tuple[Candidate | None, list[Candidate], list[Candidate]]:
+    """
+    Choose the effect of a round among the refitted candidates (best held-out cost first).
+
+    The best admissible candidate that gains enough (:func:`choose`) must also have earned
+    its place (:func:`unearned`); a winner that has not is rejected (its ``problem`` says
+    why) and the next best is considered in its place.  Returns the chosen candidate (or
+    None), its equivalent ties and the refitted candidates with the rejections marked.
+    """
+    chosen = None
+    equivalent: list[Candidate] = []
+    while chosen is None:
+        admissible = [candidate for candidate in refitted if not candidate.problem]
+        chosen, equivalent = choose(loop, current, admissible, order)
+        if chosen is None:
+            break
+        doubt = unearned(loop, current, chosen)
+        if doubt:
+            # Rejected, and the next best is considered in its place.
+            refitted = [replace(candidate, problem=doubt) if candidate is chosen
+                        else candidate for candidate in refitted]
+            chosen = None
+    return chosen, equivalent, refitted
+
+
+def round_report(loop: LoopState, current: Fit, analysis: dict, results: list[Candidate],
+                 chosen: Candidate | None, equivalent: list[Candidate]) -> dict[str, Any]:
+    """Return the JSON report of a search round: errors, every candidate's evidence, choice."""
+    report: dict[str, Any] = {
+        'error_before': current.errors(loop.error_channels),
+        'candidates': [candidate_report(candidate, analysis)
+                       for candidate in results],
+        'added': None,
+    }
+    if chosen is not None:
+        report['added'] = chosen.describe()
+        report['error_after'] = chosen.fitted.errors(loop.error_channels)
+        report['gain_pct'] = cast(float, chosen.gain) * 100.0  # a chosen candidate is scored
+        report['equivalent'] = [candidate.describe() for candidate in equivalent]
+    return report
 
 
 def gain_t(loop: LoopState, current: Fit, fitted: Fit) -> float:

@@ -169,3 +169,24 @@ def screen_candidate(loop: LoopState, current: Fit, cls: type[Effect], residual:
         return None
     gained, inner, start_terms = found
     return Candidate(cls, inner, start_terms, gained / total)
+
+
+def screen_absent(loop: LoopState, current: Fit) -> list[Candidate]:
+    """
+    Screen every effect of the vocabulary not yet in the structure; best screen first.
+
+    The residual and the sensitivities of the fitted parameters (training parts) are computed
+    once; each candidate is screened against them (:func:`screen_candidate`).
+    """
+    residual, matrix, nominal = base_sensitivities(loop, current)
+    q = projector(matrix)
+    present = set(current.structure.names())
+    screened = []
+    for cls in loop.candidates:
+        if cls.name in present:
+            continue
+        candidate = screen_candidate(loop, current, cls, residual, q, nominal)
+        if candidate is not None:
+            screened.append(candidate)
+    screened.sort(key=lambda candidate: -candidate.screen_explained)
+    return screened
