@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
 from dcmotor_id.identification.discovery.state import LoopState
-from dcmotor_id.identification.discovery.structure import _part, Fit
+from dcmotor_id.identification.discovery.structure import Fit, join_part
 from dcmotor_id.identification.residuals import (analyse_channel, correlation_summary,
                                                  one_step_error, residual_nrmse_pct)
 
@@ -24,12 +24,14 @@ ONE_STEP_TERMS = {'voltage': 'voltage_extra', 'torque': 'torque_extra',
                   'current': 'current_offset', 'speed': 'speed_offset'}
 
 
-def _inputs(loop: LoopState, fitted, part):
+def _inputs(loop: LoopState, fitted: Fit, part: str) -> dict[str, np.ndarray]:
+    """Return the measured input on a part: the voltage, or the current (mechanical-only)."""
     name = 'current' if loop.mechanical_only else 'voltage'
-    return {name: _part([getattr(rec, name) for rec in fitted.records], fitted.stops, part)}
+    return {name: join_part([getattr(rec, name) for rec in fitted.records], fitted.stops, part)}
 
 
-def _candidate_regressors(loop: LoopState, fitted, part):
+def _candidate_regressors(loop: LoopState, fitted: Fit,
+                          part: str) -> Iterator[tuple[str, np.ndarray]]:
     """Yield ``(effect name, regressor on the part)``, one candidate at a time."""
     base = fitted.values
     for cls in loop.candidates:
@@ -42,7 +44,7 @@ def _candidate_regressors(loop: LoopState, fitted, part):
         terms = cls.terms(fitted.records, inner, base, loop.torque_constant)
         if not terms:
             continue
-        joined = _part(terms[0].regressors, fitted.stops, part)
+        joined = join_part(terms[0].regressors, fitted.stops, part)
         del terms
         if np.std(joined) > 0:
             yield cls.name, joined
@@ -108,8 +110,8 @@ def one_step_errors(loop: LoopState, fitted: Fit,
     # Prediction k is of sample k + 1: the parts start one sample earlier.
     stops = [max(stop - 1, 0) for stop in fitted.stops]
     return {channel: residual_nrmse_pct(
-        _part(errors[channel], stops, part),
-        _part([getattr(rec, channel)[1:] for rec in fitted.records], stops, part))
+        join_part(errors[channel], stops, part),
+        join_part([getattr(rec, channel)[1:] for rec in fitted.records], stops, part))
         for channel in channels}
 
 
@@ -127,7 +129,8 @@ def misfit(loop: LoopState, fitted: Fit) -> bool:
     return False
 
 
-def negligible(analysis):
+def negligible(analysis: dict) -> bool:
+    """Whether the held-out error is nil on every channel (the model reproduces the data)."""
     return all(item['nrmse_pct'] is not None and item['nrmse_pct'] < NEGLIGIBLE_NRMSE_PCT
                for item in analysis.values())
 

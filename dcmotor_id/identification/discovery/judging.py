@@ -68,7 +68,8 @@ def never_worse(base: Fit, final: Fit, reason: str) -> tuple[Fit, str]:
                   'model, which is kept')
 
 
-def bic(loop: LoopState, fitted):
+def bic(loop: LoopState, fitted: Fit) -> float:
+    """Bayesian information criterion of a fit's training cost (initial states counted)."""
     n = max(fitted.n_train, 1)
     n_parameters = len(fitted.estimate.parameters) + len(fitted.records) * len(loop.outputs)
     return float(n * np.log(max(fitted.train_cost, 1e-300)) + n_parameters * np.log(n))
@@ -85,7 +86,8 @@ def score(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
                                                  loop.weights or {}))
 
 
-def choose(loop: LoopState, current, admissible, order):
+def choose(loop: LoopState, current: Fit, admissible: list[Candidate],
+           order: dict[str, int]) -> tuple[Candidate | None, list[Candidate]]:
     """Return the best admissible candidate when it gains enough (and its ties), else None."""
     drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
     if not drop > 0:
@@ -94,9 +96,9 @@ def choose(loop: LoopState, current, admissible, order):
             if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
     winner = min(ties, key=lambda candidate: order[candidate.name])
     # Refitted candidates are scored: gain, bic_delta and gain_noise are set.
+    gain, bic_delta = cast(float, winner.gain), cast(float, winner.bic_delta)
     noise = winner.gain_noise
-    if winner.gain >= loop.min_gain and winner.bic_delta < 0 and (
-            noise is None or winner.gain > noise):
+    if gain >= loop.min_gain and bic_delta < 0 and (noise is None or gain > noise):
         return winner, [candidate for candidate in ties if candidate is not winner]
     return None, []
 
@@ -255,7 +257,8 @@ def own_part(loop: LoopState, candidate: Candidate) -> tuple[float, str] | None:
     return ratio, ', '.join(texts)
 
 
-def candidate_report(candidate, analysis):
+def candidate_report(candidate: Candidate, analysis: dict) -> dict[str, Any]:
+    """Return one candidate's JSON evidence in a round (screen, refit, gains, rejection)."""
     correlation = max((channel['regressors'].get(candidate.name, {}).get('max_abs', 0.0)
                        for channel in analysis.values()), default=0.0)
     return {

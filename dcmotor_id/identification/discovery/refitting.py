@@ -13,14 +13,15 @@ from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.discovery.screening import (base_sensitivities, delay_estimate,
                                                            projector)
 from dcmotor_id.identification.discovery.state import LoopState
-from dcmotor_id.identification.discovery.structure import (_slice_terms, _with_initial,
-                                                           Candidate, Fit, Structure)
+from dcmotor_id.identification.discovery.structure import (Candidate, Fit, slice_terms,
+                                                           Structure, with_initial)
 from dcmotor_id.identification.effects import SensorDelay, torque_spread
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.residuals import simulate_records
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.effects import Effect
     from dcmotor_id.identification.estimators.base import Estimate
 
 
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
 CANDIDATE_MAX_NFEV = 30
 
 
-def training_stops(loop: LoopState, records):
+def training_stops(loop: LoopState, records: Sequence[Record]) -> list[int]:
     """
     End of every record's training part (:func:`excited_stop`).
 
@@ -41,6 +42,7 @@ def training_stops(loop: LoopState, records):
 
 
 def make_estimator(loop: LoopState, **options: Any) -> RefinedEstimator:
+    """Return the loop's output-error estimator (initial states, armature, criterion)."""
     return RefinedEstimator(initial_state=loop.initial_state, progress=loop.progress,
                             quasi_static=loop.quasi_static, criterion=loop.criterion,
                             **options)
@@ -58,15 +60,15 @@ def fit_structure(loop: LoopState, structure: Structure, start: dict | None = No
     records = structure.transformed(loop.records)
     stops = training_stops(loop, records)
     base = start or {}
-    terms = _with_initial(structure.terms(records, base, loop.torque_constant, initial),
-                          initial or {})
+    terms = with_initial(structure.terms(records, base, loop.torque_constant, initial),
+                         initial or {})
     train = [rec.slice(0, stop) for rec, stop in zip(records, stops)]
     estimator = make_estimator(loop, max_nfev=max_nfev, initial=start or None,
                                initial_states=initial_states)
     if not start and terms:
         raise ValueError('a structure with effects needs a start point')
     estimate = estimator.fit(train, torque_constant=loop.torque_constant,
-                             terms=_slice_terms(terms, stops))
+                             terms=slice_terms(terms, stops))
     model = OutputErrorModel(records, loop.torque_constant, terms, loop.quasi_static,
                              loop.criterion)
     simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
@@ -82,7 +84,8 @@ def fit_structure(loop: LoopState, structure: Structure, start: dict | None = No
     return fitted
 
 
-def cost(loop: LoopState, fitted, part):
+def cost(loop: LoopState, fitted: Fit, part: str) -> float:
+    """Weighted mean squared simulation error of a fit on a part, summed over the outputs."""
     total = 0.0
     for channel in loop.outputs:
         error = fitted.channel_residual(channel, part)
@@ -91,11 +94,13 @@ def cost(loop: LoopState, fitted, part):
     return total
 
 
-def base_start(loop: LoopState, fitted):
+def base_start(loop: LoopState, fitted: Fit) -> dict[str, float]:
+    """Start of a refit from a fit's base values (:func:`refit_start`)."""
     return refit_start(fitted.values, loop.records, loop.torque_constant)
 
 
-def try_candidate(loop: LoopState, current, cls, inner, start_terms):
+def try_candidate(loop: LoopState, current: Fit, cls: type[Effect], inner: dict,
+                  start_terms: dict) -> Fit | None:
     """
     Refit the structure with a candidate from the screen's start; return the Fit or None.
 
@@ -128,7 +133,8 @@ def try_candidate(loop: LoopState, current, cls, inner, start_terms):
                key=lambda fit: fit.train_cost, default=None)
 
 
-def _try_from(loop: LoopState, structure, start, initial, initial_states):
+def _try_from(loop: LoopState, structure: Structure, start: dict, initial: dict,
+              initial_states: Sequence[Sequence[float]] | None) -> Fit | None:
     """Fit a structure from a start point; None when the fit fails."""
     try:
         with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
@@ -164,7 +170,7 @@ def refit_candidate(loop: LoopState, current: Fit, candidate: Candidate) -> Cand
                    problem=problem(loop, current, fitted))
 
 
-def problem(loop: LoopState, current, fitted):
+def problem(loop: LoopState, current: Fit, fitted: Fit) -> str | None:
     """Why a candidate's fit is not acceptable (physics, collapse), or None."""
     effect = fitted.structure.effects(fitted.values)[-1]
     reason = effect.problem(fitted.values, fitted.records)
@@ -180,7 +186,7 @@ def problem(loop: LoopState, current, fitted):
     return None
 
 
-def _refit_delay(loop: LoopState, current, channel, samples):
+def _refit_delay(loop: LoopState, current: Fit, channel: str, samples: int) -> Fit | None:
     """Gauss-Newton on the integer delay: shift, refit, re-estimate the remainder."""
     fitted = None
     tried = set()
@@ -278,7 +284,7 @@ def refit_all_data(structure: Structure, records: Sequence[Record],
     ``options`` go to the :class:`~dcmotor_id.identification.estimators.refined.RefinedEstimator`.
     """
     prepared = structure.transformed(records)
-    terms = _with_initial(structure.terms(prepared, values, torque_constant), values)
+    terms = with_initial(structure.terms(prepared, values, torque_constant), values)
     estimator = RefinedEstimator(initial=start, **options)
     return prepared, terms, estimator.fit(prepared, torque_constant=torque_constant,
                                           terms=terms)

@@ -8,19 +8,21 @@ time derivative of the simulated channel.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from dcmotor_id.identification.discovery.state import LoopState
-from dcmotor_id.identification.discovery.structure import _slice_terms, Candidate, Fit
+from dcmotor_id.identification.discovery.structure import Candidate, Fit, slice_terms
 from dcmotor_id.identification.effects import SensorDelay
 from dcmotor_id.identification.estimators.jacobian import jacobian
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.residuals import simulate_records
 
 if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
     from dcmotor_id.identification.effects import Effect
+    from dcmotor_id.identification.estimators.base import ExogenousTerm
 
 
 #: Share of ``min_gain`` the linearised screen must explain for a candidate to be refitted.
@@ -32,14 +34,18 @@ SCREEN_TOP = 2
 SCREEN_TOP_MISFIT = 4
 
 
-def train_model(loop: LoopState, fitted, terms):
+def train_model(loop: LoopState, fitted: Fit,
+                terms: tuple[ExogenousTerm, ...]) -> tuple[list[Record], OutputErrorModel]:
+    """Return the training parts of a fit's records and the output-error model on them."""
     train = [rec.slice(0, stop) for rec, stop in zip(fitted.records, fitted.stops)]
     return train, OutputErrorModel(train, loop.torque_constant,
-                                   _slice_terms(terms, fitted.stops), loop.quasi_static,
+                                   slice_terms(terms, fitted.stops), loop.quasi_static,
                                    loop.criterion)
 
 
-def stack(loop: LoopState, outputs_per_record, stops):
+def stack(loop: LoopState, outputs_per_record: Sequence[dict],
+          stops: Sequence[int]) -> np.ndarray:
+    """Join the weighted training parts of every output channel of every record."""
     parts = []
     for channel in loop.outputs:
         for out, stop in zip(outputs_per_record, stops):
@@ -47,7 +53,7 @@ def stack(loop: LoopState, outputs_per_record, stops):
     return np.concatenate(parts)
 
 
-def base_sensitivities(loop: LoopState, fitted):
+def base_sensitivities(loop: LoopState, fitted: Fit) -> tuple[np.ndarray, np.ndarray, list]:
     """Weighted residual and sensitivities of the fitted parameters (training part)."""
     train, model = train_model(loop, fitted, fitted.terms)
     values = dict(fitted.values)
@@ -72,7 +78,8 @@ def base_sensitivities(loop: LoopState, fitted):
     return residual, matrix, nominal
 
 
-def _term_responses(loop: LoopState, fitted, terms, nominal):
+def _term_responses(loop: LoopState, fitted: Fit, terms: Sequence[ExogenousTerm],
+                    nominal: list) -> np.ndarray:
     """
     Sensitivities of the training outputs to a candidate's coefficients.
 
@@ -94,7 +101,8 @@ def _term_responses(loop: LoopState, fitted, terms, nominal):
                     f0=stack(loop, nominal, fitted.stops))
 
 
-def projector(matrix):
+def projector(matrix: np.ndarray) -> np.ndarray | None:
+    """Orthonormal basis of the columns of a sensitivity matrix (pivoted QR), or None."""
     if matrix.shape[1] == 0:
         return None
     from scipy.linalg import qr  # lazily: only a search round needs it (import time)
@@ -103,7 +111,8 @@ def projector(matrix):
     return q[:, keep]
 
 
-def explained_by(q, residual, columns):
+def explained_by(q: np.ndarray | None, residual: np.ndarray,
+                 columns: np.ndarray) -> tuple[float, np.ndarray]:
     """Residual sum of squares explained by ``columns`` beyond the base sensitivities."""
     if q is not None:
         residual = residual - q @ (q.T @ residual)
@@ -134,7 +143,8 @@ def screen(loop: LoopState, fitted: Fit, cls: type[Effect], residual: np.ndarray
     return best
 
 
-def delay_estimate(loop: LoopState, fitted, channel, residual, q, nominal):
+def delay_estimate(loop: LoopState, fitted: Fit, channel: str, residual: np.ndarray,
+                   q: np.ndarray | None, nominal: list) -> tuple[float, float]:
     """Linearised delay of one channel's sensor [samples] (positive: the sensor is late)."""
     outs = []
     for out, rec, stop in zip(nominal, fitted.records, fitted.stops):

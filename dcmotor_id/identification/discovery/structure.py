@@ -61,18 +61,20 @@ class Structure:
         return [cls.from_fit(values, inner) for cls, inner in self.items]
 
 
-def _slice_terms(terms, stops):
+def slice_terms(terms: Sequence[ExogenousTerm], stops: Sequence[int]) -> tuple[ExogenousTerm, ...]:
+    """Return the terms cut to the training parts (each record's regressor up to its stop)."""
     return tuple(replace(term, regressors=tuple(reg[:stop] for reg, stop in
                                                 zip(term.regressors, stops)))
                  for term in terms)
 
 
-def _with_initial(terms, values):
+def with_initial(terms: Sequence[ExogenousTerm], values: dict) -> tuple[ExogenousTerm, ...]:
+    """Return the terms with their start values taken from ``values`` where it has them."""
     return tuple(replace(term, initial=float(values.get(term.name, term.initial)))
                  for term in terms)
 
 
-def _part(arrays, stops, part):
+def join_part(arrays: Sequence[np.ndarray], stops: Sequence[int], part: str) -> np.ndarray:
     """
     Concatenate the training (``train``) or held-out (``heldout``) part of per-record arrays.
 
@@ -105,11 +107,11 @@ class Fit:
 
     def channel_simulated(self, channel: str, part: str) -> np.ndarray:
         """Return the simulation of one channel on a part (train or heldout), concatenated."""
-        return _part([sim[channel] for sim in self.simulated], self.stops, part)
+        return join_part([sim[channel] for sim in self.simulated], self.stops, part)
 
     def channel_measured(self, channel: str, part: str) -> np.ndarray:
         """Measurement of one channel on a part, concatenated."""
-        return _part([getattr(rec, channel) for rec in self.records], self.stops, part)
+        return join_part([getattr(rec, channel) for rec in self.records], self.stops, part)
 
     def channel_residual(self, channel: str, part: str) -> np.ndarray:
         """Model minus measurement of one channel on a part, concatenated."""
