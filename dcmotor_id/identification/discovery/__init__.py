@@ -26,6 +26,24 @@ that matters) while no candidate helps: the evidence says how much and where.
 :class:`DiscoveryLoop` does all the fitting; what it found is plain data
 (:class:`DiscoveryResult`, its search rounds :class:`Round` of screened and refitted
 :class:`Candidate` effects).
+
+One module per seam of the loop; each imports only the modules before it in this list:
+
+- :mod:`~dcmotor_id.identification.discovery.parts`: where a record's held-out part starts;
+- :mod:`~dcmotor_id.identification.discovery.structure`: :class:`Structure`, :class:`Fit`,
+  :class:`Candidate`, :class:`Round` and the helpers on effect terms and record parts;
+- :mod:`~dcmotor_id.identification.discovery.state`: :class:`LoopState`, the loop's settings
+  and what it learns on the way (error weights, the speed-criterion anchor), which the
+  functions of the modules below take as their first argument;
+- :mod:`~dcmotor_id.identification.discovery.analysis`: the residual analysis of a fit (step 2);
+- :mod:`~dcmotor_id.identification.discovery.screening`: the linearised screen (step 3);
+- :mod:`~dcmotor_id.identification.discovery.refitting`: fitting a structure, a candidate's
+  refit and its physical problems, the all-data refit (steps 3 and 5);
+- :mod:`~dcmotor_id.identification.discovery.judging`: the held-out gain, its noise, the
+  choice and the round's report (step 4);
+- :mod:`~dcmotor_id.identification.discovery.result`: :class:`DiscoveryResult`;
+- :mod:`~dcmotor_id.identification.discovery.loop`: :class:`DiscoveryLoop`, the search round
+  by round, and :func:`discover`.
 """
 
 from dcmotor_id.identification.discovery.analysis import (MATERIAL_FRACTION, MISFIT_FACTOR,
