@@ -175,6 +175,7 @@ def test_friction_guard_never_fires_on_a_parameter_already_at_zero():
     from types import SimpleNamespace
 
     from dcmotor_id.identification.discovery import DiscoveryLoop
+    from dcmotor_id.identification.discovery.refitting import problem
 
     t = np.arange(2000) * DT
     voltage = 100.0 * np.sin(2 * np.pi * t)
@@ -187,9 +188,9 @@ def test_friction_guard_never_fires_on_a_parameter_already_at_zero():
         return SimpleNamespace(values={**MOTOR.as_dict(), **values}, structure=structure,
                                records=loop.records)
     # Mc at 5e-193 "collapsing" further is no collapse (the 96 % gain rejected).
-    assert loop._problem(fit({'Mc': 5e-193}), fit({'Mc': 1e-200})) is None
+    assert problem(loop, fit({'Mc': 5e-193}), fit({'Mc': 1e-200})) is None
     # A real friction that collapses is still caught.
-    assert 'collapses' in loop._problem(fit({'Mc': 1.0}), fit({'Mc': 1e-4}))
+    assert 'collapses' in problem(loop, fit({'Mc': 1.0}), fit({'Mc': 1e-4}))
 
 
 def test_an_early_sensor_is_not_accepted_as_a_negative_delay():

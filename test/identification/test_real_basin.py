@@ -9,6 +9,7 @@ from dcmotor_id.core.records import Record
 from dcmotor_id.identification.checks.identifiability import initial_state_warnings, noise_level
 from dcmotor_id.identification.checks.start import regression_evidence
 from dcmotor_id.identification.discovery import DiscoveryLoop, excited_stop
+from dcmotor_id.identification.discovery.judging import unearned
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.validate import (model_from_dict, operating_range, range_warnings,
                                                 validate)
@@ -130,7 +131,7 @@ def test_a_gain_carried_by_one_block_does_not_earn_an_effect():
                                                            ** 2)
         assert gain > 0.05
         candidate = SimpleNamespace(name='load_torque', fitted=fitted, gain=gain, effect=None)
-        reason = loop._unearned(current, candidate)
+        reason = unearned(loop, current, candidate)
         assert (reason is None) == earned, reason
 
 
@@ -144,10 +145,10 @@ def test_a_cogging_ripple_above_the_coulomb_friction_needs_more_evidence():
     gain = 1 - 0.96 ** 2
     loop = _loop()
     candidate = SimpleNamespace(name='cogging', fitted=fitted, gain=gain, effect=None)
-    reason = loop._unearned(current, candidate)
+    reason = unearned(loop, current, candidate)
     assert reason is not None and 'larger than the Coulomb friction' in reason
     fitted.values = {'Mc': 0.05, 'cogging.sin_Nm': 0.03, 'cogging.cos_Nm': 0.0}
-    assert loop._unearned(current, SimpleNamespace(name='cogging', fitted=fitted, gain=gain,
+    assert unearned(loop, current, SimpleNamespace(name='cogging', fitted=fitted, gain=gain,
                                                    effect=None)) is None
 
 

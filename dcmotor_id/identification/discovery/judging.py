@@ -1,0 +1,279 @@
+"""Judging on the held-out parts: the noise of a candidate's gain; never worse than the base."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any, cast, Sequence
+
+import numpy as np
+
+from dcmotor_id.identification.discovery.state import LoopState
+from dcmotor_id.identification.discovery.structure import Candidate, Fit
+from dcmotor_id.identification.estimators.refined import OutputErrorModel
+from dcmotor_id.identification.residuals import simulate_records
+
+
+#: Contiguous blocks of the held-out part whose error drops give the noise of the gain.
+HELDOUT_BLOCKS = 8
+#: Standard errors of the held-out drop a candidate's gain must exceed.
+GAIN_NOISE_FACTOR = 2.0
+#: Candidates explaining at least this share of the best one's improvement tie with it.
+TIE_SHARE = 0.98
+#: Blocks per record's held-out part of the gain's t statistic (:func:`gain_t`).
+GAIN_BLOCKS = 8
+#: Share of a refit's residual RMS an effect's own part of the outputs must exceed.
+OWN_PART_SHARE = 0.5
+#: Noise levels of an effect's own part beyond which its held-out gain needs no t test.
+OWN_PART_STRONG = 3.0
+#: Least t of the held-out gain for an effect to be added.
+GAIN_T = 2.0
+
+
+def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
+                       weights: dict[str, float]) -> float:
+    """
+    Noise of a candidate's relative held-out gain: two standard errors of the error drop.
+
+    The weighted squared held-out errors of both fits (the held-out cost's terms) are
+    subtracted sample by sample and summed over :data:`HELDOUT_BLOCKS` contiguous blocks;
+    the blocks' spread gives the standard error of the total drop (blocks far longer than the
+    residual's correlation are nearly independent; shorter ones make it conservative).
+    Returns ``GAIN_NOISE_FACTOR`` times it relative to the current held-out cost (``inf``
+    when it cannot be computed).
+    """
+    drop = None
+    for channel in outputs:
+        before = current.channel_residual(channel, 'heldout')
+        after = candidate.channel_residual(channel, 'heldout')
+        # A data effect (a sensor delay) shifts the records by a few samples: the common end.
+        common = min(before.shape[0], after.shape[0])
+        before, after = before[before.shape[0] - common:], after[after.shape[0] - common:]
+        if common < 2 * HELDOUT_BLOCKS:
+            return float('inf')
+        term = (before ** 2 - after ** 2) / (max(weights.get(channel, 1.0), 1e-300) ** 2
+                                             * before.shape[0])
+        drop = term if drop is None else drop + term
+    if drop is None or not np.all(np.isfinite(drop)) or current.heldout_cost <= 0.0:
+        return float('inf')
+    sums = np.array([part.sum() for part in np.array_split(drop, HELDOUT_BLOCKS)])
+    stderr = float(np.sqrt(HELDOUT_BLOCKS) * np.std(sums, ddof=1))
+    return GAIN_NOISE_FACTOR * stderr / current.heldout_cost
+
+
+def never_worse(base: Fit, final: Fit, reason: str) -> tuple[Fit, str]:
+    """Return the final structure, or the base one when it is not better on the held-out part."""
+    if final is base or final.heldout_cost < base.heldout_cost:
+        return final, reason
+    return base, (reason + '; the effects found did not lower the held-out error of the base '
+                  'model, which is kept')
+
+
+def bic(loop: LoopState, fitted: Fit) -> float:
+    """Bayesian information criterion of a fit's training cost (initial states counted)."""
+    n = max(fitted.n_train, 1)
+    n_parameters = len(fitted.estimate.parameters) + len(fitted.records) * len(loop.outputs)
+    return float(n * np.log(max(fitted.train_cost, 1e-300)) + n_parameters * np.log(n))
+
+
+def score(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
+    """Return the candidate with its held-out gain and BIC change (None if not refitted)."""
+    if candidate.fit is None:
+        return candidate
+    return replace(candidate, gain=1.0 - candidate.fit.heldout_cost / current.heldout_cost,
+                   bic_delta=bic(loop, candidate.fit) - bic(loop, current),
+                   insample_gain=1.0 - candidate.fit.train_cost / current.train_cost,
+                   gain_noise=heldout_gain_noise(current, candidate.fit, loop.outputs,
+                                                 loop.weights or {}))
+
+
+def choose(loop: LoopState, current: Fit, admissible: list[Candidate],
+           order: dict[str, int]) -> tuple[Candidate | None, list[Candidate]]:
+    """Return the best admissible candidate when it gains enough (and its ties), else None."""
+    drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
+    if not drop > 0:
+        return None, []
+    ties = [candidate for candidate in admissible
+            if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
+    winner = min(ties, key=lambda candidate: order[candidate.name])
+    # Refitted candidates are scored: gain, bic_delta and gain_noise are set.
+    gain, bic_delta = cast(float, winner.gain), cast(float, winner.bic_delta)
+    noise = winner.gain_noise
+    if gain >= loop.min_gain and bic_delta < 0 and (noise is None or gain > noise):
+        return winner, [candidate for candidate in ties if candidate is not winner]
+    return None, []
+
+
+def decide(loop: LoopState, current: Fit, refitted: list[Candidate],
+           order: dict[str, int]) -> tuple[Candidate | None, list[Candidate], list[Candidate]]:
+    """
+    Choose the effect of a round among the refitted candidates (best held-out cost first).
+
+    The best admissible candidate that gains enough (:func:`choose`) must also have earned
+    its place (:func:`unearned`); a winner that has not is rejected (its ``problem`` says
+    why) and the next best is considered in its place.  Returns the chosen candidate (or
+    None), its equivalent ties and the refitted candidates with the rejections marked.
+    """
+    chosen = None
+    equivalent: list[Candidate] = []
+    while chosen is None:
+        admissible = [candidate for candidate in refitted if not candidate.problem]
+        chosen, equivalent = choose(loop, current, admissible, order)
+        if chosen is None:
+            break
+        doubt = unearned(loop, current, chosen)
+        if doubt:
+            # Rejected, and the next best is considered in its place.
+            refitted = [replace(candidate, problem=doubt) if candidate is chosen
+                        else candidate for candidate in refitted]
+            chosen = None
+    return chosen, equivalent, refitted
+
+
+def round_report(loop: LoopState, current: Fit, analysis: dict, results: list[Candidate],
+                 chosen: Candidate | None, equivalent: list[Candidate]) -> dict[str, Any]:
+    """Return the JSON report of a search round: errors, every candidate's evidence, choice."""
+    report: dict[str, Any] = {
+        'error_before': current.errors(loop.error_channels),
+        'candidates': [candidate_report(candidate, analysis)
+                       for candidate in results],
+        'added': None,
+    }
+    if chosen is not None:
+        report['added'] = chosen.describe()
+        report['error_after'] = chosen.fitted.errors(loop.error_channels)
+        report['gain_pct'] = cast(float, chosen.gain) * 100.0  # a chosen candidate is scored
+        report['equivalent'] = [candidate.describe() for candidate in equivalent]
+    return report
+
+
+def gain_t(loop: LoopState, current: Fit, fitted: Fit) -> float:
+    """
+    Student t of the held-out gain over contiguous blocks (its size against its noise).
+
+    Every record's held-out part is cut into :data:`GAIN_BLOCKS` blocks; the gain of a
+    block is the drop of its weighted squared residual.  A gain that a few blocks carry
+    while the others lose (a model fitting noise, or trading one stretch for another) has
+    a small t.
+    """
+    weights = loop.weights or {}
+
+    def squared(fit: Fit, index: int) -> np.ndarray:
+        start = fit.stops[index]
+        total = np.zeros(fit.simulated[index][loop.outputs[0]].shape[0] - start)
+        for channel in loop.outputs:
+            total += ((fit.simulated[index][channel][start:]
+                       - getattr(fit.records[index], channel)[start:])
+                      / weights.get(channel, 1.0)) ** 2
+        return total
+
+    drops = []
+    for index in range(len(current.stops)):
+        old, new = squared(current, index), squared(fitted, index)
+        size = min(old.shape[0], new.shape[0])
+        for block in np.array_split(np.arange(size), GAIN_BLOCKS):
+            if block.shape[0]:
+                drops.append(float(np.mean(old[block]) - np.mean(new[block])))
+    drops_array = np.array(drops)
+    if drops_array.shape[0] < 2 or not np.all(np.isfinite(drops_array)):
+        return 0.0
+    spread = float(np.std(drops_array, ddof=1)) / np.sqrt(drops_array.shape[0])
+    mean = float(np.mean(drops_array))
+    return mean / spread if spread > 0 else (np.inf if mean > 0 else 0.0)
+
+
+def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
+    """
+    Why a winning candidate has not earned its place on held-out data, or None.
+
+    Its own part of the simulated outputs must exceed the noise (:func:`own_part`); unless
+    it stands far out of it (:data:`OWN_PART_STRONG` noise levels), its held-out gain must
+    stand out of the gain's own noise over blocks (:func:`gain_t` at least
+    :data:`GAIN_T`).  An effect beyond a physical size limit (a cogging ripple larger than
+    the Coulomb friction) always needs twice that t and twice the gain.
+    """
+    own = own_part(loop, candidate)
+    if own is not None and own[0] <= 1.0:
+        return (f'its own part of the simulated outputs is below the noise ({own[1]}): its '
+                'held-out gain comes from moving the other parameters')
+    required, gain = GAIN_T, loop.min_gain
+    strong = own is not None and own[0] >= OWN_PART_STRONG
+    values = candidate.fitted.values
+    size = ''
+    if candidate.name == 'cogging':
+        amplitude = float(np.hypot(values.get('cogging.sin_Nm', 0.0),
+                                   values.get('cogging.cos_Nm', 0.0)))
+        if amplitude > values.get('Mc', 0.0):
+            required, gain, strong = 2.0 * GAIN_T, 2.0 * loop.min_gain, False
+            size = (f' (a ripple of {amplitude:.3g} N m, larger than the Coulomb friction '
+                    f'{values.get("Mc", 0.0):.3g} N m, needs t >= {required:g} and a gain of '
+                    f'{100 * gain:.0f} %)')
+    achieved = float(candidate.gain or 0.0)
+    if strong and achieved >= gain:
+        return None
+    t = gain_t(loop, current, candidate.fitted)
+    if t >= required and achieved >= gain:
+        return None
+    return (f'its held-out gain ({100 * achieved:.3g} %, t = {t:.2g} over '
+            f'{GAIN_BLOCKS} blocks per record) does not stand out of its own noise{size}')
+
+
+def own_part(loop: LoopState, candidate: Candidate) -> tuple[float, str] | None:
+    """
+    Size of an effect's own part of the simulated outputs, in noise levels, and its text.
+
+    The refit is simulated again with the effect's coefficients at zero; the largest
+    channel's RMS difference over its noise (the sensor noise, or :data:`OWN_PART_SHARE` of
+    the refit's residual RMS when larger: input noise integrated by the motor, or misfit).
+    An effect below one noise level explains no part of the signal that stands out: a gain
+    it brings comes from moving the other parameters (extra freedom, not an effect).  None
+    for data effects (delays), which are not judged so.
+    """
+    from dcmotor_id.identification.checks.identifiability import noise_level
+
+    fitted = candidate.fitted
+    prefix = f'{candidate.name}.'
+    terms = [term for term in fitted.terms if term.name.startswith(prefix)]
+    if not terms or candidate.effect.TRANSFORM:
+        return None
+    values = dict(fitted.values)
+    for term in terms:
+        values[term.name] = 0.0
+    model = OutputErrorModel(fitted.records, loop.torque_constant, fitted.terms,
+                             loop.quasi_static)
+    without = simulate_records(model, values, fitted.estimate.initial_states)
+    ratio, texts = 0.0, []
+    for channel in loop.outputs:
+        difference = np.concatenate([sim[channel] - out[channel] for sim, out
+                                     in zip(fitted.simulated, without)])
+        sensor = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2
+                                  for rec in fitted.records]))
+        misfit = float(fitted.estimate.info.get('noise_std', {}).get(channel, 0.0))
+        noise = max(float(sensor), OWN_PART_SHARE * misfit, 1e-300)
+        rms = float(np.sqrt(np.mean(difference ** 2)))
+        if not np.isfinite(rms):
+            return None
+        ratio = max(ratio, rms / noise)
+        texts.append(f'{channel} {rms:.3g} against a noise of {noise:.3g}')
+    return ratio, ', '.join(texts)
+
+
+def candidate_report(candidate: Candidate, analysis: dict) -> dict[str, Any]:
+    """Return one candidate's JSON evidence in a round (screen, refit, gains, rejection)."""
+    correlation = max((channel['regressors'].get(candidate.name, {}).get('max_abs', 0.0)
+                       for channel in analysis.values()), default=0.0)
+    return {
+        'name': candidate.name,
+        'inner': dict(candidate.inner),
+        'refitted': candidate.fit is not None,
+        'rejected': candidate.problem,
+        'heldout_gain_pct': None if candidate.gain is None else candidate.gain * 100.0,
+        'heldout_gain_noise_pct': _pct_or_none(candidate.gain_noise),
+        'insample_gain_pct': _pct_or_none(candidate.insample_gain),
+        'bic_delta': candidate.bic_delta,
+        'screen_explained_pct': candidate.screen_explained * 100.0,
+        'regressor_correlation': correlation,
+    }
+
+
+def _pct_or_none(value: float | None) -> float | None:
+    return None if value is None else float(value) * 100.0

@@ -1,0 +1,175 @@
+"""The discovery loop (:class:`DiscoveryLoop`): fit, analyse, screen, refit, judge, repeat."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence, TYPE_CHECKING
+
+from dcmotor_id.core.model import parameter_names
+from dcmotor_id.core.progress import TimeBudgetExceeded
+from dcmotor_id.identification.discovery.analysis import (analyse, explained, material, misfit,
+                                                          negligible)
+from dcmotor_id.identification.discovery.judging import decide, never_worse, round_report, score
+from dcmotor_id.identification.discovery.refitting import (anchor_fit, fit_structure, refit_all,
+                                                           refit_candidate)
+from dcmotor_id.identification.discovery.result import DiscoveryResult
+from dcmotor_id.identification.discovery.screening import (screen_absent, SCREEN_SHARE,
+                                                           SCREEN_TOP, SCREEN_TOP_MISFIT)
+from dcmotor_id.identification.discovery.state import LoopState
+from dcmotor_id.identification.discovery.structure import Candidate, Fit, Round, Structure
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.estimators.base import Estimate
+
+
+@dataclass
+class Search:
+    """Where the search stopped: the structure, the rounds' reports, its last analysis, why."""
+
+    current: Fit
+    analysis: dict
+    steps: list = field(default_factory=list)
+    reason: str = 'explained'
+    out_of_time: bool = False
+
+
+class DiscoveryLoop(LoopState):
+    """
+    Residual analysis and effect discovery on a set of prepared records.
+
+    The parameters are those of :class:`~dcmotor_id.identification.discovery.state.LoopState`
+    (records, torque constant, vocabulary, hold-out share, least gain, ...).  A round
+    screens every absent effect (:mod:`~dcmotor_id.identification.discovery.screening`),
+    refits the promising ones (:mod:`~dcmotor_id.identification.discovery.refitting`) and
+    judges them on the held-out parts (:mod:`~dcmotor_id.identification.discovery.judging`).
+    """
+
+    def run(self, estimate: Estimate | None = None) -> DiscoveryResult:
+        """
+        Run the loop, refit the base and final structures on all the data; return it.
+
+        ``estimate``, the base model already fitted on all of the records (same model: mode,
+        quasi-static armature), warm-starts the base fit on the training parts and is reused
+        when no effect is added.
+        """
+        base = self._base_fit(estimate)
+        analysis_before = analyse(self, base)
+        search = self._search(base, analysis_before)
+        current, reason = never_worse(base, search.current, search.reason)
+        records, terms, estimate, base_estimate, out_of_time = self._refit_all_data(
+            base, current, estimate, search.out_of_time)
+        analysis = search.analysis
+        return DiscoveryResult(
+            holdout_fraction=self.holdout_fraction, min_gain=self.min_gain,
+            outputs=self.outputs, torque_constant=self.torque_constant,
+            source_records=list(self.records), base=base, final=current, steps=search.steps,
+            analysis_before=analysis_before, analysis_after=analysis, reason=reason,
+            unexplained=material(self, analysis), records=records, terms=terms,
+            estimate=estimate, effects=current.structure.effects(estimate.parameters),
+            base_estimate=base_estimate, error_before=base.errors(self.error_channels),
+            error_after=current.errors(self.error_channels), out_of_time=out_of_time,
+            quasi_static=self.quasi_static, criterion=self.criterion)
+
+    def _base_fit(self, estimate: Estimate | None) -> Fit:
+        """Fit the base model on the training parts (from ``estimate`` if given); the anchor."""
+        if self.progress is not None:
+            self.progress.set_stage('discovery: base model on the training parts')
+        if estimate is None:
+            base = fit_structure(self, Structure())
+        else:
+            start = {name: float(estimate.parameters[name])
+                     for name in parameter_names(self.mechanical_only)
+                     if name in estimate.parameters}
+            base = fit_structure(self, Structure(), start=start,
+                                 initial_states=estimate.initial_states)
+        if base.estimate.info.get('initial_state') == 'measured':
+            # The position criterion pinned the base's initial states (its fitted start moved
+            # to absorb a misfit): the candidates start pinned too, without a second fit.
+            self.initial_state = 'measured'
+        self.anchor = anchor_fit(self)
+        return base
+
+    def _search(self, base: Fit, analysis: dict) -> Search:
+        """Add effects round by round until the residual is white or nothing helps."""
+        search = Search(base, analysis)
+        try:
+            while True:
+                if explained(self, search.analysis):
+                    search.reason = 'the residual is white' if not negligible(
+                        search.analysis) else 'the model reproduces the data exactly'
+                    break
+                if len(search.current.structure) >= self.max_effects:
+                    search.reason = f'stopped at {self.max_effects} effects'
+                    break
+                step = self._round(search.current, search.analysis)
+                search.steps.append(step.report)
+                if step.chosen is None:
+                    search.reason = 'no candidate lowers the held-out error enough'
+                    break
+                search.current = step.chosen.fitted
+                search.analysis = analyse(self, search.current)
+        except TimeBudgetExceeded:
+            search.out_of_time = True
+            search.reason = 'the time budget ran out: the best structure so far is kept'
+        return search
+
+    def _refit_all_data(self, base: Fit, current: Fit, estimate: Estimate | None,
+                        out_of_time: bool) -> tuple[list, tuple, Estimate, Estimate, bool]:
+        """
+        Refit the final and the base structure on all the data.
+
+        Returns the final structure's records, terms and estimate, the base estimate and
+        whether the time budget ran out (then the training-part fits are what there is).
+        """
+        try:
+            if out_of_time:
+                raise TimeBudgetExceeded('no time left for the all-data refit')
+            if self.progress is not None:
+                self.progress.set_stage('discovery: final refit on all the data')
+            if len(current.structure) == 0 and estimate is not None:
+                # The base model on all of the data is the one given: no refit.
+                return list(self.records), (), estimate, estimate, out_of_time
+            records, terms, estimate = refit_all(self, current)
+            base_estimate = refit_all(self, base)[2] if len(current.structure) else estimate
+            return records, terms, estimate, base_estimate, out_of_time
+        except TimeBudgetExceeded:
+            # The training-part fits are what there is: report them, said so in the result.
+            return (current.records, current.terms, current.estimate, base.estimate, True)
+
+    def _round(self, current: Fit, analysis: dict) -> Round:
+        """One search round: screen every absent effect, refit the promising, choose."""
+        scored = self._refit_promising(current, screen_absent(self, current))
+        order = {cls.name: position for position, cls in enumerate(self.candidates)}
+        refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
+                          key=lambda candidate: candidate.fitted.heldout_cost)
+        screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
+                              key=lambda candidate: -candidate.screen_explained)
+        chosen, equivalent, refitted = decide(self, current, refitted, order)
+        results = refitted + screened_out
+        return Round(results, chosen,
+                     round_report(self, current, analysis, results, chosen, equivalent))
+
+    def _refit_promising(self, current: Fit, screened: list[Candidate]) -> list[Candidate]:
+        """
+        Refit and score the candidates the screen supports, and the best few anyway.
+
+        The screen is a linearisation: a strongly nonlinear effect may look smaller than it
+        is.  ``screened`` is in the order of the screen, best first; so is the list returned.
+        """
+        threshold = SCREEN_SHARE * self.min_gain
+        top = SCREEN_TOP_MISFIT if misfit(self, current) else SCREEN_TOP
+        scored = []
+        for rank, candidate in enumerate(screened):
+            if rank < top or candidate.screen_explained >= threshold:
+                if self.progress is not None:
+                    self.progress.set_stage(f'discovery: candidate {candidate.name}')
+                candidate = score(self, current, refit_candidate(self, current, candidate))
+            scored.append(candidate)
+        return scored
+
+
+def discover(records: Sequence[Record], torque_constant: float | None = None,
+             **options: Any) -> DiscoveryResult:
+    """Run the discovery loop on prepared records; return a :class:`DiscoveryResult`."""
+    return DiscoveryLoop(records, torque_constant, **options).run()
