@@ -75,7 +75,7 @@ class IdentificationResult:
     warnings : list of str
         What the user must know to trust the numbers.
     errors : dict
-        Per-record simulation errors (:func:`~dcmotor_id.identification.identify.record_errors`).
+        Per-record simulation errors (:func:`~dcmotor_id.identification.heldout.record_errors`).
     combined : dict
         Combinations reported instead of their parts, e.g. ``friction_torque_Nm``
         (``{"value", "stderr", "direction", "of"}``) on one-direction data.
