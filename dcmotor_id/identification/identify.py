@@ -30,16 +30,17 @@ from dcmotor_id.formats.held import restore_held
 from dcmotor_id.formats.quality import coarse_speed
 from dcmotor_id.identification.basin import bic, regression_evidence, regression_start, suspect
 from dcmotor_id.identification.criterion import resolve_criterion
+from dcmotor_id.identification.current_limited import (electrical_part, JACKKNIFE_GROUPS,
+                                                       with_electrical_part)
 from dcmotor_id.identification.discovery import (DiscoveryLoop, refit_all_data, refit_start,
                                                  Structure)
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.identification.estimators.uncertainty import (block_scores, robust_covariance,
-                                                              with_robust_stderr)
+from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
 from dcmotor_id.identification.heldout import HELDOUT_CHOICE, heldout_warnings, record_errors
 from dcmotor_id.identification.identifiability import (assess_excitation, at_bound,
-                                                       correlated_pairs, current_limit_warning,
+                                                       correlated_pairs,
                                                        Excitation, IDENTIFIABLE_REL_STDERR,
                                                        initial_state_warnings, limited_samples,
                                                        loose, misfit_warning,
@@ -72,8 +73,6 @@ NO_FIT_NRMSE_PCT = 60.0
 HOPELESS_NRMSE_PCT = 100.0
 #: Time given to effect discovery when the base model is off by more than NO_FIT_NRMSE_PCT [s].
 HOPELESS_DISCOVERY_S = 3.0
-#: Groups of the jackknife of the electrical regression off a current limit.
-JACKKNIFE_GROUPS = 8
 #: Default time budget [s] (``--max-time``).
 DEFAULT_MAX_TIME_S = 120.0
 #: Largest relative difference of the records' sample periods taken as one period: the logged
@@ -579,112 +578,21 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
     )
 
 
-def _electrical_regression(records, limited):
-    """
-    Ra and CPhi from ``u[k-1] = Ra i[k] + CPhi w[k]`` on the samples off the current limit.
-
-    The quasi-static armature (the time constant below the sample period, where a current
-    limit is seen): the current sampled at ``t_k`` has settled under the voltage held over
-    the previous sample.  Samples at the limit, or right after it, are left out.  Returns the
-    values and the :func:`~dcmotor_id.identification.estimators.uncertainty.robust_covariance`
-    dict.
-    """
-    rows, targets, lengths = [], [], []
-    for rec, mask in zip(records, limited):
-        keep = ~mask
-        keep[1:] &= ~mask[:-1]
-        keep[0] = False
-        rows.append(np.column_stack([rec.current, rec.speed])[keep])
-        targets.append(np.asarray(rec.voltage, dtype=float)[np.flatnonzero(keep) - 1])
-        lengths.append(int(keep.sum()))
-    x, y = np.vstack(rows), np.concatenate(targets)
-    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
-    residual = y - x @ beta
-    info = {'normal_matrix': x.T @ x, 'chain': np.ones(2), 'names': ['Ra', 'CPhi'],
-            'residual_rms_weighted': float(np.sqrt(residual @ residual
-                                                   / max(y.shape[0] - 2, 1))),
-            **block_scores(residual, x, lengths, 1)}
-    robust = robust_covariance(info)
-    assert robust is not None  # the info above has every key
-    # The information sits in the few transients off the limit, which batch means spread
-    # over too few blocks: a delete-a-group jackknife over contiguous groups is the floor.
-    groups = np.array_split(np.arange(y.shape[0]), JACKKNIFE_GROUPS)
-    leave_out = []
-    for group in groups:
-        keep = np.ones(y.shape[0], dtype=bool)
-        keep[group] = False
-        leave_out.append(np.linalg.lstsq(x[keep], y[keep], rcond=None)[0])
-    spread = np.sqrt((len(groups) - 1) / len(groups)
-                     * np.sum((np.array(leave_out) - np.mean(leave_out, axis=0)) ** 2, axis=0))
-    robust['stderr'] = np.maximum(robust['stderr'], spread)
-    return {'Ra': float(beta[0]), 'CPhi': float(beta[1])}, robust
-
-
 def _identify_current_limited(records, limited, discover, vocabulary, progress, initial_state):
     """
     Identify a drive whose amplifier limits the current (the model has no limit).
 
-    The electrical part by :func:`_electrical_regression` off the limit, then the mechanical
+    The electrical part off the limit
+    (:func:`~dcmotor_id.identification.current_limited.electrical_part`), then the mechanical
     part as in the mechanical-only mode with the measured current and that CPhi as the torque
-    constant; J, b and Mc carry CPhi's relative uncertainty too.  La is given as the upper
-    bound ``Ra dt`` (the samples off the limit follow the quasi-static equation).
+    constant, completed by
+    :func:`~dcmotor_id.identification.current_limited.with_electrical_part`.
     """
-    values, robust = _electrical_regression(records, limited)
-    if not (values['Ra'] > 0 and values['CPhi'] > 0):
-        raise FitError('the current sits at an amplifier limit and the samples off the limit '
-                       f'give non-physical values (Ra = {values["Ra"]:.4g} Ohm, CPhi = '
-                       f'{values["CPhi"]:.4g} V s/rad): check the signs and units of the '
-                       'columns')
+    values, robust = electrical_part(records, limited)
     mechanical = identify(records, torque_constant=values['CPhi'], discover=discover,
                           vocabulary=vocabulary, progress=progress,
                           initial_state=initial_state)
-    ra, cphi = values['Ra'], values['CPhi']
-    dt = records[0].sample_period_s
-    se = dict(zip(('Ra', 'CPhi'), robust['stderr']))
-    se_model = dict(zip(('Ra', 'CPhi'), robust['stderr_model']))
-    parameters = {'Ra': ra, 'La': ra * dt, 'CPhi': cphi, **mechanical.parameters}
-    parameters.update(derived_values(parameters))
-    rel = se['CPhi'] / cphi
-    rel_model = se_model['CPhi'] / cphi
-
-    def combined(errors, share):
-        return {name: float(np.hypot(errors[name], share * abs(mechanical.parameters[name])))
-                for name in MECHANICAL_NAMES}
-    stderr = {'Ra': se['Ra'], 'La': np.nan, 'CPhi': se['CPhi'],
-              **combined(mechanical.stderr, rel), 'Ka': se['Ra'] / ra ** 2, 'Ta': np.nan}
-    stderr_model = {'Ra': se_model['Ra'], 'La': np.nan, 'CPhi': se_model['CPhi'],
-                    **combined(mechanical.stderr_model, rel_model),
-                    'Ka': se_model['Ra'] / ra ** 2, 'Ta': np.nan}
-    names = PARAMETER_NAMES + DERIVED_NAMES
-    reason = ('an amplifier current limit shapes the current rise, and off the limit the '
-              f'current follows the quasi-static equation: La < {ra * dt:.3g} H (Ra dt, upper '
-              'bound, given as its value)')
-    not_identifiable = {'La': reason, 'Ta': reason, **mechanical.not_identifiable}
-    warnings = [current_limit_warning(records) or 'current limit']
-    if abs(robust['correlation'][0, 1]) > 0.99:
-        warnings.append(f'Ra and CPhi are correlated {robust["correlation"][0, 1]:+.3f}: the '
-                        'data determine a combination of them better than each')
-    warnings += mechanical.warnings
-    warnings.append('the current is the input of the mechanical fit here: the simulation '
-                    'errors are of the speed only')
-    noise = dict(mechanical.noise_std)
-    noise['current'] = float(np.sqrt(np.mean([noise_std(rec.current) ** 2
-                                              for rec in records])))
-    return replace(
-        mechanical, parameters={name: float(parameters[name]) for name in names},
-        stderr={name: float(stderr[name]) for name in names},
-        stderr_model={name: float(stderr_model[name]) for name in names},
-        mode='full', torque_constant=None,
-        initial_states=[[float(rec.current[0]), *state]
-                        for rec, state in zip(records, mechanical.initial_states)],
-        noise_std=noise, units={name: UNITS[name] for name in names},
-        uncertainty_method=mechanical.uncertainty_method + '; Ra, CPhi: least squares off the '
-        'current limit (max of the batch-means sandwich and an 8-group jackknife); J, b, Mc '
-        'include the relative '
-        'uncertainty of CPhi',
-        not_identifiable=not_identifiable, warnings=warnings,
-        upper_bounds={'La': parameters['La'], 'Ta': parameters['Ta']},
-        elapsed_s=progress.elapsed())
+    return with_electrical_part(mechanical, values, robust, records, progress)
 
 
 def _check_start(records, torque_constant, quasi, discover, vocabulary, progress, estimate,
