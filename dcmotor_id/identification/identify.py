@@ -22,7 +22,7 @@ import numpy as np
 
 from dcmotor_id.core.blas import single_threaded
 from dcmotor_id.core.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
-from dcmotor_id.core.model import (DERIVED_NAMES, derived_values, inadmissible, MECHANICAL_NAMES,
+from dcmotor_id.core.model import (DERIVED_NAMES, MECHANICAL_NAMES,
                                    PARAMETER_NAMES, parameter_names, POSITIVE_NAMES, UNITS)
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.core.records import check_record
@@ -32,23 +32,25 @@ from dcmotor_id.identification.basin import bic, regression_evidence, regression
 from dcmotor_id.identification.criterion import resolve_criterion
 from dcmotor_id.identification.current_limited import (electrical_part, JACKKNIFE_GROUPS,
                                                        with_electrical_part)
-from dcmotor_id.identification.discovery import (DiscoveryLoop, refit_all_data, refit_start,
-                                                 Structure)
+from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
+from dcmotor_id.identification.fitting import (check_physical, record_names, run_discovery,
+                                               simulation_errors, supports_discovery)
 from dcmotor_id.identification.heldout import HELDOUT_CHOICE, heldout_warnings, record_errors
 from dcmotor_id.identification.identifiability import (assess_excitation, at_bound,
                                                        correlated_pairs,
-                                                       Excitation, IDENTIFIABLE_REL_STDERR,
+                                                       Excitation,
                                                        initial_state_warnings, limited_samples,
                                                        loose, misfit_warning,
                                                        ONE_DIRECTION_CONFOUNDED,
                                                        one_direction_note, useful)
 from dcmotor_id.identification.plausibility import check_plausibility
-from dcmotor_id.identification.residuals import (ChannelErrors, model_errors, output_channels,
-                                                 simulate_records)
+from dcmotor_id.identification.quasi_static import (la_reason, la_unresolved, quasi_static_refit,
+                                                    with_la_bound)
+from dcmotor_id.identification.residuals import output_channels, simulate_records
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.identification.units_check import unit_warnings
 from dcmotor_id.identification.validate import operating_range
@@ -222,43 +224,6 @@ def one_level_reason(level: float, failure: str) -> str:
             'direction) and give the records together')
 
 
-def simulation_errors(estimate: Estimate, records: Sequence[Record],
-                      torque_constant: float | None = None, terms: Sequence = (),
-                      quasi_static: bool = False) -> ChannelErrors:
-    """
-    Return the simulation error of an estimate over the records (from its initial states).
-
-    The result is ``{current_nrmse_pct, speed_nrmse_pct}``
-    (:func:`dcmotor_id.identification.residuals.model_errors`); the current error is ``None`` in
-    mechanical-only mode (current is the input there).
-    """
-    model = OutputErrorModel(records, torque_constant, terms, quasi_static)
-    return model_errors(model, dict(estimate.parameters), estimate.initial_states)
-
-
-def _check_physical(estimate):
-    """Refuse non-physical results instead of reporting made-up numbers."""
-    bad = inadmissible(estimate.parameters)
-    if bad:
-        listing = ', '.join(f'{name} = {value:.4g} {UNITS[name]}' for name, value in bad.items())
-        hint = (' Check the signs and units of the columns (current and speed must be positive '
-                'for a positive voltage).')
-        if estimate.method == 'paper':
-            hint += ' The paper method is also not robust to sensor noise: use --method refined.'
-        raise FitError(f'the {estimate.method} method gave non-physical values: {listing}.'
-                       + hint)
-
-
-def supports_discovery(estimator: Any) -> bool:
-    """
-    Whether the discovery loop can follow this estimator (it fits effect terms).
-
-    The :class:`~dcmotor_id.identification.estimators.base.Estimator` protocol's ``supports_terms``
-    says whether the estimator fits effect terms (the refined one does, the paper's does not).
-    """
-    return bool(getattr(estimator, 'supports_terms', False))
-
-
 def _make_estimator(method, initial_state, progress, criterion='speed'):
     if method == 'refined':
         return RefinedEstimator(initial_state=initial_state, progress=progress,
@@ -386,7 +351,7 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
     if excitation.one_direction:
         vocabulary = [cls for cls in vocabulary if cls.name not in ONE_DIRECTION_CONFOUNDED]
     estimator = estimator or _make_estimator(method, initial_state, progress, criterion)
-    progress.set_stage('base fit', _names(records))
+    progress.set_stage('base fit', record_names(records))
     try:
         estimate = estimator.fit(records, torque_constant=torque_constant)
     except FitError as error:
@@ -398,7 +363,7 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
         raise FitError(f'no fit finished within the time budget ({progress.max_time_s:g} s): '
                        'give more time with --max-time, or shorten or decimate the records'
                        ) from None
-    _check_physical(estimate)
+    check_physical(estimate)
     errors = simulation_errors(estimate, records, torque_constant)
     quasi, full_la = False, None
     if not mechanical_only and isinstance(estimator, RefinedEstimator):
@@ -406,12 +371,11 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
         # of everything that follows (discovery included).
         robust = with_robust_stderr(estimate)
         full_la = (robust.parameters['La'], robust.stderr['La'], robust.parameters['Ra'])
-        if _la_unresolved(*full_la, records[0].sample_period_s):
-            refit = _quasi_static_refit(estimate, records, errors, initial_state, progress,
-                                        criterion)
+        if la_unresolved(*full_la, records[0].sample_period_s):
+            refit = quasi_static_refit(estimate, records, errors, initial_state, progress,
+                                       criterion)
             if refit is None:
-                not_identifiable['La'] = _la_reason(*full_la, records[0].sample_period_s,
-                                                    None)
+                not_identifiable['La'] = la_reason(*full_la, records[0].sample_period_s, None)
             else:
                 estimate, quasi = refit, True
                 errors = simulation_errors(estimate, records, None, quasi_static=True)
@@ -447,9 +411,9 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
             progress.deadline = min(deadline if deadline is not None else np.inf,
                                     time.monotonic() + HOPELESS_DISCOVERY_S)
         try:
-            found, discovery_info = _run_discovery(records, torque_constant, estimator,
-                                                   vocabulary, progress, initial_state, quasi,
-                                                   estimate, criterion)
+            found, discovery_info = run_discovery(records, torque_constant, estimator,
+                                                  vocabulary, progress, initial_state, quasi,
+                                                  estimate, criterion)
         finally:
             progress.deadline = deadline
         if found is not None and found.out_of_time:
@@ -492,10 +456,10 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
     stderr_model = dict(final.info.get('stderr_model', final.stderr))
     upper_bounds: dict[str, float] = {}
     if quasi and full_la is not None:
-        final, upper_bounds = _with_la_bound(final, *full_la, records[0].sample_period_s)
+        final, upper_bounds = with_la_bound(final, *full_la, records[0].sample_period_s)
         stderr_model = dict(final.info['stderr_model'])
-        not_identifiable['La'] = _la_reason(*full_la, records[0].sample_period_s,
-                                            upper_bounds['La'])
+        not_identifiable['La'] = la_reason(*full_la, records[0].sample_period_s,
+                                           upper_bounds['La'])
     names = MECHANICAL_NAMES if mechanical_only else PARAMETER_NAMES + DERIVED_NAMES
     parameters = {name: float(final.parameters[name]) for name in names}
     stderr = {name: float(final.stderr.get(name, np.nan)) for name in names}
@@ -616,18 +580,18 @@ def _check_start(records, torque_constant, quasi, discover, vocabulary, progress
     names = [name for name in parameter_names(torque_constant is not None)
              if not (quasi and name == 'La')]
     start = regression_start(evidence, estimate.parameters, names)
-    progress.set_stage('second start (initial states pinned)', _names(records))
+    progress.set_stage('second start (initial states pinned)', record_names(records))
     second, second_info, freed = None, None, None
     try:
         pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
                                   progress=progress).fit(records, torque_constant=torque_constant)
-        _check_physical(pinned)
+        check_physical(pinned)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
         check['second_start'] = f'failed: {error}'
         return found, estimate, discovery_info, check
     structure, values, states = Structure(), pinned.parameters, pinned.initial_states
     if discover:
-        second, second_info = _run_discovery(
+        second, second_info = run_discovery(
             records, torque_constant, RefinedEstimator(), vocabulary, progress, 'measured',
             quasi, pinned)
         if second is not None:
@@ -642,7 +606,7 @@ def _check_start(records, torque_constant, quasi, discover, vocabulary, progress
                                refit_start(values, records, torque_constant), progress=progress,
                                initial_states=states, initial_state='estimate',
                                quasi_static=quasi)[2]
-        _check_physical(freed)
+        check_physical(freed)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
         check['freed'] = f'failed: {error}'  # the pinned fit is still a candidate
         freed = None
@@ -705,75 +669,6 @@ def _relative_change(value: float, base: float) -> str:
     return f'{100.0 * (value / base - 1.0):+.3g} %'
 
 
-def _names(records):
-    names = [rec.source for rec in records if rec.source]
-    if not names:
-        return None
-    return names[0] if len(names) == 1 else f'{len(records)} records'
-
-
-def _la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
-    """Whether La is below what the sample period resolves, or undetermined."""
-    return bool(la / ra < dt or la_stderr > IDENTIFIABLE_REL_STDERR * la)
-
-
-def _quasi_static_refit(estimate, records, errors, initial_state, progress, criterion='speed'):
-    """
-    Refit with the quasi-static armature (La -> 0); return the estimate or None.
-
-    The refit is kept when its current simulation error is at most 25 % (and 0.5 points)
-    worse than the full model's: the full model's La then adds nothing the data resolve.
-    """
-    values = estimate.parameters
-    start = {name: values[name] for name in parameter_names(False) if name != 'La'}
-    progress.set_stage('quasi-static armature refit')
-    try:
-        quasi = RefinedEstimator(initial=start, quasi_static=True, initial_state=initial_state,
-                                 progress=progress, criterion=criterion).fit(records)
-        quasi_errors = simulation_errors(quasi, records, None, quasi_static=True)
-    except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
-        return None
-    full_current = errors.get('current_nrmse_pct') or 0.0
-    quasi_current = quasi_errors.get('current_nrmse_pct')
-    if quasi_current is None or quasi_current > 1.25 * full_current + 0.5:
-        return None
-    return quasi
-
-
-def _with_la_bound(quasi, la, la_stderr, ra_full, dt):
-    """
-    Give a quasi-static estimate La, Ka and Ta: La by its upper bound, Ta from it.
-
-    The bound is the larger of ``Ra dt`` (a time constant below the sample period) and the
-    full fit's ``La + 2 stderr``; ``stderr`` of La and Ta is NaN, Ka's follows Ra's.
-    """
-    bound = max(quasi.parameters['Ra'] * dt, la + 2.0 * la_stderr)
-    parameters = dict(quasi.parameters)
-    parameters['La'] = bound
-    parameters.update(derived_values(parameters))
-    ra = parameters['Ra']
-    stderr = dict(quasi.stderr)
-    stderr.update({'La': float('nan'), 'Ta': float('nan'), 'Ka': quasi.stderr['Ra'] / ra ** 2})
-    model = dict(quasi.info.get('stderr_model', quasi.stderr))
-    model.update({'La': float('nan'), 'Ta': float('nan'),
-                  'Ka': model.get('Ra', np.nan) / ra ** 2})
-    info = {**quasi.info, 'stderr_model': model}
-    result = replace(quasi, parameters=parameters, stderr=stderr, info=info)
-    return result, {'La': bound, 'Ta': parameters['Ta']}
-
-
-def _la_reason(la, la_stderr, ra, dt, bound):
-    ta = la / ra
-    why = (f'the electrical time constant La/Ra = {ta:.2g} s is below the sample period '
-           f'{dt:.2g} s' if ta < dt else
-           f'La = {la:.3g} +/- {la_stderr:.2g} H is not determined')
-    if bound is None:
-        return why + ': La is not identifiable from these data (sample faster to see it)'
-    return (why + f': La < {bound:.3g} H (upper bound, given as its value); Ra, CPhi, J, b and '
-            'Mc come from the quasi-static armature equation (La -> 0): '
-            'J dw/dt = CPhi (u - CPhi w)/Ra - b w - Mc sgn w, i = (u - CPhi w)/Ra')
-
-
 def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, skip,
                      initial_state):
     """Warnings of the final fit: correlations, initial states, misfit, current limit."""
@@ -789,24 +684,3 @@ def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, 
     if misfit:
         warnings.append(misfit)
     return warnings
-
-
-def _run_discovery(records, torque_constant, estimator, vocabulary, progress, initial_state,
-                   quasi_static=False, estimate=None, criterion='speed'):
-    """Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``."""
-    if not supports_discovery(estimator):
-        return None, {'skipped': f'effect discovery needs the refined method (the '
-                                 f'{getattr(estimator, "name", "given")} method has no effect '
-                                 'terms)'}
-    try:
-        found = DiscoveryLoop(records, torque_constant, vocabulary=vocabulary,
-                              progress=progress, initial_state=initial_state,
-                              quasi_static=quasi_static, criterion=criterion).run(estimate)
-        _check_physical(found.estimate)
-    except TimeBudgetExceeded:
-        return None, {'skipped': f'the time budget ({progress.max_time_s:g} s) ran out '
-                                 'before effect discovery had a result: the base model is '
-                                 'reported'}
-    except (DcMotorIdError, np.linalg.LinAlgError) as error:
-        return None, {'skipped': f'effect discovery could not run on these data: {error}'}
-    return found, found.summary()
