@@ -21,18 +21,16 @@ from typing import Any, Sequence, TYPE_CHECKING
 import numpy as np
 
 from dcmotor_id.core.blas import single_threaded
-from dcmotor_id.core.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
-from dcmotor_id.core.model import (DERIVED_NAMES, MECHANICAL_NAMES,
-                                   PARAMETER_NAMES, parameter_names, POSITIVE_NAMES, UNITS)
+from dcmotor_id.core.errors import FitError, InputDataError, NotIdentifiableError
+from dcmotor_id.core.model import (DERIVED_NAMES, MECHANICAL_NAMES, PARAMETER_NAMES,
+                                   POSITIVE_NAMES, UNITS)
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.core.records import check_record
 from dcmotor_id.formats.held import restore_held
 from dcmotor_id.formats.quality import coarse_speed
-from dcmotor_id.identification.basin import bic, regression_evidence, regression_start, suspect
 from dcmotor_id.identification.criterion import resolve_criterion
 from dcmotor_id.identification.current_limited import (electrical_part, JACKKNIFE_GROUPS,
                                                        with_electrical_part)
-from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
@@ -52,6 +50,7 @@ from dcmotor_id.identification.quasi_static import (la_reason, la_unresolved, qu
                                                     with_la_bound)
 from dcmotor_id.identification.residuals import output_channels, simulate_records
 from dcmotor_id.identification.result import IdentificationResult
+from dcmotor_id.identification.second_start import check_start, start_warning
 from dcmotor_id.identification.units_check import unit_warnings
 from dcmotor_id.identification.validate import operating_range
 from dcmotor_id.signals.filters import noise_std, speed_from_position
@@ -384,7 +383,7 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
     start_check: dict[str, Any] | None = None
     if checkable:
         # A base in a wrong basin misleads the effect screen: checked before the loop.
-        found, estimate, discovery_info, start_check = _check_start(
+        found, estimate, discovery_info, start_check = check_start(
             records, torque_constant, quasi, discover, vocabulary, progress, estimate, None,
             None)
         if start_check['chosen'] == 'first start':
@@ -428,19 +427,12 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
             warnings.append(discovery_info['skipped'])
     if checkable and start_check is None:
         # The base looked sound; check where discovery led.
-        found, estimate, discovery_info, start_check = _check_start(
+        found, estimate, discovery_info, start_check = check_start(
             records, torque_constant, quasi, discover, vocabulary, progress, estimate, found,
             discovery_info)
-    if start_check is not None and start_check['chosen'] != 'first start':
-        warnings.append(_second_start_warning(start_check))
-    elif start_check is not None and start_check['doubts']:
-        outcome = start_check.get('second_start')
-        warnings.append('the fit disagrees with the model-free evidence ('
-                        + '; '.join(start_check['doubts']) + ') and a second start '
-                        + (f'could not help ({outcome})' if isinstance(outcome, str) else
-                           'explains the data no better')
-                        + ': the values may come from a wrong basin; compare with '
-                        '--initial-state measured')
+    warning = start_warning(start_check)
+    if warning is not None:
+        warnings.append(warning)
     final, terms, fitted_records = estimate, (), list(records)
     if found is not None:
         final, terms, fitted_records = found.estimate, found.terms, found.records
@@ -557,90 +549,6 @@ def _identify_current_limited(records, limited, discover, vocabulary, progress, 
                           vocabulary=vocabulary, progress=progress,
                           initial_state=initial_state)
     return with_electrical_part(mechanical, values, robust, records, progress)
-
-
-def _check_start(records, torque_constant, quasi, discover, vocabulary, progress, estimate,
-                 found, discovery_info):
-    """
-    Check the fit against model-free evidence; when doubted, try a second start, keep the best.
-
-    Returns ``(found, base estimate, discovery summary, start_check)``, the first three
-    replaced by the second start's when it explains all of the data better (lower BIC).
-    ``start_check`` is the JSON account (:mod:`dcmotor_id.identification.basin`).
-    """
-    evidence = regression_evidence(records, torque_constant)
-    first = found.estimate if found is not None else estimate
-    first_records = found.records if found is not None else list(records)
-    first_terms = found.terms if found is not None else ()
-    model = OutputErrorModel(first_records, torque_constant, first_terms, quasi)
-    doubts = suspect(first, first_records, model, evidence)
-    check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
-    if not doubts:
-        return found, estimate, discovery_info, check
-    names = [name for name in parameter_names(torque_constant is not None)
-             if not (quasi and name == 'La')]
-    start = regression_start(evidence, estimate.parameters, names)
-    progress.set_stage('second start (initial states pinned)', record_names(records))
-    second, second_info, freed = None, None, None
-    try:
-        pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
-                                  progress=progress).fit(records, torque_constant=torque_constant)
-        check_physical(pinned)
-    except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
-        check['second_start'] = f'failed: {error}'
-        return found, estimate, discovery_info, check
-    structure, values, states = Structure(), pinned.parameters, pinned.initial_states
-    if discover:
-        second, second_info = run_discovery(
-            records, torque_constant, RefinedEstimator(), vocabulary, progress, 'measured',
-            quasi, pinned)
-        if second is not None:
-            structure = second.final.structure
-            values, states = second.estimate.parameters, second.estimate.initial_states
-    pinned_final = second.estimate if second is not None else pinned
-    second_records = structure.transformed(records)
-    second_model = OutputErrorModel(second_records, torque_constant,
-                                    second.terms if second is not None else (), quasi)
-    try:
-        freed = refit_all_data(structure, records, torque_constant, values,
-                               refit_start(values, records, torque_constant), progress=progress,
-                               initial_states=states, initial_state='estimate',
-                               quasi_static=quasi)[2]
-        check_physical(freed)
-    except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
-        check['freed'] = f'failed: {error}'  # the pinned fit is still a candidate
-        freed = None
-    noise = dict(first.info.get('noise_std', {}))
-    scores = {'first start': bic(first, first_records, model, noise),
-              'second start, initial states pinned': bic(pinned_final, second_records,
-                                                         second_model, noise,
-                                                         free_states=False)}
-    if freed is not None:
-        scores['second start'] = bic(freed, second_records, second_model, noise)
-    chosen = min(scores, key=lambda key: scores[key])
-    shown = freed if freed is not None else pinned_final
-    check.update({'second_start': {'effects': structure.names(),
-                                   'J': float(shown.parameters['J']),
-                                   'b': float(shown.parameters['b'])},
-                  'bic': scores, 'chosen': chosen})
-    if chosen == 'first start':
-        return found, estimate, discovery_info, check
-    final = freed if chosen == 'second start' and freed is not None else pinned_final
-    if second is None:
-        return None, final, discovery_info, check
-    second = replace(second, estimate=final, effects=structure.effects(final.parameters))
-    return second, pinned, second_info, check
-
-
-def _second_start_warning(check: dict[str, Any]) -> str:
-    """Return the warning of a result taken from the second start."""
-    how = ("the fit with every initial state pinned to the records' first samples"
-           if check['chosen'].endswith('pinned') else
-           'from a second start (the regression on the data, initial states pinned to the '
-           'first samples while the effects were searched, then freed)')
-    return ('the fit from the default start landed where the model-free evidence disagrees ('
-            + '; '.join(check['doubts']) + f'); the result is {how}, which explains all of the '
-            'data better (BIC)')
 
 
 def _structure_shift(base: Estimate, parameters: dict[str, float],
