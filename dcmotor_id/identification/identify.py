@@ -14,7 +14,7 @@ sample period, correlations, misfit) and returns an :class:`IdentificationResult
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 import time
 from typing import Any, Sequence, TYPE_CHECKING
 
@@ -57,8 +57,10 @@ from dcmotor_id.signals.filters import noise_std, speed_from_position
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.discovery import DiscoveryResult
     from dcmotor_id.identification.effects import Effect
     from dcmotor_id.identification.estimators.base import Estimate
+    from dcmotor_id.identification.residuals import ChannelErrors
 
 __all__ = ['check_excitation', 'common_period', 'DEFAULT_MAX_TIME_S', 'HELDOUT_CHOICE',
            'HOPELESS_DISCOVERY_S', 'HOPELESS_NRMSE_PCT', 'IdentificationResult', 'identify',
@@ -246,12 +248,9 @@ def _criterion_of(records, criterion, method, estimator):
 @single_threaded
 def identify(records: Sequence[Record], method: str = 'refined',
              torque_constant: float | None = None, discover: bool = True,
-             estimator: Any = None,
-             vocabulary: Sequence[type[Effect]] | None = None, *,
-             max_time_s: float | None = DEFAULT_MAX_TIME_S,
-             progress: Progress | None = None,
-             initial_state: str = 'estimate',
-             criterion: str = 'auto') -> IdentificationResult:
+             estimator: Any = None, vocabulary: Sequence[type[Effect]] | None = None, *,
+             max_time_s: float | None = DEFAULT_MAX_TIME_S, progress: Progress | None = None,
+             initial_state: str = 'estimate', criterion: str = 'auto') -> IdentificationResult:
     """
     Identify the motor from prepared records.
 
@@ -264,9 +263,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
     torque_constant : float, optional
         Mechanical-only mode with this torque constant [N m/A].
     discover : bool
-        Run the residual analysis and effect discovery (:mod:`dcmotor_id.identification.discovery`;
-        for an
-        estimator that :func:`supports_discovery`: the refined method).
+        Run the residual analysis and discovery loop (:mod:`dcmotor_id.identification.discovery`)
+        after an estimator that :func:`supports_discovery` (the refined method).
     estimator : object, optional
         An estimator instance to use instead of the one named by ``method``.
     vocabulary : sequence of Effect classes, optional
@@ -277,40 +275,26 @@ def identify(records: Sequence[Record], method: str = 'refined',
     progress : Progress, optional
         Progress report and deadline (:mod:`dcmotor_id.core.progress`); default silent.
     initial_state : str
-        ``estimate`` (every record's initial state is fitted) or ``measured`` (pinned to the
-        first samples).
+        ``estimate`` (each record's initial state is fitted) or ``measured`` (first samples).
     criterion : str
-        ``auto`` (default), ``speed``, ``position`` or ``both``: the channels the output-error
-        fit compares (:func:`dcmotor_id.identification.criterion.resolve_criterion`; ``auto``
-        compares the
-        position when the speed was derived from it).  The JSON key ``criterion`` holds the
-        one used.
+        ``auto`` (default), ``speed``, ``position`` or ``both``: the channels the fit compares
+        (:func:`~dcmotor_id.identification.criterion.resolve_criterion`; ``auto`` compares the
+        position when the speed was derived from it); the JSON key ``criterion`` has the one used.
 
     Returns
     -------
     IdentificationResult
-        Its :meth:`~IdentificationResult.as_dict` is the JSON result: ``parameters`` (final
-        values), ``stderr``, ``method``, ``effects``, ``error_before`` / ``error_after``,
-        ``unexplained``, ``discovery`` (the loop's steps and evidence, or why it did not
-        run), plus ``mode``, ``initial_states``, ``noise_std``, ``sample_period_s``,
-        ``n_samples``, ``records``, ``units`` and the honesty fields ``stderr_model``,
-        ``uncertainty_method``, ``not_identifiable``, ``warnings``, ``errors``,
-        ``combined``, ``upper_bounds``, ``initial_state``, ``elapsed_s``.
+        Its ``as_dict()`` is the JSON result (every key is described by the class).
 
     Raises
     ------
     NotIdentifiableError
-        Nothing useful can be identified (no motion, steady state, or every key parameter
-        undetermined).
+        Nothing useful can be identified (no motion, steady state, every key parameter loose).
     FitError
         The model does not reproduce the data, or no fit finished within the time budget.
 
     """
-    if method not in METHODS:
-        raise InputDataError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
-    if initial_state not in INITIAL_STATES:
-        raise InputDataError(f'initial state must be one of {", ".join(INITIAL_STATES)}, not '
-                             f'{initial_state!r}')
+    _check_choices(method, initial_state)
     progress = progress if progress is not None else Progress(max_time_s)
     resolved = _criterion_of(records, criterion, method, estimator)
     arguments = (records, method, torque_constant, discover, estimator, vocabulary, progress,
@@ -320,89 +304,215 @@ def identify(records: Sequence[Record], method: str = 'refined',
     except FitError as error:
         if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
             raise
-        # The position integrates every force the model lacks over the whole record: a base
-        # model that cannot follow it (a load the loop did not find) is refused there, and
-        # ``auto`` falls back to the speed, as before the position criterion.
-        result = _identify(*arguments, 'speed')
-        reason = str(error).split('. Check')[0]
-        result.warnings.insert(0, f'the fit on the position failed ({reason}): the integral '
-                                  'of a force the model lacks drifts over the record (the loop '
-                                  'looks for it unless --no-discover); the result is the fit '
-                                  'on the speed (--criterion speed)')
-        return result
+        return _on_the_speed(arguments, error)
+
+
+def _check_choices(method: str, initial_state: str) -> None:
+    """Refuse an unknown method or initial-state choice, naming the choices."""
+    if method not in METHODS:
+        raise InputDataError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
+    if initial_state not in INITIAL_STATES:
+        raise InputDataError(f'initial state must be one of {", ".join(INITIAL_STATES)}, not '
+                             f'{initial_state!r}')
+
+
+def _on_the_speed(arguments, error):
+    """Identify on the speed after the fit on the position failed (``--criterion auto``)."""
+    # The position integrates every force the model lacks over the whole record: a base
+    # model that cannot follow it (a load the loop did not find) is refused there, and
+    # ``auto`` falls back to the speed, as before the position criterion.
+    result = _identify(*arguments, 'speed')
+    reason = str(error).split('. Check')[0]
+    result.warnings.insert(0, f'the fit on the position failed ({reason}): the integral '
+                              'of a force the model lacks drifts over the record (the loop '
+                              'looks for it unless --no-discover); the result is the fit '
+                              'on the speed (--criterion speed)')
+    return result
 
 
 def _identify(records, method, torque_constant, discover, estimator, vocabulary, progress,
               initial_state, criterion):
-    """Identify with a resolved criterion (:func:`identify`'s body)."""
-    mechanical_only = torque_constant is not None
-    # Sensors refreshing slower than the log: fit on their real updates (said in a warning).
-    records, warnings = restore_held(list(records))
-    warnings += [text for text in map(coarse_speed, records) if text]
-    excitation = check_excitation(records, mechanical_only)
-    not_identifiable: dict[str, str] = {}
-    vocabulary = list(vocabulary or VOCABULARY)
-    limited = None if mechanical_only or estimator is not None or method != 'refined' else \
-        limited_samples(records)
+    """
+    Identify with a resolved criterion (:func:`identify`'s body): the stages in order.
+
+    Each stage reads and sets the fields of one :class:`_Run`; a stage may refuse the data
+    (raise), and a drive at an amplifier's current limit takes its own path.
+    """
+    run = _prepare(records, method, torque_constant, discover, estimator, vocabulary,
+                   progress, initial_state, criterion)
+    limited = _current_limit(run)
     if limited is not None:
-        return replace(_identify_current_limited(records, limited, discover, vocabulary,
+        return replace(_identify_current_limited(run.records, limited, discover, run.vocabulary,
                                                  progress, initial_state), criterion='speed')
-    if excitation.one_direction:
-        vocabulary = [cls for cls in vocabulary if cls.name not in ONE_DIRECTION_CONFOUNDED]
-    estimator = estimator or _make_estimator(method, initial_state, progress, criterion)
-    progress.set_stage('base fit', record_names(records))
+    _base_fit(run)
+    _armature(run)
+    _check_base_start(run)
+    _discovery(run)
+    _check_final_start(run)
+    _final_fit(run)
+    _uncertainty(run)
+    _identifiability(run)
+    _fit_warnings(run)
+    _heldout(run)
+    return _result(run)
+
+
+@dataclass
+class _Run:
+    """
+    One identification as it passes through the stages of :func:`_identify`.
+
+    The inputs (the records as the first stage leaves them), then what the stages find, in
+    the order they set it.  ``estimate`` is the base fit on all data (replaced by the
+    quasi-static refit or the second start), ``final`` the reported one.
+    """
+
+    records: list[Record]
+    method: str
+    torque_constant: float | None
+    discover: bool
+    estimator: Any
+    vocabulary: list[type[Effect]]
+    progress: Progress
+    initial_state: str
+    criterion: str
+    warnings: list[str]
+    not_identifiable: dict[str, str] = field(default_factory=dict)
+    excitation: Excitation = field(init=False)
+    estimate: Estimate = field(init=False)
+    errors: ChannelErrors = field(init=False)
+    quasi: bool = False  # the quasi-static armature (La -> 0) is the model
+    full_la: tuple[float, float, float] | None = None  # La, its stderr, Ra of the full fit
+    found: DiscoveryResult | None = None
+    discovery_info: dict[str, Any] | None = None
+    start_check: dict[str, Any] | None = None
+    final: Estimate = field(init=False)
+    terms: Sequence = ()
+    fitted_records: list[Record] = field(init=False)
+    names: tuple[str, ...] = ()
+    parameters: dict[str, float] = field(default_factory=dict)
+    stderr: dict[str, float] = field(default_factory=dict)
+    stderr_model: dict[str, float] = field(default_factory=dict)
+    upper_bounds: dict[str, float] = field(default_factory=dict)
+    combined: dict[str, Any] = field(default_factory=dict)
+    bound: dict[str, str] = field(default_factory=dict)
+    errors_detail: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def mechanical_only(self) -> bool:
+        """Whether the torque constant is given (J, b and Mc only)."""
+        return self.torque_constant is not None
+
+    @property
+    def checkable(self) -> bool:
+        """Whether the fit is checked against model-free evidence (free initial states)."""
+        return self.initial_state == 'estimate' and isinstance(self.estimator, RefinedEstimator)
+
+
+def _prepare(records, method, torque_constant, discover, estimator, vocabulary, progress,
+             initial_state, criterion) -> _Run:
+    """Stage 1: restore held samples, name coarse channels, refuse data without excitation."""
+    # Sensors refreshing slower than the log: fit on their real updates (said in a warning).
+    restored, warnings = restore_held(list(records))
+    warnings += [text for text in map(coarse_speed, restored) if text]
+    run = _Run(restored, method, torque_constant, discover, estimator, [], progress,
+               initial_state, criterion, warnings)
+    run.excitation = check_excitation(restored, run.mechanical_only)
+    run.vocabulary = list(vocabulary or VOCABULARY)
+    return run
+
+
+def _current_limit(run: _Run) -> list[np.ndarray] | None:
+    """Return the samples at an amplifier's current limit (refined method, full mode), or None."""
+    if run.mechanical_only or run.estimator is not None or run.method != 'refined':
+        return None
+    return limited_samples(run.records)
+
+
+def _base_fit(run: _Run) -> None:
+    """Stage 2: the base model (no effects) fitted on all data, and its simulation errors."""
+    if run.excitation.one_direction:
+        run.vocabulary = [cls for cls in run.vocabulary
+                          if cls.name not in ONE_DIRECTION_CONFOUNDED]
+    run.estimator = run.estimator or _make_estimator(run.method, run.initial_state,
+                                                     run.progress, run.criterion)
+    run.progress.set_stage('base fit', record_names(run.records))
     try:
-        estimate = estimator.fit(records, torque_constant=torque_constant)
+        estimate = run.estimator.fit(run.records, torque_constant=run.torque_constant)
     except FitError as error:
-        level = single_current_level(records) if mechanical_only else None
+        level = single_current_level(run.records) if run.mechanical_only else None
         if level is None:
             raise
         raise NotIdentifiableError(one_level_reason(level, str(error))) from None
     except TimeBudgetExceeded:
-        raise FitError(f'no fit finished within the time budget ({progress.max_time_s:g} s): '
-                       'give more time with --max-time, or shorten or decimate the records'
+        raise FitError(f'no fit finished within the time budget ({run.progress.max_time_s:g} '
+                       's): give more time with --max-time, or shorten or decimate the records'
                        ) from None
     check_physical(estimate)
-    errors = simulation_errors(estimate, records, torque_constant)
-    quasi, full_la = False, None
-    if not mechanical_only and isinstance(estimator, RefinedEstimator):
-        # La first: when the data cannot resolve it, the quasi-static armature is the model
-        # of everything that follows (discovery included).
-        robust = with_robust_stderr(estimate)
-        full_la = (robust.parameters['La'], robust.stderr['La'], robust.parameters['Ra'])
-        if la_unresolved(*full_la, records[0].sample_period_s):
-            refit = quasi_static_refit(estimate, records, errors, initial_state, progress,
-                                       criterion)
-            if refit is None:
-                not_identifiable['La'] = la_reason(*full_la, records[0].sample_period_s, None)
-            else:
-                estimate, quasi = refit, True
-                errors = simulation_errors(estimate, records, None, quasi_static=True)
-    found, discovery_info = None, None
-    checkable = initial_state == 'estimate' and isinstance(estimator, RefinedEstimator)
-    start_check: dict[str, Any] | None = None
-    if checkable:
-        # A base in a wrong basin misleads the effect screen: checked before the loop.
-        found, estimate, discovery_info, start_check = check_start(
-            records, torque_constant, quasi, discover, vocabulary, progress, estimate, None,
-            None)
-        if start_check['chosen'] == 'first start':
-            start_check = None if not start_check['doubts'] else start_check
-        else:
-            errors = simulation_errors(estimate, records, torque_constant, quasi_static=quasi)
-    base_worst = max([value for value in errors.values() if value is not None] or [np.inf])
-    if criterion != 'speed':
+    run.estimate = estimate
+    run.errors = simulation_errors(estimate, run.records, run.torque_constant)
+
+
+def _armature(run: _Run) -> None:
+    """
+    Stage 3: La first (:mod:`~dcmotor_id.identification.quasi_static`).
+
+    When the data cannot resolve La, the quasi-static armature is the model of everything
+    that follows (discovery included).
+    """
+    if run.mechanical_only or not isinstance(run.estimator, RefinedEstimator):
+        return
+    dt = run.records[0].sample_period_s
+    robust = with_robust_stderr(run.estimate)
+    run.full_la = (robust.parameters['La'], robust.stderr['La'], robust.parameters['Ra'])
+    if not la_unresolved(*run.full_la, dt):
+        return
+    refit = quasi_static_refit(run.estimate, run.records, run.errors, run.initial_state,
+                               run.progress, run.criterion)
+    if refit is None:
+        run.not_identifiable['La'] = la_reason(*run.full_la, dt, None)
+    else:
+        run.estimate, run.quasi = refit, True
+        run.errors = simulation_errors(refit, run.records, None, quasi_static=True)
+
+
+def _check_base_start(run: _Run) -> None:
+    """
+    Stage 4: the base checked against model-free evidence before the loop.
+
+    A base in a wrong basin misleads the effect screen; when the second start explains the
+    data better it is the base, and it ran its own discovery
+    (:func:`~dcmotor_id.identification.second_start.check_start`).
+    """
+    if not run.checkable:
+        return
+    run.found, run.estimate, run.discovery_info, check = check_start(
+        run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
+        run.progress, run.estimate, None, None)
+    if check['chosen'] == 'first start':
+        run.start_check = None if not check['doubts'] else check
+    else:
+        run.start_check = check
+        run.errors = simulation_errors(run.estimate, run.records, run.torque_constant,
+                                       quasi_static=run.quasi)
+
+
+def _discovery(run: _Run) -> None:
+    """Stage 5: effect discovery from the base, within the time budget, unless hopeless."""
+    base_worst = max([value for value in run.errors.values() if value is not None] or [np.inf])
+    if run.criterion != 'speed':
         # The base model's position may be far off for lack of the very effect (a load) the
         # loop is there to find: the loop gets its full time, the final model is checked.
         base_worst = min(base_worst, NO_FIT_NRMSE_PCT)
-    if start_check is not None and start_check['chosen'] != 'first start':
-        pass  # the second start ran its own discovery
-    elif discover and not base_worst <= HOPELESS_NRMSE_PCT:
+    if run.start_check is not None and run.start_check['chosen'] != 'first start':
+        return  # the second start ran its own discovery
+    if run.discover and not base_worst <= HOPELESS_NRMSE_PCT:
         # Worse than the signals' mean: a sign or unit error, which no effect explains (and
-        # every candidate fit would diverge slowly); refuse below without the loop.
-        discovery_info = {'skipped': f'the base model does not fit ({base_worst:.3g} % '
-                                     'simulation error)'}
-    elif discover:
+        # every candidate fit would diverge slowly); refused later without the loop.
+        run.discovery_info = {'skipped': f'the base model does not fit ({base_worst:.3g} % '
+                                         'simulation error)'}
+    elif run.discover:
+        progress = run.progress
         deadline = progress.deadline
         if base_worst > NO_FIT_NRMSE_PCT:
             # A base model this far off is rarely rescued by one effect: a short look only, so
@@ -410,33 +520,47 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
             progress.deadline = min(deadline if deadline is not None else np.inf,
                                     time.monotonic() + HOPELESS_DISCOVERY_S)
         try:
-            found, discovery_info = run_discovery(records, torque_constant, estimator,
-                                                  vocabulary, progress, initial_state, quasi,
-                                                  estimate, criterion)
+            run.found, run.discovery_info = run_discovery(
+                run.records, run.torque_constant, run.estimator, run.vocabulary, progress,
+                run.initial_state, run.quasi, run.estimate, run.criterion)
         finally:
             progress.deadline = deadline
-        if found is not None and found.out_of_time:
-            warnings.append(f'the time budget ({progress.max_time_s:g} s) ran out during '
-                            'effect discovery: the result is the best structure so far'
-                            + (' fitted on the training parts only (first '
-                               f'{100 * (1 - found.holdout_fraction):.0f} % of the motion)'
-                               if found.estimate is found.final.estimate else '')
-                            + '; give more time with --max-time')
-        elif found is None and discovery_info and 'time budget' in discovery_info.get(
-                'skipped', ''):
-            warnings.append(discovery_info['skipped'])
-    if checkable and start_check is None:
-        # The base looked sound; check where discovery led.
-        found, estimate, discovery_info, start_check = check_start(
-            records, torque_constant, quasi, discover, vocabulary, progress, estimate, found,
-            discovery_info)
-    warning = start_warning(start_check)
+        run.warnings += _discovery_time_warnings(run.found, run.discovery_info, progress)
+
+
+def _discovery_time_warnings(found, discovery_info, progress):
+    """Say when the time budget ran out during discovery, or before it had a result."""
+    if found is not None and found.out_of_time:
+        return [f'the time budget ({progress.max_time_s:g} s) ran out during effect discovery: '
+                'the result is the best structure so far'
+                + (' fitted on the training parts only (first '
+                   f'{100 * (1 - found.holdout_fraction):.0f} % of the motion)'
+                   if found.estimate is found.final.estimate else '')
+                + '; give more time with --max-time']
+    if found is None and discovery_info and 'time budget' in discovery_info.get('skipped', ''):
+        return [discovery_info['skipped']]
+    return []
+
+
+def _check_final_start(run: _Run) -> None:
+    """Stage 6: when the base looked sound, check where discovery led; say what was found."""
+    if run.checkable and run.start_check is None:
+        run.found, run.estimate, run.discovery_info, run.start_check = check_start(
+            run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
+            run.progress, run.estimate, run.found, run.discovery_info)
+    warning = start_warning(run.start_check)
     if warning is not None:
-        warnings.append(warning)
-    final, terms, fitted_records = estimate, (), list(records)
-    if found is not None:
-        final, terms, fitted_records = found.estimate, found.terms, found.records
-    in_sample = simulation_errors(final, fitted_records, torque_constant, terms, quasi)
+        run.warnings.append(warning)
+
+
+def _final_fit(run: _Run) -> None:
+    """Stage 7: the final fit (the loop's, else the base); refused when it does not fit."""
+    run.final, run.terms, run.fitted_records = run.estimate, (), list(run.records)
+    if run.found is not None:
+        run.final, run.terms, run.fitted_records = (run.found.estimate, run.found.terms,
+                                                    run.found.records)
+    in_sample = simulation_errors(run.final, run.fitted_records, run.torque_constant,
+                                  run.terms, run.quasi)
     worst = max(value for value in in_sample.values() if value is not None) \
         if any(value is not None for value in in_sample.values()) else float('inf')
     if not np.isfinite(worst) or worst > NO_FIT_NRMSE_PCT:
@@ -444,93 +568,124 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
             f'the identified model does not reproduce the data (simulation error {worst:.3g} % '
             'of the signal spread). Check that the columns are what their names say (units, '
             'signs) and that the data come from a DC motor drive.')
-    final = with_robust_stderr(final)
+
+
+def _uncertainty(run: _Run) -> None:
+    """Stage 8: data-based standard errors; La by its upper bound under the quasi-static model."""
+    final = with_robust_stderr(run.final)
     stderr_model = dict(final.info.get('stderr_model', final.stderr))
-    upper_bounds: dict[str, float] = {}
-    if quasi and full_la is not None:
-        final, upper_bounds = with_la_bound(final, *full_la, records[0].sample_period_s)
+    if run.quasi and run.full_la is not None:
+        dt = run.records[0].sample_period_s
+        final, run.upper_bounds = with_la_bound(final, *run.full_la, dt)
         stderr_model = dict(final.info['stderr_model'])
-        not_identifiable['La'] = la_reason(*full_la, records[0].sample_period_s,
-                                           upper_bounds['La'])
-    names = MECHANICAL_NAMES if mechanical_only else PARAMETER_NAMES + DERIVED_NAMES
-    parameters = {name: float(final.parameters[name]) for name in names}
-    stderr = {name: float(final.stderr.get(name, np.nan)) for name in names}
-    stderr_model = {name: float(stderr_model.get(name, np.nan)) for name in names}
-    for name in upper_bounds:
-        stderr[name] = stderr_model[name] = float('nan')
-    combined: dict[str, Any] = {}
-    bound = at_bound(final, fitted_records, torque_constant)
-    if excitation.one_direction:
-        note = one_direction_note(excitation, parameters['Mc'])
+        run.not_identifiable['La'] = la_reason(*run.full_la, dt, run.upper_bounds['La'])
+    run.final = final
+    run.names = MECHANICAL_NAMES if run.mechanical_only else PARAMETER_NAMES + DERIVED_NAMES
+    run.parameters = {name: float(final.parameters[name]) for name in run.names}
+    run.stderr = {name: float(final.stderr.get(name, np.nan)) for name in run.names}
+    run.stderr_model = {name: float(stderr_model.get(name, np.nan)) for name in run.names}
+    for name in run.upper_bounds:
+        run.stderr[name] = run.stderr_model[name] = float('nan')
+
+
+def _identifiability(run: _Run) -> None:
+    """
+    Stage 9: what the data do not determine, and the answer against the data's own scales.
+
+    One direction only, parameters at a bound, loose ones; plausibility and unit warnings;
+    refused when nothing useful is left.
+    """
+    final, not_identifiable = run.final, run.not_identifiable
+    run.bound = at_bound(final, run.fitted_records, run.torque_constant)
+    if run.excitation.one_direction:
+        note = one_direction_note(run.excitation, run.parameters['Mc'])
         not_identifiable['Mc'] = note
         not_identifiable['load_torque'] = note
-        combined['friction_torque_Nm'] = {
-            'value': parameters['Mc'], 'stderr': stderr['Mc'],
-            'direction': excitation.direction, 'of': ['Mc', 'load_torque']}
-        bound.pop('Mc', None)
-    for name, reason in bound.items():
+        run.combined['friction_torque_Nm'] = {
+            'value': run.parameters['Mc'], 'stderr': run.stderr['Mc'],
+            'direction': run.excitation.direction, 'of': ['Mc', 'load_torque']}
+        run.bound.pop('Mc', None)
+    for name, reason in run.bound.items():
         not_identifiable[name] = reason
-        stderr[name] = float('nan')
-    checked = [name for name in names if name not in not_identifiable and name not in
-               upper_bounds and name not in ('Ka',)]
+        run.stderr[name] = float('nan')
+    checked = [name for name in run.names if name not in not_identifiable and name not in
+               run.upper_bounds and name not in ('Ka',)]
     not_identifiable.update(loose(final, [name for name in checked if name in POSITIVE_NAMES
                                           or name == 'Ta']))
     # Orders of magnitude against the data's own scales: refused there, else warnings (the
     # parameters already said to be at a bound are not repeated).
-    warnings += [text for text in check_plausibility(final.parameters, final.stderr, records,
-                                                     torque_constant)
-                 if not any(text.startswith(f'{name} = ') for name in not_identifiable)]
-    warnings += unit_warnings(final.parameters, records, mechanical_only)
-    if not useful(list(parameters), not_identifiable, mechanical_only):
+    run.warnings += [text for text in check_plausibility(final.parameters, final.stderr,
+                                                         run.records, run.torque_constant)
+                     if not any(text.startswith(f'{name} = ') for name in not_identifiable)]
+    run.warnings += unit_warnings(final.parameters, run.records, run.mechanical_only)
+    if not useful(list(run.parameters), not_identifiable, run.mechanical_only):
         raise NotIdentifiableError(
             'nothing useful is identifiable from these data: '
             + '; '.join(f'{name}: {reason}' for name, reason in not_identifiable.items())
             + '. Use a richer excitation (faster changes for La, larger speed changes for J) '
             'or a longer record.')
-    outputs = output_channels(mechanical_only)
-    warnings += _result_warnings(final, fitted_records, terms, outputs, torque_constant,
-                                 quasi, list(bound) + list(upper_bounds), initial_state)
-    if found is not None and found.effects:
-        shift = _structure_shift(found.base_estimate, parameters, stderr)
+
+
+def _fit_warnings(run: _Run) -> None:
+    """Stage 10: the final fit's warnings, and how far the effects moved the base."""
+    outputs = output_channels(run.mechanical_only)
+    run.warnings += _result_warnings(run.final, run.fitted_records, run.terms, outputs,
+                                     run.torque_constant, run.quasi,
+                                     list(run.bound) + list(run.upper_bounds), run.initial_state)
+    if run.found is not None and run.found.effects:
+        shift = _structure_shift(run.found.base_estimate, run.parameters, run.stderr)
         if shift:
-            warnings.append(shift)
-    errors_detail = record_errors(records, estimate, final, found, torque_constant, terms,
-                                  quasi)
-    warnings += heldout_warnings(errors_detail)
+            run.warnings.append(shift)
+
+
+def _heldout(run: _Run) -> None:
+    """
+    Stage 11: the per-record errors, on the whole records and held out, and their warnings.
+
+    Both come from :mod:`~dcmotor_id.identification.heldout`.
+    """
+    run.errors_detail = record_errors(run.records, run.estimate, run.final, run.found,
+                                      run.torque_constant, run.terms, run.quasi)
+    run.warnings += heldout_warnings(run.errors_detail)
+
+
+def _result(run: _Run) -> IdentificationResult:
+    """Stage 12: the result (the JSON contract's values and the objects behind them)."""
+    found, final, records = run.found, run.final, run.records
     return IdentificationResult(
-        parameters=parameters,
-        stderr=stderr,
+        parameters=run.parameters,
+        stderr=run.stderr,
         method=final.method,
         effects=found.effects_json() if found is not None else [],
-        error_before=found.error_before if found is not None else errors,
-        error_after=found.error_after if found is not None else dict(errors),
+        error_before=found.error_before if found is not None else run.errors,
+        error_after=found.error_after if found is not None else dict(run.errors),
         unexplained=bool(found.unexplained) if found is not None else False,
-        mode='mechanical' if mechanical_only else 'full',
-        torque_constant=torque_constant,
+        mode='mechanical' if run.mechanical_only else 'full',
+        torque_constant=run.torque_constant,
         initial_states=[list(state) for state in final.initial_states],
         noise_std=final.info.get('noise_std', {}),
         sample_period_s=records[0].sample_period_s,
         n_samples=int(sum(len(rec) for rec in records)),
         sources=[rec.source for rec in records],
-        units={name: UNITS[name] for name in names},
-        discover=bool(discover),
-        discovery=discovery_info,
-        stderr_model=stderr_model,
+        units={name: UNITS[name] for name in run.names},
+        discover=bool(run.discover),
+        discovery=run.discovery_info,
+        stderr_model=run.stderr_model,
         uncertainty_method=final.info.get('uncertainty_method',
                                           f"the {final.method} estimator's own"),
-        not_identifiable=not_identifiable,
-        warnings=warnings,
-        errors=errors_detail,
-        combined=combined,
-        upper_bounds=upper_bounds,
-        initial_state=initial_state,
-        elapsed_s=progress.elapsed(),
-        start_check=start_check,
+        not_identifiable=run.not_identifiable,
+        warnings=run.warnings,
+        errors=run.errors_detail,
+        combined=run.combined,
+        upper_bounds=run.upper_bounds,
+        initial_state=run.initial_state,
+        elapsed_s=run.progress.elapsed(),
+        start_check=run.start_check,
         operating_range=operating_range(records),
         estimate=final,
         input_records=list(records),
         discovery_result=found,
-        criterion=criterion,
+        criterion=run.criterion,
     )
 
 
