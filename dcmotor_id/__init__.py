@@ -66,7 +66,7 @@ _HOME = {
     'MotorStepper': 'simulation',
     'read_record': 'formats', 'read_records': 'formats', 'ReadOptions': 'formats',
     'identify': 'identification.identify',
-    'IdentificationResult': 'identification.identify',
+    'IdentificationResult': 'identification.result',
     'make_effect': 'identification.effects', 'parse_effect': 'identification.effects',
     'load_model': 'identification.validate', 'validate': 'identification.validate',
     'make_estimator': 'streaming.online', 'OnlineEstimator': 'streaming.online',

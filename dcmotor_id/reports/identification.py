@@ -578,10 +578,10 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
     directory : str
         Output directory (created).
     result : dict
-        The JSON result (:meth:`~dcmotor_id.identification.identify.IdentificationResult.as_dict`).
+        The JSON result (:meth:`~dcmotor_id.identification.result.IdentificationResult.as_dict`).
     found : DiscoveryResult, optional
         The loop's result
-        (:attr:`~dcmotor_id.identification.identify.IdentificationResult.discovery_result`);
+        (:attr:`~dcmotor_id.identification.result.IdentificationResult.discovery_result`);
         without it the page shows the base model's fit on the whole record.
     records : list of Record, optional
         The prepared records (needed when ``found`` is None).

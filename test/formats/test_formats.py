@@ -13,8 +13,7 @@ from dcmotor_id.formats import csv as csv_format, read_record
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.mapping import ReadOptions
 from dcmotor_id.identification.identify import identify, prepare_records
-from dcmotor_id.simulation import lab_scenarios
-from dcmotor_id.simulation import simulate_motor_effects
+from dcmotor_id.simulation import lab_scenarios, simulate_motor_effects
 from dcmotor_id.simulation.excitation import make_excitation
 
 DT = 1e-3

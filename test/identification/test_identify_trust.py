@@ -13,8 +13,7 @@ from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.core.records import Record
-from dcmotor_id.identification.checks.identifiability import (assess_excitation,
-                                                              correlated_pairs,
+from dcmotor_id.identification.checks.identifiability import (assess_excitation, correlated_pairs,
                                                               current_limit_warning,
                                                               initial_state_warnings,
                                                               misfit_warning)

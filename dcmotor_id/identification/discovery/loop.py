@@ -13,8 +13,8 @@ from dcmotor_id.identification.discovery.judging import decide, never_worse, rou
 from dcmotor_id.identification.discovery.refitting import (anchor_fit, fit_structure, refit_all,
                                                            refit_candidate)
 from dcmotor_id.identification.discovery.result import DiscoveryResult
-from dcmotor_id.identification.discovery.screening import (screen_absent, SCREEN_SHARE,
-                                                           SCREEN_TOP, SCREEN_TOP_MISFIT)
+from dcmotor_id.identification.discovery.screening import (screen_absent, SCREEN_SHARE, SCREEN_TOP,
+                                                           SCREEN_TOP_MISFIT)
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit, Round, Structure
 

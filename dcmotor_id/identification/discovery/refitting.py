@@ -13,8 +13,8 @@ from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.discovery.screening import (base_sensitivities, delay_estimate,
                                                            projector)
 from dcmotor_id.identification.discovery.state import LoopState
-from dcmotor_id.identification.discovery.structure import (Candidate, Fit, slice_terms,
-                                                           Structure, with_initial)
+from dcmotor_id.identification.discovery.structure import (Candidate, Fit, slice_terms, Structure,
+                                                           with_initial)
 from dcmotor_id.identification.effects import SensorDelay, torque_spread
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.residuals import simulate_records

@@ -1,0 +1,94 @@
+"""
+La below what the data resolve: the quasi-static armature (La -> 0) and La as an upper bound.
+
+When the electrical time constant La/Ra is below the sample period, or La is undetermined
+(:func:`la_unresolved`), the model is refitted with the quasi-static armature
+(:func:`quasi_static_refit`); kept, it is the model of everything that follows, and the final
+estimate gives La by its upper bound (:func:`with_la_bound`) with the reason
+(:func:`la_reason`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Sequence, TYPE_CHECKING
+
+import numpy as np
+
+from dcmotor_id.core.errors import DcMotorIdError
+from dcmotor_id.core.model import derived_values, parameter_names
+from dcmotor_id.core.progress import Progress
+from dcmotor_id.identification.checks.identifiability import IDENTIFIABLE_REL_STDERR
+from dcmotor_id.identification.estimators.refined import RefinedEstimator
+from dcmotor_id.identification.fitting import simulation_errors
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.estimators.base import Estimate
+    from dcmotor_id.identification.residuals import ChannelErrors
+
+
+def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
+    """Whether La is below what the sample period resolves, or undetermined."""
+    return bool(la / ra < dt or la_stderr > IDENTIFIABLE_REL_STDERR * la)
+
+
+def quasi_static_refit(estimate: Estimate, records: Sequence[Record], errors: ChannelErrors,
+                       initial_state: str, progress: Progress,
+                       criterion: str = 'speed') -> Estimate | None:
+    """
+    Refit with the quasi-static armature (La -> 0); return the estimate or None.
+
+    The refit is kept when its current simulation error is at most 25 % (and 0.5 points)
+    worse than the full model's: the full model's La then adds nothing the data resolve.
+    """
+    values = estimate.parameters
+    start = {name: values[name] for name in parameter_names(False) if name != 'La'}
+    progress.set_stage('quasi-static armature refit')
+    try:
+        quasi = RefinedEstimator(initial=start, quasi_static=True, initial_state=initial_state,
+                                 progress=progress, criterion=criterion).fit(records)
+        quasi_errors = simulation_errors(quasi, records, None, quasi_static=True)
+    except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
+        return None
+    full_current = errors.get('current_nrmse_pct') or 0.0
+    quasi_current = quasi_errors.get('current_nrmse_pct')
+    if quasi_current is None or quasi_current > 1.25 * full_current + 0.5:
+        return None
+    return quasi
+
+
+def with_la_bound(quasi: Estimate, la: float, la_stderr: float, ra_full: float,
+                  dt: float) -> tuple[Estimate, dict[str, float]]:
+    """
+    Give a quasi-static estimate La, Ka and Ta: La by its upper bound, Ta from it.
+
+    The bound is the larger of ``Ra dt`` (a time constant below the sample period) and the
+    full fit's ``La + 2 stderr``; ``stderr`` of La and Ta is NaN, Ka's follows Ra's.
+    """
+    bound = max(quasi.parameters['Ra'] * dt, la + 2.0 * la_stderr)
+    parameters = dict(quasi.parameters)
+    parameters['La'] = bound
+    parameters.update(derived_values(parameters))
+    ra = parameters['Ra']
+    stderr = dict(quasi.stderr)
+    stderr.update({'La': float('nan'), 'Ta': float('nan'), 'Ka': quasi.stderr['Ra'] / ra ** 2})
+    model = dict(quasi.info.get('stderr_model', quasi.stderr))
+    model.update({'La': float('nan'), 'Ta': float('nan'),
+                  'Ka': model.get('Ra', np.nan) / ra ** 2})
+    info = {**quasi.info, 'stderr_model': model}
+    result = replace(quasi, parameters=parameters, stderr=stderr, info=info)
+    return result, {'La': bound, 'Ta': parameters['Ta']}
+
+
+def la_reason(la: float, la_stderr: float, ra: float, dt: float, bound: float | None) -> str:
+    """Say why La is not identified; with the bound, how the others were identified."""
+    ta = la / ra
+    why = (f'the electrical time constant La/Ra = {ta:.2g} s is below the sample period '
+           f'{dt:.2g} s' if ta < dt else
+           f'La = {la:.3g} +/- {la_stderr:.2g} H is not determined')
+    if bound is None:
+        return why + ': La is not identifiable from these data (sample faster to see it)'
+    return (why + f': La < {bound:.3g} H (upper bound, given as its value); Ra, CPhi, J, b and '
+            'Mc come from the quasi-static armature equation (La -> 0): '
+            'J dw/dt = CPhi (u - CPhi w)/Ra - b w - Mc sgn w, i = (u - CPhi w)/Ra')

@@ -1,0 +1,178 @@
+"""
+The result of :func:`~dcmotor_id.identification.identify.identify` and its JSON layout.
+
+:class:`IdentificationResult` holds the values of the CLI's and the node's JSON contract
+(:meth:`~IdentificationResult.as_dict`) plus the objects behind them (the final estimate, the
+records, the discovery loop's result) for callers that go further (the report, studies).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.discovery import DiscoveryResult
+    from dcmotor_id.identification.estimators.base import Estimate
+    from dcmotor_id.identification.residuals import ChannelErrors
+
+
+@dataclass
+class IdentificationResult:
+    """
+    The result of an identification: the JSON contract's values plus the objects behind them.
+
+    Returned by :func:`~dcmotor_id.identification.identify.identify`.
+
+    The fields up to ``upper_bounds`` are the JSON layout (:meth:`as_dict`, the ``--json``
+    file and the node's result); ``sources`` is written as ``records``.  The remaining fields
+    are for callers that go further (the report, studies): the final :class:`Estimate`, the
+    records identified and the discovery loop's result.
+
+    Attributes
+    ----------
+    parameters, stderr : dict
+        Final values and their standard errors, by name.  ``stderr`` is the larger of the
+        model-based (Gauss-Newton) and the data-based figure (``uncertainty_method``); NaN
+        (JSON null) for a parameter at its bound or given as an upper bound.
+    method : str
+        Estimator name.
+    effects : list of dict
+        Effects found, in the order added, each ``{"name", "parameters"}``.
+    error_before, error_after : dict
+        Simulation error (``{current,speed}_nrmse_pct``) of the base and the final model on
+        the held-out data, in percent of the spread of all records joined; in-sample when the
+        loop did not run.  ``errors`` has the per-record figures.
+    unexplained : bool
+        Structure that matters remains that no candidate effect explains.
+    mode : str
+        ``full`` or ``mechanical``.
+    torque_constant : float or None
+        Given for the mechanical-only mode.
+    initial_states : list of list of float
+        Initial state of every record.
+    noise_std : dict
+        Noise level per channel as the estimator saw it.
+    sample_period_s : float
+        Sample period.
+    n_samples : int
+        Samples over all records.
+    sources : list of str or None
+        Source of every record (the JSON key ``records``).
+    units : dict
+        Unit of every parameter.
+    discover : bool
+        Whether discovery was asked for.
+    discovery : dict or None
+        The loop's JSON account, or ``{"skipped": reason}``, or None when not asked for.
+    stderr_model : dict
+        The Gauss-Newton standard errors (white residual, exact model assumed).
+    uncertainty_method : str
+        How ``stderr`` was obtained.
+    not_identifiable : dict
+        Parameter (or effect) -> why the data do not determine it.
+    warnings : list of str
+        What the user must know to trust the numbers.
+    errors : dict
+        Per-record simulation errors (:func:`~dcmotor_id.identification.heldout.record_errors`).
+    combined : dict
+        Combinations reported instead of their parts, e.g. ``friction_torque_Nm``
+        (``{"value", "stderr", "direction", "of"}``) on one-direction data.
+    upper_bounds : dict
+        Parameters given as an upper bound (``La``, ``Ta`` when the electrical time constant
+        is below the sample period); ``parameters`` holds the bound.
+    initial_state : str
+        ``estimate`` or ``measured``.
+    elapsed_s : float
+        Run time.
+    operating_range : dict
+        Speed and current ranges and directions of the records
+        (:func:`~dcmotor_id.identification.validate.operating_range`; copied into ``model``
+        for ``validate``).
+    start_check : dict or None
+        The fit checked against model-free evidence
+        (:mod:`~dcmotor_id.identification.checks.start`): ``evidence``
+        (the regression's values), ``doubts``, and when doubted ``second_start``, ``bic`` and
+        ``chosen``; None when not checked (pinned initial states, other estimators).
+    estimate : Estimate
+        The final estimate (all data).
+    input_records : list of Record
+        The records identified (as given, before any data effect).
+    discovery_result : DiscoveryResult or None
+        The loop's result, when it ran.
+    criterion : str
+        The channels the fit compared: ``speed``, ``position`` or ``both``
+        (:mod:`dcmotor_id.identification.criterion`).
+
+    """
+
+    parameters: dict[str, float]
+    stderr: dict[str, float]
+    method: str
+    effects: list[dict[str, Any]]
+    error_before: ChannelErrors
+    error_after: ChannelErrors
+    unexplained: bool
+    mode: str
+    torque_constant: float | None
+    initial_states: list[list[float]]
+    noise_std: dict[str, float]
+    sample_period_s: float
+    n_samples: int
+    sources: list[str | None]
+    units: dict[str, str]
+    discover: bool
+    discovery: dict[str, Any] | None
+    stderr_model: dict[str, float] = field(default_factory=dict)
+    uncertainty_method: str = ''
+    not_identifiable: dict[str, str] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    errors: dict[str, Any] = field(default_factory=dict)
+    combined: dict[str, Any] = field(default_factory=dict)
+    upper_bounds: dict[str, float] = field(default_factory=dict)
+    initial_state: str = 'estimate'
+    elapsed_s: float = 0.0
+    start_check: dict[str, Any] | None = None
+    operating_range: dict[str, Any] = field(default_factory=dict)
+    estimate: Estimate | None = field(repr=False, default=None)
+    input_records: list[Record] = field(repr=False, default_factory=list)
+    discovery_result: DiscoveryResult | None = field(repr=False, default=None)
+    criterion: str = 'speed'
+
+    def as_dict(self) -> dict[str, Any]:
+        """Return the JSON layout of the CLI and node contract (a new dict)."""
+        from dcmotor_id.identification.validate import model_block
+        out = {
+            'parameters': self.parameters,
+            'stderr': self.stderr,
+            'method': self.method,
+            'effects': self.effects,
+            'error_before': self.error_before,
+            'error_after': self.error_after,
+            'unexplained': self.unexplained,
+            'mode': self.mode,
+            'torque_constant': self.torque_constant,
+            'initial_states': self.initial_states,
+            'noise_std': self.noise_std,
+            'sample_period_s': self.sample_period_s,
+            'n_samples': self.n_samples,
+            'records': self.sources,
+            'units': self.units,
+            'discover': self.discover,
+            'discovery': self.discovery,
+            'stderr_model': self.stderr_model,
+            'uncertainty_method': self.uncertainty_method,
+            'not_identifiable': self.not_identifiable,
+            'warnings': self.warnings,
+            'errors': self.errors,
+            'combined': self.combined,
+            'upper_bounds': self.upper_bounds,
+            'initial_state': self.initial_state,
+            'elapsed_s': self.elapsed_s,
+            'start_check': self.start_check,
+            'operating_range': self.operating_range,
+            'criterion': self.criterion,
+        }
+        out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
+        return out

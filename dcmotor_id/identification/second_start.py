@@ -1,0 +1,176 @@
+"""
+The fit checked against model-free evidence, and a second start when the evidence disagrees.
+
+A fit from the default start can settle in a wrong basin (e.g. the initial speeds moved by a
+misfit); the regression on the data (:mod:`~dcmotor_id.identification.checks.start`) sees that
+without a model.  :func:`check_start` compares the fit with it; when doubted, it fits again
+from the regression's values with the initial states pinned to the first samples, searches
+the effects from there, frees the initial states, and keeps whichever of the first start and
+these candidates explains all of the data best (BIC).  :func:`start_warning` says what
+happened.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any, Sequence, TYPE_CHECKING
+
+import numpy as np
+
+from dcmotor_id.core.errors import DcMotorIdError
+from dcmotor_id.core.model import parameter_names
+from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
+from dcmotor_id.identification.checks.start import (bic, regression_evidence, regression_start,
+                                                    suspect)
+from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
+from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
+from dcmotor_id.identification.fitting import check_physical, record_names, run_discovery
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.discovery import DiscoveryResult
+    from dcmotor_id.identification.effects import Effect
+    from dcmotor_id.identification.estimators.base import Estimate
+
+
+def check_start(
+        records: Sequence[Record], torque_constant: float | None, quasi: bool, discover: bool,
+        vocabulary: Sequence[type[Effect]], progress: Progress, estimate: Estimate,
+        found: DiscoveryResult | None, discovery_info: dict[str, Any] | None
+) -> tuple[DiscoveryResult | None, Estimate, dict[str, Any] | None, dict[str, Any]]:
+    """
+    Check the fit against model-free evidence; when doubted, try a second start, keep the best.
+
+    Returns ``(found, base estimate, discovery summary, start_check)``, the first three
+    replaced by the second start's when it explains all of the data better (lower BIC).
+    ``start_check`` is the JSON account (:mod:`dcmotor_id.identification.checks.start`).
+    """
+    evidence = regression_evidence(records, torque_constant)
+    first = found.estimate if found is not None else estimate
+    first_records = found.records if found is not None else list(records)
+    first_terms = found.terms if found is not None else ()
+    model = OutputErrorModel(first_records, torque_constant, first_terms, quasi)
+    doubts = suspect(first, first_records, model, evidence)
+    check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
+    if not doubts:
+        return found, estimate, discovery_info, check
+    pinned = _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check)
+    if pinned is None:
+        return found, estimate, discovery_info, check
+    second = _second_start(records, torque_constant, quasi, discover, vocabulary, progress,
+                           pinned, check)
+    chosen = _choose(check, first, first_records, model, second)
+    if chosen == 'first start':
+        return found, estimate, discovery_info, check
+    final = second.freed if chosen == 'second start' and second.freed is not None else \
+        second.pinned_final
+    if second.found is None:
+        return None, final, discovery_info, check
+    found = replace(second.found, estimate=final,
+                    effects=second.structure.effects(final.parameters))
+    return found, pinned, second.info, check
+
+
+@dataclass
+class _SecondStart:
+    """The candidates of a second start and what they are measured on."""
+
+    found: DiscoveryResult | None  # the discovery loop's result from the pinned fit
+    info: dict[str, Any] | None  # its summary
+    structure: Structure  # the effects it found (none without discovery)
+    pinned_final: Estimate  # the pinned fit, after the effects were searched
+    records: list  # the records as that structure sees them
+    model: OutputErrorModel
+    freed: Estimate | None = None  # the refit with the initial states freed
+
+
+def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check):
+    """Fit from the regression's values with the initial states pinned; None when it fails."""
+    names = [name for name in parameter_names(torque_constant is not None)
+             if not (quasi and name == 'La')]
+    start = regression_start(evidence, estimate.parameters, names)
+    progress.set_stage('second start (initial states pinned)', record_names(records))
+    try:
+        pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
+                                  progress=progress).fit(records, torque_constant=torque_constant)
+        check_physical(pinned)
+    except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
+        check['second_start'] = f'failed: {error}'
+        return None
+    return pinned
+
+
+def _second_start(records, torque_constant, quasi, discover, vocabulary, progress, pinned,
+                  check):
+    """Search the effects from the pinned fit, then free the initial states."""
+    found, info, structure = None, None, Structure()
+    values, states = pinned.parameters, pinned.initial_states
+    if discover:
+        found, info = run_discovery(
+            records, torque_constant, RefinedEstimator(), vocabulary, progress, 'measured',
+            quasi, pinned)
+        if found is not None:
+            structure = found.final.structure
+            values, states = found.estimate.parameters, found.estimate.initial_states
+    second_records = structure.transformed(records)
+    second = _SecondStart(found, info, structure,
+                          found.estimate if found is not None else pinned, second_records,
+                          OutputErrorModel(second_records, torque_constant,
+                                           found.terms if found is not None else (), quasi))
+    try:
+        freed = refit_all_data(structure, records, torque_constant, values,
+                               refit_start(values, records, torque_constant), progress=progress,
+                               initial_states=states, initial_state='estimate',
+                               quasi_static=quasi)[2]
+        check_physical(freed)
+    except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
+        check['freed'] = f'failed: {error}'  # the pinned fit is still a candidate
+        freed = None
+    second.freed = freed
+    return second
+
+
+def _choose(check, first, first_records, model, second):
+    """Score the first start and the second's candidates (BIC); account for and return the best."""
+    noise = dict(first.info.get('noise_std', {}))
+    scores = {'first start': bic(first, first_records, model, noise),
+              'second start, initial states pinned': bic(second.pinned_final, second.records,
+                                                         second.model, noise,
+                                                         free_states=False)}
+    if second.freed is not None:
+        scores['second start'] = bic(second.freed, second.records, second.model, noise)
+    chosen = min(scores, key=lambda key: scores[key])
+    shown = second.freed if second.freed is not None else second.pinned_final
+    check.update({'second_start': {'effects': second.structure.names(),
+                                   'J': float(shown.parameters['J']),
+                                   'b': float(shown.parameters['b'])},
+                  'bic': scores, 'chosen': chosen})
+    return chosen
+
+
+def start_warning(check: dict[str, Any] | None) -> str | None:
+    """Return the warning of a start check: the result from a second start, or a doubt kept."""
+    if check is None:
+        return None
+    if check['chosen'] != 'first start':
+        return _second_start_warning(check)
+    if not check['doubts']:
+        return None
+    outcome = check.get('second_start')
+    return ('the fit disagrees with the model-free evidence ('
+            + '; '.join(check['doubts']) + ') and a second start '
+            + (f'could not help ({outcome})' if isinstance(outcome, str) else
+               'explains the data no better')
+            + ': the values may come from a wrong basin; compare with '
+            '--initial-state measured')
+
+
+def _second_start_warning(check: dict[str, Any]) -> str:
+    """Return the warning of a result taken from the second start."""
+    how = ("the fit with every initial state pinned to the records' first samples"
+           if check['chosen'].endswith('pinned') else
+           'from a second start (the regression on the data, initial states pinned to the '
+           'first samples while the effects were searched, then freed)')
+    return ('the fit from the default start landed where the model-free evidence disagrees ('
+            + '; '.join(check['doubts']) + f'); the result is {how}, which explains all of the '
+            'data better (BIC)')
