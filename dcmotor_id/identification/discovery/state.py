@@ -49,7 +49,7 @@ class LoopState:
         best structure so far (``out_of_time`` in the result).
     initial_state : str
         ``estimate`` or ``measured``
-    (:class:`~dcmotor_id.identification.estimators.refined.RefinedEstimator`).
+        (:class:`~dcmotor_id.identification.estimators.refined.RefinedEstimator`).
     quasi_static : bool
         Fit the quasi-static armature (La -> 0; the electrical time constant below the sample
         period) throughout.
