@@ -1,4 +1,11 @@
-"""Judging on the held-out parts: the noise of a candidate's gain; never worse than the base."""
+"""
+Judging candidates on the held-out parts: gain, its noise and t, own part, the round's choice.
+
+A refitted candidate is scored (:func:`score`); the best admissible one that gains enough is
+chosen (:func:`choose`) if it has earned its place (:func:`unearned`: :func:`own_part`,
+:func:`gain_t`), else the next best is considered (:func:`decide`).  The loop never ends worse
+than its base model (:func:`never_worse`).
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,11 @@
-"""Fitting a structure again: open-loop outputs, the start of a refit, the all-data refit."""
+"""
+Fitting a structure: on the training parts, a candidate's refit and its problems, all the data.
+
+:func:`fit_structure` fits on the training parts (:func:`training_stops`) and simulates the
+whole records; :func:`refit_candidate` adds a candidate from its screened start (a sensor delay
+by Gauss-Newton on the integer shift) and says why it is not admissible (:func:`problem`);
+:func:`refit_all` and :func:`refit_all_data` refit on all of the records.
+"""
 
 from __future__ import annotations
 
