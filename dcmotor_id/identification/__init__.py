@@ -1,7 +1,10 @@
 """
 Layer 4: identifying the motor from records (no ROS).
 
-:mod:`~dcmotor_id.identification.identify` runs the pipeline: the checks of the data
+:mod:`~dcmotor_id.identification.identify` runs the pipeline as named stages (listed in its
+docstring; the details of each stage in a module of its own, e.g.
+:mod:`~dcmotor_id.identification.second_start`, its result in
+:mod:`~dcmotor_id.identification.result`): the checks of the data
 (:mod:`~dcmotor_id.identification.identifiability`), an estimator of
 :mod:`~dcmotor_id.identification.estimators` (all behind one ``Estimator`` interface), the
 checks of the answer (:mod:`~dcmotor_id.identification.plausibility`), the residual analysis
