@@ -7,9 +7,9 @@ pipeline (``_identify``) is a list of stages, one function each, reading and set
 state (``_Run``), top to bottom; the details of each live in a module of their own:
 
 1. prepare: held samples restored, coarse channels named, data that do not move refused
-   (:mod:`~dcmotor_id.identification.prepare`, which also has :func:`prepare_records`); a
-   drive at an amplifier's current limit takes its own path
-   (:mod:`~dcmotor_id.identification.current_limited`);
+   (:mod:`~dcmotor_id.identification.prepare`, which also makes records ready:
+   :func:`~dcmotor_id.identification.prepare.prepare_records`); a drive at an amplifier's
+   current limit takes its own path (:mod:`~dcmotor_id.identification.current_limited`);
 2. base fit: the estimator named by ``--method`` on all data, non-physical values refused
    (:mod:`~dcmotor_id.identification.fitting`);
 3. armature: La below what the data resolve makes the quasi-static armature the model
@@ -115,7 +115,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
     Parameters
     ----------
     records : list of Record
-        From :func:`prepare_records`.
+        From :func:`~dcmotor_id.identification.prepare.prepare_records`.
     method : str
         ``refined`` (default) or ``paper``.
     torque_constant : float, optional
