@@ -7,9 +7,9 @@ pipeline (``_identify``) is a list of stages, one function each, reading and set
 state (``_Run``), top to bottom; the details of each live in a module of their own:
 
 1. prepare: held samples restored, coarse channels named, data that do not move refused
-   (:mod:`~dcmotor_id.identification.prepare`, which also has :func:`prepare_records`); a
-   drive at an amplifier's current limit takes its own path
-   (:mod:`~dcmotor_id.identification.current_limited`);
+   (:mod:`~dcmotor_id.identification.prepare`, which also makes records ready:
+   :func:`~dcmotor_id.identification.prepare.prepare_records`); a drive at an amplifier's
+   current limit takes its own path (:mod:`~dcmotor_id.identification.current_limited`);
 2. base fit: the estimator named by ``--method`` on all data, non-physical values refused
    (:mod:`~dcmotor_id.identification.fitting`);
 3. armature: La below what the data resolve makes the quasi-static armature the model
@@ -104,26 +104,6 @@ DEFAULT_MAX_TIME_S = 120.0
 INITIAL_STATES = ('estimate', 'measured')
 
 
-def _make_estimator(method, initial_state, progress, criterion='speed'):
-    if method == 'refined':
-        return RefinedEstimator(initial_state=initial_state, progress=progress,
-                                criterion=criterion)
-    return METHODS[method]()
-
-
-def _criterion_of(records, criterion, method, estimator):
-    """Return the criterion the fit uses: resolved for the refined method, else speed."""
-    resolved = resolve_criterion(records, criterion)
-    if estimator is not None:
-        return getattr(estimator, 'criterion', 'speed')
-    if method != 'refined':
-        if criterion not in ('auto', 'speed'):
-            raise InputDataError(f'--criterion {criterion} needs the refined method (the '
-                                 f'{method} method fits the speed)')
-        return 'speed'
-    return resolved
-
-
 @single_threaded
 def identify(records: Sequence[Record], method: str = 'refined',
              torque_constant: float | None = None, discover: bool = True,
@@ -136,7 +116,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
     Parameters
     ----------
     records : list of Record
-        From :func:`prepare_records`.
+        From :func:`~dcmotor_id.identification.prepare.prepare_records`.
     method : str
         ``refined`` (default) or ``paper``.
     torque_constant : float, optional
@@ -195,6 +175,19 @@ def _check_choices(method: str, initial_state: str) -> None:
                              f'{initial_state!r}')
 
 
+def _criterion_of(records, criterion, method, estimator):
+    """Return the criterion the fit uses: resolved for the refined method, else speed."""
+    resolved = resolve_criterion(records, criterion)
+    if estimator is not None:
+        return getattr(estimator, 'criterion', 'speed')
+    if method != 'refined':
+        if criterion not in ('auto', 'speed'):
+            raise InputDataError(f'--criterion {criterion} needs the refined method (the '
+                                 f'{method} method fits the speed)')
+        return 'speed'
+    return resolved
+
+
 def _on_the_speed(arguments, error):
     """Identify on the speed after the fit on the position failed (``--criterion auto``)."""
     # The position integrates every force the model lacks over the whole record: a base
@@ -246,6 +239,7 @@ class _Run:
     quasi-static refit or the second start), ``final`` the reported one.
     """
 
+    # The inputs.
     records: list[Record]
     method: str
     torque_constant: float | None
@@ -255,8 +249,10 @@ class _Run:
     progress: Progress
     initial_state: str
     criterion: str
+    # What the user must know (every stage may add), and what the data do not determine.
     warnings: list[str]
     not_identifiable: dict[str, str] = field(default_factory=dict)
+    # What the stages find, in order.
     excitation: Excitation = field(init=False)
     estimate: Estimate = field(init=False)
     errors: ChannelErrors = field(init=False)
@@ -308,6 +304,23 @@ def _current_limit(run: _Run) -> list[np.ndarray] | None:
     return limited_samples(run.records)
 
 
+def _identify_current_limited(records, limited, discover, vocabulary, progress, initial_state):
+    """
+    Identify a drive whose amplifier limits the current (the model has no limit).
+
+    The electrical part off the limit
+    (:func:`~dcmotor_id.identification.current_limited.electrical_part`), then the mechanical
+    part as in the mechanical-only mode with the measured current and that CPhi as the torque
+    constant, completed by
+    :func:`~dcmotor_id.identification.current_limited.with_electrical_part`.
+    """
+    values, robust = electrical_part(records, limited)
+    mechanical = identify(records, torque_constant=values['CPhi'], discover=discover,
+                          vocabulary=vocabulary, progress=progress,
+                          initial_state=initial_state)
+    return with_electrical_part(mechanical, values, robust, records, progress)
+
+
 def _base_fit(run: _Run) -> None:
     """Stage 2: the base model (no effects) fitted on all data, and its simulation errors."""
     if run.excitation.one_direction:
@@ -330,6 +343,14 @@ def _base_fit(run: _Run) -> None:
     check_physical(estimate)
     run.estimate = estimate
     run.errors = simulation_errors(estimate, run.records, run.torque_constant)
+
+
+def _make_estimator(method, initial_state, progress, criterion='speed'):
+    """Return the estimator named by ``method`` (the refined one with its options)."""
+    if method == 'refined':
+        return RefinedEstimator(initial_state=initial_state, progress=progress,
+                                criterion=criterion)
+    return METHODS[method]()
 
 
 def _armature(run: _Run) -> None:
@@ -517,6 +538,49 @@ def _fit_warnings(run: _Run) -> None:
             run.warnings.append(shift)
 
 
+def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, skip,
+                     initial_state):
+    """Warnings of the final fit: correlations, initial states, misfit, current limit."""
+    warnings = correlated_pairs(estimate, skip=skip)
+    if initial_state == 'estimate':
+        warnings += initial_state_warnings(estimate, records, outputs)
+    model = OutputErrorModel(records, torque_constant, terms, quasi)
+    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
+    rms = {channel: float(np.sqrt(np.mean(np.concatenate(
+        [out[channel] - getattr(rec, channel) for out, rec in zip(simulated, records)]) ** 2)))
+        for channel in outputs}
+    misfit = misfit_warning(estimate, records, outputs, rms)
+    if misfit:
+        warnings.append(misfit)
+    return warnings
+
+
+def _structure_shift(base: Estimate, parameters: dict[str, float],
+                     stderr: dict[str, float]) -> str | None:
+    """Say how far the effects found moved the base parameters, when beyond 3 stderr."""
+    moved = {}
+    for name in ('Ra', 'CPhi', 'J', 'b', 'Mc'):
+        if name in base.parameters and np.isfinite(stderr.get(name, np.nan)) and \
+                stderr[name] > 0:
+            ratio = abs(parameters[name] - base.parameters[name]) / stderr[name]
+            if ratio > 3.0:
+                moved[name] = (_relative_change(parameters[name], base.parameters[name]), ratio)
+    if not moved:
+        return None
+    listing = ', '.join(f'{name} {change} ({ratio:.0f} stderr)'
+                        for name, (change, ratio) in moved.items())
+    return (f'the effects found move the base parameters beyond their standard errors ({listing}'
+            '): the structure matters more than the noise here, and the standard errors do not '
+            'cover the choice of structure; compare with --no-discover')
+
+
+def _relative_change(value: float, base: float) -> str:
+    """Change from ``base`` to ``value`` in percent, or absolute when the base is zero."""
+    if base == 0.0 or not np.isfinite(base):
+        return f'{base:.3g} -> {value:.3g}'
+    return f'{100.0 * (value / base - 1.0):+.3g} %'
+
+
 def _heldout(run: _Run) -> None:
     """
     Stage 11: the per-record errors, on the whole records and held out, and their warnings.
@@ -566,63 +630,3 @@ def _result(run: _Run) -> IdentificationResult:
         discovery_result=found,
         criterion=run.criterion,
     )
-
-
-def _identify_current_limited(records, limited, discover, vocabulary, progress, initial_state):
-    """
-    Identify a drive whose amplifier limits the current (the model has no limit).
-
-    The electrical part off the limit
-    (:func:`~dcmotor_id.identification.current_limited.electrical_part`), then the mechanical
-    part as in the mechanical-only mode with the measured current and that CPhi as the torque
-    constant, completed by
-    :func:`~dcmotor_id.identification.current_limited.with_electrical_part`.
-    """
-    values, robust = electrical_part(records, limited)
-    mechanical = identify(records, torque_constant=values['CPhi'], discover=discover,
-                          vocabulary=vocabulary, progress=progress,
-                          initial_state=initial_state)
-    return with_electrical_part(mechanical, values, robust, records, progress)
-
-
-def _structure_shift(base: Estimate, parameters: dict[str, float],
-                     stderr: dict[str, float]) -> str | None:
-    """Say how far the effects found moved the base parameters, when beyond 3 stderr."""
-    moved = {}
-    for name in ('Ra', 'CPhi', 'J', 'b', 'Mc'):
-        if name in base.parameters and np.isfinite(stderr.get(name, np.nan)) and \
-                stderr[name] > 0:
-            ratio = abs(parameters[name] - base.parameters[name]) / stderr[name]
-            if ratio > 3.0:
-                moved[name] = (_relative_change(parameters[name], base.parameters[name]), ratio)
-    if not moved:
-        return None
-    listing = ', '.join(f'{name} {change} ({ratio:.0f} stderr)'
-                        for name, (change, ratio) in moved.items())
-    return (f'the effects found move the base parameters beyond their standard errors ({listing}'
-            '): the structure matters more than the noise here, and the standard errors do not '
-            'cover the choice of structure; compare with --no-discover')
-
-
-def _relative_change(value: float, base: float) -> str:
-    """Change from ``base`` to ``value`` in percent, or absolute when the base is zero."""
-    if base == 0.0 or not np.isfinite(base):
-        return f'{base:.3g} -> {value:.3g}'
-    return f'{100.0 * (value / base - 1.0):+.3g} %'
-
-
-def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, skip,
-                     initial_state):
-    """Warnings of the final fit: correlations, initial states, misfit, current limit."""
-    warnings = correlated_pairs(estimate, skip=skip)
-    if initial_state == 'estimate':
-        warnings += initial_state_warnings(estimate, records, outputs)
-    model = OutputErrorModel(records, torque_constant, terms, quasi)
-    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
-    rms = {channel: float(np.sqrt(np.mean(np.concatenate(
-        [out[channel] - getattr(rec, channel) for out, rec in zip(simulated, records)]) ** 2)))
-        for channel in outputs}
-    misfit = misfit_warning(estimate, records, outputs, rms)
-    if misfit:
-        warnings.append(misfit)
-    return warnings
