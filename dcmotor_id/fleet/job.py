@@ -152,8 +152,6 @@ def run_fleet(paths: Iterable[str], history_dir: str, options: Optional[FleetOpt
         When a path does not exist, nothing is found, or ``--motor-from`` is not valid.
 
     """
-    from distributed import as_completed
-
     options = options or FleetOptions()
     check_motor_from(options.motor_from)
     paths = list(paths)
@@ -164,87 +162,110 @@ def run_fleet(paths: Iterable[str], history_dir: str, options: Optional[FleetOpt
     known = set() if force else history.known_sources(history_dir, retry_errors)
     todo = [source for source in sources if source.path not in known]
     summary = FleetSummary(found=len(sources), skipped=len(sources) - len(todo))
-    if not todo:
-        summary.elapsed_s = time.monotonic() - began
-        return summary
-    own_client = client is None
-    if own_client:
-        client = start_client(scheduler, workers)
-    run_id = uuid.uuid4().hex[:12]
-    version = history.package_version()
-    counts = {'windows': 0, 'known': 0, 'failures': 0}
-    pending: list[dict[str, Any]] = []
-    last_flush = time.monotonic()
+    if todo:
+        own_client = client is None
+        run = _FleetRun(start_client(scheduler, workers) if own_client else client,
+                        history_dir, options, todo, summary, retries, (flush_s, flush_rows))
+        run.run(progress, own_client)
+    summary.elapsed_s = time.monotonic() - began
+    return summary
 
-    def flush(final: bool = False) -> None:
-        nonlocal last_flush, pending
-        if pending and (final or len(pending) >= flush_rows or
-                        time.monotonic() - last_flush >= flush_s):
-            summary.files.append(history.write_rows(history_dir, pending, run_id))
-            pending = []
-            last_flush = time.monotonic()
 
-    def finish(bag: _Bag) -> None:
+class _FleetRun:
+    """One run of the fleet on a client: recordings read ahead, windows identified, rows kept."""
+
+    def __init__(self, client: Any, history_dir: str, options: FleetOptions,
+                 todo: list[Source], summary: FleetSummary, retries: int,
+                 flush_every: tuple[float, int]) -> None:
+        from distributed import as_completed
+
+        self.client, self.history_dir, self.options = client, history_dir, options
+        self.todo, self.summary, self.retries = todo, summary, retries
+        self.flush_s, self.flush_rows = flush_every
+        self.run_id = uuid.uuid4().hex[:12]
+        self.version = history.package_version()
+        self.counts = {'windows': 0, 'known': 0, 'failures': 0}
+        self.pending: list[dict[str, Any]] = []
+        self.last_flush = time.monotonic()
+        self.queue = list(reversed(todo))
+        self.bags: dict[str, _Bag] = {}
+        self.owner: dict[str, tuple[str, _Bag]] = {}
+        self.completed = as_completed()
+
+    def run(self, progress: Optional[Progress], own_client: bool) -> None:
+        """Identify every recording; flush the rows and close an own client at the end."""
+        try:
+            self.summary.workers = _threads(self.client)
+            read_ahead = READ_AHEAD_PER_THREAD * self.summary.workers + 1
+            while self.queue and len(self.bags) < read_ahead:
+                self.submit_bag()
+            for future in self.completed:
+                self.take(future, progress)
+        finally:
+            self.flush(final=True)
+            if own_client:
+                cluster = getattr(self.client, 'cluster', None)
+                self.client.close()
+                if cluster is not None:
+                    cluster.close()
+        self.summary.windows = self.counts['windows']
+        self.summary.failures = self.counts['failures']
+        if progress is not None:
+            progress.update(self.summary.done, len(self.todo), self.counts['windows'],
+                            self.counts['known'], self.counts['failures'], final=True)
+
+    def submit_bag(self) -> None:
+        """Submit the next recording's reading and planning."""
+        source = self.queue.pop()
+        number = len(self.todo) - len(self.queue)
+        read = self.client.submit(read_windows, source, self.options, retries=self.retries,
+                                  key=f'fleet-read-{self.run_id}-{number}')
+        plan = self.client.submit(bag_plan, read, retries=self.retries, priority=1,
+                                  key=f'fleet-plan-{self.run_id}-{number}')
+        bag = _Bag(source, read, plan)
+        self.bags[source.path] = bag
+        self.owner[plan.key] = ('plan', bag)
+        self.completed.add(plan)
+
+    def take(self, future: Any, progress: Optional[Progress]) -> None:
+        """Take a finished plan or window; finish its recording when nothing is left of it."""
+        owner, counts = self.owner, self.counts
+        kind, bag = owner.pop(future.key)
+        if kind == 'plan':
+            _planned(self.client, future, bag, self.options, self.retries, owner,
+                     self.completed, counts)
+        else:
+            _identified(future, bag, counts)
+        if kind == 'plan' and not bag.windows or kind == 'window' and not any(
+                key in owner for key in bag.windows):
+            self.finish(self.bags.pop(bag.source.path))
+            bag.read = bag.plan = None  # release the samples on the cluster
+            if self.queue:
+                self.submit_bag()
+        if progress is not None:
+            planning = bool(self.queue) or any(kind == 'plan' for kind, _ in owner.values())
+            progress.update(self.summary.done, len(self.todo), counts['windows'],
+                            counts['known'], counts['failures'], planning=planning)
+
+    def finish(self, bag: _Bag) -> None:
+        """Stamp a finished recording's rows and queue them for the history."""
         stamp = _now()
         for row in bag.rows:
-            row.update({'package_version': version, 'run_id': run_id, 'processed_at': stamp})
-            counts['failures'] += row['status'] != 'ok'
-        pending.extend(bag.rows)
-        summary.done += 1
-        flush()
+            row.update({'package_version': self.version, 'run_id': self.run_id,
+                        'processed_at': stamp})
+            self.counts['failures'] += row['status'] != 'ok'
+        self.pending.extend(bag.rows)
+        self.summary.done += 1
+        self.flush()
 
-    try:
-        summary.workers = _threads(client)
-        queue = list(reversed(todo))
-        bags: dict[str, _Bag] = {}
-        owner: dict[str, tuple[str, _Bag]] = {}
-        completed = as_completed()
-
-        def submit_bag() -> None:
-            source = queue.pop()
-            number = len(todo) - len(queue)
-            read = client.submit(read_windows, source, options, retries=retries,
-                                 key=f'fleet-read-{run_id}-{number}')
-            plan = client.submit(bag_plan, read, retries=retries, priority=1,
-                                 key=f'fleet-plan-{run_id}-{number}')
-            bag = _Bag(source, read, plan)
-            bags[source.path] = bag
-            owner[plan.key] = ('plan', bag)
-            completed.add(plan)
-
-        read_ahead = READ_AHEAD_PER_THREAD * summary.workers + 1
-        while queue and len(bags) < read_ahead:
-            submit_bag()
-        for future in completed:
-            kind, bag = owner.pop(future.key)
-            if kind == 'plan':
-                _planned(client, future, bag, options, retries, owner, completed, counts)
-            else:
-                _identified(future, bag, counts)
-            if kind == 'plan' and not bag.windows or kind == 'window' and not any(
-                    key in owner for key in bag.windows):
-                finish(bags.pop(bag.source.path))
-                bag.read = bag.plan = None  # release the samples on the cluster
-                if queue:
-                    submit_bag()
-            if progress is not None:
-                planning = bool(queue) or any(kind == 'plan' for kind, _ in owner.values())
-                progress.update(summary.done, len(todo), counts['windows'], counts['known'],
-                                counts['failures'], planning=planning)
-    finally:
-        flush(final=True)
-        if own_client:
-            cluster = getattr(client, 'cluster', None)
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    summary.windows = counts['windows']
-    summary.failures = counts['failures']
-    summary.elapsed_s = time.monotonic() - began
-    if progress is not None:
-        progress.update(summary.done, len(todo), counts['windows'], counts['known'],
-                        counts['failures'], final=True)
-    return summary
+    def flush(self, final: bool = False) -> None:
+        """Append the waiting rows when it is time (or at the end)."""
+        if self.pending and (final or len(self.pending) >= self.flush_rows or
+                             time.monotonic() - self.last_flush >= self.flush_s):
+            self.summary.files.append(history.write_rows(self.history_dir, self.pending,
+                                                         self.run_id))
+            self.pending = []
+            self.last_flush = time.monotonic()
 
 
 def _now() -> Any:

@@ -669,24 +669,39 @@ def read_dynamic_joint_states(source: MessageSource, topic: str, path: str,
               if channel not in joint_values
               and not (channel == 'voltage' and options.bus_voltage is not None)]
     float_topics = _float64_topics(source.topics, names, wanted, topic, path)
-    for channel in ('speed', 'current'):
-        if channel in joint_values or channel in float_topics:
-            continue
-        interface = DEFAULT_INTERFACES[channel]  # one asked for has raised already
-        listing = ', '.join(f'{name} [{kind}]' for name, kind in sorted(source.topics.items()))
-        hint = (' (e.g. --interface current=effort, with --torque-constant 1 if the effort is '
-                'a torque in N m: mechanical-only)' if channel == 'current' else '')
-        raise InputDataError(
-            f'{path}: no {channel}: joint {joint!r} in {topic} has no {interface!r} interface '
-            f'(it has {", ".join(present) or "none"}) and the bag has no Float64 {channel} '
-            f'topic ({names[channel]}); it has {listing}. Name the interface with --interface '
-            f'{channel}=NAME{hint} or the topic with --{channel}-topic')
+    _require_dynamic_channels(source, topic, path, names, (joint, present),
+                              set(joint_values) | set(float_topics))
     columns = _pair_with_float64(source, topic, path, header_stamps, log_stamps, joint_values,
                                  float_topics, sample_period_s)
     return build_record(columns, replace(options, current_unit='A', speed_unit='rad/s',
                                          speed_counts_per_rev=None, position_unit='rad',
                                          position_counts_per_rev=None, gear_ratio=1.0),
                         source=path)
+
+
+def _require_dynamic_channels(source: MessageSource, topic: str, path: str,
+                              names: Mapping[str, str], joint: tuple[str, list[str]],
+                              found: Collection[str]) -> None:
+    """
+    Refuse a DynamicJointState bag without speed or current (``found``: the channels read).
+
+    ``joint`` is the joint's name and the interfaces it has (named in the message, with the
+    options that would give the channel).
+    """
+    name, present = joint
+    for channel in ('speed', 'current'):
+        if channel in found:
+            continue
+        interface = DEFAULT_INTERFACES[channel]  # one asked for has raised already
+        listing = ', '.join(f'{topic_name} [{kind}]'
+                            for topic_name, kind in sorted(source.topics.items()))
+        hint = (' (e.g. --interface current=effort, with --torque-constant 1 if the effort is '
+                'a torque in N m: mechanical-only)' if channel == 'current' else '')
+        raise InputDataError(
+            f'{path}: no {channel}: joint {name!r} in {topic} has no {interface!r} interface '
+            f'(it has {", ".join(present) or "none"}) and the bag has no Float64 {channel} '
+            f'topic ({names[channel]}); it has {listing}. Name the interface with --interface '
+            f'{channel}=NAME{hint} or the topic with --{channel}-topic')
 
 
 def _dynamic_joint_state_values(source: MessageSource, topic: str, path: str,
@@ -863,8 +878,16 @@ def read_joint_states(source: MessageSource, topic: str, path: str,
     fields.update(options.interfaces)
     header_stamps, log_stamps, joint_values = _joint_state_values(
         source, topic, path, options.joint, fields, explicit=set(options.interfaces))
-    missing = [channel for channel in ('current', 'speed')
-               if channel not in joint_values and channel not in float_topics]
+    _require_joint_channels(source, topic, path, names, set(joint_values) | set(float_topics))
+    columns = _pair_with_float64(source, topic, path, header_stamps, log_stamps, joint_values,
+                                 float_topics, sample_period_s)
+    return build_record(columns, _si_options(options), source=path)
+
+
+def _require_joint_channels(source: MessageSource, topic: str, path: str,
+                            names: Mapping[str, str], found: Collection[str]) -> None:
+    """Refuse a JointState bag without speed or current (``found``: the channels read)."""
+    missing = [channel for channel in ('current', 'speed') if channel not in found]
     if 'speed' in missing:
         raise InputDataError(
             f'{path}: no speed: the joint in {topic} has no velocity values and the bag has no '
@@ -879,9 +902,6 @@ def read_joint_states(source: MessageSource, topic: str, path: str,
             'current=effort (with --current-unit mA if in mA); if it is a torque in N m, add '
             '--interface current=effort --torque-constant 1 (mechanical-only: J, b, Mc); or '
             'name the current topic with --current-topic')
-    columns = _pair_with_float64(source, topic, path, header_stamps, log_stamps, joint_values,
-                                 float_topics, sample_period_s)
-    return build_record(columns, _si_options(options), source=path)
 
 
 def _joint_state_values(source: MessageSource, topic: str, path: str, joint: Optional[str],
@@ -1053,8 +1073,6 @@ def write_bag(path: PathLike, stamps_ns: np.ndarray, channels: Mapping[str, np.n
         Bytes written.
 
     """
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
     names = {channel: '/' + topic.lstrip('/') for channel, topic in BAG_TOPICS.items()}
     names.update(topics or {})
     stamps = np.asarray(stamps_ns, dtype=np.int64)
@@ -1070,24 +1088,32 @@ def write_bag(path: PathLike, stamps_ns: np.ndarray, channels: Mapping[str, np.n
         shutil.rmtree(staging)
     os.makedirs(staging)
     temporary = os.path.join(staging, name)
-    typestore = _typestore()
     try:
-        writer = Writer(temporary, version=9, storage_plugin=StoragePlugin.MCAP)
-        writer.open()
-        try:
-            if batch_samples > 0:
-                _write_batches(writer, typestore, names['samples'], stamps, channels,
-                               int(batch_samples))
-            else:
-                _write_float64(writer, typestore, names, stamps, channels)
-        finally:
-            writer.close()
+        _write_messages(temporary, names, stamps, channels, batch_samples)
         _fsync_tree(temporary)
         os.rename(temporary, path)
         _fsync_dir(parent)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return bag_size(path)
+
+
+def _write_messages(temporary: str, names: Mapping[str, str], stamps: np.ndarray,
+                    channels: Mapping[str, np.ndarray], batch_samples: int) -> None:
+    """Write the bag's messages (Float64 per sample, or batches) at ``temporary``."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    typestore = _typestore()
+    writer = Writer(temporary, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    try:
+        if batch_samples > 0:
+            _write_batches(writer, typestore, names['samples'], stamps, channels,
+                           int(batch_samples))
+        else:
+            _write_float64(writer, typestore, names, stamps, channels)
+    finally:
+        writer.close()
 
 
 def _write_float64(writer: Any, typestore: Any, names: Mapping[str, str], stamps: np.ndarray,

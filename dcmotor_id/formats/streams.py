@@ -167,6 +167,21 @@ class StreamAligner:
         indices, values = indices[finite], values[finite]
         if indices.size == 0:
             return
+        self._count_reordered(channel, indices)
+        self._follow_numbering(indices)
+        late = indices < self._base
+        self.stats.late += int(np.count_nonzero(late))
+        indices, values = indices[~late], values[~late]
+        if indices.size == 0:
+            return
+        self._store(column, indices, values)
+        slowest = list(self._newest_by_channel.values())
+        if None not in slowest:
+            # every channel has moved on by max_delay_samples: what is missing will not come
+            self._collect(min(slowest) - self.max_delay_samples)
+
+    def _count_reordered(self, channel: str, indices: np.ndarray) -> None:
+        """Count the indices of ``channel`` that run backwards; note its newest index."""
         newest_here = self._newest_by_channel[channel]
         running = np.maximum.accumulate(indices)
         backwards = np.count_nonzero(indices[1:] < running[:-1])
@@ -176,6 +191,9 @@ class StreamAligner:
         else:
             self._newest_by_channel[channel] = int(running[-1])
         self.stats.reordered += int(backwards)
+
+    def _follow_numbering(self, indices: np.ndarray) -> None:
+        """Place the ring for new indices: the first ones, a restart, an earlier start."""
         if self._base is None:
             self._base = int(indices.min())
             self._newest = int(indices.max())
@@ -197,11 +215,9 @@ class StreamAligner:
                 self._newest - low < self.capacity:
             # nothing went out yet: the first values seen need not be the earliest
             self._base = low
-        late = indices < self._base
-        self.stats.late += int(np.count_nonzero(late))
-        indices, values = indices[~late], values[~late]
-        if indices.size == 0:
-            return
+
+    def _store(self, column: int, indices: np.ndarray, values: np.ndarray) -> None:
+        """Write values not late into the ring (advancing it), counting duplicates."""
         top = int(indices.max())
         if top >= self._base + self.capacity:
             self._advance(top - self.capacity + 1)
@@ -220,10 +236,6 @@ class StreamAligner:
         self._values[slots[take], column] = values[take]
         self._have[slots[take], column] = True
         self.stats.received += int(np.count_nonzero(take))
-        slowest = list(self._newest_by_channel.values())
-        if None not in slowest:
-            # every channel has moved on by max_delay_samples: what is missing will not come
-            self._collect(min(slowest) - self.max_delay_samples)
 
     def add_blocks(self, blocks: Mapping[str, tuple[Any, Any]]) -> None:
         """
@@ -550,31 +562,13 @@ def align_timestamps(stamps_by_channel: Mapping[str, Any], values_by_channel: Ma
     if not period_ns > 0:
         raise InputDataError(f'{name}: the timestamps do not advance (median step 0); the '
                              'messages need distinct timestamps')
-    origin = min(int(np.min(stamps)) for stamps in stamps_by_channel.values())
-    # put the grid where the stamps are on average (circular mean of their phase)
-    phases = np.concatenate([(np.asarray(stamps, dtype=np.int64) - origin) % period_ns
-                             for stamps in stamps_by_channel.values()]) / period_ns
-    shift = np.angle(np.mean(np.exp(2j * np.pi * phases))) / (2 * np.pi)
-    origin += int(round(shift * period_ns))
+    origin = _grid_origin(stamps_by_channel, period_ns)
     common = None
     per_channel = {}
     for channel, stamps in stamps_by_channel.items():
-        stamps = np.asarray(stamps, dtype=np.int64)
-        values = np.asarray(values_by_channel[channel], dtype=float)
-        exact = (stamps - origin) / period_ns
-        index = np.rint(exact).astype(np.int64)
-        residual = np.abs(exact - index)
-        off = np.count_nonzero(residual > MAX_GRID_RESIDUAL)
-        if off > 0.05 * stamps.size:
-            raise InputDataError(
-                f'{name}: the timestamps of {channel} are not on a uniform grid of '
-                f'{period_ns * 1e-9:.6g} s ({off} of {stamps.size} messages are more than a '
-                'quarter period off). Record with the identifier node, or with timestamps '
-                'taken when each sample was measured')
-        order = np.argsort(index, kind='stable')
-        index, values = index[order], values[order]
-        unique, first = unique_sorted(index, return_index=True)
-        per_channel[channel] = (unique, values[first])
+        unique, values = _on_grid(stamps, values_by_channel[channel], origin, period_ns,
+                                  f'{name}: the timestamps of {channel}')
+        per_channel[channel] = (unique, values)
         common = unique if common is None else np.intersect1d(common, unique,
                                                               assume_unique=True)
     if common is None or common.size == 0:
@@ -584,3 +578,43 @@ def align_timestamps(stamps_by_channel: Mapping[str, Any], values_by_channel: Ma
                for channel, (index, channel_values) in per_channel.items()}
     stamps = origin + np.rint(common * period_ns).astype(np.int64)
     return stamps, aligned
+
+
+def _grid_origin(stamps_by_channel: Mapping[str, Any], period_ns: float) -> int:
+    """Return the grid's origin [ns]: where the stamps are on average (circular mean)."""
+    origin = min(int(np.min(stamps)) for stamps in stamps_by_channel.values())
+    # put the grid where the stamps are on average (circular mean of their phase)
+    phases = np.concatenate([(np.asarray(stamps, dtype=np.int64) - origin) % period_ns
+                             for stamps in stamps_by_channel.values()]) / period_ns
+    shift = np.angle(np.mean(np.exp(2j * np.pi * phases))) / (2 * np.pi)
+    return origin + int(round(shift * period_ns))
+
+
+def _on_grid(stamps: Any, values: Any, origin: int, period_ns: float,
+             what: str) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return one channel's grid indices (sorted, unique) and its first value at each.
+
+    Raises
+    ------
+    InputDataError
+        When over 5 % of the stamps are more than a quarter period off the grid (``what``
+        names the channel).
+
+    """
+    stamps = np.asarray(stamps, dtype=np.int64)
+    values = np.asarray(values, dtype=float)
+    exact = (stamps - origin) / period_ns
+    index = np.rint(exact).astype(np.int64)
+    residual = np.abs(exact - index)
+    off = np.count_nonzero(residual > MAX_GRID_RESIDUAL)
+    if off > 0.05 * stamps.size:
+        raise InputDataError(
+            f'{what} are not on a uniform grid of '
+            f'{period_ns * 1e-9:.6g} s ({off} of {stamps.size} messages are more than a '
+            'quarter period off). Record with the identifier node, or with timestamps '
+            'taken when each sample was measured')
+    order = np.argsort(index, kind='stable')
+    index, values = index[order], values[order]
+    unique, first = unique_sorted(index, return_index=True)
+    return unique, values[first]

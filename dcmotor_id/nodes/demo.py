@@ -70,16 +70,7 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
     record_dir = record_dir or os.path.join(tempfile.gettempdir(), 'dcmotor_id_demo',
                                             time.strftime('%Y%m%d-%H%M%S'))
     truth = PAPER_MOTORS['paper2'].as_dict()
-    print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}; starting sim_motor (motor 2 of the '
-          "paper's Table 1, 1 kHz, Float64 topics) and identifier (windows to "
-          f'{record_dir})', flush=True)
-    logs = open(os.path.join(tempfile.gettempdir(), 'dcmotor_id_demo_nodes.log'), 'w')
-    processes = [
-        subprocess.Popen([_executable('sim_motor'), '--ros-args', *_config('sim_motor')],
-                         stdout=logs, stderr=subprocess.STDOUT),
-        subprocess.Popen([_executable('identifier'), '--ros-args', *_config('identifier'),
-                          '-p', f'record_dir:={record_dir}'],
-                         stdout=logs, stderr=subprocess.STDOUT)]
+    processes, logs = _start_nodes(record_dir)
     rclpy.init()
     node = rclpy.create_node('dcmotor_id_demo')
     executor = SingleThreadedExecutor()
@@ -97,16 +88,7 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
         if not client.wait_for_service(timeout_sec=60.0):
             print(f'the identifier did not come up; see {logs.name}')
             return 1
-        print(f'recording {record_s:g} s ...', flush=True)
-        start = time.monotonic()
-        while time.monotonic() - start < record_s:
-            spin_until(executor, lambda: False, 2.0)
-            if online:
-                values = status_values(online[-1])
-                print(f'  {time.monotonic() - start:4.0f} s  online: Ra={float(values["Ra"]):.4g}'
-                      f' La={float(values["La"]):.4g} CPhi={float(values["CPhi"]):.4g} '
-                      f'J={float(values["J"]):.4g}  converged={values["converged"]}',
-                      flush=True)
+        _record(executor, online, record_s)
         print('calling /identifier/identify ...', flush=True)
         future = client.call_async(Trigger.Request())
         if not spin_until(executor, future.done, 300.0):
@@ -117,25 +99,13 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
             print(f'identification failed: {response.message}')
             return 1
         spin_until(executor, lambda: latched, 10.0)
-        identified = status_values(latched[-1])
         paper = {}
         for array in diagnostics:
             for status in array.status:
                 if status.name.endswith('paper method') and status.values:
                     paper = status_values(status)
         estimate = status_values(online[-1]) if online else {}
-        print()
-        print(f'{"":<6}{"truth":>12}' + ''.join(
-            f'{name:>13}{"err %":>9}' for name in ('identified', 'paper', 'online')))
-        for key in KEYS:
-            row = f'{key:<6}{truth[key]:>12.5g}'
-            for source in (identified, paper, estimate):
-                if key in source:
-                    value = float(source[key])
-                    row += f'{value:>13.5g}{abs(value / truth[key] - 1) * 100:>9.2g}'
-                else:
-                    row += f'{"-":>13}{"":>9}'
-            print(row + f'  {UNITS[key]}')
+        _print_table(truth, status_values(latched[-1]), paper, estimate)
         if estimate:
             print(f'online estimate: converged={estimate["converged"]}, innovation RMS '
                   f'current {float(estimate["innovation_rms_current_A"]):.3g} A, speed '
@@ -150,6 +120,51 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
         return 0
     finally:
         close_demo(processes, executor, node, logs)
+
+
+def _start_nodes(record_dir: str) -> tuple[list[subprocess.Popen], IO[str]]:
+    """Start sim_motor and the identifier; return the processes and their log."""
+    print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}; starting sim_motor (motor 2 of the '
+          "paper's Table 1, 1 kHz, Float64 topics) and identifier (windows to "
+          f'{record_dir})', flush=True)
+    logs = open(os.path.join(tempfile.gettempdir(), 'dcmotor_id_demo_nodes.log'), 'w')
+    processes = [
+        subprocess.Popen([_executable('sim_motor'), '--ros-args', *_config('sim_motor')],
+                         stdout=logs, stderr=subprocess.STDOUT),
+        subprocess.Popen([_executable('identifier'), '--ros-args', *_config('identifier'),
+                          '-p', f'record_dir:={record_dir}'],
+                         stdout=logs, stderr=subprocess.STDOUT)]
+    return processes, logs
+
+
+def _record(executor: Executor, online: list[DiagnosticStatus], record_s: float) -> None:
+    """Spin for ``record_s`` seconds, printing the online estimate as it converges."""
+    print(f'recording {record_s:g} s ...', flush=True)
+    start = time.monotonic()
+    while time.monotonic() - start < record_s:
+        spin_until(executor, lambda: False, 2.0)
+        if online:
+            values = status_values(online[-1])
+            print(f'  {time.monotonic() - start:4.0f} s  online: Ra={float(values["Ra"]):.4g}'
+                  f' La={float(values["La"]):.4g} CPhi={float(values["CPhi"]):.4g} '
+                  f'J={float(values["J"]):.4g}  converged={values["converged"]}',
+                  flush=True)
+
+
+def _print_table(truth: dict[str, float], *sources: dict[str, str]) -> None:
+    """Print the identified, paper and online values beside the truth, with their errors."""
+    print()
+    print(f'{"":<6}{"truth":>12}' + ''.join(
+        f'{name:>13}{"err %":>9}' for name in ('identified', 'paper', 'online')))
+    for key in KEYS:
+        row = f'{key:<6}{truth[key]:>12.5g}'
+        for source in sources:
+            if key in source:
+                value = float(source[key])
+                row += f'{value:>13.5g}{abs(value / truth[key] - 1) * 100:>9.2g}'
+            else:
+                row += f'{"-":>13}{"":>9}'
+        print(row + f'  {UNITS[key]}')
 
 
 def main(argv: Optional[list[str]] = None) -> int:

@@ -82,34 +82,10 @@ class Exciter(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('exciter', **kwargs)
-        self._routine_parameters = {
-            'routine': declare(self, 'routine', 'prbs', 'excitation routine',
-                               choices=ROUTINES),
-            'direction': declare(self, 'direction', 'forward', 'forward or backward (negated)',
-                                 choices=DIRECTIONS),
-            'amplitude_v': declare(self, 'amplitude_v', 12.0, 'peak voltage of the routine '
-                                   '[V]', low=0.0),
-            'duration_s': declare(self, 'duration_s', 10.0, 'length of the routine, ramp-in '
-                                  'included [s]', low=1e-3),
-            'frequency_hz': declare(self, 'frequency_hz', 0.0, 'PRBS clock, lower band edge '
-                                    '(multisine, chirp), step frequency (dynamic); 0 = '
-                                    'default [Hz]', low=0.0),
-            'max_frequency_hz': declare(self, 'max_frequency_hz', 0.0, 'upper band edge '
-                                        '(multisine, chirp); 0 = default [Hz]', low=0.0),
-            'offset_v': declare(self, 'offset_v', 0.0, 'constant added to the routine [V]'),
-            'seed': declare(self, 'seed', 0, 'PRBS seed'),
-            'plan_file': declare(self, 'plan_file', '', 'plan JSON of dcmotor-id plan: its '
-                                 'routine replaces the parameters above'),
-        }
+        self._routine_parameters = self._declare_routine()
         rate = declare(self, 'rate_hz', 200.0, 'command rate [Hz]', low=1.0, high=1e4)
         ramp_in = declare(self, 'ramp_in_s', 1.0, 'ramp-in time of a routine [s]', low=0.0)
-        limits = Limits(
-            voltage_v=declare(self, 'voltage_limit_v', 48.0, 'hard voltage limit [V]',
-                              low=1e-9),
-            current_a=declare(self, 'current_limit_a', 10.0, 'hard current limit [A]',
-                              low=1e-9),
-            speed_rad_s=declare(self, 'speed_limit_rad_s', 100.0, 'hard speed limit [rad/s]',
-                                low=1e-9))
+        limits = self._declare_limits()
         stale = declare(self, 'stale_timeout_s', 0.5, 'stop when no measurement arrived for '
                         'this long [s]', low=1e-3)
         source = declare(self, 'input', 'float64', 'float64: current and speed topics; '
@@ -128,15 +104,7 @@ class Exciter(Node):
         self.command_publisher = self.create_publisher(Float64, 'voltage_command',
                                                        COMMAND_QOS)
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        qos = sample_qos(depth, reliability)
-        self.inputs = BulkInput(self)
-        if source == 'float64':
-            self.inputs.add(Float64, 'current', qos,
-                            lambda message, _: self._observe(current=[message.data]))
-            self.inputs.add(Float64, 'speed', qos,
-                            lambda message, _: self._observe(speed=[message.data]))
-        else:
-            self.inputs.add(Float64MultiArray, 'samples', qos, self._on_batch)
+        self._subscribe(source, sample_qos(depth, reliability))
         # ~/stop and ~/start each in a group of their own: a stop is never queued behind a
         # start (reading plan_file) nor behind the tick, and the tick never waits for either.
         self.create_service(Trigger, '~/start', self._on_start, qos_profile=SERVICE_QOS,
@@ -147,6 +115,49 @@ class Exciter(Node):
         self.create_timer(0.5, self._report)
         self.get_logger().info(f'exciter ready: {source} input, limits {limits}, '
                                f'commands at {rate:g} Hz; call ~/start')
+
+    def _declare_routine(self) -> dict[str, Any]:
+        """Declare the routine's parameters; return them by name (``plan_file`` included)."""
+        return {
+            'routine': declare(self, 'routine', 'prbs', 'excitation routine',
+                               choices=ROUTINES),
+            'direction': declare(self, 'direction', 'forward', 'forward or backward (negated)',
+                                 choices=DIRECTIONS),
+            'amplitude_v': declare(self, 'amplitude_v', 12.0, 'peak voltage of the routine '
+                                   '[V]', low=0.0),
+            'duration_s': declare(self, 'duration_s', 10.0, 'length of the routine, ramp-in '
+                                  'included [s]', low=1e-3),
+            'frequency_hz': declare(self, 'frequency_hz', 0.0, 'PRBS clock, lower band edge '
+                                    '(multisine, chirp), step frequency (dynamic); 0 = '
+                                    'default [Hz]', low=0.0),
+            'max_frequency_hz': declare(self, 'max_frequency_hz', 0.0, 'upper band edge '
+                                        '(multisine, chirp); 0 = default [Hz]', low=0.0),
+            'offset_v': declare(self, 'offset_v', 0.0, 'constant added to the routine [V]'),
+            'seed': declare(self, 'seed', 0, 'PRBS seed'),
+            'plan_file': declare(self, 'plan_file', '', 'plan JSON of dcmotor-id plan: its '
+                                 'routine replaces the parameters above'),
+        }
+
+    def _declare_limits(self) -> Limits:
+        """Declare the hard voltage, current and speed limits."""
+        return Limits(
+            voltage_v=declare(self, 'voltage_limit_v', 48.0, 'hard voltage limit [V]',
+                              low=1e-9),
+            current_a=declare(self, 'current_limit_a', 10.0, 'hard current limit [A]',
+                              low=1e-9),
+            speed_rad_s=declare(self, 'speed_limit_rad_s', 100.0, 'hard speed limit [rad/s]',
+                                low=1e-9))
+
+    def _subscribe(self, source: str, qos: Any) -> None:
+        """Subscribe to the measurements the session watches (Float64 topics or batches)."""
+        self.inputs = BulkInput(self)
+        if source == 'float64':
+            self.inputs.add(Float64, 'current', qos,
+                            lambda message, _: self._observe(current=[message.data]))
+            self.inputs.add(Float64, 'speed', qos,
+                            lambda message, _: self._observe(speed=[message.data]))
+        else:
+            self.inputs.add(Float64MultiArray, 'samples', qos, self._on_batch)
 
     @staticmethod
     def now_s() -> float:

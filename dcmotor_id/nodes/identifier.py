@@ -107,28 +107,8 @@ class Identifier(Node):
         self.last_result: Optional[dict] = None
         self.last_error: Optional[str] = None
         self._fits = FitProcess(settings.identify_in_subprocess, settings.identify_timeout_s)
-        fmt = settings.record_format if settings.record_format != 'auto' else \
-            'batch' if settings.input == 'batch' else 'float64'
-        self.recorder = WindowRecorder(
-            settings.record_dir, self._log,
-            disk_budget_bytes=int(settings.disk_budget_mb * 2 ** 20),
-            batch_samples=0 if fmt == 'float64' else max(1, int(round(0.1 * rate))),
-            min_free_bytes=int(settings.min_free_mb * 2 ** 20)) if settings.record else None
-
-        qos = sample_qos(settings.qos_depth, settings.qos_reliability)
-        self.input_node = inputs = BulkInput(self)
-        if settings.input == 'float64':
-            for name in self.channels:
-                inputs.add(Float64, name, qos, partial(self._on_float64, name))
-        elif settings.input == 'batch':
-            inputs.add(Float64MultiArray, 'samples', qos, lambda message, _: self._on_batch(
-                message))
-        else:
-            inputs.add(JointState, 'joint_states', qos, lambda message, _:
-                       self._on_joint_state(message))
-            if not self.mechanical:
-                inputs.add(Float64, 'voltage', qos,
-                           partial(self._on_float64, 'voltage', by_timestamp=True))
+        self.recorder = self._make_recorder(settings, rate) if settings.record else None
+        self._subscribe(settings)
         self.parameters_pub = self.create_publisher(DiagnosticStatus, '~/parameters', LATCHED)
         self.online_pub = self.create_publisher(DiagnosticStatus, '~/online_parameters', 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -146,6 +126,33 @@ class Identifier(Node):
         where = f'to {writer.record_dir}' if writer else 'off'
         self.get_logger().info(f'identifier: {settings.input} input at {rate:g} Hz, window '
                                f'{settings.window_s:g} s, recording {where}')
+
+    def _make_recorder(self, settings: IdentifierSettings, rate: float) -> WindowRecorder:
+        """Return the recorder of the windows (bags in the input's layout unless asked)."""
+        fmt = settings.record_format if settings.record_format != 'auto' else \
+            'batch' if settings.input == 'batch' else 'float64'
+        return WindowRecorder(
+            settings.record_dir, self._log,
+            disk_budget_bytes=int(settings.disk_budget_mb * 2 ** 20),
+            batch_samples=0 if fmt == 'float64' else max(1, int(round(0.1 * rate))),
+            min_free_bytes=int(settings.min_free_mb * 2 ** 20))
+
+    def _subscribe(self, settings: IdentifierSettings) -> None:
+        """Subscribe to the samples of the configured input (Float64, batch, joint states)."""
+        qos = sample_qos(settings.qos_depth, settings.qos_reliability)
+        self.input_node = inputs = BulkInput(self)
+        if settings.input == 'float64':
+            for name in self.channels:
+                inputs.add(Float64, name, qos, partial(self._on_float64, name))
+        elif settings.input == 'batch':
+            inputs.add(Float64MultiArray, 'samples', qos, lambda message, _: self._on_batch(
+                message))
+        else:
+            inputs.add(JointState, 'joint_states', qos, lambda message, _:
+                       self._on_joint_state(message))
+            if not self.mechanical:
+                inputs.add(Float64, 'voltage', qos,
+                           partial(self._on_float64, 'voltage', by_timestamp=True))
 
     # ------------------------------------------------------------------ input
     def _log(self, level, text):

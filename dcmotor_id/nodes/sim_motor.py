@@ -44,14 +44,54 @@ class SimMotor(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('sim_motor', **kwargs)
+        self.params = self._declare_motor()
+        signal, excitation = self._declare_excitation()
+        self._declare_outputs()
+        effects_text = declare(self, 'effects', '',
+                               "effects to simulate: 'NAME:param=value,...' joined by ';'")
+        schedule = declare(self, 'schedule', '', 'parameter changes over time: '
+                           '"NAME:CHANGE:step:AT" or "NAME:CHANGE:ramp:FROM:TO" joined by ";"')
+        depth = declare(self, 'qos_depth', 5000, 'history depth of the sample topics',
+                        low=1)
+        reliability = declare(self, 'qos_reliability', 'reliable',
+                              'reliable or best_effort', choices=('reliable', 'best_effort'))
+
+        self.sample_period_s = 1.0 / self.sample_rate_hz
+        period = excitation.pop('period')
+        _, pattern = make_excitation(signal, period, self.sample_period_s, **excitation)
+        self._pattern = pattern
+        self._system = motor_system(self.params)
+        self._state = np.zeros(2)
+        self.effects = parse_effects(effects_text)
+        self.schedule, self._base, self._load = parse_schedule(schedule), self.params, 0.0
+        self._stepper = None
+        if self.effects:
+            self._stepper = MotorStepper(self.params, self.sample_period_s, effects=self.effects)
+            offset = self._stepper.effects.current_offset_A if self._stepper.effects else 0.0
+            self._measured = (offset, 0.0)
+        self._command = 0.0
+        self._rng = np.random.default_rng(excitation['seed'])
+        self.published = 0
+        self.overflows = 0
+        self._create_interfaces(sample_qos(depth, reliability))
+        self.get_logger().info(
+            f'simulating {self.params} at {self.sample_rate_hz:g} Hz, {signal} excitation, '
+            f'transport {self.transport}')
+
+    def _declare_motor(self) -> MotorParameters:
+        """Declare the true parameters (paper motor 2 by default); refuse non-positive ones."""
         truth = PAPER_MOTORS['paper2']
         values = {name: declare(self, name, float(getattr(truth, name)),
                                 f'true {name} of the simulated motor [{UNITS[name]}]',
                                 low=0.0)
                   for name in ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')}
-        self.params = MotorParameters(**values)
-        if min(self.params.Ra, self.params.La, self.params.CPhi, self.params.J) <= 0:
+        params = MotorParameters(**values)
+        if min(params.Ra, params.La, params.CPhi, params.J) <= 0:
             raise ValueError('Ra, La, CPhi and J must be positive')
+        return params
+
+    def _declare_excitation(self) -> tuple[str, dict[str, Any]]:
+        """Declare the rates and the generator; return its kind and make_excitation options."""
         self.sample_rate_hz = declare(self, 'sample_rate_hz', 1000.0,
                                       'samples per second published', low=1.0, high=1e6)
         self.publish_rate_hz = declare(
@@ -68,6 +108,11 @@ class SimMotor(Node):
                          low=1e-3)
         offset = declare(self, 'offset_v', 0.0, 'constant added to the excitation [V]')
         seed = declare(self, 'seed', 0, 'seed of the PRBS and of the sensor noise')
+        return signal, {'period': period, 'amplitude_v': amplitude or None,
+                        'frequency_hz': frequency or None, 'offset_v': offset, 'seed': seed}
+
+    def _declare_outputs(self) -> None:
+        """Declare the drive's input, the sensor noise and the transport of the samples."""
         self.use_command = declare(self, 'use_voltage_command', False,
                                    'drive with the last voltage_command instead of the '
                                    'generator')
@@ -83,35 +128,9 @@ class SimMotor(Node):
         self.batch_samples = declare(self, 'batch_samples', 0,
                                      'samples per batch message; 0 = all due at a tick',
                                      low=0)
-        effects_text = declare(self, 'effects', '',
-                               "effects to simulate: 'NAME:param=value,...' joined by ';'")
-        schedule = declare(self, 'schedule', '', 'parameter changes over time: '
-                           '"NAME:CHANGE:step:AT" or "NAME:CHANGE:ramp:FROM:TO" joined by ";"')
-        depth = declare(self, 'qos_depth', 5000, 'history depth of the sample topics',
-                        low=1)
-        reliability = declare(self, 'qos_reliability', 'reliable',
-                              'reliable or best_effort', choices=('reliable', 'best_effort'))
 
-        self.sample_period_s = 1.0 / self.sample_rate_hz
-        _, pattern = make_excitation(signal, period, self.sample_period_s,
-                                     amplitude_v=amplitude or None,
-                                     frequency_hz=frequency or None, offset_v=offset,
-                                     seed=seed)
-        self._pattern = pattern
-        self._system = motor_system(self.params)
-        self._state = np.zeros(2)
-        self.effects = parse_effects(effects_text)
-        self.schedule, self._base, self._load = parse_schedule(schedule), self.params, 0.0
-        self._stepper = None
-        if self.effects:
-            self._stepper = MotorStepper(self.params, self.sample_period_s, effects=self.effects)
-            offset = self._stepper.effects.current_offset_A if self._stepper.effects else 0.0
-            self._measured = (offset, 0.0)
-        self._command = 0.0
-        self._rng = np.random.default_rng(seed)
-        self.published = 0
-        self.overflows = 0
-        qos = sample_qos(depth, reliability)
+    def _create_interfaces(self, qos: Any) -> None:
+        """Create the sample publishers, the command subscription, the timers, diagnostics."""
         if self.transport == 'float64':
             self._sample_publishers = [self.create_publisher(Float64, topic, qos)
                                        for topic in ('voltage', 'current', 'speed')]
@@ -122,9 +141,6 @@ class SimMotor(Node):
         self._timer = self.create_timer(1.0 / self.publish_rate_hz, self._tick)
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_timer(1.0, self._report)
-        self.get_logger().info(
-            f'simulating {self.params} at {self.sample_rate_hz:g} Hz, {signal} excitation, '
-            f'transport {self.transport}')
 
     def _on_command(self, message):
         if np.isfinite(message.data):

@@ -63,9 +63,6 @@ def make_excitation(kind: str, duration_s: float, sample_period_s: float,
         Sample times [s] and voltage [V].
 
     """
-    # Imported here: scipy.signal takes most of a second to import, and identifying (the
-    # CLI's usual path) never generates an excitation.
-    from scipy import signal
     t = sample_times(duration_s, sample_period_s)
     if kind not in EXCITATION_KINDS:
         raise ValueError(f'unknown excitation {kind!r}; choose one of '
@@ -73,38 +70,52 @@ def make_excitation(kind: str, duration_s: float, sample_period_s: float,
     default_amplitude = 110.0 if kind in ('sine', 'paper') else 43.0
     amplitude = default_amplitude if amplitude_v is None else float(amplitude_v)
     upper = 20.0 if max_frequency_hz is None else float(max_frequency_hz)
+    return t, _shape(kind, t, sample_period_s, amplitude, frequency_hz, upper, seed) + offset_v
+
+
+def _shape(kind: str, t: np.ndarray, sample_period_s: float, amplitude: float,
+           frequency_hz: float | None, upper: float, seed: int) -> np.ndarray:
+    """Return the voltage of a known ``kind`` at ``t`` (see :func:`make_excitation`)."""
+    # Imported here: scipy.signal takes most of a second to import, and identifying (the
+    # CLI's usual path) never generates an excitation.
+    from scipy import signal
     if kind == 'sine':
         f = 0.5 if frequency_hz is None else frequency_hz
-        u = amplitude * np.sin(2 * np.pi * f * t)
-    elif kind == 'sawtooth':
+        return amplitude * np.sin(2 * np.pi * f * t)
+    if kind == 'sawtooth':
         f = 1.0 if frequency_hz is None else frequency_hz
-        u = amplitude * signal.sawtooth(2 * np.pi * f * t)
-    elif kind == 'prbs':
-        f = 20.0 if frequency_hz is None else frequency_hz
-        hold = max(1, int(round(1.0 / (f * sample_period_s))))
-        n_bits = int(np.ceil(len(t) / hold)) + 1
-        nbits = max(4, int(np.ceil(np.log2(n_bits + 1))))
-        rng = np.random.default_rng(seed)
-        state = rng.integers(0, 2, size=nbits)
-        state[0] = 1
-        sequence = signal.max_len_seq(nbits, state=state, length=n_bits)[0]
-        u = amplitude * (2.0 * np.repeat(sequence, hold)[:len(t)] - 1.0)
-    elif kind == 'chirp':
+        return amplitude * signal.sawtooth(2 * np.pi * f * t)
+    if kind == 'prbs':
+        return _prbs(t, sample_period_s, amplitude,
+                     20.0 if frequency_hz is None else frequency_hz, seed)
+    if kind == 'chirp':
         f = 0.2 if frequency_hz is None else frequency_hz
-        u = amplitude * signal.chirp(t, f0=f, t1=max(t[-1], sample_period_s), f1=upper)
-    elif kind == 'multisine':
+        return amplitude * signal.chirp(t, f0=f, t1=max(t[-1], sample_period_s), f1=upper)
+    if kind == 'multisine':
         f = 0.2 if frequency_hz is None else frequency_hz
         freqs = np.geomspace(f, upper, 12)
         phases = -np.pi * np.arange(1, 13) * np.arange(12) / 12.0
         u = np.sum(np.sin(2 * np.pi * freqs[:, None] * t[None, :] + phases[:, None]), axis=0)
-        u = amplitude * u / np.max(np.abs(u))
-    else:  # paper
-        half = len(t) // 2
-        u = np.concatenate([
-            amplitude * np.sin(2 * np.pi * 0.5 * t[:half]),
-            43.0 * signal.sawtooth(2 * np.pi * 1.0 * t[:len(t) - half]),
-        ])
-    return t, u + offset_v
+        return amplitude * u / np.max(np.abs(u))
+    half = len(t) // 2  # paper
+    return np.concatenate([
+        amplitude * np.sin(2 * np.pi * 0.5 * t[:half]),
+        43.0 * signal.sawtooth(2 * np.pi * 1.0 * t[:len(t) - half]),
+    ])
+
+
+def _prbs(t: np.ndarray, sample_period_s: float, amplitude: float, f: float,
+          seed: int) -> np.ndarray:
+    """Return a maximum-length binary sequence of +/-``amplitude`` clocked at ``f`` [Hz]."""
+    from scipy import signal
+    hold = max(1, int(round(1.0 / (f * sample_period_s))))
+    n_bits = int(np.ceil(len(t) / hold)) + 1
+    nbits = max(4, int(np.ceil(np.log2(n_bits + 1))))
+    rng = np.random.default_rng(seed)
+    state = rng.integers(0, 2, size=nbits)
+    state[0] = 1
+    sequence = signal.max_len_seq(nbits, state=state, length=n_bits)[0]
+    return amplitude * (2.0 * np.repeat(sequence, hold)[:len(t)] - 1.0)
 
 
 def add_sensor_noise(values: ArrayLike, relative: float,

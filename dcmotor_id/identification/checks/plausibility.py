@@ -102,6 +102,20 @@ def check_plausibility(parameters: Mapping[str, float], stderr: Mapping[str, flo
         raise FitError(f'the fit gave non-finite values for {", ".join(broken)}: the data do '
                        'not determine the motor; check the units and signs of the columns')
     scales = data_scales(records, torque_constant)
+    constant = torque_constant if torque_constant is not None else values.get('CPhi')
+    torque = (constant or 0.0) * scales['i']
+    problems = _scale_problems(values, scales, torque)
+    if problems:
+        raise FitError('the result is implausible, many orders of magnitude from what the '
+                       'data imply: ' + '; '.join(problems) + '. The fit did not converge to '
+                       'the motor: check the units of the columns (V, A, rad/s; all scaled '
+                       'alike is fine up to 1e9) and that the data come from one DC drive')
+    return _degenerate_warnings(values, stderr, scales, torque)
+
+
+def _scale_problems(values: Mapping[str, float], scales: Mapping[str, float],
+                    torque: float) -> list[str]:
+    """Return the values many orders of magnitude from the data's scales, as sentences."""
     problems = []
 
     def far(name: str, value: float, scale: float, what: str) -> None:
@@ -127,15 +141,14 @@ def check_plausibility(parameters: Mapping[str, float], stderr: Mapping[str, flo
             if not dt / SCALE_FACTOR <= mechanical <= span * SCALE_FACTOR:
                 problems.append(f'the mechanical time constant {mechanical:.3g} s against a '
                                 f'sample period of {dt:.3g} s and a record of {span:.3g} s')
-    constant = torque_constant if torque_constant is not None else cphi
-    torque = (constant or 0.0) * scales['i']
     if values.get('Mc') is not None and torque > 0 and values['Mc'] > SCALE_FACTOR * torque:
         problems.append(f'Mc = {values["Mc"]:.3g} N m against a torque of {torque:.3g} N m')
-    if problems:
-        raise FitError('the result is implausible, many orders of magnitude from what the '
-                       'data imply: ' + '; '.join(problems) + '. The fit did not converge to '
-                       'the motor: check the units of the columns (V, A, rad/s; all scaled '
-                       'alike is fine up to 1e9) and that the data come from one DC drive')
+    return problems
+
+
+def _degenerate_warnings(values: Mapping[str, float], stderr: Mapping[str, float],
+                         scales: Mapping[str, float], torque: float) -> list[str]:
+    """Return warnings for Mc or b at the fit's lower bound and standard errors of 0."""
     warnings = []
     reference = {'Mc': torque, 'b': torque / scales['w'] if scales['w'] > 0 else 0.0}
     for name, scale in reference.items():
