@@ -29,7 +29,7 @@ from dcmotor_id.core.records import check_record
 from dcmotor_id.formats.held import restore_held
 from dcmotor_id.formats.quality import coarse_speed
 from dcmotor_id.identification.basin import bic, regression_evidence, regression_start, suspect
-from dcmotor_id.identification.criterion import resolve_criterion
+from dcmotor_id.identification.criterion import checked_against_speed, resolve_criterion
 from dcmotor_id.identification.discovery import (DiscoveryLoop, DiscoveryResult, refit_all_data,
                                                  refit_start, Structure)
 from dcmotor_id.identification.effects import VOCABULARY
@@ -507,15 +507,20 @@ def identify(records: Sequence[Record], method: str = 'refined',
     arguments = (records, method, torque_constant, discover, estimator, vocabulary, progress,
                  initial_state)
     try:
-        return _identify(*arguments, resolved)
-    except FitError as error:
+        result = _identify(*arguments, resolved)
+        if criterion == 'auto' and resolved != 'speed':
+            result = checked_against_speed(result, lambda: _identify(*arguments, 'speed'),
+                                           [name for name in PARAMETER_NAMES
+                                            if name not in result.upper_bounds])
+        return result
+    except (FitError, NotIdentifiableError) as error:
         if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
             raise
         # The position integrates every force the model lacks over the whole record: a base
         # model that cannot follow it (a load the loop did not find) is refused there, and
         # ``auto`` falls back to the speed, as before the position criterion.
         result = _identify(*arguments, 'speed')
-        reason = str(error).split('. Check')[0]
+        reason = str(error).split('. Check')[0].split('. Use')[0]
         result.warnings.insert(0, f'the fit on the position failed ({reason}): the integral '
                                   'of a force the model lacks drifts over the record (the loop '
                                   'looks for it unless --no-discover); the result is the fit '
