@@ -14,11 +14,11 @@ the friction in the discovery loop, so it is only used when asked for).
 
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
-from dcmotor_id.core.errors import DcMotorIdError, InputDataError
+from dcmotor_id.core.errors import InputDataError
 
 #: Choices of ``--criterion``.
 CRITERIA = ('auto', 'speed', 'position', 'both')
@@ -84,82 +84,54 @@ def integrate_speed(speed: np.ndarray, sample_period_s: float,
 #: the integral of a force the model lacks, which the position criterion spreads over the rest
 #: of the record.
 POSITION_MISFIT_FACTOR = 3.0
-#: Differences between the position and the speed criterion's values, in their combined
-#: standard errors, beyond which the two disagree.
-DISAGREEMENT_Z = 2.0
+#: Largest AR(1) coefficient of the position's error model (a random walk is its limit).
+MAX_POSITION_AR = 1.0 - 1e-9
+#: Refits beyond the usual passes while the AR(1) coefficient of the position error moves.
+AR_PASSES = 4
 
 
-def position_misfit(noise_std: dict[str, float], records: Sequence[Any]) -> float:
+def whiten(error: np.ndarray, rho: float) -> np.ndarray:
     """
-    Return the fit's position residual over the position's sensor noise (0: not compared).
+    Return the AR(1)-whitened ``error`` (along the first axis; Prais-Winsten).
 
-    ``noise_std`` is the fit's own (its residual level per compared channel); the sensor noise
-    is :func:`~dcmotor_id.identification.identifiability.noise_level` of the positions (at
-    least the quantisation's, ``LSB / sqrt(12)``).
+    ``e'[0] = sqrt(1 - rho^2) e[0]``, ``e'[k] = e[k] - rho e[k - 1]``: white when ``e`` is an
+    AR(1) sequence with coefficient ``rho`` (``rho = 0``: ``error`` itself, not copied).  The
+    same rule applies to the rows of the error's sensitivities.
     """
-    from dcmotor_id.identification.identifiability import noise_level
-
-    residual = noise_std.get('position')
-    if residual is None or not records or any(rec.position is None for rec in records):
-        return 0.0
-    sensor = float(np.sqrt(np.mean([noise_level(rec.position) ** 2 for rec in records])))
-    return float(residual) / max(sensor, 1e-300)
-
-
-def disagreement(position: Any, speed: Any, names: Sequence[str]) -> list[str]:
-    """
-    Return the parameters on which two fits of the same records disagree, described.
-
-    ``position`` and ``speed`` are identification results (``parameters``, ``stderr``,
-    ``not_identifiable``).  Disagree: the values differ by more than :data:`DISAGREEMENT_Z`
-    combined standard errors; a standard error that is not a number (a parameter at a bound)
-    counts as zero, so a parameter the speed determines and the position leaves at its bound
-    disagrees.
-    """
-    out = []
-    for name in names:
-        first, second = position.parameters.get(name), speed.parameters.get(name)
-        if first is None or second is None or name in speed.not_identifiable:
-            continue
-        spread = np.hypot(*(np.nan_to_num(result.stderr.get(name, np.nan), nan=0.0)
-                            for result in (position, speed)))
-        gap = abs(first - second)
-        if gap > DISAGREEMENT_Z * spread and gap > 0:
-            z = gap / spread if spread > 0 else np.inf
-            out.append(f'{name} {first:.4g} vs {second:.4g} ({z:.3g} stderr)')
+    if rho == 0.0:
+        return error
+    out = np.empty_like(error)
+    out[0] = np.sqrt(1.0 - rho * rho) * error[0]
+    out[1:] = error[1:] - rho * error[:-1]
     return out
 
 
-def checked_against_speed(result: Any, refit_speed: Callable[[], Any],
-                          names: Sequence[str]) -> Any:
+def position_ar(error: np.ndarray, sensor_noise: float) -> float:
     """
-    Return the position criterion's ``result``, or the speed's when the position misfits.
+    Return the AR(1) coefficient of a position residual that misfits, else 0.
 
-    The position criterion is the maximum-likelihood one only when the model follows the
-    motion: a local misfit (a start-up transient the model cannot follow, a stiction or
-    amplifier limit) then shifts the integral of the speed for the rest of the record, and
-    the fit bends the physical parameters to cancel that offset (a Coulomb friction traded for
-    viscous friction at one speed level).  The speed criterion confines a local misfit to its
-    time.  So when the position residual is far above its noise
-    (:data:`POSITION_MISFIT_FACTOR`) the records are also fitted on the speed
-    (``refit_speed()``); if the two fits disagree beyond their standard errors
-    (:func:`disagreement`), the speed's result is kept, with a warning that says why.
-    Otherwise ``result`` is returned unchanged.
+    A residual within :data:`POSITION_MISFIT_FACTOR` of the sensor noise is the sensor's
+    (white: the position is compared sample by sample).  Beyond it the model lacks something
+    (a friction varying along the travel, a transient it cannot follow), and the position
+    error is the integral of that missing force: it drifts.  Weighting such an error as
+    white makes the fit bend the physical parameters to cancel an offset that a local misfit
+    left for the rest of the record; its AR(1) model (coefficient near 1 for a drift) weights
+    the error's increments instead, as the maximum-likelihood fit under that error does.
     """
-    ratio = position_misfit(result.noise_std, result.input_records)
-    if ratio <= POSITION_MISFIT_FACTOR:
-        return result
-    try:
-        speed = refit_speed()
-    except DcMotorIdError:
-        return result
-    differ = disagreement(result, speed, names)
-    if not differ:
-        return result
-    speed.warnings.insert(0, f'the fit on the position misfits ({ratio:.3g}x its sensor noise) '
-                             'and disagrees with the fit on the speed derived from it ('
-                             + ', '.join(differ) + '): a misfit the model cannot follow '
-                             'drifts the integral of the speed, so the result is the fit on '
-                             'the speed (--criterion speed; --criterion position forces the '
-                             'position)')
-    return speed
+    error = np.asarray(error, dtype=float)
+    if error.shape[0] < 3 or np.sqrt(np.mean(error ** 2)) <= POSITION_MISFIT_FACTOR * max(
+            sensor_noise, 0.0):
+        return 0.0
+    lagged = float(error[:-1] @ error[:-1])
+    if lagged <= 0.0:
+        return 0.0
+    return float(np.clip(float(error[1:] @ error[:-1]) / lagged, 0.0, MAX_POSITION_AR))
+
+
+def ar_settled(old: float, new: float) -> bool:
+    """Whether an AR(1) coefficient has settled: ``1 - rho`` moved by under 25 %."""
+    if old == new:
+        return True
+    if old <= 0.0 or new <= 0.0:
+        return False
+    return abs(np.log((1.0 - new) / (1.0 - old))) <= 0.25

@@ -29,7 +29,7 @@ from dcmotor_id.core.records import check_record
 from dcmotor_id.formats.held import restore_held
 from dcmotor_id.formats.quality import coarse_speed
 from dcmotor_id.identification.basin import bic, regression_evidence, regression_start, suspect
-from dcmotor_id.identification.criterion import checked_against_speed, resolve_criterion
+from dcmotor_id.identification.criterion import resolve_criterion
 from dcmotor_id.identification.discovery import (DiscoveryLoop, DiscoveryResult, refit_all_data,
                                                  refit_start, Structure)
 from dcmotor_id.identification.effects import VOCABULARY
@@ -507,12 +507,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
     arguments = (records, method, torque_constant, discover, estimator, vocabulary, progress,
                  initial_state)
     try:
-        result = _identify(*arguments, resolved)
-        if criterion == 'auto' and resolved != 'speed':
-            result = checked_against_speed(result, lambda: _identify(*arguments, 'speed'),
-                                           [name for name in PARAMETER_NAMES
-                                            if name not in result.upper_bounds])
-        return result
+        return _identify(*arguments, resolved)
     except (FitError, NotIdentifiableError) as error:
         if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
             raise

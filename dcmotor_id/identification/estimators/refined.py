@@ -32,7 +32,8 @@ import numpy as np
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (derived_stderr, derived_values, make_admissible,
                                    MotorParameters, parameter_names, POSITIVE_NAMES, state_matrix)
-from dcmotor_id.identification.criterion import fitted_outputs, integrate_speed
+from dcmotor_id.identification.criterion import (AR_PASSES, ar_settled, fitted_outputs,
+                                                 integrate_speed, position_ar, whiten)
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.identification.estimators.jacobian import jacobian
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
@@ -116,6 +117,9 @@ class OutputErrorModel:
         self.criterion = criterion
         self.outputs = fitted_outputs(self.mechanical_only, criterion)
         self.states = self.dynamic + (('position',) if 'position' in self.outputs else ())
+        # AR(1) coefficient of every record's position error (0: white, compared sample by
+        # sample; :func:`dcmotor_id.identification.criterion.position_ar`), set by the fit.
+        self.position_ar = [0.0] * len(self.records)
         # The period is a median over the record: computed once, not at every simulation.
         self.sample_periods_s = [rec.sample_period_s for rec in self.records]
         # Mechanical-only mode: the sampled current is the input.  It varies within a sample,
@@ -499,8 +503,10 @@ class RefinedEstimator:
             for index in range(len(records)):
                 out = model.simulate(values, index, states[index])
                 for channel in model.outputs:
-                    parts.append((out[channel] - model.measured(index, channel))
-                                 / noise[index][channel])
+                    error = out[channel] - model.measured(index, channel)
+                    if channel == 'position':
+                        error = whiten(error, model.position_ar[index])
+                    parts.append(error / noise[index][channel])
             if self.progress is not None:
                 self.progress(cost=float(sum(part @ part for part in parts)))
             return np.concatenate(parts)
@@ -534,7 +540,9 @@ class RefinedEstimator:
         converged = True
         current = None
         damping = None
-        for _ in range(max(1, self.reweight_passes)):
+        passes, extra = max(1, self.reweight_passes), 0
+        while passes > 0:
+            passes -= 1
             z, current, nfev, converged, damping = _levenberg_marquardt(
                 lambda point, with_sens: evaluate(point, noise, with_sens), z, max_nfev,
                 current=current, damping=damping)
@@ -545,6 +553,18 @@ class RefinedEstimator:
                                    1e-13 * pooled[channel])
                       for position, channel in enumerate(model.outputs)}
                      for index, rec in enumerate(records)]
+            white = not any(model.position_ar)
+            if _update_position_ar(model, *unpack(z)[:2]):
+                # The position's error model moved: the next pass simulates again, and runs
+                # (up to AR_PASSES more) until it settles.  Leaving the white error model, the
+                # parameters restart from the start point: the white fit may have run a
+                # friction to zero, where its sign kink leaves no gradient to come back.
+                current = None
+                if white:
+                    z = np.concatenate([z0[:len(names)], z[len(names):]])
+                if passes == 0 and extra < AR_PASSES:
+                    passes, extra = 1, extra + 1
+                continue
             # The next pass (and the covariance) starts from this point under the new weights:
             # an analytic pass is rescaled channel by channel, others are simulated again.
             current = current.reweighted(noise, model.outputs)
@@ -589,6 +609,7 @@ class RefinedEstimator:
             'quasi_static': model.quasi_static,
             'criterion': model.criterion,
             'initial_state': initial_state,
+            'position_ar': list(model.position_ar),
             'sensitivities': 'analytic' if analytic else 'finite differences',
             # What the data-based covariance needs
             # (dcmotor_id.identification.estimators.uncertainty): the fit's normal equations in its
@@ -643,6 +664,31 @@ class RefinedEstimator:
             raise FitError('no admissible start point for the output-error fit: the data do '
                            'not look like a DC motor (check signs and units of the columns)')
         return best
+
+
+def _update_position_ar(model: OutputErrorModel, values: Mapping[str, float],
+                        states: np.ndarray) -> bool:
+    """
+    Re-estimate every record's AR(1) coefficient of the position error at ``values``.
+
+    :func:`dcmotor_id.identification.criterion.position_ar` of the residual against the
+    sensor noise (quantisation included); returns whether a coefficient moved beyond
+    :func:`~dcmotor_id.identification.criterion.ar_settled` (never without the position).
+    """
+    if 'position' not in model.outputs:
+        return False
+    from dcmotor_id.identification.identifiability import noise_level
+
+    moved = False
+    for index, rec in enumerate(model.records):
+        with np.errstate(all='ignore'):
+            error = model.simulate(values, index, states[index])['position'] - rec.position
+        if not np.all(np.isfinite(error)):
+            continue
+        rho = position_ar(error, noise_level(rec.position))
+        moved = moved or not ar_settled(model.position_ar[index], rho)
+        model.position_ar[index] = rho
+    return moved
 
 
 def has_analytic_sensitivities(model: OutputErrorModel) -> bool:
