@@ -346,6 +346,7 @@ class DiscoveryLoop:
         self.initial_state = initial_state
         self.quasi_static = bool(quasi_static) and not self.mechanical_only
         self.anchor: Fit | None = None
+        self.position_ar: list[float] | None = None
 
     # ------------------------------------------------------------------ fitting
     def _stops(self, records):
@@ -379,11 +380,13 @@ class DiscoveryLoop:
                               initial or {})
         train = [rec.slice(0, stop) for rec, stop in zip(records, stops)]
         estimator = self._estimator(max_nfev=max_nfev, initial=start or None,
-                                    initial_states=initial_states)
+                                    initial_states=initial_states, position_ar=self.position_ar)
         if not start and terms:
             raise ValueError('a structure with effects needs a start point')
         estimate = estimator.fit(train, torque_constant=self.torque_constant,
                                  terms=_slice_terms(terms, stops))
+        if self.position_ar is None:  # the base's error model warm-starts the candidates'
+            self.position_ar = estimate.info.get('position_ar')
         model = OutputErrorModel(records, self.torque_constant, terms, self.quasi_static,
                                  self.criterion)
         simulated = simulate_records(model, estimate.parameters, estimate.initial_states)

@@ -120,6 +120,7 @@ class OutputErrorModel:
         # AR(1) coefficient of every record's position error (0: white, compared sample by
         # sample; :func:`dcmotor_id.identification.criterion.position_ar`), set by the fit.
         self.position_ar = [0.0] * len(self.records)
+        self.position_rms = [0.0] * len(self.records)
         # The period is a median over the record: computed once, not at every simulation.
         self.sample_periods_s = [rec.sample_period_s for rec in self.records]
         # Mechanical-only mode: the sampled current is the input.  It varies within a sample,
@@ -379,6 +380,9 @@ class RefinedEstimator:
     criterion : str
         ``speed`` (default), ``position`` or ``both``: the channels compared
         (:class:`OutputErrorModel`).
+    position_ar : sequence of float, optional
+        Start of every record's AR(1) coefficient of the position error (a warm start, e.g.
+        from an earlier fit of the same records; :func:`_update_position_ar`); default white.
 
     """
 
@@ -391,7 +395,8 @@ class RefinedEstimator:
                  initial_state: str = 'estimate',
                  progress: Callable[..., None] | None = None,
                  initial_states: Sequence[Sequence[float]] | None = None,
-                 criterion: str = 'speed') -> None:
+                 criterion: str = 'speed',
+                 position_ar: Sequence[float] | None = None) -> None:
         if initial_state not in ('estimate', 'measured'):
             raise ValueError(f'initial_state must be estimate or measured, not {initial_state}')
         self.max_nfev = max_nfev
@@ -402,6 +407,7 @@ class RefinedEstimator:
         self.progress = progress
         self.initial_states = initial_states
         self.criterion = criterion
+        self.position_ar = position_ar
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
@@ -431,15 +437,20 @@ class RefinedEstimator:
         moved = moved_start(records, [state[-1] for state in estimate.initial_states])
         if moved is None:
             return estimate
-        pinned = self._fit(records, torque_constant, terms, 'measured')
+        pinned = self._fit(records, torque_constant, terms, 'measured',
+                           position_ar=estimate.info['position_ar'])
         pinned.info['moved_start'] = moved
         return pinned
 
-    def _fit(self, records, torque_constant, terms, initial_state, max_nfev=None):
+    def _fit(self, records, torque_constant, terms, initial_state, max_nfev=None,
+             position_ar=None):
         """Fit with the initial states estimated or pinned (``initial_state``)."""
         max_nfev = self.max_nfev if max_nfev is None else max_nfev
         model = OutputErrorModel(records, torque_constant, terms, self.quasi_static,
                                  self.criterion)
+        warm_ar = self.position_ar if position_ar is None else position_ar
+        if warm_ar is not None and len(warm_ar) == len(records):
+            model.position_ar = [float(value) for value in warm_ar]
         names = list(model.base_names) + [term.name for term in model.terms]
         n_base = len(model.base_names)
         n_state = len(model.states)
@@ -556,12 +567,14 @@ class RefinedEstimator:
             white = not any(model.position_ar)
             if _update_position_ar(model, *unpack(z)[:2]):
                 # The position's error model moved: the next pass simulates again, and runs
-                # (up to AR_PASSES more) until it settles.  Leaving the white error model, the
-                # parameters restart from the start point: the white fit may have run a
-                # friction to zero, where its sign kink leaves no gradient to come back.
+                # (up to AR_PASSES more) until it settles.  Leaving the white error model, a
+                # base parameter the white fit ran below COLLAPSED of its start restarts there:
+                # a friction at zero has no gradient (its sign kink) to come back by.
                 current = None
                 if white:
-                    z = np.concatenate([z0[:len(names)], z[len(names):]])
+                    collapsed = z[:n_base] < z0[:n_base] + np.log(COLLAPSED)
+                    z = z.copy()
+                    z[:n_base][collapsed] = z0[:n_base][collapsed]
                 if passes == 0 and extra < AR_PASSES:
                     passes, extra = 1, extra + 1
                 continue
@@ -596,6 +609,10 @@ class RefinedEstimator:
             parameters.update(derived_values(parameters))
             stderr.update(derived_stderr(parameters, covariance[:n_base, :n_base],
                                          list(model.base_names)))
+        if any(model.position_ar):
+            # The position's residual level (not its AR(1) innovations': the weights).
+            noise = [{**level, 'position': max(rms, 1e-13 * pooled['position'])}
+                     for level, rms in zip(noise, model.position_rms)]
         info = {
             'nfev': int(total_nfev),
             'noise_std': {channel: float(np.sqrt(
@@ -685,6 +702,7 @@ def _update_position_ar(model: OutputErrorModel, values: Mapping[str, float],
             error = model.simulate(values, index, states[index])['position'] - rec.position
         if not np.all(np.isfinite(error)):
             continue
+        model.position_rms[index] = float(np.sqrt(np.mean(error ** 2)))
         rho = position_ar(error, noise_level(rec.position))
         moved = moved or not ar_settled(model.position_ar[index], rho)
         model.position_ar[index] = rho
@@ -746,6 +764,9 @@ def free_states(states: Sequence[str], initial_state: str) -> list[bool]:
     return [initial_state != 'measured'] * len(states)
 
 
+#: A base parameter below this fraction of its start when the position's error model leaves
+#: white noise restarts from its start (:meth:`RefinedEstimator._fit`).
+COLLAPSED = 0.01
 #: Evaluations of a position-criterion fit that did not converge, retried, per the usual ones.
 POSITION_NFEV_FACTOR = 4
 #: Distance of a fitted initial position from the first samples, in their noise levels, beyond
