@@ -8,8 +8,15 @@ position, so its noise and filter lag are the position's).  ``both``: current, s
 position.  Each compared channel is weighted by its own noise level (re-estimated from its
 residual).  ``auto`` (the default of ``identify``) picks ``position`` when every record has a
 position and some speed was derived from it, else ``speed`` (a measured speed keeps the speed
-criterion: ``both`` on simulated records with speed, position and a Stribeck friction missed
-the friction in the discovery loop, so it is only used when asked for).
+criterion: ``both`` finds the same effects on simulated records with a measured speed and an
+exact angle, but the residual analysis reads the position's drift as structure left over,
+and it costs about three times the time, so it is only used when asked for).
+
+A position residual far above the position's noise (:data:`POSITION_MISFIT_FACTOR`) is the
+integral of a force the model lacks: it drifts, and weighted as white it makes the fit bend
+the physical parameters to cancel an offset a local misfit left.  The fit then models it as
+AR(1) (:func:`position_ar`, :func:`whiten`), which weights the error's increments for a
+drift.
 """
 
 from __future__ import annotations
