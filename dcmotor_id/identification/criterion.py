@@ -8,8 +8,15 @@ position, so its noise and filter lag are the position's).  ``both``: current, s
 position.  Each compared channel is weighted by its own noise level (re-estimated from its
 residual).  ``auto`` (the default of ``identify``) picks ``position`` when every record has a
 position and some speed was derived from it, else ``speed`` (a measured speed keeps the speed
-criterion: ``both`` on simulated records with speed, position and a Stribeck friction missed
-the friction in the discovery loop, so it is only used when asked for).
+criterion: ``both`` finds the same effects on simulated records with a measured speed and an
+exact angle, but the residual analysis reads the position's drift as structure left over,
+and it costs about three times the time, so it is only used when asked for).
+
+A position residual far above the position's noise (:data:`POSITION_MISFIT_FACTOR`) is the
+integral of a force the model lacks: it drifts, and weighted as white it makes the fit bend
+the physical parameters to cancel an offset a local misfit left.  The fit then models it as
+AR(1) (:func:`position_ar`, :func:`whiten`), which weights the error's increments for a
+drift.
 """
 
 from __future__ import annotations
@@ -78,3 +85,60 @@ def integrate_speed(speed: np.ndarray, sample_period_s: float,
     np.cumsum(0.5 * sample_period_s * (speed[:-1] + speed[1:]), axis=0, out=out[1:])
     out[1:] += initial_position
     return out
+
+
+#: A position residual this many times its sensor noise (quantisation included) is a misfit:
+#: the integral of a force the model lacks, which the position criterion spreads over the rest
+#: of the record.
+POSITION_MISFIT_FACTOR = 3.0
+#: Largest AR(1) coefficient of the position's error model (a random walk is its limit).
+MAX_POSITION_AR = 1.0 - 1e-9
+#: Refits beyond the usual passes while the AR(1) coefficient of the position error moves.
+AR_PASSES = 4
+
+
+def whiten(error: np.ndarray, rho: float) -> np.ndarray:
+    """
+    Return the AR(1)-whitened ``error`` (along the first axis; Prais-Winsten).
+
+    ``e'[0] = sqrt(1 - rho^2) e[0]``, ``e'[k] = e[k] - rho e[k - 1]``: white when ``e`` is an
+    AR(1) sequence with coefficient ``rho`` (``rho = 0``: ``error`` itself, not copied).  The
+    same rule applies to the rows of the error's sensitivities.
+    """
+    if rho == 0.0:
+        return error
+    out = np.empty_like(error)
+    out[0] = np.sqrt(1.0 - rho * rho) * error[0]
+    out[1:] = error[1:] - rho * error[:-1]
+    return out
+
+
+def position_ar(error: np.ndarray, sensor_noise: float) -> float:
+    """
+    Return the AR(1) coefficient of a position residual that misfits, else 0.
+
+    A residual within :data:`POSITION_MISFIT_FACTOR` of the sensor noise is the sensor's
+    (white: the position is compared sample by sample).  Beyond it the model lacks something
+    (a friction varying along the travel, a transient it cannot follow), and the position
+    error is the integral of that missing force: it drifts.  Weighting such an error as
+    white makes the fit bend the physical parameters to cancel an offset that a local misfit
+    left for the rest of the record; its AR(1) model (coefficient near 1 for a drift) weights
+    the error's increments instead, as the maximum-likelihood fit under that error does.
+    """
+    error = np.asarray(error, dtype=float)
+    if error.shape[0] < 3 or np.sqrt(np.mean(error ** 2)) <= POSITION_MISFIT_FACTOR * max(
+            sensor_noise, 0.0):
+        return 0.0
+    lagged = float(error[:-1] @ error[:-1])
+    if lagged <= 0.0:
+        return 0.0
+    return float(np.clip(float(error[1:] @ error[:-1]) / lagged, 0.0, MAX_POSITION_AR))
+
+
+def ar_settled(old: float, new: float) -> bool:
+    """Whether an AR(1) coefficient has settled: ``1 - rho`` moved by under 25 %."""
+    if old == new:
+        return True
+    if old <= 0.0 or new <= 0.0:
+        return False
+    return abs(np.log((1.0 - new) / (1.0 - old))) <= 0.25

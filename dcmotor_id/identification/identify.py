@@ -160,7 +160,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
                  initial_state)
     try:
         return _identify(*arguments, resolved)
-    except FitError as error:
+    except (FitError, NotIdentifiableError) as error:
         if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
             raise
         return _on_the_speed(arguments, error)
@@ -194,7 +194,7 @@ def _on_the_speed(arguments, error):
     # model that cannot follow it (a load the loop did not find) is refused there, and
     # ``auto`` falls back to the speed, as before the position criterion.
     result = _identify(*arguments, 'speed')
-    reason = str(error).split('. Check')[0]
+    reason = str(error).split('. Check')[0].split('. Use')[0]
     result.warnings.insert(0, f'the fit on the position failed ({reason}): the integral '
                               'of a force the model lacks drifts over the record (the loop '
                               'looks for it unless --no-discover); the result is the fit '

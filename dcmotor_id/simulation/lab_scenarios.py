@@ -45,9 +45,10 @@ class Scenario:
 
 @njit(cache=True)
 def _drive(params, command, fine_dt, steps_per_sample, current_limit, bus_voltage, load,
-           torque_input):
+           torque_input, travel):
     """Simulate the fine-step drive; return current, speed, angle and applied voltage."""
-    ra, la, cphi, inertia, viscous, coulomb = params
+    ra, la, cphi, inertia, viscous, base_coulomb = params
+    slope, centre = travel
     n = command.shape[0] * steps_per_sample
     current = np.empty(n + 1)
     speed = np.empty(n + 1)
@@ -73,6 +74,7 @@ def _drive(params, command, fine_dt, steps_per_sample, current_limit, bus_voltag
             i = i_ss + (i - i_ss) * decay
         applied[k] = u
         drive = cphi * i - load[k]
+        coulomb = max(base_coulomb + slope * (centre - th), 0.0)
         if w == 0.0 and abs(drive) <= coulomb:
             w_new = 0.0
         else:
@@ -91,7 +93,8 @@ def _drive(params, command, fine_dt, steps_per_sample, current_limit, bus_voltag
 def simulate_drive(params: MotorParameters, command: np.ndarray, sample_period_s: float,
                    fine_step_s: float = 5e-5, current_limit_a: float = np.inf,
                    bus_voltage_v: float = np.inf, load_torque_nm: np.ndarray | None = None,
-                   torque_input: bool = False) -> dict:
+                   torque_input: bool = False,
+                   coulomb_along_travel: tuple[float, float] = (0.0, 0.0)) -> dict:
     """
     Simulate the physical drive for a command held over each logging sample.
 
@@ -111,6 +114,9 @@ def simulate_drive(params: MotorParameters, command: np.ndarray, sample_period_s
         Load torque per fine step [N m] (positive opposes positive rotation).
     torque_input : bool
         Current-controlled drive: ``command`` is the current.
+    coulomb_along_travel : tuple of float
+        ``(slope, centre)``: the Coulomb friction varies along the travel, ``Mc + slope
+        (centre - angle)`` (at least zero) [N m/rad, rad], as the preload of a ball screw does.
 
     Returns
     -------
@@ -127,7 +133,8 @@ def simulate_drive(params: MotorParameters, command: np.ndarray, sample_period_s
     values = np.array([params.Ra, params.La, params.CPhi, params.J, params.b, params.Mc])
     current, speed, angle, applied = _drive(values, command, fine_dt, steps,
                                             float(current_limit_a), float(bus_voltage_v),
-                                            load, bool(torque_input))
+                                            load, bool(torque_input),
+                                            tuple(float(v) for v in coulomb_along_travel))
     index = np.arange(command.shape[0]) * steps
     return {'current': current[index], 'speed': speed[index], 'angle': angle[index],
             'applied': applied.reshape(-1, steps).mean(axis=1)}
@@ -414,6 +421,42 @@ def geared_motor_held_sensors(seed: int = 0, sample_period_s: float = 1e-3,
                     note=f'sensors refresh every {refresh_s * 1e3:g} ms, logged at 1 kHz')
 
 
+def ball_screw_sine(seed: int = 0, sample_period_s: float = 5e-4,
+                    preload_nm: float = 0.1) -> Scenario:
+    """
+    Simulate a ball-screw stroke with a sine on the commanded current, position logged only.
+
+    Like a teaching lab's table drive: a commanded current (logged as the current) kicks the
+    table off, holds it at about 35 rad/s with a 5 Hz sine on top, reverses it, and stops it;
+    then the table stands still.  The screw's preload makes the Coulomb friction vary along
+    the travel (``preload_nm`` from one end of the stroke to the other), which the fitted model
+    does not have: the speed drifts along each stroke at a constant current.  The position is
+    a quantised encoder's (100,000 counts per turn, the start in the noise); no speed is
+    logged.
+    """
+    rng = np.random.default_rng(seed)
+    truth = MotorParameters(Ra=1.0, La=1e-3, CPhi=0.72, J=7e-4, b=0.012, Mc=0.22)
+    dt = sample_period_s
+    t = np.arange(int(round(5.0 / dt))) * dt
+    command = np.zeros_like(t)
+    forward = (t >= 0.01) & (t < 1.75)
+    command[forward] = 0.93 + 0.08 * np.sin(2 * np.pi * 5.0 * t[forward]) * (t[forward] > 0.5)
+    command[(t >= 1.75) & (t < 3.5)] = -0.90
+    for start, sign in ((0.01, 1.0), (1.75, -1.0)):
+        kick = (t >= start) & (t < start + 0.12)
+        command[kick] = sign * (1.55 - 5.0 * np.abs(t[kick] - start - 0.06))
+    stroke = 55.0  # rad, about the travel of the stroke above
+    out = simulate_drive(truth, command, dt, fine_step_s=dt / 10, torque_input=True,
+                         coulomb_along_travel=(preload_nm / stroke, stroke / 2))
+    lsb = 2.0 * np.pi / 100_000
+    offset = rng.uniform(0.0, lsb)
+    position = np.round((out['angle'] + offset) / lsb) * lsb
+    record = Record(t, current=command, position=position, source='ball_screw_sine')
+    return Scenario('ball_screw_sine', [record], truth, torque_constant=truth.CPhi,
+                    note='commanded current logged, a Coulomb friction varying along the '
+                         'travel, quantised position only')
+
+
 SCENARIOS = {
     'servo_torque_steps': servo_torque_steps,
     'small_motor_pwm_steps': small_motor_pwm_steps,
@@ -426,4 +469,5 @@ SCENARIOS = {
     'geared_motor_held_sensors': geared_motor_held_sensors,
     'coarse_speed_steps': coarse_speed_steps,
     'servo_opposite_steps': servo_opposite_steps,
+    'ball_screw_sine': ball_screw_sine,
 }

@@ -71,11 +71,13 @@ def fit_structure(loop: LoopState, structure: Structure, start: dict | None = No
                          initial or {})
     train = [rec.slice(0, stop) for rec, stop in zip(records, stops)]
     estimator = make_estimator(loop, max_nfev=max_nfev, initial=start or None,
-                               initial_states=initial_states)
+                               initial_states=initial_states, position_ar=loop.position_ar)
     if not start and terms:
         raise ValueError('a structure with effects needs a start point')
     estimate = estimator.fit(train, torque_constant=loop.torque_constant,
                              terms=slice_terms(terms, stops))
+    if loop.position_ar is None:  # the base's error model warm-starts the candidates'
+        loop.position_ar = estimate.info.get('position_ar')
     model = OutputErrorModel(records, loop.torque_constant, terms, loop.quasi_static,
                              loop.criterion)
     simulated = simulate_records(model, estimate.parameters, estimate.initial_states)

@@ -85,6 +85,7 @@ class LoopState:
         self.initial_state = initial_state
         self.quasi_static = bool(quasi_static) and not self.mechanical_only
         self.anchor: Fit | None = None
+        self.position_ar: list[float] | None = None
 
     @property
     def fitted_weights(self) -> dict[str, float]:

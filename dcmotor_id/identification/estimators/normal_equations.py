@@ -22,7 +22,7 @@ from typing import Any, cast, Mapping, Sequence
 
 import numpy as np
 
-from dcmotor_id.identification.criterion import integrate_speed
+from dcmotor_id.identification.criterion import integrate_speed, whiten
 from dcmotor_id.identification.estimators.base import StateTerm
 from dcmotor_id.identification.estimators.uncertainty import block_edges
 from dcmotor_id.simulation.compiled import kernel
@@ -168,6 +168,9 @@ class NormalEquations:
         m = self.n_shared + n_dynamic
         error = (integrate_speed(trajectory[:, -1, 0], dt, float(initial_state[n_dynamic]))
                  - np.asarray(model.records[index].position, dtype=float))
+        # The position error's AR(1) model (0: white) whitens the error and its sensitivities.
+        rho = float(getattr(model, 'position_ar', (0.0,) * (index + 1))[index])
+        error = whiten(error, rho)
         residual = error * weight['position']
         kernel_h, kernel_g, kernel_b = kernel_sums.by_channel
         edges = kernel_sums.block_edges
@@ -182,6 +185,7 @@ class NormalEquations:
                     rows = np.empty((error.shape[0], m + 1))
                     rows[:, :m] = integrate_speed(trajectory[:, -1, 1:], dt, 0.0)
                     rows[:, m] = 1.0
+                    rows = whiten(rows, rho)
                     rows *= weight['position']
                     hessian[out] = rows.T @ rows
                     gradient[out] = rows.T @ residual

@@ -32,7 +32,8 @@ import numpy as np
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (derived_stderr, derived_values, make_admissible,
                                    MotorParameters, parameter_names, POSITIVE_NAMES, state_matrix)
-from dcmotor_id.identification.criterion import fitted_outputs, integrate_speed
+from dcmotor_id.identification.criterion import (AR_PASSES, ar_settled, fitted_outputs,
+                                                 integrate_speed, position_ar, whiten)
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.identification.estimators.jacobian import jacobian
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
@@ -116,6 +117,10 @@ class OutputErrorModel:
         self.criterion = criterion
         self.outputs = fitted_outputs(self.mechanical_only, criterion)
         self.states = self.dynamic + (('position',) if 'position' in self.outputs else ())
+        # AR(1) coefficient of every record's position error (0: white, compared sample by
+        # sample; :func:`dcmotor_id.identification.criterion.position_ar`), set by the fit.
+        self.position_ar = [0.0] * len(self.records)
+        self.position_rms = [0.0] * len(self.records)
         # The period is a median over the record: computed once, not at every simulation.
         self.sample_periods_s = [rec.sample_period_s for rec in self.records]
         # Mechanical-only mode: the sampled current is the input.  It varies within a sample,
@@ -375,6 +380,9 @@ class RefinedEstimator:
     criterion : str
         ``speed`` (default), ``position`` or ``both``: the channels compared
         (:class:`OutputErrorModel`).
+    position_ar : sequence of float, optional
+        Start of every record's AR(1) coefficient of the position error (a warm start, e.g.
+        from an earlier fit of the same records; :func:`_update_position_ar`); default white.
 
     """
 
@@ -387,7 +395,8 @@ class RefinedEstimator:
                  initial_state: str = 'estimate',
                  progress: Callable[..., None] | None = None,
                  initial_states: Sequence[Sequence[float]] | None = None,
-                 criterion: str = 'speed') -> None:
+                 criterion: str = 'speed',
+                 position_ar: Sequence[float] | None = None) -> None:
         if initial_state not in ('estimate', 'measured'):
             raise ValueError(f'initial_state must be estimate or measured, not {initial_state}')
         self.max_nfev = max_nfev
@@ -398,6 +407,7 @@ class RefinedEstimator:
         self.progress = progress
         self.initial_states = initial_states
         self.criterion = criterion
+        self.position_ar = position_ar
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
@@ -427,15 +437,20 @@ class RefinedEstimator:
         moved = moved_start(records, [state[-1] for state in estimate.initial_states])
         if moved is None:
             return estimate
-        pinned = self._fit(records, torque_constant, terms, 'measured')
+        pinned = self._fit(records, torque_constant, terms, 'measured',
+                           position_ar=estimate.info['position_ar'])
         pinned.info['moved_start'] = moved
         return pinned
 
-    def _fit(self, records, torque_constant, terms, initial_state, max_nfev=None):
+    def _fit(self, records, torque_constant, terms, initial_state, max_nfev=None,
+             position_ar=None):
         """Fit with the initial states estimated or pinned (``initial_state``)."""
         max_nfev = self.max_nfev if max_nfev is None else max_nfev
         model = OutputErrorModel(records, torque_constant, terms, self.quasi_static,
                                  self.criterion)
+        warm_ar = self.position_ar if position_ar is None else position_ar
+        if warm_ar is not None and len(warm_ar) == len(records):
+            model.position_ar = [float(value) for value in warm_ar]
         names = list(model.base_names) + [term.name for term in model.terms]
         n_base = len(model.base_names)
         n_state = len(model.states)
@@ -499,8 +514,10 @@ class RefinedEstimator:
             for index in range(len(records)):
                 out = model.simulate(values, index, states[index])
                 for channel in model.outputs:
-                    parts.append((out[channel] - model.measured(index, channel))
-                                 / noise[index][channel])
+                    error = out[channel] - model.measured(index, channel)
+                    if channel == 'position':
+                        error = whiten(error, model.position_ar[index])
+                    parts.append(error / noise[index][channel])
             if self.progress is not None:
                 self.progress(cost=float(sum(part @ part for part in parts)))
             return np.concatenate(parts)
@@ -534,7 +551,9 @@ class RefinedEstimator:
         converged = True
         current = None
         damping = None
-        for _ in range(max(1, self.reweight_passes)):
+        passes, extra = max(1, self.reweight_passes), 0
+        while passes > 0:
+            passes -= 1
             z, current, nfev, converged, damping = _levenberg_marquardt(
                 lambda point, with_sens: evaluate(point, noise, with_sens), z, max_nfev,
                 current=current, damping=damping)
@@ -545,6 +564,20 @@ class RefinedEstimator:
                                    1e-13 * pooled[channel])
                       for position, channel in enumerate(model.outputs)}
                      for index, rec in enumerate(records)]
+            white = not any(model.position_ar)
+            if _update_position_ar(model, *unpack(z)[:2]):
+                # The position's error model moved: the next pass simulates again, and runs
+                # (up to AR_PASSES more) until it settles.  Leaving the white error model, a
+                # base parameter the white fit ran below COLLAPSED of its start restarts there:
+                # a friction at zero has no gradient (its sign kink) to come back by.
+                current = None
+                if white:
+                    collapsed = z[:n_base] < z0[:n_base] + np.log(COLLAPSED)
+                    z = z.copy()
+                    z[:n_base][collapsed] = z0[:n_base][collapsed]
+                if passes == 0 and extra < AR_PASSES:
+                    passes, extra = 1, extra + 1
+                continue
             # The next pass (and the covariance) starts from this point under the new weights:
             # an analytic pass is rescaled channel by channel, others are simulated again.
             current = current.reweighted(noise, model.outputs)
@@ -576,6 +609,10 @@ class RefinedEstimator:
             parameters.update(derived_values(parameters))
             stderr.update(derived_stderr(parameters, covariance[:n_base, :n_base],
                                          list(model.base_names)))
+        if any(model.position_ar):
+            # The position's residual level (not its AR(1) innovations': the weights).
+            noise = [{**level, 'position': max(rms, 1e-13 * pooled['position'])}
+                     for level, rms in zip(noise, model.position_rms)]
         info = {
             'nfev': int(total_nfev),
             'noise_std': {channel: float(np.sqrt(
@@ -589,6 +626,7 @@ class RefinedEstimator:
             'quasi_static': model.quasi_static,
             'criterion': model.criterion,
             'initial_state': initial_state,
+            'position_ar': list(model.position_ar),
             'sensitivities': 'analytic' if analytic else 'finite differences',
             # What the data-based covariance needs
             # (dcmotor_id.identification.estimators.uncertainty): the fit's normal equations in its
@@ -643,6 +681,32 @@ class RefinedEstimator:
             raise FitError('no admissible start point for the output-error fit: the data do '
                            'not look like a DC motor (check signs and units of the columns)')
         return best
+
+
+def _update_position_ar(model: OutputErrorModel, values: Mapping[str, float],
+                        states: np.ndarray) -> bool:
+    """
+    Re-estimate every record's AR(1) coefficient of the position error at ``values``.
+
+    :func:`dcmotor_id.identification.criterion.position_ar` of the residual against the
+    sensor noise (quantisation included); returns whether a coefficient moved beyond
+    :func:`~dcmotor_id.identification.criterion.ar_settled` (never without the position).
+    """
+    if 'position' not in model.outputs:
+        return False
+    from dcmotor_id.identification.checks.identifiability import noise_level
+
+    moved = False
+    for index, rec in enumerate(model.records):
+        with np.errstate(all='ignore'):
+            error = model.simulate(values, index, states[index])['position'] - rec.position
+        if not np.all(np.isfinite(error)):
+            continue
+        model.position_rms[index] = float(np.sqrt(np.mean(error ** 2)))
+        rho = position_ar(error, noise_level(rec.position))
+        moved = moved or not ar_settled(model.position_ar[index], rho)
+        model.position_ar[index] = rho
+    return moved
 
 
 def has_analytic_sensitivities(model: OutputErrorModel) -> bool:
@@ -700,6 +764,9 @@ def free_states(states: Sequence[str], initial_state: str) -> list[bool]:
     return [initial_state != 'measured'] * len(states)
 
 
+#: A base parameter below this fraction of its start when the position's error model leaves
+#: white noise restarts from its start (:meth:`RefinedEstimator._fit`).
+COLLAPSED = 0.01
 #: Evaluations of a position-criterion fit that did not converge, retried, per the usual ones.
 POSITION_NFEV_FACTOR = 4
 #: Distance of a fitted initial position from the first samples, in their noise levels, beyond
