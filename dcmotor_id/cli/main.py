@@ -200,7 +200,10 @@ def write_json(path: str, result: Mapping[str, Any]) -> None:
 
 
 def _cmd_identify(args):
+    from dcmotor_id.identification.structure_uncertainty import check_resamples
+
     # Every output place is checked first: a fit of minutes is never lost to a typo.
+    check_resamples(args.structure_bootstrap)
     if args.json:
         check_output_path(args.json, '--json', inputs=args.files)
     if args.report:
@@ -221,7 +224,8 @@ def _cmd_identify(args):
                               torque_constant=args.torque_constant,
                               discover=not args.no_discover, vocabulary=vocabulary,
                               progress=progress, initial_state=args.initial_state,
-                              criterion=args.criterion)
+                              criterion=args.criterion, max_time_s=args.max_time,
+                              structure_bootstrap=args.structure_bootstrap)
     except TimeBudgetExceeded:
         raise InputDataError(f'--max-time {args.max_time:g}: no fit finished within the time '
                              'budget; give more time (e.g. --max-time 60), or shorten or '
@@ -567,6 +571,11 @@ def build_parser() -> argparse.ArgumentParser:
                             'integral of the simulated speed, and current), both; auto '
                             '(default): position when the speed was derived from it, else '
                             'speed')
+    ident.add_argument('--structure-bootstrap', type=int, default=0, metavar='N',
+                       help='rerun the identification, discovery included, on N noise '
+                            'resamples so that the standard errors cover the choice of '
+                            'structure (JSON structure_uncertainty; N more fits; default 0: '
+                            'off)')
     ident.set_defaults(handler=_cmd_identify)
 
     val = commands.add_parser('validate', help='simulate an identified model on new records '

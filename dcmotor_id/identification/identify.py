@@ -330,6 +330,10 @@ class IdentificationResult:
     criterion : str
         The channels the fit compared: ``speed``, ``position`` or ``both``
         (:mod:`dcmotor_id.identification.criterion`).
+    structure_uncertainty : dict or None
+        The noise bootstrap over the structure choice
+        (:mod:`~dcmotor_id.identification.structure_uncertainty`; its part is in ``stderr``),
+        ``{"skipped": reason}``, or None when not asked for.
 
     """
 
@@ -365,6 +369,7 @@ class IdentificationResult:
     input_records: list[Record] = field(repr=False, default_factory=list)
     discovery_result: DiscoveryResult | None = field(repr=False, default=None)
     criterion: str = 'speed'
+    structure_uncertainty: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""
@@ -399,6 +404,7 @@ class IdentificationResult:
             'start_check': self.start_check,
             'operating_range': self.operating_range,
             'criterion': self.criterion,
+            'structure_uncertainty': self.structure_uncertainty,
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out
@@ -442,7 +448,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
              max_time_s: float | None = DEFAULT_MAX_TIME_S,
              progress: Progress | None = None,
              initial_state: str = 'estimate',
-             criterion: str = 'auto') -> IdentificationResult:
+             criterion: str = 'auto', structure_bootstrap: int = 0) -> IdentificationResult:
     """
     Identify the motor from prepared records.
 
@@ -476,6 +482,10 @@ def identify(records: Sequence[Record], method: str = 'refined',
         compares the
         position when the speed was derived from it).  The JSON key ``criterion`` holds the
         one used.
+    structure_bootstrap : int
+        Noise resamples over which the discovery is rerun so that ``stderr`` covers the choice
+        of structure (:mod:`dcmotor_id.identification.structure_uncertainty`; JSON key
+        ``structure_uncertainty``); 0 (default): not run.
 
     Returns
     -------
@@ -502,6 +512,12 @@ def identify(records: Sequence[Record], method: str = 'refined',
     if initial_state not in INITIAL_STATES:
         raise InputDataError(f'initial state must be one of {", ".join(INITIAL_STATES)}, not '
                              f'{initial_state!r}')
+    if structure_bootstrap:
+        from dcmotor_id.identification.structure_uncertainty import bootstrapped
+        return bootstrapped(identify, records, structure_bootstrap, method=method,
+                            torque_constant=torque_constant, discover=discover,
+                            estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,
+                            progress=progress, initial_state=initial_state, criterion=criterion)
     progress = progress if progress is not None else Progress(max_time_s)
     resolved = _criterion_of(records, criterion, method, estimator)
     arguments = (records, method, torque_constant, discover, estimator, vocabulary, progress,
