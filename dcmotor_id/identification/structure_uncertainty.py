@@ -30,8 +30,8 @@ Cost: ``resamples`` more identifications; it runs only when asked
 
 from __future__ import annotations
 
-import time
 from dataclasses import replace
+import time
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -94,8 +94,8 @@ def resample_channel(values: np.ndarray, rng: np.random.Generator) -> np.ndarray
 
     The noise level is :func:`~dcmotor_id.signals.filters.noise_std` (second differences,
     robust to steps); a running median keeps steps and monotone stretches exact, so only the
-    noise is replaced.  A noise-free channel (a commanded voltage) comes back unchanged; a
-    quantised one is rounded back onto its grid.
+    noise is replaced.  A channel without measurable noise (a commanded voltage, a coarse
+    encoder count) comes back unchanged; a quantised one is rounded back onto its grid.
     """
     from scipy.ndimage import median_filter  # lazily: only a bootstrap needs it
 
@@ -103,13 +103,11 @@ def resample_channel(values: np.ndarray, rng: np.random.Generator) -> np.ndarray
 
     values = np.asarray(values, dtype=float)
     level = noise_std(values)
-    step = quantisation_step(values)
-    if step is not None:
-        level = max(level, step / np.sqrt(12.0))
     if not level > 0 or values.shape[0] < MEDIAN_WIDTH:
         return values.copy()
     smooth = median_filter(values, size=MEDIAN_WIDTH, mode='nearest')
     out = smooth + rng.normal(0.0, level, size=values.shape)
+    step = quantisation_step(values)
     if step is not None:
         out = values[0] + np.round((out - values[0]) / step) * step
     return out
@@ -143,7 +141,7 @@ def structure_key(result: Any) -> tuple[str, ...]:
 def between_structures(draws: Sequence[tuple[tuple[str, ...], dict[str, float]]],
                        names: Sequence[str]) -> dict[str, float]:
     """
-    Standard deviation between the structures' mean estimates, per parameter.
+    Return the standard deviation between the structures' mean estimates, per parameter.
 
     ``sqrt(sum_g f_g (m_g - m)^2)`` over the structures ``g`` of the draws (``f_g`` their
     share, ``m_g`` the mean estimate of the draws that chose ``g``, ``m`` the overall mean);

@@ -1,5 +1,6 @@
 """Standard errors that cover the choice of structure (issue 19): the noise bootstrap."""
 
+from dataclasses import make_dataclass
 import json
 
 import numpy as np
@@ -83,16 +84,15 @@ def test_between_structures_is_the_spread_of_the_structure_means():
 
 
 def test_covered_adds_in_quadrature_and_only_where_the_part_is_nonzero():
-    class Result:
-        stderr = {'J': 3.0, 'b': 0.1, 'La': float('nan')}
-        combined = {'friction_torque_Nm': {'value': 1.0, 'stderr': 0.1}}
-
-    from dataclasses import make_dataclass
-    cls = make_dataclass('R', [('stderr', dict), ('combined', dict)])
-    out = covered(cls(dict(Result.stderr), dict(Result.combined)),
-                  {'J': 4.0, 'b': 0.0, 'La': 1.0})
+    result = make_dataclass('Result', [('stderr', dict), ('combined', dict)])(
+        {'J': 3.0, 'b': 0.1, 'Mc': 0.2, 'La': float('nan')},
+        {'friction_torque_Nm': {'value': 1.0, 'stderr': 0.2}})
+    out = covered(result, {'J': 4.0, 'b': 0.0, 'Mc': 0.15, 'La': 1.0})
     assert out.stderr['J'] == 5.0
     assert out.stderr['b'] == 0.1
+    assert out.stderr['Mc'] == pytest.approx(0.25)
+    assert out.combined['friction_torque_Nm']['stderr'] == pytest.approx(0.25)
+    assert result.combined['friction_torque_Nm']['stderr'] == 0.2  # not changed in place
     assert np.isnan(out.stderr['La'])
 
 
