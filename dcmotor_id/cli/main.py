@@ -200,10 +200,7 @@ def write_json(path: str, result: Mapping[str, Any]) -> None:
 
 
 def _cmd_identify(args):
-    from dcmotor_id.identification.structure_uncertainty import check_resamples
-
     # Every output place is checked first: a fit of minutes is never lost to a typo.
-    check_resamples(args.structure_bootstrap)
     if args.json:
         check_output_path(args.json, '--json', inputs=args.files)
     if args.report:
@@ -517,6 +514,17 @@ def _positive(text):
     return value
 
 
+def _resamples(text):
+    from dcmotor_id.identification.structure_uncertainty import check_resamples, MAX_RESAMPLES
+
+    try:
+        return check_resamples(int(text))
+    except (ValueError, InputDataError):
+        raise argparse.ArgumentTypeError(
+            f'give a whole number of resamples from 2 to {MAX_RESAMPLES} (20 is a good start), '
+            f'or 0 to leave the structure choice out; got {text}') from None
+
+
 def _non_negative(text):
     value = float(text)
     if not (np.isfinite(value) and value >= 0):
@@ -571,7 +579,7 @@ def build_parser() -> argparse.ArgumentParser:
                             'integral of the simulated speed, and current), both; auto '
                             '(default): position when the speed was derived from it, else '
                             'speed')
-    ident.add_argument('--structure-bootstrap', type=int, default=0, metavar='N',
+    ident.add_argument('--structure-bootstrap', type=_resamples, default=0, metavar='N',
                        help='rerun the identification, discovery included, on N noise '
                             'resamples so that the standard errors cover the choice of '
                             'structure (JSON structure_uncertainty; N more fits; default 0: '
