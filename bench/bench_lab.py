@@ -215,7 +215,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     load = os.getloadavg()
     start = time.perf_counter()
-    print('# Laboratory-like recordings (issue 8)\n')
+    print('# Structure choice covered: laboratory-like recordings (issue 19)\n'
+          if args.structure_bootstrap else '# Laboratory-like recordings (issue 8)\n')
     print(f'Command: `{" ".join(["bench/bench_lab.py"] + (argv or sys.argv[1:]))}`; load average '
           f'at start {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs.\n')
     print('stderr: the reported (honest) figure; "MC sd": the standard deviation of the '
