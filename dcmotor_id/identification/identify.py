@@ -260,8 +260,9 @@ class IdentificationResult:
     ----------
     parameters, stderr : dict
         Final values and their standard errors, by name.  ``stderr`` is the larger of the
-        model-based (Gauss-Newton) and the data-based figure (``uncertainty_method``); NaN
-        (JSON null) for a parameter at its bound or given as an upper bound.
+        model-based (Gauss-Newton) and the data-based figure (``uncertainty_method``), with
+        the part from the choice of structure added when ``structure_uncertainty`` says so;
+        NaN (JSON null) for a parameter at its bound or given as an upper bound.
     method : str
         Estimator name.
     effects : list of dict
