@@ -167,17 +167,20 @@ def between_structures(draws: Sequence[tuple[tuple[str, ...], dict[str, float]]]
 
 
 def run_resamples(identify_once: Callable[[list[Record]], Any], records: Sequence[Record],
-                  resamples: int, seed: int = DEFAULT_SEED
+                  resamples: int, seed: int = DEFAULT_SEED,
+                  announce: Callable[[str], None] | None = None
                   ) -> tuple[list[tuple[tuple[str, ...], dict[str, float]]], list[str]]:
     """
     Identify ``resamples`` noise resamples of the records; return the draws and the failures.
 
     Each draw is ``(structure key, parameters)``; a resample the identification refuses is a
-    failure (its message), not a draw.
+    failure (its message), not a draw.  ``announce`` is told which resample runs.
     """
     rng = np.random.default_rng(seed)
     draws, failures = [], []
-    for _ in range(resamples):
+    for index in range(resamples):
+        if announce is not None:
+            announce(f'structure bootstrap: resample {index + 1} of {resamples}')
         resampled = [resample_noise(record, rng) for record in records]
         try:
             result = identify_once(resampled)
@@ -287,10 +290,14 @@ def bootstrapped(identify: Callable[..., Any], records: Sequence[Record], resamp
         reason = ('discovery is off: the structure is fixed' if not result.discover else
                   'discovery did not run: ' + str((result.discovery or {}).get('skipped', '')))
         return replace(result, structure_uncertainty={'skipped': reason})
-    # Every resample has its own time budget (a silent one: the progress is the user's run).
+    # Every resample has its own time budget; the user's progress only names the resample.
     quiet = {key: value for key, value in options.items() if key != 'progress'}
+    progress = options.get('progress')
+    if progress is not None:
+        progress.deadline = None
     draws, failures = run_resamples(lambda sample: identify(sample, **quiet), records,
-                                    resamples, seed)
+                                    resamples, seed,
+                                    None if progress is None else progress.set_stage)
     part = between_structures(draws, list(result.parameters)) if draws else {}
     info = summary(result, draws, failures, resamples, seed, part)
     final = covered(result, part)
