@@ -41,6 +41,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError, InputDataError
+from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.core.records import Record
 
 #: Width of the running median that separates a channel's signal from its noise [samples].
@@ -188,7 +189,7 @@ def run_resamples(identify_once: Callable[[list[Record]], Any], records: Sequenc
         resampled = [resample_noise(record, rng) for record in records]
         try:
             result = identify_once(resampled)
-        except DcMotorIdError as error:
+        except (DcMotorIdError, TimeBudgetExceeded) as error:
             failures.append(str(error).split('. ')[0][:200])
             continue
         draws.append((structure_key(result), dict(result.parameters)))
