@@ -10,7 +10,12 @@ median reported ``stderr`` (and of the Gauss-Newton ``stderr_model``) to the sta
 deviation of the estimates over the seeds, and to the split-half spread (``|a - b| / 2`` of
 the estimates from the two halves of the seed-0 record without discovery, a one-sample
 figure of the same standard deviation that also contains model error).  The spread with
-discovery on (the structure chosen per seed) is shown beside.  Goals (issue 8):
+discovery on (the structure chosen per seed) is shown beside.  With
+``--structure-bootstrap N`` (issue 19) every seed's discovery run also covers the structure
+choice by :mod:`dcmotor_id.identification.structure_uncertainty` (N noise resamples), and a
+second table compares, against the spread with discovery, the stated stderr without and with
+the structure part and a model average over the loop's own candidates (the cheap
+alternative).  Goals (issue 8):
 no record that moves is refused, one-direction J and b within 5 %, stderr within a factor 2
 of the spread, under 30 s for 300k samples with discovery, under 5 s to refuse a hopeless
 record.
@@ -40,16 +45,17 @@ def _halves(records):
             [rec.slice(len(rec) // 2, len(rec)) for rec in records])
 
 
-def _fit(records, torque_constant, discover=False):
+def _fit(records, torque_constant, discover=False, structure_bootstrap=0):
     start = time.perf_counter()
     try:
-        result = identify(records, torque_constant=torque_constant, discover=discover)
+        result = identify(records, torque_constant=torque_constant, discover=discover,
+                          structure_bootstrap=structure_bootstrap)
     except DcMotorIdError as error:
         return None, time.perf_counter() - start, str(error)
     return result, time.perf_counter() - start, None
 
 
-def scenario_rows(name, make, seeds):
+def scenario_rows(name, make, seeds, structure_bootstrap=0):
     """Identify one scenario; return the markdown lines."""
     scenario = make(seed=0)
     truth = scenario.truth.as_dict()
@@ -61,6 +67,7 @@ def scenario_rows(name, make, seeds):
     if result is None:
         return lines + [f'**refused** after {elapsed:.1f} s: {refused}', '']
     values, stated, model, discovered, added, stated_found = [], [], [], [], [], []
+    covered = []
     for seed in range(seeds):
         repeat = make(seed=seed)
         item, _, _ = _fit(repeat.records, tc)
@@ -68,11 +75,14 @@ def scenario_rows(name, make, seeds):
             values.append(item.parameters)
             stated.append(item.stderr)
             model.append(item.stderr_model)
-        item, _, _ = _fit(repeat.records, tc, discover=True)
+        item, _, _ = _fit(repeat.records, tc, discover=True,
+                          structure_bootstrap=structure_bootstrap)
         if item is not None:
             discovered.append(item.parameters)
-            stated_found.append(item.stderr)
+            stated_found.append((item.structure_uncertainty or {}).get(
+                'stderr_without_structure', item.stderr))
             added.extend(effect['name'] for effect in item.effects)
+            covered.append((seed, item))
     halves = [_fit(part, tc)[0] for part in _halves(scenario.records)]
     names = list(result.parameters)
     counts = {name: added.count(name) for name in sorted(set(added))}
@@ -118,6 +128,9 @@ def scenario_rows(name, make, seeds):
             f'| {100 * half / abs(value):.2g} % '
             f'| {med / half:.2f} | {note} |')
     lines += ['', 'warnings:'] + [f'- {text}' for text in result.warnings or ['none']] + ['']
+    if structure_bootstrap:
+        from structure_rows import structure_rows
+        lines += structure_rows(covered, truth, result, structure_bootstrap)
     return lines
 
 
@@ -196,10 +209,14 @@ def main(argv=None):
     parser.add_argument('--long-s', type=float, default=300.0,
                         help='length of the long record [s] at 1 kHz')
     parser.add_argument('--only', nargs='*', help='scenario names')
+    parser.add_argument('--structure-bootstrap', type=int, default=0, metavar='N',
+                        help='cover the structure choice of every discovery run with N noise '
+                             'resamples (issue 19) and compare with model averaging')
     args = parser.parse_args(argv)
     load = os.getloadavg()
     start = time.perf_counter()
-    print('# Laboratory-like recordings (issue 8)\n')
+    print('# Structure choice covered: laboratory-like recordings (issue 19)\n'
+          if args.structure_bootstrap else '# Laboratory-like recordings (issue 8)\n')
     print(f'Command: `{" ".join(["bench/bench_lab.py"] + (argv or sys.argv[1:]))}`; load average '
           f'at start {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs.\n')
     print('stderr: the reported (honest) figure; "MC sd": the standard deviation of the '
@@ -208,7 +225,7 @@ def main(argv=None):
     for name, make in SCENARIOS.items():
         if args.only and name not in args.only:
             continue
-        print('\n'.join(scenario_rows(name, make, args.seeds)))
+        print('\n'.join(scenario_rows(name, make, args.seeds, args.structure_bootstrap)))
         sys.stdout.flush()
     if not args.only or 'emps' in args.only:
         print('\n'.join(emps_rows()))

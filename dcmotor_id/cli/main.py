@@ -110,7 +110,8 @@ def _cmd_identify(args):
                               torque_constant=args.torque_constant,
                               discover=not args.no_discover, vocabulary=vocabulary,
                               progress=progress, initial_state=args.initial_state,
-                              criterion=args.criterion)
+                              criterion=args.criterion, max_time_s=args.max_time,
+                              structure_bootstrap=args.structure_bootstrap)
     except TimeBudgetExceeded:
         raise InputDataError(f'--max-time {args.max_time:g}: no fit finished within the time '
                              'budget; give more time (e.g. --max-time 60), or shorten or '
@@ -355,6 +356,17 @@ def _add_fleet_commands(commands):
     report.set_defaults(handler=_cmd_fleet_report)
 
 
+def _resamples(text):
+    from dcmotor_id.identification.structure_uncertainty import check_resamples, MAX_RESAMPLES
+
+    try:
+        return check_resamples(int(text))
+    except (ValueError, InputDataError):
+        raise argparse.ArgumentTypeError(
+            f'give a whole number of resamples from 2 to {MAX_RESAMPLES} (20 is a good start), '
+            f'or 0 to leave the structure choice out; got {text}') from None
+
+
 def _add_identify_command(commands: Any) -> None:
     """Add the ``identify`` subcommand and its arguments."""
     ident = commands.add_parser('identify', help='identify the motor from CSV files or bags')
@@ -398,6 +410,11 @@ def _add_identify_command(commands: Any) -> None:
                             'integral of the simulated speed, and current), both; auto '
                             '(default): position when the speed was derived from it, else '
                             'speed')
+    ident.add_argument('--structure-bootstrap', type=_resamples, default=0, metavar='N',
+                       help='rerun the identification, discovery included, on N noise '
+                            'resamples so that the standard errors cover the choice of '
+                            'structure (JSON structure_uncertainty; N more fits; default 0: '
+                            'off)')
     ident.set_defaults(handler=_cmd_identify)
 
 

@@ -109,7 +109,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
              torque_constant: float | None = None, discover: bool = True,
              estimator: Any = None, vocabulary: Sequence[type[Effect]] | None = None, *,
              max_time_s: float | None = DEFAULT_MAX_TIME_S, progress: Progress | None = None,
-             initial_state: str = 'estimate', criterion: str = 'auto') -> IdentificationResult:
+             initial_state: str = 'estimate', criterion: str = 'auto',
+             structure_bootstrap: int = 0) -> IdentificationResult:
     """
     Identify the motor from prepared records.
 
@@ -139,6 +140,10 @@ def identify(records: Sequence[Record], method: str = 'refined',
         ``auto`` (default), ``speed``, ``position`` or ``both``: the channels the fit compares
         (:func:`~dcmotor_id.identification.criterion.resolve_criterion`; ``auto`` compares the
         position when the speed was derived from it); the JSON key ``criterion`` has the one used.
+    structure_bootstrap : int
+        Noise resamples over which the discovery is rerun so that ``stderr`` covers the choice
+        of structure (:mod:`dcmotor_id.identification.structure_uncertainty`; JSON key
+        ``structure_uncertainty``); 0 (default): not run.
 
     Returns
     -------
@@ -154,6 +159,12 @@ def identify(records: Sequence[Record], method: str = 'refined',
 
     """
     _check_choices(method, initial_state)
+    if structure_bootstrap:
+        from dcmotor_id.identification.structure_uncertainty import bootstrapped
+        return bootstrapped(identify, records, structure_bootstrap, method=method,
+                            torque_constant=torque_constant, discover=discover,
+                            estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,
+                            progress=progress, initial_state=initial_state, criterion=criterion)
     progress = progress if progress is not None else Progress(max_time_s)
     resolved = _criterion_of(records, criterion, method, estimator)
     arguments = (records, method, torque_constant, discover, estimator, vocabulary, progress,

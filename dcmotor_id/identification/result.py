@@ -34,8 +34,9 @@ class IdentificationResult:
     ----------
     parameters, stderr : dict
         Final values and their standard errors, by name.  ``stderr`` is the larger of the
-        model-based (Gauss-Newton) and the data-based figure (``uncertainty_method``); NaN
-        (JSON null) for a parameter at its bound or given as an upper bound.
+        model-based (Gauss-Newton) and the data-based figure (``uncertainty_method``), with
+        the part from the choice of structure added when ``structure_uncertainty`` says so;
+        NaN (JSON null) for a parameter at its bound or given as an upper bound.
     method : str
         Estimator name.
     effects : list of dict
@@ -104,6 +105,10 @@ class IdentificationResult:
     criterion : str
         The channels the fit compared: ``speed``, ``position`` or ``both``
         (:mod:`dcmotor_id.identification.criterion`).
+    structure_uncertainty : dict or None
+        The noise bootstrap over the structure choice
+        (:mod:`~dcmotor_id.identification.structure_uncertainty`; its part is in ``stderr``),
+        ``{"skipped": reason}``, or None when not asked for.
 
     """
 
@@ -139,6 +144,7 @@ class IdentificationResult:
     input_records: list[Record] = field(repr=False, default_factory=list)
     discovery_result: DiscoveryResult | None = field(repr=False, default=None)
     criterion: str = 'speed'
+    structure_uncertainty: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""
@@ -173,6 +179,7 @@ class IdentificationResult:
             'start_check': self.start_check,
             'operating_range': self.operating_range,
             'criterion': self.criterion,
+            'structure_uncertainty': self.structure_uncertainty,
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out

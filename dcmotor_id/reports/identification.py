@@ -477,6 +477,44 @@ def _parameter_rows(result):
     return rows
 
 
+def structure_parts(result: Mapping[str, Any]) -> list[str]:
+    """
+    HTML of the structure bootstrap (``structure_uncertainty``): what it did and added.
+
+    A sentence when it was not asked for (the standard errors then leave the structure choice
+    out, when discovery ran), a table of the structures chosen and one of the per-parameter
+    part when it ran.
+    """
+    info = result.get('structure_uncertainty')
+    if not result.get('discover'):
+        return []
+    head = '<h3>Choice of structure</h3>'
+    if info is None:
+        return [head, '<p>Not covered: the standard errors are those of the structure chosen. '
+                'Rerun with <code>--structure-bootstrap 20</code> to include the spread from '
+                'the choice of effects (20 more fits).</p>']
+    if 'skipped' in info:
+        return [head, f'<p>Not covered: {html.escape(str(info["skipped"]))}.</p>']
+    rows = [[html.escape(' + '.join(item['effects']) or 'no effect'), str(item['count']),
+             _pct(100 * item['share'])] for item in info['structures']]
+    part = info.get('stderr_structure') or {}
+    without = info.get('stderr_without_structure') or {}
+    changed = [[name, _number(without.get(name, float('nan')), 3), _number(value, 3),
+                _number(result['stderr'].get(name, float('nan')), 3)]
+               for name, value in part.items() if value and np.isfinite(value)]
+    text = (f'<p>Noise bootstrap: {info["completed"]} of {info["resamples"]} resamples '
+            f'identified ({info["failed"]} refused), discovery rerun on each; the structure of '
+            f'this result was chosen on {_pct(100 * info["chosen_share"])} of them. ' +
+            ('The standard errors above include the spread between the structures.</p>'
+             if info.get('included_in_stderr') else
+             'Every resample chose one structure: the standard errors are unchanged.</p>'))
+    out = [head, text, _table(['structure chosen', 'resamples', 'share'], rows)]
+    if changed:
+        out.append(_table(['parameter', 'std. error, one structure', 'structure part',
+                           'std. error reported'], changed))
+    return out
+
+
 def _flags(result: Mapping[str, Any]) -> str:
     """HTML of the warnings and non-identifiable parameters (empty when there are none)."""
     items = [f'<b>W{number}</b> {html.escape(str(text))}'
@@ -654,7 +692,7 @@ def _summary_parts(title: str, result: dict[str, Any], found: DiscoveryResult | 
              _flags(result),
              _table(['parameter', 'value', 'std. error', '95 % interval', 'rel. error',
                      'unit', 'flag'], _parameter_rows(result))]
-    return parts
+    return parts + structure_parts(result)
 
 
 def _verdict(result: dict[str, Any], found: DiscoveryResult | None,

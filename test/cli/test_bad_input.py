@@ -295,3 +295,24 @@ def test_refusal_at_the_process_boundary(table, tmp_path):
     assert completed.returncode == 2
     assert 'Traceback' not in completed.stderr
     assert "column 'speed' has 1 NaN/inf value(s)" in completed.stderr
+
+
+@pytest.mark.parametrize('count', ['1', '-3', '2.5'])
+def test_an_unusable_structure_bootstrap_is_refused_before_any_fit(table, tmp_path, out, capsys,
+                                                                   count):
+    with pytest.raises(SystemExit) as exit_:
+        main(['identify', write(tmp_path / 'good.csv', HEADER, table), '--json', str(out),
+              '--structure-bootstrap', count])
+    assert exit_.value.code == 2
+    message = capsys.readouterr().err
+    assert 'argument --structure-bootstrap: give a whole number' in message, message
+    assert 'Traceback' not in message and not out.exists()
+
+
+def test_structure_bootstrap_is_reported_in_the_json(table, tmp_path, out, capsys):
+    code, message = run(capsys, write(tmp_path / 'good.csv', HEADER, table), '--json', out,
+                        '--structure-bootstrap', 2)
+    assert code == 0, message
+    info = json.loads(out.read_text())['structure_uncertainty']
+    assert info['resamples'] == 2 and info['completed'] + info['failed'] == 2
+    assert sum(item['count'] for item in info['structures']) == info['completed']

@@ -156,3 +156,23 @@ def test_parameter_table_flags_the_warnings_that_name_a_parameter():
     box = _flags(result)
     assert '<b>W1</b> b and Mc' in box and '<b>W2</b> the model misfits' in box
     assert '<b>J</b> not identifiable' in box
+
+
+def test_the_structure_choice_is_said_whether_covered_or_not():
+    from dcmotor_id.reports.identification import structure_parts
+
+    result = {'discover': True, 'stderr': {'J': 0.5, 'b': 9.0}, 'structure_uncertainty': None}
+    assert '--structure-bootstrap 20' in ''.join(structure_parts(result))
+    assert structure_parts({**result, 'discover': False}) == []
+    result['structure_uncertainty'] = {
+        'resamples': 10, 'completed': 9, 'failed': 1, 'chosen_share': 0.6,
+        'structures': [{'effects': ['quadratic_drag'], 'count': 6, 'share': 6 / 9},
+                       {'effects': [], 'count': 3, 'share': 1 / 3}],
+        'stderr_structure': {'J': 0.0, 'b': 8.0}, 'stderr_without_structure': {'J': 0.5, 'b': 4.0},
+        'included_in_stderr': True}
+    page = ''.join(structure_parts(result))
+    assert '9 of 10 resamples identified (1 refused)' in page
+    assert '<td>quadratic_drag</td><td>6</td>' in page and '<td>no effect</td><td>3</td>' in page
+    assert '<td>b</td><td>4</td><td>8</td><td>9</td>' in page and '<td>J</td>' not in page
+    skipped = {**result, 'structure_uncertainty': {'skipped': 'discovery is off'}}
+    assert 'Not covered: discovery is off' in ''.join(structure_parts(skipped))
