@@ -6,8 +6,12 @@ the HSM150 servo (12 open-loop torque steps, 6 per direction), the UBC MECH 467 
 (Part A constant-velocity strokes, Part B a pulse doublet, Part C sines) and EMPS.  The tool is
 run as the README tells a user: the command line as a subprocess,
 ``python -m dcmotor_id.cli identify FILE... --torque-constant K --json OUT`` with the reading
-options on the original files (a file that cannot be read that way is a finding, listed, and
-the row then uses a CSV converted from it, marked), and ``validate`` on records not fitted.
+options on the original files (an option that a refusal names, such as ``--sample-period``
+for the MECH 467 files' repeated first stamp, is added as a user would, and the refusal is
+listed), and ``validate`` on records not fitted.  As the README's set-up does
+(``make demo`` installs, then compiles the kernels with ``python -m dcmotor_id.cli.warmup``),
+the warm-up runs once before the first fit, timed on its own, so that no row's time is the
+first compilation of the kernels.
 For every single record, every pair of opposite directions, all records together and disjoint
 subsets: the parameters against the references (percent error), the stated standard errors
 against the spread between disjoint subsets (z), validation fit %, warnings, exit code and
@@ -81,7 +85,6 @@ class Rec:
     t: np.ndarray
     torque: np.ndarray
     y: np.ndarray
-    converted: bool = False
 
 
 @dataclass
@@ -232,43 +235,36 @@ def hsm150_set(path: str, cache: str, quick: bool) -> DataSet:
 
 
 MECH467_FIELDS = ('time', 'CH1in', 'CH1out', 'CH1sig')
-MECH467_READING = ['--column', 't=time', '--column', 'current=CH1sig', '--column',
-                   'position=CH1out', '--position-counts-per-rev', f'{MECH467_PITCH_MM:g}']
+#: The lab's sample period [s] (2 kHz); every file repeats its first time stamp.
+MECH467_PERIOD_S = 0.0005
+#: The struct fields as columns of the original .mat file.
+MECH467_STRUCT = ['--column', 't=output.time', '--column', 'current=output.CH1sig', '--column',
+                  'position=output.CH1out', '--position-counts-per-rev', f'{MECH467_PITCH_MM:g}']
+#: What the refusal of the repeated stamp tells a user to add (the time column is then unused).
+MECH467_READING = MECH467_STRUCT + ['--sample-period', f'{MECH467_PERIOD_S:g}']
 
 
-def mech467_csv(mat_path: str, csv_path: str, drop_repeated: bool = True) -> np.ndarray:
-    """
-    Write the struct ``output`` of a lab file as a CSV (its fields as columns).
-
-    The hand work a user has to do: the reader takes no struct fields, and every file repeats
-    its first timestamp (``drop_repeated`` removes the repeated sample).  Returns the columns.
-    """
+def mech467_columns(mat_path: str) -> np.ndarray:
+    """Return the fields of the struct ``output`` of a lab file as columns (as recorded)."""
     from scipy.io import loadmat
     struct = loadmat(mat_path)['output'][0, 0]
-    columns = np.column_stack([np.ravel(struct[name]).astype(float)
-                               for name in MECH467_FIELDS])
-    if drop_repeated:
-        keep = np.concatenate([[True], np.diff(columns[:, 0]) > 0])
-        columns = columns[keep]
-    os.makedirs(os.path.dirname(csv_path), exist_ok=True)
-    np.savetxt(csv_path, columns, delimiter=',', header=','.join(MECH467_FIELDS),
-               comments='', fmt='%.12g')
-    return columns
+    return np.column_stack([np.ravel(struct[name]).astype(float) for name in MECH467_FIELDS])
 
 
-def _mech467_records(repo: Repository, cache: str, parts: dict[str, list[str]]) -> dict:
-    """Convert the chosen files of each part to CSV; the peer's arrays in SI at the motor."""
+def _mech467_records(repo: Repository, parts: dict[str, list[str]]) -> dict:
+    """Return the original .mat files of each part, with the peer's arrays (SI, motor side)."""
     records = {}
     scale = 2.0 * math.pi / MECH467_PITCH_MM
     for part, stems in parts.items():
         for stem in stems:
-            name = f'lab1/Group2/Part_{part}/{stem}.mat'
-            csv_path = os.path.join(cache, 'mech467_csv', f'Part_{part}', f'{stem}.csv')
-            cols = mech467_csv(repo.local(name), csv_path)
+            path = repo.local(f'lab1/Group2/Part_{part}/{stem}.mat')
+            cols = mech467_columns(path)
+            # The tool reads the samples on the grid k T (--sample-period); so does the peer.
+            t = MECH467_PERIOD_S * np.arange(cols.shape[0])
             position = scale * cols[:, 2]
             key = f'{part}/{stem}'
-            records[key] = Rec(key, csv_path, direction_of(position, True), cols[:, 0],
-                               MECH467_K * MECH467_GAIN * cols[:, 3], position, converted=True)
+            records[key] = Rec(key, path, direction_of(position, True), t,
+                               MECH467_K * MECH467_GAIN * cols[:, 3], position)
     return records
 
 
@@ -303,20 +299,21 @@ def _mech467_jobs(stems: dict[str, list[str]], quick: bool) -> list[Job]:
 
 def _mech467_findings(repo: Repository, cache: str, stems: dict[str, list[str]],
                       options: list[str]) -> list[dict[str, Any]]:
-    """Try the first file of each part as a user would: the .mat, then the plain CSV."""
+    """
+    Read the first file of each part as a user would; return the attempts.
+
+    The .mat with its struct fields, then with what the refusal says (``--sample-period``);
+    the second is what every row uses.
+    """
     findings = []
-    struct = ['--column', 't=output.time', '--column', 'current=output.CH1sig', '--column',
-              'position=output.CH1out'] + MECH467_READING[6:]
     for part, names in stems.items():
         if not names:
             continue
         name = f'lab1/Group2/Part_{part}/{names[0]}.mat'
-        plain = os.path.join(cache, 'mech467_plain', f'{part}_{names[0]}.csv')
-        mech467_csv(repo.local(name), plain, drop_repeated=False)
-        for label, path, reading in (('original .mat, struct fields', repo.local(name), struct),
-                                     ('CSV of the struct fields, as recorded', plain,
-                                      MECH467_READING)):
-            run = run_cli(['identify', path, *reading, *options, '--json',
+        for label, reading in (('original .mat, struct fields', MECH467_STRUCT),
+                               ('original .mat, struct fields, as the refusal tells',
+                                MECH467_READING)):
+            run = run_cli(['identify', repo.local(name), *reading, *options, '--json',
                            os.path.join(cache, 'finding.json')])
             findings.append({'data': 'MECH 467', 'file': f'Part_{part}/{names[0]}.mat',
                              'attempt': f'{label}: ' + ' '.join(reading),
@@ -325,27 +322,26 @@ def _mech467_findings(repo: Repository, cache: str, stems: dict[str, list[str]],
 
 
 def mech467_set(path: str, cache: str, quick: bool) -> DataSet:
-    """Return the UBC MECH 467 ball-screw lab, Group 2 (CSVs converted from the .mat files)."""
+    """Return the UBC MECH 467 ball-screw lab, Group 2 (the original .mat files)."""
     repo = Repository(path, MECH467_COMMIT, os.path.join(cache, 'mech467'))
     stems = _mech467_stems(repo, quick)
-    records = _mech467_records(repo, cache, stems)
+    records = _mech467_records(repo, stems)
     k = MECH467_K * MECH467_GAIN
     options = ['--torque-constant', f'{k:.6g}']
     note = (f'github brucecui97/mech467 at {repo.revision()}, `lab1/Group2/Part_{{A,B,C}}/'
             '*.mat`: 2 kHz, struct `output` with `time`, `CH1sig` (the commanded current in V, '
             f'amplifier {MECH467_GAIN} A/V), `CH1out` (table position, mm), `CH1in` (the '
-            'reference).  Torque constant 0.72 N m/A times the amplifier gain: '
+            'reference).  Every file repeats its first time stamp: the tool refuses it and '
+            'names `--sample-period`, which every row gives '
+            f'(`--sample-period {MECH467_PERIOD_S:g}`, the time column is then not used).  '
+            'Torque constant 0.72 N m/A times the amplifier gain: '
             f'`--torque-constant {k:.6g}` with the command in V as the current (no current-gain '
             'option); the screw pitch 20 mm/rev as `--position-counts-per-rev 20` (mm counted '
             '20 per revolution; `--position-unit` has no mm, and `m` is kept as metres), so J '
             'is at the motor shaft.  References: lab manual J about 7e-4 kg m^2, the Coulomb '
             'friction of the group about 0.22 N m.  Every record moves both ways (no direction '
-            'pairs); Part B is the validation record of the Part C fits.  Every row uses the '
-            'converted CSV (marked c).')
+            'pairs); Part B is the validation record of the Part C fits.')
     findings = _mech467_findings(repo, cache, stems, options)
-    findings.append({'data': 'MECH 467', 'file': 'every file', 'attempt': 'CSV of the struct '
-                     'fields without the repeated first sample: ' + ' '.join(MECH467_READING),
-                     'exit': 0, 'message': 'used for every MECH 467 row (c)'})
     return DataSet('mech467', 'UBC MECH 467 ball screw', records, MECH467_READING, k,
                    'position', MECH467_REFS, _mech467_jobs(stems, quick), note, findings)
 
@@ -399,19 +395,22 @@ def cli_module() -> str:
     return 'dcmotor_id.cli'
 
 
-def run_cli(args: list[str], timeout_s: float = 900.0) -> dict[str, Any]:
+def run_cli(args: list[str], timeout_s: float = 900.0,
+            module: Optional[str] = None) -> dict[str, Any]:
     """
     Run ``python -m dcmotor_id.cli ARGS`` from this checkout; return exit code and times.
 
     ``message`` is the error line of a refusal (exit code other than 0), else ''; ``wall``
-    and ``cpu`` are the process's wall-clock and CPU seconds (user + system).
+    and ``cpu`` are the process's wall-clock and CPU seconds (user + system).  ``module``
+    runs another module of the package instead (the set-up's warm-up).
     """
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [ROOT] + ([os.environ['PYTHONPATH']] if os.environ.get('PYTHONPATH') else [])))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     try:
-        done = subprocess.run([sys.executable, '-m', cli_module(), *args], cwd=ROOT, env=env,
+        done = subprocess.run([sys.executable, '-m', module or cli_module(), *args], cwd=ROOT,
+                              env=env,
                               capture_output=True, text=True, timeout=timeout_s)
         rc, stderr = done.returncode, done.stderr
     except subprocess.TimeoutExpired:
@@ -423,6 +422,13 @@ def run_cli(args: list[str], timeout_s: float = 900.0) -> dict[str, Any]:
     errors = [line for line in lines if 'error' in line.lower()]
     message = '' if rc == 0 else shorten((errors or lines or ['(no message)'])[-1])
     return {'rc': rc, 'message': message, 'wall': wall, 'cpu': cpu}
+
+
+def warm_up() -> dict[str, Any]:
+    """Run the set-up's warm-up (``make demo`` runs it at install); return its times."""
+    run = run_cli([], module='dcmotor_id.cli.warmup')
+    log(f'set-up warm-up: exit {run["rc"]} in {run["wall"]:.1f} s (CPU {run["cpu"]:.1f} s)')
+    return run
 
 
 def validate_fits(ds: DataSet, model_json: str, names: list[str], work: str) -> dict:
@@ -677,9 +683,8 @@ PEER_HEADER = ('fit', 'J', 'b', 'Mc', 'T', 'fit % (fitted)', 'validate fit %', '
 
 
 def row_label(row: dict[str, Any]) -> str:
-    """Return the row's label, marked c when the tool read CSVs converted from the originals."""
-    converted = any(row['ds'].records[n].converted for n in row['job'].members)
-    return row['job'].label + (' (c)' if converted else '')
+    """Return the row's label."""
+    return row['job'].label
 
 
 def _mc_text(row: dict[str, Any], value: Optional[float], ref: Optional[float]) -> str:
@@ -954,8 +959,7 @@ LEGEND = (
     'process (imports included) as a user waits for it.  The peer: the plain scipy output-'
     'error fit on the same records (speed for HSM150, position for MECH 467 and EMPS), fit % '
     'on the fitted records, the same validation; *plausible*: J and b positive and within 2x '
-    'of the references (where known), fit >= 50 %.  (c): the tool read CSVs converted from '
-    'the original files (see "Reading the files as recorded").  z: |a - b| / sqrt(sa^2 + '
+    'of the references (where known), fit >= 50 %.  z: |a - b| / sqrt(sa^2 + '
     'sb^2) over the pairs of disjoint subsets, with the stated standard errors.')
 
 
@@ -1061,7 +1065,7 @@ def parse(argv: Optional[list[str]]) -> argparse.Namespace:
     parser.add_argument('--quick', action='store_true', help='a subset of the fits')
     parser.add_argument('--out', metavar='FILE.md', help='also write the report here')
     parser.add_argument('--label', default=DEFAULT_LABEL, help='what this run is, for the title')
-    parser.add_argument('--work', metavar='DIR', help='keep the JSON results and converted '
+    parser.add_argument('--work', metavar='DIR', help='keep the JSON results and extracted '
                         'files here (default: a temporary directory)')
     return parser.parse_args(argv)
 
@@ -1084,7 +1088,7 @@ def data_sets(args: argparse.Namespace, work: str) -> tuple[list[DataSet], list[
 
 
 def report(args: argparse.Namespace, sets: list[DataSet], rows: list[dict[str, Any]],
-           skipped: list[str], load: tuple[float, ...]) -> str:
+           skipped: list[str], load: tuple[float, ...], setup: dict[str, Any]) -> str:
     """Return the whole markdown report."""
     import numpy
     import scipy
@@ -1096,7 +1100,10 @@ def report(args: argparse.Namespace, sets: list[DataSet], rows: list[dict[str, A
              f'the start {", ".join(f"{v:.2f}" for v in load)}, at the end '
              f'{", ".join(f"{v:.2f}" for v in end)}  ',
              f'Run time: {time.perf_counter() - START:.0f} s wall clock, {cpu_seconds():.0f} s CPU'
-             + (' (--quick)' if args.quick else ''), '']
+             + (' (--quick)' if args.quick else '') + '  ',
+             f'Set-up before the first fit: `python -m dcmotor_id.cli.warmup` (as `make demo` '
+             f'installs), exit {setup["rc"]}, {setup["wall"]:.0f} s wall clock, '
+             f'{setup["cpu"]:.0f} s CPU (in no row)', '']
     lines += [f'- {text}' for text in skipped] + ([''] if skipped else [])
     lines += goal_lines(rows) + finding_lines(sets) + [LEGEND, '']
     for ds in sets:
@@ -1111,12 +1118,13 @@ def main(argv: Optional[list[str]] = None) -> int:
     work = args.work or tempfile.mkdtemp(prefix='bench_real_')
     try:
         sets, skipped = data_sets(args, work)
+        setup = warm_up()
         rows = []
         for ds in sets:
             for number, job in enumerate(ds.jobs, 1):
                 log(f'{ds.name} {number}/{len(ds.jobs)}: {job.label}')
                 rows.append(evaluate(ds, job, work))
-        text = report(args, sets, rows, skipped, load)
+        text = report(args, sets, rows, skipped, load, setup)
     finally:
         if not args.work:
             shutil.rmtree(work, ignore_errors=True)

@@ -478,6 +478,31 @@ def _brush_step(a, x, u_la, g1, drop_la, duration, friction_pos, friction_neg, n
 
 
 @njit(cache=True)
+def _slide_step(w, drive, decay, gain, friction_pos, friction_neg, new):
+    """
+    One sub-step of the shaft alone that keeps sliding one way; False when it does not.
+
+    ``decay`` and ``gain`` are ``exp(A h)`` and ``int_0^h exp(A s) ds`` of the sub-step:
+    :func:`_event_step`'s first sliding phase, which ends the sub-step when the speed keeps
+    its sign.  Otherwise (at rest, stuck, or reaching zero) the caller takes the event path.
+    """
+    if w > 0.0:
+        sign = 1
+    elif w < 0.0:
+        sign = -1
+    else:
+        sign = _slip_sign(drive, friction_pos, friction_neg)
+    if sign == 0:
+        return False
+    friction = friction_pos if sign > 0 else -friction_neg
+    w_end = w * decay + (drive - friction) * gain
+    if w_end * sign > 0.0:
+        new[0] = w_end
+        return True
+    return False
+
+
+@njit(cache=True)
 def effects_kernel(a0, n, forcing, coulomb, inertia, inductance, effects, x_start, theta0, dt,
                    oversample, t_start):
     """
@@ -518,6 +543,13 @@ def effects_kernel(a0, n, forcing, coulomb, inertia, inductance, effects, x_star
         states[1:, :] = np.nan
         angles[1:] = np.nan
         return states, angles
+    # The shaft alone (n == 1) has a constant A: a sub-step that slides without reaching zero
+    # is _flow_state's solution with these factors, computed once (the same operations, so the
+    # same values); other sub-steps take _event_step.
+    rate = -a0[0, 0]
+    rt = rate * step
+    decay = math.exp(-rt)
+    gain = -math.expm1(-rt) / rate if abs(rt) > 1e-12 else step * (1.0 - 0.5 * rt)
     for k in range(n_samples):
         for sub in range(oversample):
             w = x[n - 1]
@@ -544,7 +576,8 @@ def effects_kernel(a0, n, forcing, coulomb, inertia, inductance, effects, x_star
             else:
                 g[0] = forcing[k, 0] + torque / inertia
                 g[1] = 0.0
-                _event_step(a, n, x, g, step, f_pos, f_neg, new)
+                if not _slide_step(x[0], g[0], decay, gain, f_pos, f_neg, new):
+                    _event_step(a, n, x, g, step, f_pos, f_neg, new)
             theta += 0.5 * (w + new[n - 1]) * step
             for column in range(n):
                 x[column] = new[column]

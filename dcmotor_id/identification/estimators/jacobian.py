@@ -64,3 +64,53 @@ def jacobian(function: Callable[[np.ndarray], ArrayLike], x: ArrayLike, steps: A
         width = up[column] - down[column]
         columns.append((np.asarray(function(up)) - np.asarray(function(down))) / width)
     return np.column_stack(columns) if columns else np.zeros((0, 0))
+
+
+def record_sparse_jacobian(residual: Callable[..., list], z: np.ndarray, steps: np.ndarray,
+                           parts: list, n_shared: int) -> np.ndarray:
+    """
+    Forward-difference Jacobian of a residual stacked record by record, initial states sparse.
+
+    The first ``n_shared`` elements of ``z`` move every record's part; the rest are the
+    records' own initial states, an equal number per record in record order, and each moves
+    its record's part alone.  Their columns are the same forward differences as
+    :func:`jacobian`'s (the other records' parts would be differences of identical
+    simulations, exactly zero), for one record's simulation instead of all of them.
+
+    Parameters
+    ----------
+    residual : callable
+        ``residual(z, only=None)``: the list of the records' parts; with ``only`` (a set of
+        record indices) the parts of the other records are None and not computed.
+    z : numpy.ndarray
+        The point (1-D).
+    steps : numpy.ndarray
+        Step of every element of ``z`` (> 0).
+    parts : list of numpy.ndarray
+        ``residual(z)``.
+    n_shared : int
+        Elements of ``z`` shared by all records.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(sum of the parts' lengths, len(z))``.
+
+    """
+    z = np.asarray(z, dtype=float)
+    lengths = [part.shape[0] for part in parts]
+    edges = np.concatenate([[0], np.cumsum(lengths)])
+    f0 = np.concatenate(parts)
+    per_record = (z.shape[0] - n_shared) // max(len(parts), 1)
+    jac = np.zeros((f0.shape[0], z.shape[0]))
+    for column in range(z.shape[0]):
+        up = z.copy()
+        up[column] += steps[column]
+        if column < n_shared:
+            jac[:, column] = (np.concatenate(residual(up)) - f0) / steps[column]
+            continue
+        index = (column - n_shared) // per_record
+        rows = slice(edges[index], edges[index + 1])
+        moved = residual(up, {index})[index]
+        jac[rows, column] = (moved - parts[index]) / steps[column]
+    return jac

@@ -35,7 +35,7 @@ from dcmotor_id.core.model import (derived_stderr, derived_values, make_admissib
 from dcmotor_id.identification.criterion import (AR_PASSES, ar_settled, fitted_outputs,
                                                  integrate_speed, position_ar, whiten)
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, StateTerm
-from dcmotor_id.identification.estimators.jacobian import jacobian
+from dcmotor_id.identification.estimators.jacobian import record_sparse_jacobian
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.uncertainty import block_scores
@@ -508,19 +508,27 @@ class RefinedEstimator:
             chain[:n_base] = theta[:n_base]
             return chain
 
-        def residual(z, noise):
+        def residual(z, noise, only=None):
+            # ``only``: the records simulated (the others' parts are None), for the columns
+            # of an initial state, which move their own record's residual alone.
             values, states, _ = unpack(z)
             parts = []
             for index in range(len(records)):
+                if only is not None and index not in only:
+                    parts.append(None)
+                    continue
                 out = model.simulate(values, index, states[index])
+                errors = []
                 for channel in model.outputs:
                     error = out[channel] - model.measured(index, channel)
                     if channel == 'position':
                         error = whiten(error, model.position_ar[index])
-                    parts.append(error / noise[index][channel])
+                    errors.append(error / noise[index][channel])
+                parts.append(np.concatenate(errors))
             if self.progress is not None:
-                self.progress(cost=float(sum(part @ part for part in parts)))
-            return np.concatenate(parts)
+                self.progress(cost=float(sum(part @ part for part in parts
+                                             if part is not None)))
+            return parts
 
         def evaluate(z, noise, with_sens):
             values, states, theta = unpack(z)
@@ -535,8 +543,8 @@ class RefinedEstimator:
                             # The numeric pass reports every simulation (in ``residual``).
                             self.progress(cost=float(result.cost))
                         return result
-                    return _numeric_pass(lambda point: residual(point, noise), z, model,
-                                         noise, with_sens)
+                    return _numeric_pass(lambda point, only=None: residual(point, noise, only),
+                                         z, model, noise, with_sens, len(names))
             except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
                 # A parameter ran to zero or infinity on the way (the simulation kernels raise
                 # on a division by zero): the data do not fit this model.
@@ -811,21 +819,25 @@ def _kept_columns(equations, n_records, n_columns):
                                            for state in range(n_state) if free[state]])
 
 
-def _numeric_pass(residual, z, model, noise, with_sens):
+def _numeric_pass(residual, z, model, noise, with_sens, n_shared):
     """
     Accumulate the same sums by forward differences of the simulation (for other models).
 
     Effects simulated on sub-steps (held over half-samples) and other model variants: the
     residual and its Jacobian are materialised, as a least-squares solver would.
+    ``residual(z, only)`` returns the records' parts (None for records not in ``only``);
+    the first ``n_shared`` columns of ``z`` are shared, the rest are the records' initial
+    states in record order (:func:`record_sparse_jacobian`).
     """
-    r = residual(z)
+    parts = residual(z)
+    r = np.concatenate(parts)
     cost = float(r @ r)
     if not np.isfinite(cost):
         return _Pass(np.inf)
     jac = None
     if with_sens:
         steps = np.sqrt(np.finfo(float).eps) * np.maximum(np.abs(z), 1.0)
-        jac = jacobian(residual, z, steps, central=False, f0=r)
+        jac = record_sparse_jacobian(residual, z, steps, parts, n_shared)
     sums = []
     position = 0
     for index, rec in enumerate(model.records):
