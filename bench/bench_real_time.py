@@ -91,7 +91,9 @@ def cells(result: dict[str, Any]) -> tuple[str, str, str]:
     data = result['json']
     if data is None:
         return f'{result["wall"]:.1f} ({result["cpu"]:.1f})', f'exit {result["rc"]}', '-'
-    ran_out = any('time budget' in text for text in data.get('warnings', []))
+    # the warning, or the discovery loop's reason (it keeps its best structure so far)
+    ran_out = any('time budget' in text for text in data.get('warnings', [])) or \
+        'time budget' in str((data.get('discovery') or {}).get('reason', ''))
     refs = bench_real.HSM150_REFS
     values = data['parameters']
     jb = (f'{100 * (values["J"] / refs["J"] - 1):+.0f} / '
@@ -130,6 +132,8 @@ def parse(argv: Optional[list[str]]) -> argparse.Namespace:
     parser.add_argument('--before', metavar='REV', required=True,
                         help='the commit to pair against')
     parser.add_argument('--out', metavar='FILE.md', help='also write the report here')
+    parser.add_argument('--fits', nargs='+', metavar='LABEL',
+                        help="only these fits (labels as in the table, e.g. 'all 12')")
     return parser.parse_args(argv)
 
 
@@ -144,6 +148,8 @@ def measure(args: argparse.Namespace, work: str) -> tuple[list[dict[str, Any]], 
         args.hsm150, bench_real.HSM150_COMMIT, os.path.join(work, 'HSM150-data')))
     rows = []
     for label, names in jobs(list(records)):
+        if args.fits and label not in args.fits:
+            continue
         row: dict[str, Any] = {'label': label,
                                'samples': sum(len(records[n].t) for n in names)}
         for side, tree in trees.items():
@@ -167,7 +173,9 @@ def main(argv: Optional[list[str]] = None) -> int:
     over = [row['label'] for row in rows if row['after']['wall'] > 30.0]
     lines = ['# Run time of identify on the HSM150 records, paired (issue 19)', '',
              f'Command: `.venv/bin/python bench/bench_real_time.py --hsm150 HSM150-data '
-             f'--before {args.before}' + (f' --out {args.out}`  ' if args.out else '`  '),
+             f'--before {args.before}' + (f' --out {args.out}' if args.out else '')
+             + (' --fits ' + ' '.join(f"'{label}'" for label in args.fits)
+                if args.fits else '') + '`  ',
              f'Before: commit {commit}; after: commit {bench_real.code_version()}  ',
              f'Machine: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}; load average '
              f'(1, 5, 15 min) at the start {", ".join(f"{v:.2f}" for v in load)}, at the end '
@@ -176,8 +184,9 @@ def main(argv: Optional[list[str]] = None) -> int:
              + ', '.join(f'{side} {s["wall"]:.0f} s wall ({s["cpu"]:.0f} s CPU, exit {s["rc"]})'
                          for side, s in setup.items()), '',
              'Each fit ran before, then after, as separate processes (imports included). '
-             '*budget ran out*: the result carries the warning that the time budget (120 s of '
-             'wall clock) ran out, so that run stopped early and its result differs. '
+             '*budget ran out*: the time budget (120 s of wall clock) ran out (a warning, or the '
+             'discovery loop kept its best structure so far), so that run did less work and '
+             'its result differs. '
              '*identical results*: parameters, standard errors, effects and initial states '
              'equal.', '']
     lines += table(rows)
