@@ -123,27 +123,24 @@ def identify(records: Sequence[Record], method: str = 'refined',
     torque_constant : float, optional
         Mechanical-only mode with this torque constant [N m/A].
     discover : bool
-        Run the residual analysis and discovery loop (:mod:`dcmotor_id.identification.discovery`)
-        after an estimator that :func:`supports_discovery` (the refined method).
+        Run the discovery loop (:mod:`~dcmotor_id.identification.discovery`) after an
+        estimator that :func:`supports_discovery`.
     estimator : object, optional
-        An estimator instance to use instead of the one named by ``method``.
+        An estimator instance instead of the one named by ``method``.
     vocabulary : sequence of Effect classes, optional
         Candidates of the loop (default :data:`dcmotor_id.identification.effects.VOCABULARY`).
     max_time_s : float or None
-        Time budget [s]: past it the best result so far is returned with a warning (ignored
-        when ``progress`` is given: its deadline counts).
+        Time budget [s], then the best result so far with a warning (or ``progress``'s).
     progress : Progress, optional
-        Progress report and deadline (:mod:`dcmotor_id.core.progress`); default silent.
+        Progress report and deadline (:mod:`dcmotor_id.core.progress`).
     initial_state : str
         ``estimate`` (each record's initial state is fitted) or ``measured`` (first samples).
     criterion : str
         ``auto`` (default), ``speed``, ``position`` or ``both``: the channels the fit compares
-        (:func:`~dcmotor_id.identification.criterion.resolve_criterion`; ``auto`` compares the
-        position when the speed was derived from it); the JSON key ``criterion`` has the one used.
+        (:func:`~dcmotor_id.identification.criterion.resolve_criterion`; JSON ``criterion``).
     structure_bootstrap : int
-        Noise resamples over which the discovery is rerun so that ``stderr`` covers the choice
-        of structure (:mod:`dcmotor_id.identification.structure_uncertainty`; JSON key
-        ``structure_uncertainty``); 0 (default): not run.
+        Noise resamples rerunning discovery so that ``stderr`` covers the structure choice
+        (:mod:`~dcmotor_id.identification.structure_uncertainty`); 0 (default): not run.
 
     Returns
     -------
@@ -166,9 +163,14 @@ def identify(records: Sequence[Record], method: str = 'refined',
                             estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,
                             progress=progress, initial_state=initial_state, criterion=criterion)
     progress = progress if progress is not None else Progress(max_time_s)
+    return _identify_on(criterion, (records, method, torque_constant, discover, estimator,
+                                    vocabulary, progress, initial_state))
+
+
+def _identify_on(criterion: str, arguments: tuple) -> IdentificationResult:
+    """Run the pipeline on the resolved criterion; ``auto`` falls back to the speed."""
+    records, method, estimator = arguments[0], arguments[1], arguments[4]
     resolved = _criterion_of(records, criterion, method, estimator)
-    arguments = (records, method, torque_constant, discover, estimator, vocabulary, progress,
-                 initial_state)
     try:
         return _identify(*arguments, resolved)
     except (FitError, NotIdentifiableError) as error:
