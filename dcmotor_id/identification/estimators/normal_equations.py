@@ -96,6 +96,8 @@ class NormalEquations:
         # Columns of a record's initial state: the ODE's, then the initial position when the
         # position is compared (its sensitivities follow the kernel's, :meth:`_with_position`).
         self.n_state = len(getattr(model, 'states', model.outputs))
+        #: Which initial states the fit estimates (set by the fit; None: all of them).
+        self.free_states: list[bool] | None = None
         self._regressors = [self._stack_regressors(index) for index in range(len(model.records))]
 
     @staticmethod
