@@ -960,23 +960,11 @@ def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gto
     mu = 1e-3 if damping is None else damping
     cheap = False
     while nfev < max(int(max_evaluations), 2):
-        hessian, gradient, cost = current.hessian, current.gradient, current.cost
-        diagonal = np.diag(hessian)
-        scale = np.maximum(scale, diagonal)
-        weights = np.where(scale > 0.0, scale, 1.0)
-        column_norms = np.sqrt(np.maximum(diagonal, 0.0))
-        if cost <= 0.0:
+        cost = current.cost
+        scale = np.maximum(scale, np.diag(current.hessian))
+        if _stationary(current, gtol):
             return z, current, nfev, True, mu
-        cosines = np.abs(gradient) / np.where(column_norms > 0.0, column_norms, np.inf)
-        if float(np.max(cosines, initial=0.0)) / np.sqrt(cost) <= gtol:
-            return z, current, nfev, True, mu
-        try:
-            step = np.linalg.solve(hessian + mu * np.diag(weights), -gradient)
-        except np.linalg.LinAlgError:
-            step = np.linalg.lstsq(hessian + mu * np.diag(weights), -gradient, rcond=None)[0]
-        step_norm = float(np.sqrt(np.sum(weights * step ** 2)))
-        point_norm = float(np.sqrt(np.sum(weights * z ** 2)))
-        predicted = -(2.0 * gradient @ step + step @ hessian @ step)
+        step, predicted, small = _damped_step(current, z, mu, scale, xtol)
         trial = evaluate(z + step, not cheap)
         nfev += 1
         actual = cost - trial.cost if np.isfinite(trial.cost) else -np.inf
@@ -989,12 +977,45 @@ def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gto
             current = trial
             cheap = False
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3)
-            if (abs(actual) <= ftol * cost and predicted <= ftol * cost) \
-                    or step_norm <= xtol * point_norm:
+            if (abs(actual) <= ftol * cost and predicted <= ftol * cost) or small:
                 return z, current, nfev, True, mu
         else:
             cheap = True
             mu *= 10.0
-            if step_norm <= xtol * point_norm or mu > 1e16:
+            if small or mu > 1e16:
                 return z, current, nfev, True, mu
     return z, current, nfev, False, mu
+
+
+def _stationary(current, gtol):
+    """
+    Whether the pass ``current`` is at a stationary point of the cost (MINPACK's ``gtol``).
+
+    The cost is zero, or the largest cosine between the residual and a column of the
+    Jacobian (from ``J^T r`` and the diagonal of ``J^T J``) is at most ``gtol``.
+    """
+    hessian, gradient, cost = current.hessian, current.gradient, current.cost
+    column_norms = np.sqrt(np.maximum(np.diag(hessian), 0.0))
+    if cost <= 0.0:
+        return True
+    cosines = np.abs(gradient) / np.where(column_norms > 0.0, column_norms, np.inf)
+    return float(np.max(cosines, initial=0.0)) / np.sqrt(cost) <= gtol
+
+
+def _damped_step(current, z, mu, scale, xtol):
+    """
+    Solve ``(H + mu D) dz = -g`` at the pass ``current``; ``D``: ``scale`` (1 where zero).
+
+    Returns the step, the cost reduction its quadratic model predicts, and whether the step
+    scaled by ``D`` is below ``xtol`` of the point's (MINPACK's ``xtol``).
+    """
+    hessian, gradient = current.hessian, current.gradient
+    weights = np.where(scale > 0.0, scale, 1.0)
+    try:
+        step = np.linalg.solve(hessian + mu * np.diag(weights), -gradient)
+    except np.linalg.LinAlgError:
+        step = np.linalg.lstsq(hessian + mu * np.diag(weights), -gradient, rcond=None)[0]
+    step_norm = float(np.sqrt(np.sum(weights * step ** 2)))
+    point_norm = float(np.sqrt(np.sum(weights * z ** 2)))
+    predicted = -(2.0 * gradient @ step + step @ hessian @ step)
+    return step, predicted, step_norm <= xtol * point_norm
