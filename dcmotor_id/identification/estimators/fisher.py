@@ -26,7 +26,7 @@ mechanical-only mode the measured current is the model's input and is taken as n
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -96,17 +96,40 @@ def output_sensitivities(model: OutputErrorModel, values: Mapping[str, float],
                    for channel in model.outputs]
     result = [{channel: np.zeros((len(rec), len(labels))) for channel in model.outputs}
               for rec in model.records]
+    by_parameters = _parameter_jacobians(model, values, names, states, relative_step)
+    for index, matrix in enumerate(by_parameters):
+        _store(model, result, index, slice(0, n_params), matrix)
+    if include_initial_states:
+        for index, state in enumerate(states):
+            column = n_params + index * n_out
+            _store(model, result, index, slice(column, column + n_out),
+                   _state_jacobian(model, values, index, state, relative_step))
+    return labels, result
 
-    def outputs(index: int, vals: Mapping[str, float], state: np.ndarray) -> np.ndarray:
-        out = model.simulate(vals, index, state)
-        return np.concatenate([out[channel] for channel in model.outputs])
 
-    def store(index: int, columns: slice, matrix: np.ndarray) -> None:
-        length = len(model.records[index])
-        for position, channel in enumerate(model.outputs):
-            result[index][channel][:, columns] = matrix[position * length:
-                                                        (position + 1) * length]
+def _simulated(model: OutputErrorModel, index: int, values: Mapping[str, float],
+               state: np.ndarray) -> np.ndarray:
+    """Simulate record ``index`` from ``state``; return its outputs, channels concatenated."""
+    out = model.simulate(values, index, state)
+    return np.concatenate([out[channel] for channel in model.outputs])
 
+
+def _store(model: OutputErrorModel, result: list[dict[str, np.ndarray]], index: int,
+           columns: slice, matrix: np.ndarray) -> None:
+    """Write the channels' rows of ``matrix`` (concatenated) into record ``index``'s columns."""
+    length = len(model.records[index])
+    for position, channel in enumerate(model.outputs):
+        result[index][channel][:, columns] = matrix[position * length:(position + 1) * length]
+
+
+def _parameter_jacobians(model: OutputErrorModel, values: Mapping[str, float],
+                         names: list[str], states: list[np.ndarray],
+                         relative_step: float) -> Iterator[np.ndarray]:
+    """
+    Yield every record's central-difference Jacobian of its outputs by the parameters.
+
+    The step is relative to each parameter's magnitude (at least a term's typical scale).
+    """
     typical = {term.name: term.scale for term in model.terms}
     point = np.array([float(values[name]) for name in names])
     steps = relative_step * np.maximum(
@@ -116,20 +139,24 @@ def output_sensitivities(model: OutputErrorModel, values: Mapping[str, float],
     for index, state in enumerate(states):
         def by_parameters(theta: np.ndarray, index: int = index,
                           state: np.ndarray = state) -> np.ndarray:
-            return outputs(index, {**values, **dict(zip(names, theta))}, state)
-        store(index, slice(0, n_params), jacobian(by_parameters, point, steps, lower=lower))
-    if include_initial_states:
-        for index, state in enumerate(states):
-            magnitudes = [max(abs(state[position]),
-                              float(np.std(getattr(model.records[index], channel))), 1e-12)
-                          for position, channel in enumerate(model.outputs)]
+            return _simulated(model, index, {**values, **dict(zip(names, theta))}, state)
+        yield jacobian(by_parameters, point, steps, lower=lower)
 
-            def by_state(start: np.ndarray, index: int = index) -> np.ndarray:
-                return outputs(index, values, start)
-            column = n_params + index * n_out
-            store(index, slice(column, column + n_out),
-                  jacobian(by_state, state, relative_step * np.array(magnitudes)))
-    return labels, result
+
+def _state_jacobian(model: OutputErrorModel, values: Mapping[str, float], index: int,
+                    state: np.ndarray, relative_step: float) -> np.ndarray:
+    """
+    Return record ``index``'s central-difference Jacobian of its outputs by its initial state.
+
+    The step is relative to the state's magnitude or the channel's spread, the larger.
+    """
+    magnitudes = [max(abs(state[position]),
+                      float(np.std(getattr(model.records[index], channel))), 1e-12)
+                  for position, channel in enumerate(model.outputs)]
+
+    def by_state(start: np.ndarray) -> np.ndarray:
+        return _simulated(model, index, values, start)
+    return jacobian(by_state, state, relative_step * np.array(magnitudes))
 
 
 def fisher_information(model: OutputErrorModel, values: Mapping[str, float],

@@ -93,9 +93,12 @@ class NormalEquations:
         self.model = model
         self.names = list(model.base_names) + [term.name for term in model.terms]
         self.n_shared = len(self.names)
+        self._column = {name: position for position, name in enumerate(self.names)}
         # Columns of a record's initial state: the ODE's, then the initial position when the
         # position is compared (its sensitivities follow the kernel's, :meth:`_with_position`).
         self.n_state = len(getattr(model, 'states', model.outputs))
+        #: Which initial states the fit estimates (set by the fit; None: all of them).
+        self.free_states: list[bool] | None = None
         self._regressors = [self._stack_regressors(index) for index in range(len(model.records))]
 
     @staticmethod
@@ -205,15 +208,37 @@ class NormalEquations:
         """Run the kernel (the ODE's states, weighted by ``inverse_sigma``)."""
         model = self.model
         rec = model.records[index]
-        n = len(getattr(model, 'dynamic', model.outputs))
+        dynamic = getattr(model, 'dynamic', model.outputs)
+        n = len(dynamic)
         m = self.n_shared + n
-        dt = float(model.sample_periods_s[index])
-        columns = {name: position for position, name in enumerate(self.names)}
+        a, da, forcing, gscale = self._system(values, index, n, m)
+        s_start = np.zeros((n, m))
+        for c in range(n):
+            s_start[c, self.n_shared + c] = 1.0
+        measured = [np.ascontiguousarray(getattr(rec, channel), dtype=float)
+                    for channel in dynamic]
+        edges = block_edges(len(rec))
+        trajectory = np.empty((len(rec), n, m + 1)) if store else _NO_TRAJECTORY
+        hessian, gradient, cost, sums, blocks = kernel('normal_kernel')(
+            np.ascontiguousarray(a), da, forcing, gscale, *self._linear_terms(values, index, n),
+            *self._friction(values, m), np.asarray(initial_state, dtype=float), s_start,
+            float(model.sample_periods_s[index]), measured[0], measured[-1],
+            np.asarray(inverse_sigma, dtype=float), bool(with_sens), edges, trajectory,
+            bool(store))
+        return RecordSums((hessian, gradient, blocks), float(cost), sums, edges,
+                          trajectory if store else None)
+
+    def _system(self, values, index, n, m):
+        """
+        Return the ODE of record ``index``: ``A``, ``dA / d theta``, forcing, its derivatives.
+
+        ``gscale[j, c]`` is the derivative of the forcing of state ``c`` with respect to
+        parameter ``j`` divided by that forcing (a signal divided by La or J).
+        """
+        model, columns = self.model, self._column
         da = np.zeros((m, n, n))
         gscale = np.zeros((m, n))
-        inertia, viscous, coulomb = values['J'], values['b'], values['Mc']
-        delta = sum(values[term.name] for term in model.terms if isinstance(term, StateTerm))
-        forcing_terms, regs, output_terms, oregs = self._regressors[index]
+        inertia, viscous = values['J'], values['b']
         torque = model._channel(values, 'torque', index)
         if model.mechanical_only:
             a = np.array([[-viscous / inertia]])
@@ -224,28 +249,35 @@ class NormalEquations:
                 drive = drive + torque
             forcing = np.ascontiguousarray((drive / inertia)[:, None])
             gscale[columns['J'], 0] = -1.0 / inertia
+            return a, da, forcing, gscale
+        ra, la, cphi = values['Ra'], values['La'], values['CPhi']
+        a = np.array([[-ra / la, -cphi / la], [cphi / inertia, -viscous / inertia]])
+        da[columns['Ra'], 0, 0] = -1.0 / la
+        da[columns['La'], 0, 0] = ra / la ** 2
+        da[columns['La'], 0, 1] = cphi / la ** 2
+        da[columns['CPhi'], 0, 1] = -1.0 / la
+        da[columns['CPhi'], 1, 0] = 1.0 / inertia
+        da[columns['J'], 1, 0] = -cphi / inertia ** 2
+        da[columns['J'], 1, 1] = viscous / inertia ** 2
+        da[columns['b'], 1, 1] = -1.0 / inertia
+        forcing = np.empty((len(model.records[index]), 2))
+        voltage = model._channel(values, 'voltage', index)
+        np.divide(model.records[index].voltage, la, out=forcing[:, 0])
+        if voltage is not None:
+            forcing[:, 0] += voltage / la
+        if torque is not None:
+            np.divide(torque, inertia, out=forcing[:, 1])
         else:
-            ra, la, cphi = values['Ra'], values['La'], values['CPhi']
-            a = np.array([[-ra / la, -cphi / la], [cphi / inertia, -viscous / inertia]])
-            da[columns['Ra'], 0, 0] = -1.0 / la
-            da[columns['La'], 0, 0] = ra / la ** 2
-            da[columns['La'], 0, 1] = cphi / la ** 2
-            da[columns['CPhi'], 0, 1] = -1.0 / la
-            da[columns['CPhi'], 1, 0] = 1.0 / inertia
-            da[columns['J'], 1, 0] = -cphi / inertia ** 2
-            da[columns['J'], 1, 1] = viscous / inertia ** 2
-            da[columns['b'], 1, 1] = -1.0 / inertia
-            forcing = np.empty((len(rec), 2))
-            voltage = model._channel(values, 'voltage', index)
-            np.divide(rec.voltage, la, out=forcing[:, 0])
-            if voltage is not None:
-                forcing[:, 0] += voltage / la
-            if torque is not None:
-                np.divide(torque, inertia, out=forcing[:, 1])
-            else:
-                forcing[:, 1] = 0.0
-            gscale[columns['La'], 0] = -1.0 / la
-            gscale[columns['J'], 1] = -1.0 / inertia
+            forcing[:, 1] = 0.0
+        gscale[columns['La'], 0] = -1.0 / la
+        gscale[columns['J'], 1] = -1.0 / inertia
+        return a, da, forcing, gscale
+
+    def _linear_terms(self, values, index, n):
+        """Return the kernel's arrays of the linear terms of record ``index`` (in its order)."""
+        model = self.model
+        forcing_terms, regs, output_terms, oregs = self._regressors[index]
+        inertia = values['J']
         reg_col = np.array([column for _, column, _ in forcing_terms], dtype=np.int64)
         reg_row = np.array([0 if term.channel == 'voltage' else n - 1
                             for term, _, _ in forcing_terms], dtype=np.int64)
@@ -256,6 +288,17 @@ class NormalEquations:
         oreg_chan = np.array([states.index(term.channel) for term, _, _ in output_terms],
                              dtype=np.int64)
         oreg_value = np.array([values[term.name] for term, _, _ in output_terms], dtype=float)
+        return regs, reg_col, reg_row, reg_factor, oregs, oreg_col, oreg_chan, oreg_value
+
+    def _friction(self, values, m):
+        """
+        Return the Coulomb friction levels over J (positive, negative speed) and derivatives.
+
+        The levels are ``Mc +- delta`` (delta: the state terms' asymmetry), clipped at zero.
+        """
+        model, columns = self.model, self._column
+        inertia, coulomb = values['J'], values['Mc']
+        delta = sum(values[term.name] for term in model.terms if isinstance(term, StateTerm))
         raw_pos, raw_neg = coulomb + delta, coulomb - delta
         friction_pos = max(raw_pos, 0.0) / inertia
         friction_neg = max(raw_neg, 0.0) / inertia
@@ -272,21 +315,7 @@ class NormalEquations:
                 column = len(model.base_names) + position
                 dfric_pos[column] = 1.0 / inertia if raw_pos > 0.0 else 0.0
                 dfric_neg[column] = -1.0 / inertia if raw_neg > 0.0 else 0.0
-        s_start = np.zeros((n, m))
-        for c in range(n):
-            s_start[c, self.n_shared + c] = 1.0
-        measured = [np.ascontiguousarray(getattr(rec, channel), dtype=float)
-                    for channel in getattr(model, 'dynamic', model.outputs)]
-        edges = block_edges(len(rec))
-        trajectory = np.empty((len(rec), n, m + 1)) if store else _NO_TRAJECTORY
-        hessian, gradient, cost, sums, blocks = kernel('normal_kernel')(
-            np.ascontiguousarray(a), da, forcing, gscale, regs, reg_col, reg_row, reg_factor,
-            oregs, oreg_col, oreg_chan, oreg_value, friction_pos, friction_neg, dfric_pos,
-            dfric_neg, np.asarray(initial_state, dtype=float), s_start, dt, measured[0],
-            measured[-1], np.asarray(inverse_sigma, dtype=float), bool(with_sens), edges,
-            trajectory, bool(store))
-        return RecordSums((hessian, gradient, blocks), float(cost), sums, edges,
-                          trajectory if store else None)
+        return friction_pos, friction_neg, dfric_pos, dfric_neg
 
     def columns(self, index: int) -> list[int]:
         """Return the global columns of record ``index``: the shared ones, then its state's."""

@@ -353,6 +353,218 @@ class _Pass:
                          [(w / w_base) ** 2 for w, w_base in zip(new, base)], base)
 
 
+class _FitProblem:
+    """
+    One output-error fit: the model, the coordinates ``z`` it is solved in, and their passes.
+
+    Base parameters are fitted as logarithms (positive, relative steps); term coefficients
+    and the free initial states as multiples of their typical magnitude (``scales``).  Pinned
+    initial states (``initial_state='measured'``) stay at the records' first samples.
+
+    Parameters
+    ----------
+    model : OutputErrorModel
+        The model and its records.
+    start_base : dict
+        Start of the base parameters (:meth:`RefinedEstimator._start`).
+    initial_state : str
+        ``estimate`` or ``measured`` (:func:`free_states`).
+    warm_states : sequence, optional
+        Start of every record's initial state (used when there is one per record).
+    progress : callable, optional
+        Called with ``cost=`` at every evaluation.
+
+    """
+
+    def __init__(self, model: OutputErrorModel, start_base: Mapping[str, float],
+                 initial_state: str, warm_states: Sequence[Sequence[float]] | None,
+                 progress: Callable[..., None] | None) -> None:
+        records = model.records
+        self.model, self.records, self.progress = model, records, progress
+        self.start_base, self.initial_state = start_base, initial_state
+        self.names = list(model.base_names) + [term.name for term in model.terms]
+        self.n_base = len(model.base_names)
+        self.n_state = len(model.states)
+        self.free = free_states(model.states, initial_state)
+        self.first_samples = np.array([[float(getattr(rec, channel)[0])
+                                        for channel in model.states] for rec in records])
+        warm = warm_states if warm_states is not None and len(
+            warm_states) == len(records) else None
+        self.scales, self.z0 = self._coordinates(warm)
+        self.pooled = {channel: max(float(np.std(np.concatenate(
+            [getattr(rec, channel) for rec in records]))), 1e-12) for channel in model.outputs}
+        self.analytic = has_analytic_sensitivities(model)
+        self.equations = NormalEquations(model) if self.analytic else None
+        if self.equations is not None:
+            self.equations.free_states = self.free
+
+    def _coordinates(self, warm):
+        """Return the scales of ``z`` and the start point ``z0``."""
+        model, start_base = self.model, self.start_base
+        floor = {name: 1e-9 * max(start_base.values()) for name in model.base_names}
+        start = [np.log(max(start_base[name], floor[name], 1e-300))
+                 for name in model.base_names]
+        magnitudes = [1.0] * self.n_base + [term.scale for term in model.terms]
+        start += [term.initial / term.scale for term in model.terms]
+        for index, rec in enumerate(self.records):
+            for position, channel in enumerate(model.states):
+                if not self.free[position]:
+                    continue
+                values = getattr(rec, channel)
+                scale = max(float(np.std(values)), 1e-9)
+                magnitudes.append(scale)
+                first = float(values[0]) if warm is None or position >= len(
+                    warm[index]) else float(warm[index][position])
+                start.append(first / scale)
+        return np.array(magnitudes), np.array(start)
+
+    def first_noise(self) -> list[dict[str, float]]:
+        """
+        Noise level per record and channel of the first pass: 1 % of the pooled spread.
+
+        Records may come from different sensors or ranges; later passes weight by the
+        residual level (:meth:`residual_noise`).
+        """
+        return [{channel: 0.01 * self.pooled[channel] for channel in self.model.outputs}
+                for _ in self.records]
+
+    def residual_noise(self, current: Any) -> list[dict[str, float]]:
+        """Noise level per record and channel: the residual's RMS at the pass ``current``."""
+        return [{channel: max(float(np.sqrt(current.sums[index][position] / len(rec))),
+                              1e-13 * self.pooled[channel])
+                 for position, channel in enumerate(self.model.outputs)}
+                for index, rec in enumerate(self.records)]
+
+    def unpack(self, z: np.ndarray) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+        """Return the parameter values, the records' initial states and ``theta`` at ``z``."""
+        theta = z * self.scales
+        with np.errstate(over='ignore'):  # a wild step: an infinite cost, rejected
+            theta[:self.n_base] = np.exp(z[:self.n_base])
+        values = dict(zip(self.names, theta[:len(self.names)]))
+        if all(self.free):
+            states = theta[len(self.names):].reshape(len(self.records), self.n_state)
+        else:
+            states = self.first_samples.copy()
+            states[:, self.free] = theta[len(self.names):].reshape(len(self.records),
+                                                                   sum(self.free))
+        return values, states, theta
+
+    def chain_of(self, theta: np.ndarray) -> np.ndarray:
+        """Return ``d theta / d z`` (one entry per column of ``z``)."""
+        chain = self.scales.copy()
+        chain[:self.n_base] = theta[:self.n_base]
+        return chain
+
+    def residual(self, z: np.ndarray, noise: Sequence[Mapping[str, float]],
+                 only: Any = None) -> list[np.ndarray | None]:
+        """
+        Return every record's weighted residual at ``z`` (channels concatenated).
+
+        ``only``: the records simulated (the others' parts are None), for the columns of an
+        initial state, which move their own record's residual alone.
+        """
+        model = self.model
+        values, states, _ = self.unpack(z)
+        parts: list[np.ndarray | None] = []
+        for index in range(len(self.records)):
+            if only is not None and index not in only:
+                parts.append(None)
+                continue
+            out = model.simulate(values, index, states[index])
+            errors = []
+            for channel in model.outputs:
+                error = out[channel] - model.measured(index, channel)
+                if channel == 'position':
+                    error = whiten(error, model.position_ar[index])
+                errors.append(error / noise[index][channel])
+            parts.append(np.concatenate(errors))
+        if self.progress is not None:
+            self.progress(cost=float(sum(part @ part for part in parts if part is not None)))
+        return parts
+
+    def evaluator(self, noise: Sequence[Mapping[str, float]]) -> Callable[..., Any]:
+        """Return ``evaluate(z, with_sens)`` under the noise levels ``noise``."""
+        return lambda point, with_sens: self.evaluate(point, noise, with_sens)
+
+    def evaluate(self, z: np.ndarray, noise: Sequence[Mapping[str, float]],
+                 with_sens: bool) -> Any:
+        """Return the :class:`_Pass` at ``z`` (with the normal equations if ``with_sens``)."""
+        values, states, theta = self.unpack(z)
+        if not np.all(np.isfinite(theta)):
+            return _Pass(np.inf)
+        try:
+            with np.errstate(all='ignore'):
+                if self.analytic:
+                    result = _analytic_pass(self.equations, values, states, noise,
+                                            self.chain_of(theta), with_sens, self.model.outputs)
+                    if self.progress is not None:
+                        # The numeric pass reports every simulation (in ``residual``).
+                        self.progress(cost=float(result.cost))
+                    return result
+                return _numeric_pass(lambda point, only=None: self.residual(point, noise, only),
+                                     z, self.model, noise, with_sens, len(self.names))
+        except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
+            # A parameter ran to zero or infinity on the way (the simulation kernels raise
+            # on a division by zero): the data do not fit this model.
+            raise FitError(f'the output-error fit diverged ({_diverged(error)}): '
+                           + _MISFIT) from None
+
+    def estimate(self, method: str, z: np.ndarray, final: Any,
+                 noise: list[dict[str, float]], nfev: int) -> Estimate:
+        """Return the :class:`Estimate` at the optimum ``z`` (``final``: its pass)."""
+        model, names, n_base = self.model, self.names, self.n_base
+        values, states, theta = self.unpack(z)
+        n_residuals = sum(len(rec) for rec in self.records) * len(model.outputs)
+        dof = max(n_residuals - z.shape[0], 1)
+        s2 = float(final.cost) / dof
+        cov_z = s2 * np.linalg.pinv(final.hessian)
+        chain = self.chain_of(theta)
+        covariance = cov_z * np.outer(chain, chain)
+        stderr_all = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+        parameters = {name: float(values[name]) for name in names}
+        stderr = {name: float(stderr_all[position]) for position, name in enumerate(names)}
+        if 'La' in model.base_names:
+            parameters.update(derived_values(parameters))
+            stderr.update(derived_stderr(parameters, covariance[:n_base, :n_base],
+                                         list(model.base_names)))
+        if any(model.position_ar):
+            # The position's residual level (not its AR(1) innovations': the weights).
+            noise = [{**level, 'position': max(rms, 1e-13 * self.pooled['position'])}
+                     for level, rms in zip(noise, model.position_rms)]
+        info = self._info(final, noise, nfev, s2, covariance, chain)
+        return Estimate(method, parameters, stderr,
+                        [tuple(float(v) for v in row) for row in states], info)
+
+    def _info(self, final, noise, nfev, s2, covariance, chain):
+        """Return the estimate's ``info`` (:class:`RefinedEstimator`)."""
+        model, records, names = self.model, self.records, self.names
+        return {
+            'nfev': int(nfev),
+            'noise_std': {channel: float(np.sqrt(
+                sum(len(rec) * level[channel] ** 2 for rec, level in zip(records, noise))
+                / sum(len(rec) for rec in records))) for channel in model.outputs},
+            'noise_std_per_record': noise,
+            'start': {name: float(self.start_base[name]) for name in model.base_names},
+            'residual_rms_weighted': float(np.sqrt(s2)),
+            'covariance': covariance[:len(names), :len(names)].tolist(),
+            'names': names,
+            'quasi_static': model.quasi_static,
+            'criterion': model.criterion,
+            'initial_state': self.initial_state,
+            'position_ar': list(model.position_ar),
+            'sensitivities': 'analytic' if self.analytic else 'finite differences',
+            # What the data-based covariance needs
+            # (dcmotor_id.identification.estimators.uncertainty): the fit's normal equations in its
+            # internal coordinates z (theta = chain * dz locally) at the optimum, with the final
+            # noise weights: J^T J, the score sums J^T r over blocks of samples and the record of
+            # each block.
+            'normal_matrix': final.hessian,
+            'block_scores': final.blocks,
+            'block_record': final.block_record,
+            'chain': chain,
+        }
+
+
 class RefinedEstimator:
     """
     Exact output-error estimator with noise-weighted channels and standard errors.
@@ -451,129 +663,47 @@ class RefinedEstimator:
         warm_ar = self.position_ar if position_ar is None else position_ar
         if warm_ar is not None and len(warm_ar) == len(records):
             model.position_ar = [float(value) for value in warm_ar]
-        names = list(model.base_names) + [term.name for term in model.terms]
-        n_base = len(model.base_names)
-        n_state = len(model.states)
-        start_base = self._start(model)
-        # Base parameters are fitted as logarithms (positive, relative steps); term
-        # coefficients and initial states as multiples of their typical magnitude.
-        floor = {name: 1e-9 * max(start_base.values()) for name in model.base_names}
-        start = [np.log(max(start_base[name], floor[name], 1e-300))
-                 for name in model.base_names]
-        magnitudes = [1.0] * n_base + [term.scale for term in model.terms]
-        start += [term.initial / term.scale for term in model.terms]
-        free = free_states(model.states, initial_state)
-        first_samples = np.array([[float(getattr(rec, channel)[0]) for channel in model.states]
-                                  for rec in records])
-        warm = self.initial_states if self.initial_states is not None and len(
-            self.initial_states) == len(records) else None
-        for index, rec in enumerate(records):
-            for position, channel in enumerate(model.states):
-                if not free[position]:
-                    continue
-                values = getattr(rec, channel)
-                scale = max(float(np.std(values)), 1e-9)
-                magnitudes.append(scale)
-                first = float(values[0]) if warm is None or position >= len(
-                    warm[index]) else float(warm[index][position])
-                start.append(first / scale)
-        scales = np.array(magnitudes)
-        z0 = np.array(start)
-        # Noise level per record and channel (records may come from different sensors or
-        # ranges); the first pass weights by 1 % of the pooled spread, later passes by the
-        # residual level, which makes the fit the Gaussian maximum-likelihood estimate.
-        pooled = {channel: max(float(np.std(np.concatenate(
-            [getattr(rec, channel) for rec in records]))), 1e-12) for channel in model.outputs}
-        noise = [{channel: 0.01 * pooled[channel] for channel in model.outputs}
-                 for _ in records]
-        analytic = has_analytic_sensitivities(model)
-        equations = NormalEquations(model) if analytic else None
-        if equations is not None:
-            equations.free_states = free
+        problem = _FitProblem(model, self._start(model), initial_state, self.initial_states,
+                              self.progress)
+        z, final, noise, total_nfev = self._passes(problem, max_nfev)
+        values = problem.unpack(z)[0]
+        degenerate = [name for name in model.base_names if not np.isfinite(values[name])
+                      or (name in POSITIVE_NAMES and not 1e-200 < values[name] < 1e200)]
+        if degenerate:
+            raise FitError(f'the output-error fit diverged ({", ".join(degenerate)} went to zero '
+                           'or infinity): ' + _MISFIT)
+        if final is None:
+            final = problem.evaluate(z, noise, True)
+            total_nfev += 1
+        return problem.estimate(self.name, z, final, noise, total_nfev)
 
-        def unpack(z):
-            theta = z * scales
-            with np.errstate(over='ignore'):  # a wild step: an infinite cost, rejected
-                theta[:n_base] = np.exp(z[:n_base])
-            values = dict(zip(names, theta[:len(names)]))
-            if all(free):
-                states = theta[len(names):].reshape(len(records), n_state)
-            else:
-                states = first_samples.copy()
-                states[:, free] = theta[len(names):].reshape(len(records), sum(free))
-            return values, states, theta
+    def _passes(self, problem, max_nfev):
+        """
+        Run the weighted least-squares passes; return ``(z, pass, noise, evaluations)``.
 
-        def chain_of(theta):
-            chain = scales.copy()
-            chain[:n_base] = theta[:n_base]
-            return chain
-
-        def residual(z, noise, only=None):
-            # ``only``: the records simulated (the others' parts are None), for the columns
-            # of an initial state, which move their own record's residual alone.
-            values, states, _ = unpack(z)
-            parts = []
-            for index in range(len(records)):
-                if only is not None and index not in only:
-                    parts.append(None)
-                    continue
-                out = model.simulate(values, index, states[index])
-                errors = []
-                for channel in model.outputs:
-                    error = out[channel] - model.measured(index, channel)
-                    if channel == 'position':
-                        error = whiten(error, model.position_ar[index])
-                    errors.append(error / noise[index][channel])
-                parts.append(np.concatenate(errors))
-            if self.progress is not None:
-                self.progress(cost=float(sum(part @ part for part in parts
-                                             if part is not None)))
-            return parts
-
-        def evaluate(z, noise, with_sens):
-            values, states, theta = unpack(z)
-            if not np.all(np.isfinite(theta)):
-                return _Pass(np.inf)
-            try:
-                with np.errstate(all='ignore'):
-                    if analytic:
-                        result = _analytic_pass(equations, values, states, noise,
-                                                chain_of(theta), with_sens, model.outputs)
-                        if self.progress is not None:
-                            # The numeric pass reports every simulation (in ``residual``).
-                            self.progress(cost=float(result.cost))
-                        return result
-                    return _numeric_pass(lambda point, only=None: residual(point, noise, only),
-                                         z, model, noise, with_sens, len(names))
-            except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
-                # A parameter ran to zero or infinity on the way (the simulation kernels raise
-                # on a division by zero): the data do not fit this model.
-                raise FitError(f'the output-error fit diverged ({_diverged(error)}): '
-                               + _MISFIT) from None
-
+        Every pass re-estimates each record's and channel's noise level from its residual
+        (which makes the fit the Gaussian maximum-likelihood estimate) and, with the position
+        compared, the position error's AR(1) model; the returned pass is None when the last
+        one moved that model (the covariance then needs a new simulation).
+        """
+        model, z0, n_base = problem.model, problem.z0, problem.n_base
+        noise = problem.first_noise()
         # Tolerances of 1e-8 leave the parameters within 1e-3 of a standard error of the
         # converged optimum (noise-free: round-off); tighter ones only add iterations spent in
         # the weakly determined initial-state directions of a record that starts at rest.
-        z = z0
-        total_nfev = 0
-        converged = True
-        current = None
-        damping = None
+        z, current, damping = z0, None, None
+        total_nfev, converged = 0, True
         passes, extra = max(1, self.reweight_passes), 0
         while passes > 0:
             passes -= 1
             z, current, nfev, converged, damping = _levenberg_marquardt(
-                lambda point, with_sens: evaluate(point, noise, with_sens), z, max_nfev,
-                current=current, damping=damping)
+                problem.evaluator(noise), z, max_nfev, current=current, damping=damping)
             total_nfev += nfev
             if not np.all(np.isfinite(z)):
                 raise FitError('the output-error fit diverged (non-finite parameters): ' + _MISFIT)
-            noise = [{channel: max(float(np.sqrt(current.sums[index][position] / len(rec))),
-                                   1e-13 * pooled[channel])
-                      for position, channel in enumerate(model.outputs)}
-                     for index, rec in enumerate(records)]
+            noise = problem.residual_noise(current)
             white = not any(model.position_ar)
-            if _update_position_ar(model, *unpack(z)[:2]):
+            if _update_position_ar(model, *problem.unpack(z)[:2]):
                 # The position's error model moved: the next pass simulates again, and runs
                 # (up to AR_PASSES more) until it settles.  Leaving the white error model, a
                 # base parameter the white fit ran below COLLAPSED of its start restarts there:
@@ -594,60 +724,7 @@ class RefinedEstimator:
             # infinity): the data do not fit the model.
             raise FitError('the output-error fit did not converge (the number of function '
                            'evaluations is exceeded): ' + _MISFIT)
-        values, states, theta = unpack(z)
-        degenerate = [name for name in model.base_names if not np.isfinite(values[name])
-                      or (name in POSITIVE_NAMES and not 1e-200 < values[name] < 1e200)]
-        if degenerate:
-            raise FitError(f'the output-error fit diverged ({", ".join(degenerate)} went to zero '
-                           'or infinity): ' + _MISFIT)
-        final = current
-        if final is None:
-            final = evaluate(z, noise, True)
-            total_nfev += 1
-        n_residuals = sum(len(rec) for rec in records) * len(model.outputs)
-        dof = max(n_residuals - z.shape[0], 1)
-        s2 = float(final.cost) / dof
-        cov_z = s2 * np.linalg.pinv(final.hessian)
-        chain = chain_of(theta)
-        covariance = cov_z * np.outer(chain, chain)
-        stderr_all = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-        parameters = {name: float(values[name]) for name in names}
-        stderr = {name: float(stderr_all[position]) for position, name in enumerate(names)}
-        if 'La' in model.base_names:
-            parameters.update(derived_values(parameters))
-            stderr.update(derived_stderr(parameters, covariance[:n_base, :n_base],
-                                         list(model.base_names)))
-        if any(model.position_ar):
-            # The position's residual level (not its AR(1) innovations': the weights).
-            noise = [{**level, 'position': max(rms, 1e-13 * pooled['position'])}
-                     for level, rms in zip(noise, model.position_rms)]
-        info = {
-            'nfev': int(total_nfev),
-            'noise_std': {channel: float(np.sqrt(
-                sum(len(rec) * level[channel] ** 2 for rec, level in zip(records, noise))
-                / sum(len(rec) for rec in records))) for channel in model.outputs},
-            'noise_std_per_record': noise,
-            'start': {name: float(start_base[name]) for name in model.base_names},
-            'residual_rms_weighted': float(np.sqrt(s2)),
-            'covariance': covariance[:len(names), :len(names)].tolist(),
-            'names': names,
-            'quasi_static': model.quasi_static,
-            'criterion': model.criterion,
-            'initial_state': initial_state,
-            'position_ar': list(model.position_ar),
-            'sensitivities': 'analytic' if analytic else 'finite differences',
-            # What the data-based covariance needs
-            # (dcmotor_id.identification.estimators.uncertainty): the fit's normal equations in its
-            # internal coordinates z (theta = chain * dz locally) at the optimum, with the final
-            # noise weights: J^T J, the score sums J^T r over blocks of samples and the record of
-            # each block.
-            'normal_matrix': final.hessian,
-            'block_scores': final.blocks,
-            'block_record': final.block_record,
-            'chain': chain,
-        }
-        return Estimate(self.name, parameters, stderr,
-                        [tuple(float(v) for v in row) for row in states], info)
+        return z, current, noise, total_nfev
 
     def _start(self, model):
         """Pick the start with the lowest simulation error among the candidates."""
@@ -773,7 +850,7 @@ def free_states(states: Sequence[str], initial_state: str) -> list[bool]:
 
 
 #: A base parameter below this fraction of its start when the position's error model leaves
-#: white noise restarts from its start (:meth:`RefinedEstimator._fit`).
+#: white noise restarts from its start (:meth:`RefinedEstimator._passes`).
 COLLAPSED = 0.01
 #: Evaluations of a position-criterion fit that did not converge, retried, per the usual ones.
 POSITION_NFEV_FACTOR = 4
@@ -883,23 +960,11 @@ def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gto
     mu = 1e-3 if damping is None else damping
     cheap = False
     while nfev < max(int(max_evaluations), 2):
-        hessian, gradient, cost = current.hessian, current.gradient, current.cost
-        diagonal = np.diag(hessian)
-        scale = np.maximum(scale, diagonal)
-        weights = np.where(scale > 0.0, scale, 1.0)
-        column_norms = np.sqrt(np.maximum(diagonal, 0.0))
-        if cost <= 0.0:
+        cost = current.cost
+        scale = np.maximum(scale, np.diag(current.hessian))
+        if _stationary(current, gtol):
             return z, current, nfev, True, mu
-        cosines = np.abs(gradient) / np.where(column_norms > 0.0, column_norms, np.inf)
-        if float(np.max(cosines, initial=0.0)) / np.sqrt(cost) <= gtol:
-            return z, current, nfev, True, mu
-        try:
-            step = np.linalg.solve(hessian + mu * np.diag(weights), -gradient)
-        except np.linalg.LinAlgError:
-            step = np.linalg.lstsq(hessian + mu * np.diag(weights), -gradient, rcond=None)[0]
-        step_norm = float(np.sqrt(np.sum(weights * step ** 2)))
-        point_norm = float(np.sqrt(np.sum(weights * z ** 2)))
-        predicted = -(2.0 * gradient @ step + step @ hessian @ step)
+        step, predicted, small = _damped_step(current, z, mu, scale, xtol)
         trial = evaluate(z + step, not cheap)
         nfev += 1
         actual = cost - trial.cost if np.isfinite(trial.cost) else -np.inf
@@ -912,12 +977,45 @@ def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gto
             current = trial
             cheap = False
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3)
-            if (abs(actual) <= ftol * cost and predicted <= ftol * cost) \
-                    or step_norm <= xtol * point_norm:
+            if (abs(actual) <= ftol * cost and predicted <= ftol * cost) or small:
                 return z, current, nfev, True, mu
         else:
             cheap = True
             mu *= 10.0
-            if step_norm <= xtol * point_norm or mu > 1e16:
+            if small or mu > 1e16:
                 return z, current, nfev, True, mu
     return z, current, nfev, False, mu
+
+
+def _stationary(current, gtol):
+    """
+    Whether the pass ``current`` is at a stationary point of the cost (MINPACK's ``gtol``).
+
+    The cost is zero, or the largest cosine between the residual and a column of the
+    Jacobian (from ``J^T r`` and the diagonal of ``J^T J``) is at most ``gtol``.
+    """
+    hessian, gradient, cost = current.hessian, current.gradient, current.cost
+    column_norms = np.sqrt(np.maximum(np.diag(hessian), 0.0))
+    if cost <= 0.0:
+        return True
+    cosines = np.abs(gradient) / np.where(column_norms > 0.0, column_norms, np.inf)
+    return float(np.max(cosines, initial=0.0)) / np.sqrt(cost) <= gtol
+
+
+def _damped_step(current, z, mu, scale, xtol):
+    """
+    Solve ``(H + mu D) dz = -g`` at the pass ``current``; ``D``: ``scale`` (1 where zero).
+
+    Returns the step, the cost reduction its quadratic model predicts, and whether the step
+    scaled by ``D`` is below ``xtol`` of the point's (MINPACK's ``xtol``).
+    """
+    hessian, gradient = current.hessian, current.gradient
+    weights = np.where(scale > 0.0, scale, 1.0)
+    try:
+        step = np.linalg.solve(hessian + mu * np.diag(weights), -gradient)
+    except np.linalg.LinAlgError:
+        step = np.linalg.lstsq(hessian + mu * np.diag(weights), -gradient, rcond=None)[0]
+    step_norm = float(np.sqrt(np.sum(weights * step ** 2)))
+    point_norm = float(np.sqrt(np.sum(weights * z ** 2)))
+    predicted = -(2.0 * gradient @ step + step @ hessian @ step)
+    return step, predicted, step_norm <= xtol * point_norm
