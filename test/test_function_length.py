@@ -16,10 +16,6 @@ LONGER = {
     'dcmotor_id/simulation/sensitivity.py:flow_matrices': 'numba kernel',
     'dcmotor_id/simulation/sensitivity.py:_event_step_sens': 'numba kernel',
     'dcmotor_id/simulation/sensitivity.py:normal_kernel': 'numba kernel',
-    'dcmotor_id/identification/estimators/refined.py:_fit': 'not split yet',
-    'dcmotor_id/identification/estimators/refined.py:_levenberg_marquardt': 'not split yet',
-    'dcmotor_id/identification/estimators/normal_equations.py:_dynamic': 'not split yet',
-    'dcmotor_id/identification/estimators/fisher.py:output_sensitivities': 'not split yet',
 }
 
 
