@@ -167,7 +167,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
                                     vocabulary, progress, initial_state))
 
 
-def _identify_on(criterion: str, arguments: tuple) -> IdentificationResult:
+def _identify_on(criterion: str, arguments: tuple[Any, ...]) -> IdentificationResult:
     """Run the pipeline on the resolved criterion; ``auto`` falls back to the speed."""
     records, method, estimator = arguments[0], arguments[1], arguments[4]
     resolved = _criterion_of(records, criterion, method, estimator)
