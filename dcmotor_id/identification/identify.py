@@ -172,7 +172,7 @@ def _identify_on(criterion: str, arguments: tuple[Any, ...]) -> IdentificationRe
     records, method, estimator = arguments[0], arguments[1], arguments[4]
     resolved = _criterion_of(records, criterion, method, estimator)
     try:
-        return _identify(*arguments, resolved)
+        return _identify(*arguments, criterion=resolved)
     except (FitError, NotIdentifiableError) as error:
         if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
             raise
