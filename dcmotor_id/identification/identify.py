@@ -167,12 +167,12 @@ def identify(records: Sequence[Record], method: str = 'refined',
                                     vocabulary, progress, initial_state))
 
 
-def _identify_on(criterion: str, arguments: tuple[Any, ...]) -> IdentificationResult:
+def _identify_on(criterion, arguments):
     """Run the pipeline on the resolved criterion; ``auto`` falls back to the speed."""
     records, method, estimator = arguments[0], arguments[1], arguments[4]
     resolved = _criterion_of(records, criterion, method, estimator)
     try:
-        return _identify(*arguments, criterion=resolved)
+        return _identify(*arguments, resolved)
     except (FitError, NotIdentifiableError) as error:
         if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
             raise
