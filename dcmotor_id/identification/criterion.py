@@ -12,16 +12,21 @@ criterion: ``both`` finds the same effects on simulated records with a measured 
 exact angle, but the residual analysis reads the position's drift as structure left over,
 and it costs about three times the time, so it is only used when asked for).
 
-A position residual far above the position's noise (:data:`POSITION_MISFIT_FACTOR`) is the
-integral of a force the model lacks: it drifts, and weighted as white it makes the fit bend
-the physical parameters to cancel an offset a local misfit left.  The fit then models it as
-AR(1) (:func:`position_ar`, :func:`whiten`), which weights the error's increments for a
-drift.
+The position error's model (:func:`position_error_model`): ``white`` weights the position
+sample by sample by its sensor noise, which is what an open-loop validation scores.
+``adaptive`` (the estimators' default) models a position residual far above the position's
+noise (:data:`POSITION_MISFIT_FACTOR`) as AR(1) (:func:`position_ar`, :func:`whiten`): such a
+residual is the integral of a force the model lacks, it drifts, and weighted as white it can
+make the fit bend the physical parameters to cancel an offset a local misfit left; the AR(1)
+model weights the error's increments for a drift.  ``identify`` chooses between the two
+against model-free evidence (:mod:`~dcmotor_id.identification.position_error`).
 """
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -95,6 +100,29 @@ POSITION_MISFIT_FACTOR = 3.0
 MAX_POSITION_AR = 1.0 - 1e-9
 #: Refits beyond the usual passes while the AR(1) coefficient of the position error moves.
 AR_PASSES = 4
+#: Models of the position error (:func:`position_error_model`).
+POSITION_ERROR_MODELS = ('adaptive', 'white')
+# The model in force for the fits of this thread (a context variable, not a parameter: every
+# estimator of a run, the discovery loop's and the second start's included, follows it).
+_POSITION_ERROR: ContextVar[str] = ContextVar('position_error', default='adaptive')
+
+
+@contextmanager
+def position_error_model(model: str) -> Iterator[None]:
+    """
+    Fit with the position error modelled as ``white`` or ``adaptive`` within the block.
+
+    ``adaptive`` (the default): AR(1) when the residual misfits (:func:`position_ar`);
+    ``white``: the sensor's noise only, whatever the residual.
+    """
+    if model not in POSITION_ERROR_MODELS:
+        raise ValueError(f'position error model must be one of {POSITION_ERROR_MODELS}, '
+                         f'not {model!r}')
+    token = _POSITION_ERROR.set(model)
+    try:
+        yield
+    finally:
+        _POSITION_ERROR.reset(token)
 
 
 def whiten(error: np.ndarray, rho: float) -> np.ndarray:
@@ -124,8 +152,11 @@ def position_ar(error: np.ndarray, sensor_noise: float) -> float:
     white makes the fit bend the physical parameters to cancel an offset that a local misfit
     left for the rest of the record; its AR(1) model (coefficient near 1 for a drift) weights
     the error's increments instead, as the maximum-likelihood fit under that error does.
+    Always 0 under the ``white`` :func:`position_error_model`.
     """
     error = np.asarray(error, dtype=float)
+    if _POSITION_ERROR.get() == 'white':
+        return 0.0
     if error.shape[0] < 3 or np.sqrt(np.mean(error ** 2)) <= POSITION_MISFIT_FACTOR * max(
             sensor_noise, 0.0):
         return 0.0

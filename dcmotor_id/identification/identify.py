@@ -74,6 +74,7 @@ from dcmotor_id.identification.quasi_static import (la_reason, la_unresolved, qu
                                                     with_la_bound)
 from dcmotor_id.identification.residuals import output_channels, simulate_records
 from dcmotor_id.identification.result import IdentificationResult
+from dcmotor_id.identification.position_error import with_chosen_error_model
 from dcmotor_id.identification.second_start import check_start, start_warning
 from dcmotor_id.identification.validate import operating_range
 
@@ -168,11 +169,18 @@ def identify(records: Sequence[Record], method: str = 'refined',
 
 
 def _identify_on(criterion, arguments):
-    """Run the pipeline on the resolved criterion; ``auto`` falls back to the speed."""
+    """
+    Run the pipeline on the resolved criterion; ``auto`` falls back to the speed.
+
+    On the position, the position error's model is chosen against model-free evidence
+    (:mod:`~dcmotor_id.identification.position_error`).
+    """
     records, method, estimator = arguments[0], arguments[1], arguments[4]
     resolved = _criterion_of(records, criterion, method, estimator)
     try:
-        return _identify(*arguments, resolved)
+        if resolved == 'speed' or method != 'refined' or estimator is not None:
+            return _identify(*arguments, resolved)
+        return with_chosen_error_model(lambda: _identify(*arguments, resolved))
     except (FitError, NotIdentifiableError) as error:
         if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
             raise
@@ -401,7 +409,7 @@ def _check_base_start(run: _Run) -> None:
         return
     run.found, run.estimate, run.discovery_info, check = check_start(
         run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
-        run.progress, run.estimate, None, None)
+        run.progress, run.estimate, None, None, run.criterion)
     if check['chosen'] == 'first start':
         run.start_check = None if not check['doubts'] else check
     else:
@@ -460,7 +468,7 @@ def _check_final_start(run: _Run) -> None:
     if run.checkable and run.start_check is None:
         run.found, run.estimate, run.discovery_info, run.start_check = check_start(
             run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
-            run.progress, run.estimate, run.found, run.discovery_info)
+            run.progress, run.estimate, run.found, run.discovery_info, run.criterion)
     warning = start_warning(run.start_check)
     if warning is not None:
         run.warnings.append(warning)

@@ -109,6 +109,13 @@ class IdentificationResult:
         The noise bootstrap over the structure choice
         (:mod:`~dcmotor_id.identification.structure_uncertainty`; its part is in ``stderr``),
         ``{"skipped": reason}``, or None when not asked for.
+    position_error : dict or None
+        The position error's model of a fit on the position
+        (:mod:`~dcmotor_id.identification.position_error`): ``model`` (``white`` or
+        ``adaptive``), ``evidence`` (the regression's J, b, Mc), ``agreement_factor``,
+        ``disagreement`` (each model's largest factor from the evidence; None: a parameter
+        at zero), ``alternative`` (the other model's J, b, Mc when both ran); None when the
+        position is not compared.
 
     """
 
@@ -145,6 +152,7 @@ class IdentificationResult:
     discovery_result: DiscoveryResult | None = field(repr=False, default=None)
     criterion: str = 'speed'
     structure_uncertainty: dict[str, Any] | None = None
+    position_error: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""
@@ -180,6 +188,7 @@ class IdentificationResult:
             'operating_range': self.operating_range,
             'criterion': self.criterion,
             'structure_uncertainty': self.structure_uncertainty,
+            'position_error': self.position_error,
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out

@@ -36,7 +36,8 @@ if TYPE_CHECKING:
 def check_start(
         records: Sequence[Record], torque_constant: float | None, quasi: bool, discover: bool,
         vocabulary: Sequence[type[Effect]], progress: Progress, estimate: Estimate,
-        found: DiscoveryResult | None, discovery_info: dict[str, Any] | None
+        found: DiscoveryResult | None, discovery_info: dict[str, Any] | None,
+        criterion: str = 'speed'
 ) -> tuple[DiscoveryResult | None, Estimate, dict[str, Any] | None, dict[str, Any]]:
     """
     Check the fit against model-free evidence; when doubted, try a second start, keep the best.
@@ -44,21 +45,23 @@ def check_start(
     Returns ``(found, base estimate, discovery summary, start_check)``, the first three
     replaced by the second start's when it explains all of the data better (lower BIC).
     ``start_check`` is the JSON account (:mod:`dcmotor_id.identification.checks.start`).
+    Every fit and score of the check is on the run's ``criterion`` (the channels compared).
     """
     evidence = regression_evidence(records, torque_constant)
     first = found.estimate if found is not None else estimate
     first_records = found.records if found is not None else list(records)
     first_terms = found.terms if found is not None else ()
-    model = OutputErrorModel(first_records, torque_constant, first_terms, quasi)
+    model = OutputErrorModel(first_records, torque_constant, first_terms, quasi, criterion)
     doubts = suspect(first, first_records, model, evidence)
     check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
     if not doubts:
         return found, estimate, discovery_info, check
-    pinned = _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check)
+    pinned = _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check,
+                         criterion)
     if pinned is None:
         return found, estimate, discovery_info, check
     second = _second_start(records, torque_constant, quasi, discover, vocabulary, progress,
-                           pinned, check)
+                           pinned, check, criterion)
     chosen = _choose(check, first, first_records, model, second)
     if chosen == 'first start':
         return found, estimate, discovery_info, check
@@ -84,7 +87,8 @@ class _SecondStart:
     freed: Estimate | None = None  # the refit with the initial states freed
 
 
-def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check):
+def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check,
+                criterion):
     """Fit from the regression's values with the initial states pinned; None when it fails."""
     names = [name for name in parameter_names(torque_constant is not None)
              if not (quasi and name == 'La')]
@@ -92,7 +96,7 @@ def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, c
     progress.set_stage('second start (initial states pinned)', record_names(records))
     try:
         pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
-                                  progress=progress).fit(records, torque_constant=torque_constant)
+                                  progress=progress, criterion=criterion).fit(records, torque_constant=torque_constant)
         check_physical(pinned)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
         check['second_start'] = f'failed: {error}'
@@ -101,14 +105,14 @@ def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, c
 
 
 def _second_start(records, torque_constant, quasi, discover, vocabulary, progress, pinned,
-                  check):
+                  check, criterion):
     """Search the effects from the pinned fit, then free the initial states."""
     found, info, structure = None, None, Structure()
     values, states = pinned.parameters, pinned.initial_states
     if discover:
         found, info = run_discovery(
-            records, torque_constant, RefinedEstimator(), vocabulary, progress, 'measured',
-            quasi, pinned)
+            records, torque_constant, RefinedEstimator(criterion=criterion), vocabulary,
+            progress, 'measured', quasi, pinned, criterion)
         if found is not None:
             structure = found.final.structure
             values, states = found.estimate.parameters, found.estimate.initial_states
@@ -116,12 +120,13 @@ def _second_start(records, torque_constant, quasi, discover, vocabulary, progres
     second = _SecondStart(found, info, structure,
                           found.estimate if found is not None else pinned, second_records,
                           OutputErrorModel(second_records, torque_constant,
-                                           found.terms if found is not None else (), quasi))
+                                           found.terms if found is not None else (), quasi,
+                                          criterion))
     try:
         freed = refit_all_data(structure, records, torque_constant, values,
                                refit_start(values, records, torque_constant), progress=progress,
                                initial_states=states, initial_state='estimate',
-                               quasi_static=quasi)[2]
+                               quasi_static=quasi, criterion=criterion)[2]
         check_physical(freed)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
         check['freed'] = f'failed: {error}'  # the pinned fit is still a candidate

@@ -1,0 +1,123 @@
+"""
+The position error's model of a fit on the position, chosen against model-free evidence.
+
+A fit that compares the position weights it first as the sensor's white noise
+(:func:`~dcmotor_id.identification.criterion.position_error_model` ``white``): the position
+sample by sample, which is what an open-loop validation of the model scores.  When the model
+lacks a force (a friction that varies along a ball screw's travel), that fit can bend the
+physical parameters to cancel the position's drift: a Coulomb friction pressed to zero, an
+inertia far off.  The model-free regression on the data
+(:func:`~dcmotor_id.identification.checks.start.regression_evidence`) sees that without a
+model.  When the white fit's J, b or Mc lie more than :data:`AGREEMENT_FACTOR` from it, the
+identification runs again with the ``adaptive`` error model (an AR(1) drift when the residual
+misfits, :func:`~dcmotor_id.identification.criterion.position_ar`), and the result closer to
+the evidence is kept.  JSON ``position_error`` says which and why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any, Callable, TYPE_CHECKING
+
+import numpy as np
+
+from dcmotor_id.core.errors import FitError, NotIdentifiableError
+from dcmotor_id.core.progress import TimeBudgetExceeded
+from dcmotor_id.identification.checks.start import regression_evidence
+from dcmotor_id.identification.criterion import position_error_model
+
+if TYPE_CHECKING:
+    from dcmotor_id.identification.result import IdentificationResult
+
+#: Largest ratio between a white fit's J, b or Mc and the model-free regression's before the
+#: fit is taken to have bent them to a drift (the regression's own bias on a derived speed is
+#: some ten per cent; a parameter pressed to a bound is far beyond it).
+AGREEMENT_FACTOR = 1.5
+#: Parameters compared with the regression.
+COMPARED = ('J', 'b', 'Mc')
+
+
+def disagreement(parameters: dict[str, float], evidence: dict[str, float] | None) -> float:
+    """
+    Largest ``|log(fitted / regression)|`` over J, b and Mc; 0 without evidence.
+
+    A parameter at or below zero where the regression finds it positive is infinitely far;
+    parameters the regression does not determine (not positive) are not compared.
+    """
+    if evidence is None:
+        return 0.0
+    worst = 0.0
+    for name in COMPARED:
+        seen, fitted = evidence.get(name, 0.0), parameters.get(name)
+        if fitted is None or not seen > 0.0:
+            continue
+        worst = max(worst, abs(np.log(fitted / seen)) if fitted > 0.0 else np.inf)
+    return float(worst)
+
+
+def with_chosen_error_model(run: Callable[[], IdentificationResult]) -> IdentificationResult:
+    """
+    Run an identification on the position with the white error model, else the adaptive one.
+
+    ``run`` runs the whole identification (under the error model in force); it runs a second
+    time only when the white result disagrees with the regression by more than
+    :data:`AGREEMENT_FACTOR`, or failed (a second run that fails or runs out of time leaves
+    the white result).  Returns the result closer to the evidence, its
+    ``position_error`` filled in (and a warning when both disagree).
+    """
+    try:
+        with position_error_model('white'):
+            white = run()
+    except (FitError, NotIdentifiableError) as error:
+        if 'time budget' in str(error):
+            raise
+        return replace(run(), position_error={'model': 'adaptive',
+                                              'white': f'failed: {error}'})
+    evidence = regression_evidence(white.input_records, white.torque_constant)
+    distances = {'white': disagreement(white.parameters, evidence)}
+    account: dict[str, Any] = {'model': 'white', 'evidence': _compared(evidence),
+                               'agreement_factor': AGREEMENT_FACTOR}
+    if distances['white'] <= np.log(AGREEMENT_FACTOR):
+        return replace(white, position_error={**account, 'disagreement': _factors(distances)})
+    try:
+        adaptive = run()
+    except (FitError, NotIdentifiableError, TimeBudgetExceeded) as error:
+        account.update({'disagreement': _factors(distances), 'adaptive': f'failed: {error}'})
+        return replace(white, position_error=account)
+    distances['adaptive'] = disagreement(adaptive.parameters, evidence)
+    chosen = 'adaptive' if distances['adaptive'] < distances['white'] else 'white'
+    result = adaptive if chosen == 'adaptive' else white
+    account.update({'model': chosen, 'disagreement': _factors(distances),
+                    'alternative': {name: float(value) for name, value in
+                                    (white if chosen == 'adaptive' else adaptive)
+                                    .parameters.items() if name in COMPARED}})
+    warnings = list(result.warnings)
+    if distances[chosen] > np.log(AGREEMENT_FACTOR):
+        warnings.append(_warning(evidence, result.parameters, distances))
+    return replace(result, position_error=account, warnings=warnings,
+                   elapsed_s=white.elapsed_s + adaptive.elapsed_s)
+
+
+def _compared(evidence: dict[str, float] | None) -> dict[str, float] | None:
+    """The regression's values of the compared parameters (JSON)."""
+    if evidence is None:
+        return None
+    return {name: float(evidence[name]) for name in COMPARED if name in evidence}
+
+
+def _factors(distances: dict[str, float]) -> dict[str, float | None]:
+    """Disagreements as factors (``exp``; None for a parameter at zero)."""
+    return {name: float(np.exp(value)) if np.isfinite(value) else None
+            for name, value in distances.items()}
+
+
+def _warning(evidence: dict[str, float] | None, parameters: dict[str, float],
+             distances: dict[str, float]) -> str:
+    """Say that neither error model of the position agrees with the regression."""
+    seen = evidence or {}
+    listed = ', '.join(f'{name} {parameters[name]:.4g} (regression {seen[name]:.4g})'
+                       for name in COMPARED if name in parameters and seen.get(name, 0.0) > 0)
+    return ('the fit on the position disagrees with the model-free regression on the data '
+            f'by more than {AGREEMENT_FACTOR:g}x with the position error modelled as white '
+            'noise and as a drift (' + listed + '): the model lacks a force that the position '
+            'integrates; compare with --criterion speed')

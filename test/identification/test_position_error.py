@@ -1,0 +1,150 @@
+"""The position error's model chosen against model-free evidence; the second start's criterion."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dcmotor_id.core.errors import FitError
+from dcmotor_id.core.progress import Progress
+from dcmotor_id.identification.criterion import position_ar, position_error_model
+from dcmotor_id.identification.estimators.refined import RefinedEstimator
+from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.identification.position_error import (AGREEMENT_FACTOR, disagreement,
+                                                      with_chosen_error_model)
+from dcmotor_id.identification.result import IdentificationResult
+from dcmotor_id.identification.second_start import check_start
+from dcmotor_id.simulation.lab_scenarios import ball_screw_sine
+
+EVIDENCE = {'J': 1.0, 'b': 2.0, 'Mc': 0.5, 'offset': 0.0}
+
+
+def test_disagreement_is_the_largest_factor_from_the_regression():
+    """J, b and Mc against the regression; a friction pressed to zero is infinitely far."""
+    assert disagreement({'J': 1.2, 'b': 2.0, 'Mc': 0.5}, EVIDENCE) == pytest.approx(np.log(1.2))
+    assert disagreement({'J': 1.0, 'b': 1.0, 'Mc': 0.5}, EVIDENCE) == pytest.approx(np.log(2.0))
+    assert disagreement({'J': 1.0, 'b': 2.0, 'Mc': 0.0}, EVIDENCE) == np.inf
+    # A value the regression does not determine is not compared; no evidence, no doubt.
+    assert disagreement({'J': 1.0, 'b': 2.0, 'Mc': 0.0}, {**EVIDENCE, 'Mc': -0.1}) == 0.0
+    assert disagreement({'J': 9.0}, None) == 0.0
+
+
+def test_the_white_error_model_never_takes_an_ar1_coefficient():
+    """Inside ``position_error_model('white')`` a drifting residual is still white."""
+    drift = np.cumsum(np.random.default_rng(0).standard_normal(5_000))
+    assert position_ar(drift, 0.01) > 0.9
+    with position_error_model('white'):
+        assert position_ar(drift, 0.01) == 0.0
+    assert position_ar(drift, 0.01) > 0.9
+    with pytest.raises(ValueError, match='white'):
+        with position_error_model('red'):
+            pass
+
+
+def _result(parameters, warnings=()):
+    """A result whose records are the ball screw's (the regression's data)."""
+    scenario = ball_screw_sine()
+    records = prepare_records(scenario.records, scenario.torque_constant)
+    return IdentificationResult(
+        parameters=dict(parameters), stderr={}, method='refined', effects=[], error_before={},
+        error_after={}, unexplained=False, mode='mechanical',
+        torque_constant=scenario.torque_constant, initial_states=[], noise_std={},
+        sample_period_s=records[0].sample_period_s, n_samples=len(records[0]), sources=[],
+        units={}, discover=False, discovery=None, warnings=list(warnings),
+        input_records=records, criterion='position')
+
+
+@pytest.fixture(scope='module')
+def agreeing():
+    """A result close to the ball screw's truth (which the regression sees)."""
+    truth = ball_screw_sine().truth
+    return _result({'J': truth.J, 'b': truth.b, 'Mc': truth.Mc})
+
+
+def test_a_white_fit_that_agrees_runs_once(agreeing):
+    """The white result agrees with the regression: kept, the identification runs once."""
+    models = []
+
+    def run():
+        models.append(position_ar(np.cumsum(np.ones(100)), 0.0))  # 0.0 under white
+        return agreeing
+
+    result = with_chosen_error_model(run)
+    assert models == [0.0]
+    assert result.position_error['model'] == 'white'
+    assert result.position_error['disagreement']['white'] < AGREEMENT_FACTOR
+    assert result.as_dict()['position_error']['evidence']['Mc'] > 0
+
+
+def test_a_white_fit_that_bends_the_friction_runs_again_adaptive(agreeing):
+    """The white result's Coulomb friction at zero: the adaptive run, closer, is kept."""
+    bent = replace(agreeing, parameters={**agreeing.parameters, 'Mc': 0.0})
+    results = iter([bent, agreeing])
+    result = with_chosen_error_model(lambda: next(results))
+    assert result.position_error['model'] == 'adaptive'
+    assert result.position_error['alternative']['Mc'] == 0.0
+    assert result.position_error['disagreement']['white'] is None
+    assert result.parameters['Mc'] == agreeing.parameters['Mc']
+    # Both far from the evidence: the closer one, with a warning that says so.
+    worse = replace(agreeing, parameters={**agreeing.parameters, 'J': 5 * agreeing.parameters['J']})
+    results = iter([bent, worse])
+    result = with_chosen_error_model(lambda: next(results))
+    assert result.position_error['model'] == 'adaptive'
+    assert any('disagrees with the model-free regression' in text for text in result.warnings)
+
+
+def test_a_white_fit_that_fails_falls_back_to_the_adaptive_model(agreeing):
+    """A white fit that diverges is not the end: the adaptive run's result, accounted for."""
+    calls = []
+
+    def run():
+        calls.append(1)
+        if len(calls) == 1:
+            raise FitError('the output-error fit diverged')
+        return agreeing
+
+    result = with_chosen_error_model(run)
+    assert result.position_error['model'] == 'adaptive'
+    assert 'diverged' in result.position_error['white']
+
+
+def test_the_ball_screw_keeps_the_adaptive_error_model():
+    """
+    Friction along the travel: white bends the Coulomb friction, the drift's model does not.
+
+    The identification on the position first weights it as white; the ball screw's white fit
+    lies far from the regression, so the adaptive (AR(1)) run is kept and the white one is
+    named as the alternative.
+    """
+    scenario = ball_screw_sine()
+    records = prepare_records(scenario.records, scenario.torque_constant)
+    result = identify(records, torque_constant=scenario.torque_constant)
+    account = result.position_error
+    assert account['model'] == 'adaptive'
+    assert set(account['alternative']) == {'J', 'b', 'Mc'}
+    assert account['disagreement']['adaptive'] < AGREEMENT_FACTOR
+    assert abs(result.parameters['Mc'] / scenario.truth.Mc - 1) < 0.15
+
+
+def test_the_second_start_fits_the_run_s_criterion():
+    """
+    A first fit in a wrong basin on the position: the second start compares the position too.
+
+    It used to fit the speed alone whatever the criterion (EMPS: the position criterion's
+    result was then a speed fit, 9.4 mm on PULSES instead of 4.2 mm).
+    """
+    scenario = ball_screw_sine()
+    constant = scenario.torque_constant
+    records = prepare_records(scenario.records, constant)
+    truth = scenario.truth
+    fitted = RefinedEstimator(criterion='position', initial_state='measured').fit(
+        records, torque_constant=constant)
+    wrong = replace(fitted, parameters={**fitted.parameters, 'J': 20 * truth.J,
+                                        'b': 20 * truth.b})
+    _, estimate, _, check = check_start(records, constant, False, False, (), Progress(None),
+                                        wrong, None, None, criterion='position')
+    assert check['doubts'], check
+    assert check['chosen'] != 'first start'
+    # The position's initial state is part of the second start's fit.
+    assert len(estimate.initial_states[0]) == 2
+    assert estimate.parameters['J'] == pytest.approx(truth.J, rel=0.3)
