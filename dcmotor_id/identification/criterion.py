@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from contextvars import ContextVar
+from dataclasses import replace
 from typing import Any, Iterator, Sequence
 
 import numpy as np
@@ -173,3 +174,21 @@ def ar_settled(old: float, new: float) -> bool:
     if old <= 0.0 or new <= 0.0:
         return False
     return abs(np.log((1.0 - new) / (1.0 - old))) <= 0.25
+
+
+def with_position_states(estimate: Any, records: Sequence[Any]) -> Any:
+    """
+    Return a fit on the speed as one on the position: each record's first position appended.
+
+    The base model fitted on the speed, to be judged on the position (the initial position
+    is the first sample, the position's noise its sensor's); ``info['base_from']`` says so.
+    """
+    from dcmotor_id.identification.checks.identifiability import noise_level
+
+    states = [tuple(state) + (float(rec.position[0]),)
+              for state, rec in zip(estimate.initial_states, records)]
+    noise = float(np.sqrt(np.mean([noise_level(rec.position) ** 2 for rec in records])))
+    info = {**estimate.info, 'noise_std': {**estimate.info.get('noise_std', {}),
+                                           'position': noise},
+            'base_from': 'the speed fit (the base model cannot follow the position)'}
+    return replace(estimate, initial_states=states, info=info)

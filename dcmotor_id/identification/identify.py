@@ -57,7 +57,7 @@ from dcmotor_id.identification.checks.identifiability import (at_bound, correlat
                                                               one_direction_note, useful)
 from dcmotor_id.identification.checks.plausibility import check_plausibility
 from dcmotor_id.identification.checks.units import unit_warnings
-from dcmotor_id.identification.criterion import resolve_criterion
+from dcmotor_id.identification.criterion import resolve_criterion, with_position_states
 from dcmotor_id.identification.current_limited import (electrical_part, JACKKNIFE_GROUPS,
                                                        with_electrical_part)
 from dcmotor_id.identification.effects import VOCABULARY
@@ -354,9 +354,9 @@ def _base_fit(run: _Run) -> None:
         estimate = run.estimator.fit(run.records, torque_constant=run.torque_constant)
     except FitError as error:
         level = single_current_level(run.records) if run.mechanical_only else None
-        if level is None:
-            raise
-        raise NotIdentifiableError(one_level_reason(level, str(error))) from None
+        if level is not None:
+            raise NotIdentifiableError(one_level_reason(level, str(error))) from None
+        estimate = _speed_base(run, error)
     except TimeBudgetExceeded:
         raise FitError(f'no fit finished within the time budget ({run.progress.max_time_s:g} '
                        's): give more time with --max-time, or shorten or decimate the records'
@@ -372,6 +372,26 @@ def _make_estimator(method, initial_state, progress, criterion='speed'):
         return RefinedEstimator(initial_state=initial_state, progress=progress,
                                 criterion=criterion)
     return METHODS[method]()
+
+
+def _speed_base(run: _Run, error: FitError) -> Estimate:
+    """
+    The base model fitted on the speed when it has no fit on the position (else ``error``).
+
+    A model that lacks the very effect the loop is there to find (a force offset on an axis
+    driven both ways) may have no fit on the position: its integral drifts and the fit runs
+    to an infinite inertia.  Its speed fit is the base the loop starts from
+    (:func:`~dcmotor_id.identification.criterion.with_position_states`).
+    """
+    if run.criterion == 'speed' or not isinstance(run.estimator, RefinedEstimator):
+        raise error
+    speed = _make_estimator(run.method, run.initial_state, run.progress)
+    estimate = with_position_states(speed.fit(run.records, torque_constant=run.torque_constant),
+                                    run.records)
+    reason = str(error).split(': the motor model')[0]
+    run.warnings.append(f'the base model (no effects) has no fit on the position ({reason}): '
+                        'the effect search started from its fit on the speed')
+    return estimate
 
 
 def _armature(run: _Run) -> None:

@@ -457,6 +457,51 @@ def ball_screw_sine(seed: int = 0, sample_period_s: float = 5e-4,
                          'travel, quantised position only')
 
 
+#: A linear axis like EMPS's (units of the rotary model: kg as kg m^2, N as N m, m as rad).
+AXIS = MotorParameters(Ra=1.0, La=1e-3, CPhi=35.0, J=95.0, b=200.0, Mc=20.0)
+
+
+def axis_both_ways(seed: int = 0, sample_period_s: float = 1e-3, pulses: bool = False,
+                   force_lag_s: float = 0.004) -> Scenario:
+    """
+    Simulate a prismatic axis driven both ways by a force command, its position logged only.
+
+    Like EMPS (a drive's force command, its current, ``CPhi`` N per unit): a constant force
+    offset (a cable's pull, -3.2 N) and a viscous friction that differs between the
+    directions (+-40 N s/m) are in the fitted vocabulary (``load_torque``,
+    ``viscous_asymmetry``); the force's lag behind the command (``force_lag_s``) is not, so
+    the position misfits its sensor noise whatever the effects.  Without the offset the
+    model's position drifts away over the record: the base model has no fit on the position.
+    The encoder is quantised at 1 um; the speed is not logged.  ``pulses``: a validation
+    record's input (force pulses both ways) instead of the estimation record's three sines.
+    """
+    from scipy.signal import lfilter
+
+    from dcmotor_id.simulation.coefficients import MotorEffects
+    from dcmotor_id.simulation.motor import simulate_mechanical_effects
+
+    rng = np.random.default_rng(seed)
+    truth, dt = AXIS, sample_period_s
+    t = np.arange(int(round(20.0 / dt))) * dt
+    if pulses:
+        command = 1.3 * np.sign(np.sin(2 * np.pi * 0.4 * t)) * (np.sin(2 * np.pi * 0.8 * t) > 0)
+    else:
+        phases = rng.uniform(0.0, 2 * np.pi, 3)
+        command = sum(amplitude * np.sin(2 * np.pi * frequency * t + phase) for
+                      amplitude, frequency, phase in zip((1.0, 0.6, 0.4), (0.25, 0.9, 2.3),
+                                                         phases))
+    lag = np.exp(-dt / force_lag_s)
+    force = lfilter([1.0 - lag], [1.0, -lag], truth.CPhi * command)
+    effects = MotorEffects(load_torque_Nm=-3.2, viscous_delta_Nm_s=-40.0)
+    _, angle = simulate_mechanical_effects(truth.J, truth.b, truth.Mc, force, dt, effects)
+    position = np.round(angle / 1e-6) * 1e-6
+    record = Record(t, current=command, position=position,
+                    source='axis_pulses' if pulses else 'axis_sines')
+    return Scenario('axis_both_ways', [record], truth, torque_constant=truth.CPhi,
+                    note='force offset and direction-dependent viscous friction, an '
+                         'unmodelled force lag, quantised position only')
+
+
 SCENARIOS = {
     'servo_torque_steps': servo_torque_steps,
     'small_motor_pwm_steps': small_motor_pwm_steps,
@@ -470,4 +515,5 @@ SCENARIOS = {
     'coarse_speed_steps': coarse_speed_steps,
     'servo_opposite_steps': servo_opposite_steps,
     'ball_screw_sine': ball_screw_sine,
+    'axis_both_ways': axis_both_ways,
 }

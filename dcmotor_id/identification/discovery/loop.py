@@ -5,13 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Sequence, TYPE_CHECKING
 
+from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.identification.discovery.analysis import (analyse, explained, material, misfit,
                                                           negligible)
 from dcmotor_id.identification.discovery.judging import decide, never_worse, round_report, score
 from dcmotor_id.identification.discovery.refitting import (anchor_fit, fit_structure, refit_all,
-                                                           refit_candidate)
+                                                           base_unsound, refit_candidate,
+                                                           speed_base_on_the_position)
 from dcmotor_id.identification.discovery.result import DiscoveryResult
 from dcmotor_id.identification.discovery.screening import (screen_absent, SCREEN_SHARE, SCREEN_TOP,
                                                            SCREEN_TOP_MISFIT)
@@ -72,23 +74,42 @@ class DiscoveryLoop(LoopState):
             quasi_static=self.quasi_static, criterion=self.criterion)
 
     def _base_fit(self, estimate: Estimate | None) -> Fit:
-        """Fit the base model on the training parts (from ``estimate`` if given); the anchor."""
+        """
+        Fit the base model on the training parts (from ``estimate`` if given); the anchor.
+
+        On the position, a base fit that fails or lands far from the model-free evidence
+        (:func:`~dcmotor_id.identification.discovery.refitting.base_unsound`) gives way to the
+        base fitted on the speed (:func:`speed_base_on_the_position`).
+        """
         if self.progress is not None:
             self.progress.set_stage('discovery: base model on the training parts')
-        if estimate is None:
-            base = fit_structure(self, Structure())
-        else:
-            start = {name: float(estimate.parameters[name])
-                     for name in parameter_names(self.mechanical_only)
-                     if name in estimate.parameters}
-            base = fit_structure(self, Structure(), start=start,
-                                 initial_states=estimate.initial_states)
+        try:
+            base = self._fit_base(estimate)
+        except DcMotorIdError:
+            fallback = None if self.criterion == 'speed' else speed_base_on_the_position(self)
+            if fallback is None:
+                raise
+            return fallback
+        if self.criterion != 'speed' and base_unsound(self, base):
+            fallback = speed_base_on_the_position(self)
+            if fallback is not None:
+                return fallback
         if base.estimate.info.get('initial_state') == 'measured':
             # The position criterion pinned the base's initial states (its fitted start moved
             # to absorb a misfit): the candidates start pinned too, without a second fit.
             self.initial_state = 'measured'
         self.anchor = anchor_fit(self)
         return base
+
+    def _fit_base(self, estimate: Estimate | None) -> Fit:
+        """The base structure's fit on the training parts, from ``estimate`` if given."""
+        if estimate is None:
+            return fit_structure(self, Structure())
+        start = {name: float(estimate.parameters[name])
+                 for name in parameter_names(self.mechanical_only)
+                 if name in estimate.parameters}
+        return fit_structure(self, Structure(), start=start,
+                             initial_states=estimate.initial_states)
 
     def _search(self, base: Fit, analysis: dict) -> Search:
         """Add effects round by round until the residual is white or nothing helps."""
@@ -131,11 +152,22 @@ class DiscoveryLoop(LoopState):
                 # The base model on all of the data is the one given: no refit.
                 return list(self.records), (), estimate, estimate, out_of_time
             records, terms, estimate = refit_all(self, current)
-            base_estimate = refit_all(self, base)[2] if len(current.structure) else estimate
+            base_estimate = self._base_on_all_data(base) if len(current.structure) else estimate
             return records, terms, estimate, base_estimate, out_of_time
         except TimeBudgetExceeded:
             # The training-part fits are what there is: report them, said so in the result.
             return (current.records, current.terms, current.estimate, base.estimate, True)
+
+    def _base_on_all_data(self, base: Fit) -> Estimate:
+        """The base structure refitted on all the data; its training fit when it has none."""
+        if 'base_from' in base.estimate.info:
+            return base.estimate  # the speed fit: the base has no fit on the position
+        try:
+            return refit_all(self, base)[2]
+        except DcMotorIdError:
+            # A base that lacks the effect found may have no fit on the whole position
+            # (:func:`speed_base_on_the_position`): the comparison uses its training fit.
+            return base.estimate
 
     def _round(self, current: Fit, analysis: dict) -> Round:
         """One search round: screen every absent effect, refit the promising, choose."""

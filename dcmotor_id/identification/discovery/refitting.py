@@ -16,6 +16,8 @@ import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
+from dcmotor_id.identification.checks.start import EVIDENCE_FACTOR, regression_evidence
+from dcmotor_id.identification.criterion import with_position_states
 from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.discovery.screening import (base_sensitivities, delay_estimate,
                                                            projector)
@@ -78,6 +80,12 @@ def fit_structure(loop: LoopState, structure: Structure, start: dict | None = No
                              terms=slice_terms(terms, stops))
     if loop.position_ar is None:  # the base's error model warm-starts the candidates'
         loop.position_ar = estimate.info.get('position_ar')
+    return judged_fit(loop, structure, estimate, records, stops, terms)
+
+
+def judged_fit(loop: LoopState, structure: Structure, estimate: Estimate,
+               records: Sequence[Record], stops: Sequence[int], terms: Sequence) -> Fit:
+    """Simulate a fit's whole records and cost its training and held-out parts."""
     model = OutputErrorModel(records, loop.torque_constant, terms, loop.quasi_static,
                              loop.criterion)
     simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
@@ -166,6 +174,43 @@ def anchor_fit(loop: LoopState) -> Fit | None:
         return None
 
 
+def base_unsound(loop: LoopState, base: Fit) -> bool:
+    """
+    Whether a base fit's J or b lies beyond the start check's factor from the regression.
+
+    :func:`~dcmotor_id.identification.checks.start.regression_evidence`: a base on the
+    position that lacks a force offset can run to an inertia or a friction many times the
+    data's (an axis driven both ways: b 1e10 N m s/rad), a basin no effect screen recovers
+    from.
+    """
+    evidence = regression_evidence(loop.records, loop.torque_constant)
+    if evidence is None:
+        return False
+    for name in ('J', 'b'):
+        seen, fitted = evidence[name], base.values[name]
+        if seen > 0 and not 1 / EVIDENCE_FACTOR < fitted / seen < EVIDENCE_FACTOR:
+            return True
+    return False
+
+
+def speed_base_on_the_position(loop: LoopState) -> Fit | None:
+    """
+    The base model fitted on the speed, judged on the position; None when that fails too.
+
+    A base model that lacks the very effect the loop is there to find (a force offset on an
+    axis driven both ways) may have no fit on the position at all: its integral drifts, and
+    the fit runs to an infinite inertia.  The speed fit of the same model is sound; the loop
+    starts from it, and its candidates are fitted on the position.
+    """
+    anchor = anchor_fit(loop)
+    if anchor is None:
+        return None
+    records = list(loop.records)
+    estimate = with_position_states(anchor.estimate, records)
+    loop.anchor = anchor
+    return judged_fit(loop, Structure(), estimate, records, training_stops(loop, records), ())
+
+
 def refit_candidate(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
     """Refit all parameters with the candidate added; return it with its fit and problem."""
     if candidate.effect.TRANSFORM:
@@ -225,7 +270,8 @@ def refit_all(loop: LoopState, fitted: Fit) -> tuple[list[Record], tuple, Estima
                           fitted.values, base_start(loop, fitted), progress=loop.progress,
                           initial_states=fitted.estimate.initial_states,
                           initial_state=loop.initial_state,
-                          quasi_static=loop.quasi_static, criterion=loop.criterion)
+                          quasi_static=loop.quasi_static, criterion=loop.criterion,
+                          position_ar=loop.position_ar)
 
 
 def open_loop_outputs(structure: Structure, estimate: Estimate, records: Sequence[Record],
