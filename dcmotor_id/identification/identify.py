@@ -72,9 +72,9 @@ from dcmotor_id.identification.prepare import (check_excitation, common_period, 
                                                single_current_level)
 from dcmotor_id.identification.quasi_static import (la_reason, la_unresolved, quasi_static_refit,
                                                     with_la_bound)
+from dcmotor_id.identification.position_error import with_chosen_error_model
 from dcmotor_id.identification.residuals import output_channels, simulate_records
 from dcmotor_id.identification.result import IdentificationResult
-from dcmotor_id.identification.position_error import with_chosen_error_model
 from dcmotor_id.identification.second_start import check_start, start_warning
 from dcmotor_id.identification.validate import operating_range
 
@@ -376,7 +376,7 @@ def _make_estimator(method, initial_state, progress, criterion='speed'):
 
 def _speed_base(run: _Run, error: FitError) -> Estimate:
     """
-    The base model fitted on the speed when it has no fit on the position (else ``error``).
+    Fit the base model on the speed when it has no fit on the position (else raise ``error``).
 
     A model that lacks the very effect the loop is there to find (a force offset on an axis
     driven both ways) may have no fit on the position: its integral drifts and the fit runs

@@ -99,7 +99,7 @@ def with_chosen_error_model(run: Callable[[], IdentificationResult]) -> Identifi
 
 
 def _compared(evidence: dict[str, float] | None) -> dict[str, float] | None:
-    """The regression's values of the compared parameters (JSON)."""
+    """Return the regression's values of the compared parameters (JSON)."""
     if evidence is None:
         return None
     return {name: float(evidence[name]) for name in COMPARED if name in evidence}

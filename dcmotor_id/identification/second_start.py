@@ -96,7 +96,8 @@ def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, c
     progress.set_stage('second start (initial states pinned)', record_names(records))
     try:
         pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
-                                  progress=progress, criterion=criterion).fit(records, torque_constant=torque_constant)
+                                  progress=progress, criterion=criterion).fit(
+            records, torque_constant=torque_constant)
         check_physical(pinned)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
         check['second_start'] = f'failed: {error}'
@@ -121,7 +122,7 @@ def _second_start(records, torque_constant, quasi, discover, vocabulary, progres
                           found.estimate if found is not None else pinned, second_records,
                           OutputErrorModel(second_records, torque_constant,
                                            found.terms if found is not None else (), quasi,
-                                          criterion))
+                                           criterion))
     try:
         freed = refit_all_data(structure, records, torque_constant, values,
                                refit_start(values, records, torque_constant), progress=progress,

@@ -42,7 +42,7 @@ def test_the_white_error_model_never_takes_an_ar1_coefficient():
 
 
 def _result(parameters, warnings=()):
-    """A result whose records are the ball screw's (the regression's data)."""
+    """Return a result whose records are the ball screw's (the regression's data)."""
     scenario = ball_screw_sine()
     records = prepare_records(scenario.records, scenario.torque_constant)
     return IdentificationResult(
@@ -56,7 +56,7 @@ def _result(parameters, warnings=()):
 
 @pytest.fixture(scope='module')
 def agreeing():
-    """A result close to the ball screw's truth (which the regression sees)."""
+    """Return a result close to the ball screw's truth (which the regression sees)."""
     truth = ball_screw_sine().truth
     return _result({'J': truth.J, 'b': truth.b, 'Mc': truth.Mc})
 
@@ -86,7 +86,8 @@ def test_a_white_fit_that_bends_the_friction_runs_again_adaptive(agreeing):
     assert result.position_error['disagreement']['white'] is None
     assert result.parameters['Mc'] == agreeing.parameters['Mc']
     # Both far from the evidence: the closer one, with a warning that says so.
-    worse = replace(agreeing, parameters={**agreeing.parameters, 'J': 5 * agreeing.parameters['J']})
+    worse = replace(agreeing, parameters={**agreeing.parameters,
+                                          'J': 5 * agreeing.parameters['J']})
     results = iter([bent, worse])
     result = with_chosen_error_model(lambda: next(results))
     assert result.position_error['model'] == 'adaptive'
@@ -152,7 +153,7 @@ def test_the_second_start_fits_the_run_s_criterion():
 
 def test_an_axis_driven_both_ways_with_an_offset_finds_its_effects():
     """
-    EMPS's class: the base model has no fit on the position; the loop starts from the speed.
+    Identify EMPS's class: a base with no fit on the position; the loop starts from the speed.
 
     Without its force offset the model's position runs away over the record and its fit on
     the position diverges (the identification used to find no effect: 135 mm on the pulses).

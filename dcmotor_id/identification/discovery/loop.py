@@ -11,8 +11,9 @@ from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.identification.discovery.analysis import (analyse, explained, material, misfit,
                                                           negligible)
 from dcmotor_id.identification.discovery.judging import decide, never_worse, round_report, score
-from dcmotor_id.identification.discovery.refitting import (anchor_fit, fit_structure, refit_all,
-                                                           base_unsound, refit_candidate,
+from dcmotor_id.identification.discovery.refitting import (anchor_fit, base_unsound,
+                                                           fit_structure, refit_all,
+                                                           refit_candidate,
                                                            speed_base_on_the_position)
 from dcmotor_id.identification.discovery.result import DiscoveryResult
 from dcmotor_id.identification.discovery.screening import (screen_absent, SCREEN_SHARE, SCREEN_TOP,
@@ -102,7 +103,7 @@ class DiscoveryLoop(LoopState):
         return base
 
     def _fit_base(self, estimate: Estimate | None) -> Fit:
-        """The base structure's fit on the training parts, from ``estimate`` if given."""
+        """Fit the base structure on the training parts, from ``estimate`` if given."""
         if estimate is None:
             return fit_structure(self, Structure())
         start = {name: float(estimate.parameters[name])
@@ -159,7 +160,7 @@ class DiscoveryLoop(LoopState):
             return (current.records, current.terms, current.estimate, base.estimate, True)
 
     def _base_on_all_data(self, base: Fit) -> Estimate:
-        """The base structure refitted on all the data; its training fit when it has none."""
+        """Refit the base structure on all the data; its training fit when it has none."""
         if 'base_from' in base.estimate.info:
             return base.estimate  # the speed fit: the base has no fit on the position
         try:

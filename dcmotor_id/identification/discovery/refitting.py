@@ -84,7 +84,7 @@ def fit_structure(loop: LoopState, structure: Structure, start: dict | None = No
 
 
 def judged_fit(loop: LoopState, structure: Structure, estimate: Estimate,
-               records: Sequence[Record], stops: Sequence[int], terms: Sequence) -> Fit:
+               records: list[Record], stops: list[int], terms: tuple) -> Fit:
     """Simulate a fit's whole records and cost its training and held-out parts."""
     model = OutputErrorModel(records, loop.torque_constant, terms, loop.quasi_static,
                              loop.criterion)
@@ -195,7 +195,7 @@ def base_unsound(loop: LoopState, base: Fit) -> bool:
 
 def speed_base_on_the_position(loop: LoopState) -> Fit | None:
     """
-    The base model fitted on the speed, judged on the position; None when that fails too.
+    Fit the base model on the speed, judged on the position; None when that fails too.
 
     A base model that lacks the very effect the loop is there to find (a force offset on an
     axis driven both ways) may have no fit on the position at all: its integral drifts, and
