@@ -67,12 +67,12 @@ from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
 from dcmotor_id.identification.fitting import (check_physical, record_names, run_discovery,
                                                simulation_errors, supports_discovery)
 from dcmotor_id.identification.heldout import HELDOUT_CHOICE, heldout_warnings, record_errors
+from dcmotor_id.identification.position_error import with_chosen_error_model
 from dcmotor_id.identification.prepare import (check_excitation, common_period, one_level_reason,
                                                PERIOD_RTOL, prepare_records, SETTLE_SAMPLES,
                                                single_current_level)
 from dcmotor_id.identification.quasi_static import (la_reason, la_unresolved, quasi_static_refit,
                                                     with_la_bound)
-from dcmotor_id.identification.position_error import with_chosen_error_model
 from dcmotor_id.identification.residuals import output_channels, simulate_records
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.identification.second_start import check_start, start_warning

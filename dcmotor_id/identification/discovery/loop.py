@@ -11,9 +11,8 @@ from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.identification.discovery.analysis import (analyse, explained, material, misfit,
                                                           negligible)
 from dcmotor_id.identification.discovery.judging import decide, never_worse, round_report, score
-from dcmotor_id.identification.discovery.refitting import (anchor_fit, base_unsound,
-                                                           fit_structure, refit_all,
-                                                           refit_candidate,
+from dcmotor_id.identification.discovery.refitting import (anchor_fit, base_unsound, fit_structure,
+                                                           refit_all, refit_candidate,
                                                            speed_base_on_the_position)
 from dcmotor_id.identification.discovery.result import DiscoveryResult
 from dcmotor_id.identification.discovery.screening import (screen_absent, SCREEN_SHARE, SCREEN_TOP,
