@@ -20,8 +20,8 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
-from dcmotor_id.identification.checks.start import (bic, regression_evidence, regression_start,
-                                                    suspect)
+from dcmotor_id.identification.checks.start import (bic, offset_supported, regression_evidence,
+                                                    regression_start, suspect)
 from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.fitting import check_physical, record_names, run_discovery
@@ -54,11 +54,17 @@ def check_start(
     check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
     if not doubts:
         return found, estimate, discovery_info, check
-    pinned = _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check)
+    seed = evidence_structure(evidence, vocabulary) if discover else Structure()
+    pinned, seed = _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence,
+                               check, seed)
     if pinned is None:
         return found, estimate, discovery_info, check
     second = _second_start(records, torque_constant, quasi, discover, vocabulary, progress,
-                           pinned, check)
+                           pinned, check, seed)
+    if second.found is None and len(second.structure):
+        # The loop did not finish from the seeded base: its effects have no result to go in.
+        check['second_start'] = f'failed: {(second.info or {}).get("skipped", "no result")}'
+        return found, estimate, discovery_info, check
     chosen = _choose(check, first, first_records, model, second)
     if chosen == 'first start':
         return found, estimate, discovery_info, check
@@ -84,31 +90,64 @@ class _SecondStart:
     freed: Estimate | None = None  # the refit with the initial states freed
 
 
-def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check):
-    """Fit from the regression's values with the initial states pinned; None when it fails."""
+def evidence_structure(evidence: dict[str, float] | None,
+                       vocabulary: Sequence[type[Effect]]) -> Structure:
+    """
+    The effects the model-free regression sees, which a sound base holds from the start.
+
+    On records in both directions a constant torque offset
+    (:func:`~dcmotor_id.identification.checks.start.offset_supported`) is the ``load_torque``
+    effect: without it no basin of the base model balances both steady states, and a fit
+    from there (pinned or not) settles at a huge J that never reaches them.
+    """
+    names = {cls.name: cls for cls in vocabulary}
+    if offset_supported(evidence) and 'load_torque' in names:
+        return Structure([(names['load_torque'], {})])
+    return Structure()
+
+
+def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check, seed):
+    """
+    Fit from the regression's values with the initial states pinned; return it and its structure.
+
+    The effects of ``seed`` (:func:`evidence_structure`) are in the fit, their coefficients
+    started from the regression (the offset); when that fit fails, the base model is tried.
+    The fit is None when it fails.
+    """
     names = [name for name in parameter_names(torque_constant is not None)
              if not (quasi and name == 'La')]
     start = regression_start(evidence, estimate.parameters, names)
     progress.set_stage('second start (initial states pinned)', record_names(records))
+    if len(seed) and evidence is not None:
+        values = {**start, **{cls.term_name('torque_Nm'): evidence['offset']
+                              for cls, _ in seed.items if cls.name == 'load_torque'}}
+        try:
+            pinned = refit_all_data(seed, records, torque_constant, values, start,
+                                    initial_state='measured', quasi_static=quasi,
+                                    progress=progress)[2]
+            check_physical(pinned)
+            return pinned, seed
+        except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
+            check['seeded'] = f'failed: {error}'  # the base model is tried instead
     try:
         pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
                                   progress=progress).fit(records, torque_constant=torque_constant)
         check_physical(pinned)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
         check['second_start'] = f'failed: {error}'
-        return None
-    return pinned
+        return None, Structure()
+    return pinned, Structure()
 
 
 def _second_start(records, torque_constant, quasi, discover, vocabulary, progress, pinned,
-                  check):
-    """Search the effects from the pinned fit, then free the initial states."""
-    found, info, structure = None, None, Structure()
+                  check, seed):
+    """Search the effects from the pinned fit (its structure ``seed``), then free the states."""
+    found, info, structure = None, None, seed
     values, states = pinned.parameters, pinned.initial_states
     if discover:
         found, info = run_discovery(
             records, torque_constant, RefinedEstimator(), vocabulary, progress, 'measured',
-            quasi, pinned)
+            quasi, pinned, structure=structure)
         if found is not None:
             structure = found.final.structure
             values, states = found.estimate.parameters, found.estimate.initial_states

@@ -40,6 +40,10 @@ if TYPE_CHECKING:
 REGRESSION_CUTOFF = 0.02
 #: Factor between a fitted J or b and the regression's beyond which the fit is suspect.
 EVIDENCE_FACTOR = 3.0
+#: Standard errors (effective samples) beyond which the regression's offset is an effect.
+OFFSET_T = 3.0
+#: Least share of the regression's Coulomb friction of an offset taken as an effect.
+OFFSET_SHARE = 0.1
 
 
 def both_directions(records: Sequence[Record]) -> bool:
@@ -82,7 +86,8 @@ def regression_evidence(records: Sequence[Record],
     if not rows_m:
         return None
     try:
-        mech = np.linalg.lstsq(np.vstack(rows_m), np.concatenate(rhs_m), rcond=None)[0]
+        matrix, rhs = np.vstack(rows_m), np.concatenate(rhs_m)
+        mech = np.linalg.lstsq(matrix, rhs, rcond=None)[0]
         cphi = 1.0
         values: dict[str, float] = {}
         if not mechanical_only:
@@ -94,9 +99,43 @@ def regression_evidence(records: Sequence[Record],
     values.update({'J': float(mech[0] * cphi), 'b': float(mech[1] * cphi),
                    'Mc': float(mech[2] * cphi),
                    'offset': float(mech[3] * cphi) if offset else 0.0})
+    if offset:
+        values['offset_stderr'] = float(abs(cphi) * _last_stderr(matrix, rhs, mech))
     if not all(np.isfinite(value) for value in values.values()):
         return None
     return values
+
+
+def _last_stderr(matrix: np.ndarray, rhs: np.ndarray, solution: np.ndarray) -> float:
+    """
+    Standard error of the last coefficient of a least-squares fit on low-passed signals.
+
+    The residual of low-passed signals is correlated over about ``1 / (2 REGRESSION_CUTOFF)``
+    samples: the samples count as that many fewer independent ones.
+    """
+    n, p = matrix.shape
+    effective = max(n * 2.0 * REGRESSION_CUTOFF, p + 1.0)
+    residual = rhs - matrix @ solution
+    variance = float(residual @ residual) / max(n - p, 1) * n / effective
+    try:
+        covariance = np.linalg.inv(matrix.T @ matrix)
+    except np.linalg.LinAlgError:
+        return float('inf')
+    return float(np.sqrt(max(variance * covariance[-1, -1], 0.0)))
+
+
+def offset_supported(evidence: dict[str, float] | None) -> bool:
+    """
+    Whether the regression sees a constant torque offset between the two directions.
+
+    Its value must exceed :data:`OFFSET_T` standard errors (effective samples) and
+    :data:`OFFSET_SHARE` of the regression's Coulomb friction.
+    """
+    if evidence is None or not np.isfinite(evidence.get('offset_stderr', np.nan)):
+        return False
+    offset = abs(evidence['offset'])
+    return bool(offset > OFFSET_T * evidence['offset_stderr']
+                and offset > OFFSET_SHARE * abs(evidence['Mc']))
 
 
 def misfit_ratio(estimate: Estimate, records: Sequence[Record], model: Any) -> float:

@@ -45,15 +45,18 @@ class DiscoveryLoop(LoopState):
     judges them on the held-out parts (:mod:`~dcmotor_id.identification.discovery.judging`).
     """
 
-    def run(self, estimate: Estimate | None = None) -> DiscoveryResult:
+    def run(self, estimate: Estimate | None = None,
+            structure: Structure | None = None) -> DiscoveryResult:
         """
         Run the loop, refit the base and final structures on all the data; return it.
 
         ``estimate``, the base model already fitted on all of the records (same model: mode,
         quasi-static armature), warm-starts the base fit on the training parts and is reused
-        when no effect is added.
+        when no effect is added.  ``structure``: effects the base holds from the start (the
+        model-free evidence's, :mod:`~dcmotor_id.identification.second_start`), their
+        coefficients started from ``estimate``'s values.
         """
-        base = self._base_fit(estimate)
+        base = self._base_fit(estimate, structure or Structure())
         analysis_before = analyse(self, base)
         search = self._search(base, analysis_before)
         current, reason = never_worse(base, search.current, search.reason)
@@ -71,17 +74,18 @@ class DiscoveryLoop(LoopState):
             error_after=current.errors(self.error_channels), out_of_time=out_of_time,
             quasi_static=self.quasi_static, criterion=self.criterion)
 
-    def _base_fit(self, estimate: Estimate | None) -> Fit:
-        """Fit the base model on the training parts (from ``estimate`` if given); the anchor."""
+    def _base_fit(self, estimate: Estimate | None, structure: Structure) -> Fit:
+        """Fit the base structure on the training parts (from ``estimate``); the anchor."""
         if self.progress is not None:
             self.progress.set_stage('discovery: base model on the training parts')
         if estimate is None:
-            base = fit_structure(self, Structure())
+            base = fit_structure(self, structure)
         else:
             start = {name: float(estimate.parameters[name])
                      for name in parameter_names(self.mechanical_only)
                      if name in estimate.parameters}
-            base = fit_structure(self, Structure(), start=start,
+            base = fit_structure(self, structure, start=start,
+                                 initial=dict(estimate.parameters),
                                  initial_states=estimate.initial_states)
         if base.estimate.info.get('initial_state') == 'measured':
             # The position criterion pinned the base's initial states (its fitted start moved
@@ -131,7 +135,7 @@ class DiscoveryLoop(LoopState):
                 # The base model on all of the data is the one given: no refit.
                 return list(self.records), (), estimate, estimate, out_of_time
             records, terms, estimate = refit_all(self, current)
-            base_estimate = refit_all(self, base)[2] if len(current.structure) else estimate
+            base_estimate = refit_all(self, base)[2] if current is not base else estimate
             return records, terms, estimate, base_estimate, out_of_time
         except TimeBudgetExceeded:
             # The training-part fits are what there is: report them, said so in the result.
