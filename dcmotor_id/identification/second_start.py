@@ -20,8 +20,9 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
-from dcmotor_id.identification.checks.start import (bic, offset_supported, regression_evidence,
-                                                    regression_start, suspect)
+from dcmotor_id.identification.checks.start import (bic, effective_samples, offset_supported,
+                                                    regression_evidence, regression_start,
+                                                    suspect)
 from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.fitting import check_physical, record_names, run_discovery
@@ -170,20 +171,29 @@ def _second_start(records, torque_constant, quasi, discover, vocabulary, progres
 
 
 def _choose(check, first, first_records, model, second):
-    """Score the first start and the second's candidates (BIC); account for and return the best."""
+    """
+    Score the first start and the second's candidates (BIC); account for and return the best.
+
+    The BIC counts the samples the residuals are worth (the fewest over the candidates,
+    :func:`~dcmotor_id.identification.checks.start.effective_samples`), so that a free initial
+    speed absorbing a slow misfit does not win on thousands of correlated samples.
+    """
     noise = dict(first.info.get('noise_std', {}))
-    scores = {'first start': bic(first, first_records, model, noise),
-              'second start, initial states pinned': bic(second.pinned_final, second.records,
-                                                         second.model, noise,
-                                                         free_states=False)}
+    candidates = {'first start': (first, first_records, model, True),
+                  'second start, initial states pinned': (second.pinned_final, second.records,
+                                                          second.model, False)}
     if second.freed is not None:
-        scores['second start'] = bic(second.freed, second.records, second.model, noise)
+        candidates['second start'] = (second.freed, second.records, second.model, True)
+    effective = min(effective_samples(fit, records, fit_model)
+                    for fit, records, fit_model, _ in candidates.values())
+    scores = {name: bic(fit, records, fit_model, noise, free_states=free, effective=effective)
+              for name, (fit, records, fit_model, free) in candidates.items()}
     chosen = min(scores, key=lambda key: scores[key])
     shown = second.freed if second.freed is not None else second.pinned_final
     check.update({'second_start': {'effects': second.structure.names(),
                                    'J': float(shown.parameters['J']),
                                    'b': float(shown.parameters['b'])},
-                  'bic': scores, 'chosen': chosen})
+                  'bic': scores, 'effective_samples': float(effective), 'chosen': chosen})
     return chosen
 
 

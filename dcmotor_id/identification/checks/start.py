@@ -211,15 +211,56 @@ def weighted_cost(estimate: Estimate, records: Sequence[Record], model: Any) -> 
 
 
 def bic(estimate: Estimate, records: Sequence[Record], model: Any,
-        noise: dict[str, float], free_states: bool = True) -> float:
+        noise: dict[str, float], free_states: bool = True,
+        effective: float | None = None) -> float:
     """
     Bayesian information criterion of a fit on all of the data, under common weights.
 
     ``free_states``: the initial states were fitted (they count as parameters).
+    ``effective``: the number of independent samples the residuals are worth
+    (:func:`effective_samples`; default: every sample counts).
     """
     weighted = replace(estimate, info={**estimate.info, 'noise_std': noise})
     cost, count = weighted_cost(weighted, records, model)
     k = len(estimate.parameters) + (len(records) * len(model.outputs) if free_states else 0)
     if not np.isfinite(cost):
         return float('inf')
-    return float(count * np.log(max(cost / max(count, 1), 1e-300)) + k * np.log(max(count, 2)))
+    n = float(count if effective is None else min(max(effective, 2.0), count))
+    return float(n * np.log(max(cost / max(count, 1), 1e-300)) + k * np.log(max(n, 2.0)))
+
+
+def correlation_time(residual: np.ndarray) -> float:
+    """
+    Integrated autocorrelation time of a residual [samples]: 1 for white noise.
+
+    ``1 + 2 sum(rho_k)`` over the lags before the autocorrelation first drops to zero.
+    """
+    x = np.asarray(residual, dtype=float)
+    x = x[np.isfinite(x)] - np.mean(x[np.isfinite(x)]) if x.shape[0] else x
+    n = x.shape[0]
+    if n < 3 or not np.any(x):
+        return 1.0
+    spectrum = np.fft.rfft(x, 2 * n)
+    acf = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
+    acf = acf / acf[0]
+    negative = np.flatnonzero(acf[1:] <= 0.0)
+    stop = int(negative[0]) + 1 if negative.shape[0] else n
+    return float(max(1.0 + 2.0 * np.sum(acf[1:stop]), 1.0))
+
+
+def effective_samples(estimate: Estimate, records: Sequence[Record], model: Any) -> float:
+    """
+    Independent samples a fit's residuals are worth: each record's length over its residual's
+    correlation time (:func:`correlation_time`), summed over records and output channels.
+
+    A slow misfit correlated over seconds is worth a few samples, not thousands: counted as
+    independent it makes any free parameter that absorbs part of it (an initial speed moved
+    by many noise levels) win the BIC comparison.
+    """
+    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
+    total = 0.0
+    for channel in model.outputs:
+        for out, rec in zip(simulated, records):
+            residual = out[channel] - getattr(rec, channel)
+            total += residual.shape[0] / correlation_time(residual)
+    return total
