@@ -81,7 +81,8 @@ def run_discovery(records: Sequence[Record], torque_constant: float | None, esti
     try:
         found = DiscoveryLoop(records, torque_constant, vocabulary=vocabulary,
                               progress=progress, initial_state=initial_state,
-                              quasi_static=quasi_static, criterion=criterion).run(estimate, structure)
+                              quasi_static=quasi_static, criterion=criterion
+                              ).run(estimate, structure)
         check_physical(found.estimate)
     except TimeBudgetExceeded:
         return None, {'skipped': f'the time budget ({progress.max_time_s:g} s) ran out '

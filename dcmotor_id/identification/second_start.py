@@ -4,10 +4,11 @@ The fit checked against model-free evidence, and a second start when the evidenc
 A fit from the default start can settle in a wrong basin (e.g. the initial speeds moved by a
 misfit); the regression on the data (:mod:`~dcmotor_id.identification.checks.start`) sees that
 without a model.  :func:`check_start` compares the fit with it; when doubted, it fits again
-from the regression's values with the initial states pinned to the first samples, searches
-the effects from there, frees the initial states, and keeps whichever of the first start and
-these candidates explains all of the data best (BIC).  :func:`start_warning` says what
-happened.
+from the regression's values with the initial states pinned to the first samples (holding
+the effects the regression sees, :func:`evidence_structure`: a torque offset between the
+directions), searches the effects from there, frees the initial states, and keeps whichever
+of the first start and these candidates explains all of the data best (BIC on the samples
+the residuals are worth).  :func:`start_warning` says what happened.
 """
 
 from __future__ import annotations
@@ -94,7 +95,7 @@ class _SecondStart:
 def evidence_structure(evidence: dict[str, float] | None,
                        vocabulary: Sequence[type[Effect]]) -> Structure:
     """
-    The effects the model-free regression sees, which a sound base holds from the start.
+    Return the effects the model-free regression sees, which a sound base holds from the start.
 
     On records in both directions a constant torque offset
     (:func:`~dcmotor_id.identification.checks.start.offset_supported`) is the ``load_torque``

@@ -225,7 +225,7 @@ class _DecayModel:
         return {'speed': values['level'] * (1.0 - decay) + float(state[0]) * decay}
 
 
-def _fit(level, tau, start):
+def _stand_in(level, tau, start):
     return Estimate('stand-in', {'level': level, 'tau': tau, 'J': 1.0, 'b': 1.0}, {}, [(start,)],
                     {'noise_std': {'speed': 0.2}})
 
@@ -240,8 +240,8 @@ def test_a_free_initial_speed_absorbing_a_slow_misfit_does_not_win_the_start_che
     speed = 100.0 * (1 - np.exp(-t / 1.5)) + wander + rng.normal(0, 0.2, t.shape)
     record = Record(t, current=np.ones_like(t), speed=speed, source='wander')
     model = _DecayModel(t)
-    pinned = _fit(100.0, 1.5, 0.0)
-    moved = _fit(100.0, 1.5, 6.0)  # the start moved to follow the wander's first swing
+    pinned = _stand_in(100.0, 1.5, 0.0)
+    moved = _stand_in(100.0, 1.5, 6.0)  # the start moved to follow the wander's first swing
     residual = {name: speed - model.simulate(fit.parameters, 0, fit.initial_states[0])['speed']
                 for name, fit in (('pinned', pinned), ('moved', moved))}
     assert np.mean(residual['moved'] ** 2) < 0.97 * np.mean(residual['pinned'] ** 2)

@@ -13,10 +13,13 @@ result looks like that, judged against evidence that needs no model fit:
 * the records' first samples (initial states moved far beyond the noise);
 * the misfit far above the sensor noise.
 
-Then a second start is tried (:func:`second_start`): the regression's values with every
-initial state pinned to the record's first samples, discovery run from that sound base, and
-the final structure refitted with the initial states free again.  :func:`choose` keeps the
-better of the two by the Bayesian information criterion over all of the data.
+Then a second start is tried (:mod:`~dcmotor_id.identification.second_start`): the
+regression's values with every initial state pinned to the record's first samples (and the
+offset the regression sees, :func:`offset_supported`, as an effect from the start),
+discovery run from that sound base, and the final structure refitted with the initial states
+free again.  The best of the candidates by the Bayesian information criterion over all of
+the data is kept (:func:`bic`), counting the samples the residuals are worth
+(:func:`effective_samples`), not every correlated one.
 """
 
 from __future__ import annotations
@@ -108,7 +111,7 @@ def regression_evidence(records: Sequence[Record],
 
 def _last_stderr(matrix: np.ndarray, rhs: np.ndarray, solution: np.ndarray) -> float:
     """
-    Standard error of the last coefficient of a least-squares fit on low-passed signals.
+    Return the standard error of the last coefficient of a least-squares fit on low-passed data.
 
     The residual of low-passed signals is correlated over about ``1 / (2 REGRESSION_CUTOFF)``
     samples: the samples count as that many fewer independent ones.
@@ -250,8 +253,10 @@ def correlation_time(residual: np.ndarray) -> float:
 
 def effective_samples(estimate: Estimate, records: Sequence[Record], model: Any) -> float:
     """
-    Independent samples a fit's residuals are worth: each record's length over its residual's
-    correlation time (:func:`correlation_time`), summed over records and output channels.
+    Return the number of independent samples a fit's residuals are worth.
+
+    Each record's length over its residual's correlation time (:func:`correlation_time`),
+    summed over records and output channels.
 
     A slow misfit correlated over seconds is worth a few samples, not thousands: counted as
     independent it makes any free parameter that absorbs part of it (an initial speed moved
