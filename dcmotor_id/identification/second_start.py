@@ -128,6 +128,7 @@ def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, c
                                     initial_state='measured', quasi_static=quasi,
                                     progress=progress)[2]
             check_physical(pinned)
+            check['seeded'] = seed.names()
             return pinned, seed
         except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
             check['seeded'] = f'failed: {error}'  # the base model is tried instead
@@ -221,6 +222,9 @@ def _second_start_warning(check: dict[str, Any]) -> str:
            if check['chosen'].endswith('pinned') else
            'from a second start (the regression on the data, initial states pinned to the '
            'first samples while the effects were searched, then freed)')
+    seeded = check.get('seeded')
+    held = (f' (holding from the start the torque offset the regression sees, as '
+            f'{", ".join(seeded)})' if isinstance(seeded, list) and seeded else '')
     return ('the fit from the default start landed where the model-free evidence disagrees ('
-            + '; '.join(check['doubts']) + f'); the result is {how}, which explains all of the '
-            'data better (BIC)')
+            + '; '.join(check['doubts']) + f'); the result is {how}{held}, which explains all '
+            'of the data better (BIC)')

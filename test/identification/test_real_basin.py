@@ -72,6 +72,8 @@ def test_a_pinned_base_without_the_offset_does_not_hide_it():
     check = result.as_dict()['start_check']
     assert check['chosen'].startswith('second start'), check
     assert check['second_start']['effects'][0] == 'load_torque', check
+    assert check['seeded'] == ['load_torque'], check
+    assert any('holding from the start the torque offset' in text for text in result.warnings)
 
 
 def test_no_offset_is_seen_in_one_direction_or_without_one():
