@@ -22,6 +22,7 @@ from dcmotor_id.identification.residuals import ChannelErrors, model_errors
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.discovery import Structure
     from dcmotor_id.identification.effects import Effect
     from dcmotor_id.identification.estimators.base import Estimate
 
@@ -66,8 +67,13 @@ def supports_discovery(estimator: Any) -> bool:
 def run_discovery(records: Sequence[Record], torque_constant: float | None, estimator: Any,
                   vocabulary: Sequence[type[Effect]], progress: Progress, initial_state: str,
                   quasi_static: bool = False, estimate: Estimate | None = None,
-                  criterion: str = 'speed') -> tuple[DiscoveryResult | None, dict[str, Any]]:
-    """Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``."""
+                  criterion: str = 'speed', structure: Structure | None = None
+                  ) -> tuple[DiscoveryResult | None, dict[str, Any]]:
+    """
+    Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``.
+
+    ``structure``: effects the loop's base holds from the start (``DiscoveryLoop.run``).
+    """
     if not supports_discovery(estimator):
         return None, {'skipped': f'effect discovery needs the refined method (the '
                                  f'{getattr(estimator, "name", "given")} method has no effect '
@@ -75,7 +81,8 @@ def run_discovery(records: Sequence[Record], torque_constant: float | None, esti
     try:
         found = DiscoveryLoop(records, torque_constant, vocabulary=vocabulary,
                               progress=progress, initial_state=initial_state,
-                              quasi_static=quasi_static, criterion=criterion).run(estimate)
+                              quasi_static=quasi_static, criterion=criterion
+                              ).run(estimate, structure)
         check_physical(found.estimate)
     except TimeBudgetExceeded:
         return None, {'skipped': f'the time budget ({progress.max_time_s:g} s) ran out '

@@ -94,8 +94,9 @@ class IdentificationResult:
     start_check : dict or None
         The fit checked against model-free evidence
         (:mod:`~dcmotor_id.identification.checks.start`): ``evidence``
-        (the regression's values), ``doubts``, and when doubted ``second_start``, ``bic`` and
-        ``chosen``; None when not checked (pinned initial states, other estimators).
+        (the regression's values), ``doubts``, and when doubted ``second_start``, ``bic``,
+        ``effective_samples`` (the samples the BIC counts) and ``chosen``; None when not
+        checked (pinned initial states, other estimators).
     estimate : Estimate
         The final estimate (all data).
     input_records : list of Record

@@ -4,10 +4,11 @@ The fit checked against model-free evidence, and a second start when the evidenc
 A fit from the default start can settle in a wrong basin (e.g. the initial speeds moved by a
 misfit); the regression on the data (:mod:`~dcmotor_id.identification.checks.start`) sees that
 without a model.  :func:`check_start` compares the fit with it; when doubted, it fits again
-from the regression's values with the initial states pinned to the first samples, searches
-the effects from there, frees the initial states, and keeps whichever of the first start and
-these candidates explains all of the data best (BIC).  :func:`start_warning` says what
-happened.
+from the regression's values with the initial states pinned to the first samples (holding
+the effects the regression sees, :func:`evidence_structure`: a torque offset between the
+directions), searches the effects from there, frees the initial states, and keeps whichever
+of the first start and these candidates explains all of the data best (BIC on the samples
+the residuals are worth).  :func:`start_warning` says what happened.
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
-from dcmotor_id.identification.checks.start import (bic, regression_evidence, regression_start,
+from dcmotor_id.identification.checks.start import (bic, effective_samples, offset_supported,
+                                                    regression_evidence, regression_start,
                                                     suspect)
 from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
@@ -56,12 +58,17 @@ def check_start(
     check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
     if not doubts:
         return found, estimate, discovery_info, check
-    pinned = _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check,
-                         criterion)
+    seed = evidence_structure(evidence, vocabulary) if discover else Structure()
+    pinned, seed = _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence,
+                               check, seed, criterion)
     if pinned is None:
         return found, estimate, discovery_info, check
     second = _second_start(records, torque_constant, quasi, discover, vocabulary, progress,
-                           pinned, check, criterion)
+                           pinned, check, seed, criterion)
+    if second.found is None and len(second.structure):
+        # The loop did not finish from the seeded base: its effects have no result to go in.
+        check['second_start'] = f'failed: {(second.info or {}).get("skipped", "no result")}'
+        return found, estimate, discovery_info, check
     chosen = _choose(check, first, first_records, model, second)
     if chosen == 'first start':
         return found, estimate, discovery_info, check
@@ -87,13 +94,47 @@ class _SecondStart:
     freed: Estimate | None = None  # the refit with the initial states freed
 
 
-def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check,
+def evidence_structure(evidence: dict[str, float] | None,
+                       vocabulary: Sequence[type[Effect]]) -> Structure:
+    """
+    Return the effects the model-free regression sees, which a sound base holds from the start.
+
+    On records in both directions a constant torque offset
+    (:func:`~dcmotor_id.identification.checks.start.offset_supported`) is the ``load_torque``
+    effect: without it no basin of the base model balances both steady states, and a fit
+    from there (pinned or not) settles at a huge J that never reaches them.
+    """
+    names = {cls.name: cls for cls in vocabulary}
+    if offset_supported(evidence) and 'load_torque' in names:
+        return Structure([(names['load_torque'], {})])
+    return Structure()
+
+
+def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check, seed,
                 criterion):
-    """Fit from the regression's values with the initial states pinned; None when it fails."""
+    """
+    Fit from the regression's values with the initial states pinned; return it and its structure.
+
+    The effects of ``seed`` (:func:`evidence_structure`) are in the fit, their coefficients
+    started from the regression (the offset); when that fit fails, the base model is tried.
+    The fit is None when it fails.
+    """
     names = [name for name in parameter_names(torque_constant is not None)
              if not (quasi and name == 'La')]
     start = regression_start(evidence, estimate.parameters, names)
     progress.set_stage('second start (initial states pinned)', record_names(records))
+    if len(seed) and evidence is not None:
+        values = {**start, **{cls.term_name('torque_Nm'): evidence['offset']
+                              for cls, _ in seed.items if cls.name == 'load_torque'}}
+        try:
+            pinned = refit_all_data(seed, records, torque_constant, values, start,
+                                    initial_state='measured', quasi_static=quasi,
+                                    progress=progress, criterion=criterion)[2]
+            check_physical(pinned)
+            check['seeded'] = seed.names()
+            return pinned, seed
+        except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
+            check['seeded'] = f'failed: {error}'  # the base model is tried instead
     try:
         pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
                                   progress=progress, criterion=criterion).fit(
@@ -101,19 +142,19 @@ def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, c
         check_physical(pinned)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
         check['second_start'] = f'failed: {error}'
-        return None
-    return pinned
+        return None, Structure()
+    return pinned, Structure()
 
 
 def _second_start(records, torque_constant, quasi, discover, vocabulary, progress, pinned,
-                  check, criterion):
-    """Search the effects from the pinned fit, then free the initial states."""
-    found, info, structure = None, None, Structure()
+                  check, seed, criterion):
+    """Search the effects from the pinned fit (its structure ``seed``), then free the states."""
+    found, info, structure = None, None, seed
     values, states = pinned.parameters, pinned.initial_states
     if discover:
         found, info = run_discovery(
             records, torque_constant, RefinedEstimator(criterion=criterion), vocabulary,
-            progress, 'measured', quasi, pinned, criterion)
+            progress, 'measured', quasi, pinned, criterion, structure=structure)
         if found is not None:
             structure = found.final.structure
             values, states = found.estimate.parameters, found.estimate.initial_states
@@ -137,20 +178,29 @@ def _second_start(records, torque_constant, quasi, discover, vocabulary, progres
 
 
 def _choose(check, first, first_records, model, second):
-    """Score the first start and the second's candidates (BIC); account for and return the best."""
+    """
+    Score the first start and the second's candidates (BIC); account for and return the best.
+
+    The BIC counts the samples the residuals are worth (the fewest over the candidates,
+    :func:`~dcmotor_id.identification.checks.start.effective_samples`), so that a free initial
+    speed absorbing a slow misfit does not win on thousands of correlated samples.
+    """
     noise = dict(first.info.get('noise_std', {}))
-    scores = {'first start': bic(first, first_records, model, noise),
-              'second start, initial states pinned': bic(second.pinned_final, second.records,
-                                                         second.model, noise,
-                                                         free_states=False)}
+    candidates = {'first start': (first, first_records, model, True),
+                  'second start, initial states pinned': (second.pinned_final, second.records,
+                                                          second.model, False)}
     if second.freed is not None:
-        scores['second start'] = bic(second.freed, second.records, second.model, noise)
+        candidates['second start'] = (second.freed, second.records, second.model, True)
+    effective = min(effective_samples(fit, records, fit_model)
+                    for fit, records, fit_model, _ in candidates.values())
+    scores = {name: bic(fit, records, fit_model, noise, free_states=free, effective=effective)
+              for name, (fit, records, fit_model, free) in candidates.items()}
     chosen = min(scores, key=lambda key: scores[key])
     shown = second.freed if second.freed is not None else second.pinned_final
     check.update({'second_start': {'effects': second.structure.names(),
                                    'J': float(shown.parameters['J']),
                                    'b': float(shown.parameters['b'])},
-                  'bic': scores, 'chosen': chosen})
+                  'bic': scores, 'effective_samples': float(effective), 'chosen': chosen})
     return chosen
 
 
@@ -177,6 +227,9 @@ def _second_start_warning(check: dict[str, Any]) -> str:
            if check['chosen'].endswith('pinned') else
            'from a second start (the regression on the data, initial states pinned to the '
            'first samples while the effects were searched, then freed)')
+    seeded = check.get('seeded')
+    held = (f' (holding from the start the torque offset the regression sees, as '
+            f'{", ".join(seeded)})' if isinstance(seeded, list) and seeded else '')
     return ('the fit from the default start landed where the model-free evidence disagrees ('
-            + '; '.join(check['doubts']) + f'); the result is {how}, which explains all of the '
-            'data better (BIC)')
+            + '; '.join(check['doubts']) + f'); the result is {how}{held}, which explains all '
+            'of the data better (BIC)')

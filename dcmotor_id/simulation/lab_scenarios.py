@@ -274,23 +274,29 @@ SERVO_MOTOR = MotorParameters(Ra=1.0, La=1e-3, CPhi=0.0458, J=1.2e-4, b=7e-5, Mc
 
 def servo_opposite_steps(seed: int = 0, sample_period_s: float = 1e-3, dwell_s: float = 10.0,
                          offset_nm: float = 0.007, current_noise_a: float = 0.45,
-                         speed_step_rad_s: float = 0.628) -> Scenario:
+                         speed_step_rad_s: float = 0.628,
+                         levels: tuple = ((1.09, 1.20), (0.85, 0.92)),
+                         settling_nm: float = 0.0, settling_s: float = 4.0) -> Scenario:
     """
     Simulate two open-loop torque-step records of a servo, one per direction, with an offset.
 
     Each record starts at rest, holds one current for ``dwell_s`` and steps to a higher one
-    for ``dwell_s`` more (steady tails); a constant load torque ``offset_nm`` (positive
-    opposes positive rotation) adds to Coulomb friction one way and subtracts the other.  The
-    measured current is noisy (the drive's current ripple), the speed comes from an encoder
-    differentiated per sample (a step of ``speed_step_rad_s``).
+    for ``dwell_s`` more (steady tails); ``levels`` are the currents [A] of the forward and of
+    the backward record.  A constant load torque ``offset_nm`` (positive opposes positive
+    rotation) adds to Coulomb friction one way and subtracts the other.  ``settling_nm``: a
+    friction that settles as the motor warms up, opposing the motion with
+    ``settling_nm exp(-t / settling_s)`` (the speed keeps creeping up after each step, as on
+    the HSM150 records).  The measured current is noisy (the drive's current ripple), the
+    speed comes from an encoder differentiated per sample (a step of ``speed_step_rad_s``).
     """
     rng = np.random.default_rng(seed)
     truth = SERVO_MOTOR
     steps = max(int(round(sample_period_s / 5e-5)), 1)
     records = []
-    for sign, levels in ((1.0, [1.09, 1.20]), (-1.0, [0.85, 0.92])):
-        command = sign * step_levels(levels, dwell_s, sample_period_s)
-        load = np.full(command.shape[0] * steps, offset_nm)
+    for sign, currents in zip((1.0, -1.0), levels):
+        command = sign * step_levels(list(currents), dwell_s, sample_period_s)
+        fine_t = np.arange(command.shape[0] * steps) * (sample_period_s / steps)
+        load = offset_nm + sign * settling_nm * np.exp(-fine_t / settling_s)
         out = simulate_drive(truth, command, sample_period_s, load_torque_nm=load,
                              torque_input=True)
         t = np.arange(command.shape[0]) * sample_period_s

@@ -13,10 +13,13 @@ result looks like that, judged against evidence that needs no model fit:
 * the records' first samples (initial states moved far beyond the noise);
 * the misfit far above the sensor noise.
 
-Then a second start is tried (:func:`second_start`): the regression's values with every
-initial state pinned to the record's first samples, discovery run from that sound base, and
-the final structure refitted with the initial states free again.  :func:`choose` keeps the
-better of the two by the Bayesian information criterion over all of the data.
+Then a second start is tried (:mod:`~dcmotor_id.identification.second_start`): the
+regression's values with every initial state pinned to the record's first samples (and the
+offset the regression sees, :func:`offset_supported`, as an effect from the start),
+discovery run from that sound base, and the final structure refitted with the initial states
+free again.  The best of the candidates by the Bayesian information criterion over all of
+the data is kept (:func:`bic`), counting the samples the residuals are worth
+(:func:`effective_samples`), not every correlated one.
 """
 
 from __future__ import annotations
@@ -40,6 +43,10 @@ if TYPE_CHECKING:
 REGRESSION_CUTOFF = 0.02
 #: Factor between a fitted J or b and the regression's beyond which the fit is suspect.
 EVIDENCE_FACTOR = 3.0
+#: Standard errors (effective samples) beyond which the regression's offset is an effect.
+OFFSET_T = 3.0
+#: Least share of the regression's Coulomb friction of an offset taken as an effect.
+OFFSET_SHARE = 0.1
 
 
 def both_directions(records: Sequence[Record]) -> bool:
@@ -82,7 +89,8 @@ def regression_evidence(records: Sequence[Record],
     if not rows_m:
         return None
     try:
-        mech = np.linalg.lstsq(np.vstack(rows_m), np.concatenate(rhs_m), rcond=None)[0]
+        matrix, rhs = np.vstack(rows_m), np.concatenate(rhs_m)
+        mech = np.linalg.lstsq(matrix, rhs, rcond=None)[0]
         cphi = 1.0
         values: dict[str, float] = {}
         if not mechanical_only:
@@ -94,9 +102,43 @@ def regression_evidence(records: Sequence[Record],
     values.update({'J': float(mech[0] * cphi), 'b': float(mech[1] * cphi),
                    'Mc': float(mech[2] * cphi),
                    'offset': float(mech[3] * cphi) if offset else 0.0})
+    if offset:
+        values['offset_stderr'] = float(abs(cphi) * _last_stderr(matrix, rhs, mech))
     if not all(np.isfinite(value) for value in values.values()):
         return None
     return values
+
+
+def _last_stderr(matrix: np.ndarray, rhs: np.ndarray, solution: np.ndarray) -> float:
+    """
+    Return the standard error of the last coefficient of a least-squares fit on low-passed data.
+
+    The residual of low-passed signals is correlated over about ``1 / (2 REGRESSION_CUTOFF)``
+    samples: the samples count as that many fewer independent ones.
+    """
+    n, p = matrix.shape
+    effective = max(n * 2.0 * REGRESSION_CUTOFF, p + 1.0)
+    residual = rhs - matrix @ solution
+    variance = float(residual @ residual) / max(n - p, 1) * n / effective
+    try:
+        covariance = np.linalg.inv(matrix.T @ matrix)
+    except np.linalg.LinAlgError:
+        return float('inf')
+    return float(np.sqrt(max(variance * covariance[-1, -1], 0.0)))
+
+
+def offset_supported(evidence: dict[str, float] | None) -> bool:
+    """
+    Whether the regression sees a constant torque offset between the two directions.
+
+    Its value must exceed :data:`OFFSET_T` standard errors (effective samples) and
+    :data:`OFFSET_SHARE` of the regression's Coulomb friction.
+    """
+    if evidence is None or not np.isfinite(evidence.get('offset_stderr', np.nan)):
+        return False
+    offset = abs(evidence['offset'])
+    return bool(offset > OFFSET_T * evidence['offset_stderr']
+                and offset > OFFSET_SHARE * abs(evidence['Mc']))
 
 
 def misfit_ratio(estimate: Estimate, records: Sequence[Record], model: Any) -> float:
@@ -172,15 +214,58 @@ def weighted_cost(estimate: Estimate, records: Sequence[Record], model: Any) -> 
 
 
 def bic(estimate: Estimate, records: Sequence[Record], model: Any,
-        noise: dict[str, float], free_states: bool = True) -> float:
+        noise: dict[str, float], free_states: bool = True,
+        effective: float | None = None) -> float:
     """
     Bayesian information criterion of a fit on all of the data, under common weights.
 
     ``free_states``: the initial states were fitted (they count as parameters).
+    ``effective``: the number of independent samples the residuals are worth
+    (:func:`effective_samples`; default: every sample counts).
     """
     weighted = replace(estimate, info={**estimate.info, 'noise_std': noise})
     cost, count = weighted_cost(weighted, records, model)
     k = len(estimate.parameters) + (len(records) * len(model.outputs) if free_states else 0)
     if not np.isfinite(cost):
         return float('inf')
-    return float(count * np.log(max(cost / max(count, 1), 1e-300)) + k * np.log(max(count, 2)))
+    n = float(count if effective is None else min(max(effective, 2.0), count))
+    return float(n * np.log(max(cost / max(count, 1), 1e-300)) + k * np.log(max(n, 2.0)))
+
+
+def correlation_time(residual: np.ndarray) -> float:
+    """
+    Integrated autocorrelation time of a residual [samples]: 1 for white noise.
+
+    ``1 + 2 sum(rho_k)`` over the lags before the autocorrelation first drops to zero.
+    """
+    x = np.asarray(residual, dtype=float)
+    x = x[np.isfinite(x)] - np.mean(x[np.isfinite(x)]) if x.shape[0] else x
+    n = x.shape[0]
+    if n < 3 or not np.any(x):
+        return 1.0
+    spectrum = np.fft.rfft(x, 2 * n)
+    acf = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
+    acf = acf / acf[0]
+    negative = np.flatnonzero(acf[1:] <= 0.0)
+    stop = int(negative[0]) + 1 if negative.shape[0] else n
+    return float(max(1.0 + 2.0 * np.sum(acf[1:stop]), 1.0))
+
+
+def effective_samples(estimate: Estimate, records: Sequence[Record], model: Any) -> float:
+    """
+    Return the number of independent samples a fit's residuals are worth.
+
+    Each record's length over its residual's correlation time (:func:`correlation_time`),
+    summed over records and output channels.
+
+    A slow misfit correlated over seconds is worth a few samples, not thousands: counted as
+    independent it makes any free parameter that absorbs part of it (an initial speed moved
+    by many noise levels) win the BIC comparison.
+    """
+    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
+    total = 0.0
+    for channel in model.outputs:
+        for out, rec in zip(simulated, records):
+            residual = out[channel] - getattr(rec, channel)
+            total += residual.shape[0] / correlation_time(residual)
+    return total

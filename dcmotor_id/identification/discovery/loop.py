@@ -47,15 +47,18 @@ class DiscoveryLoop(LoopState):
     judges them on the held-out parts (:mod:`~dcmotor_id.identification.discovery.judging`).
     """
 
-    def run(self, estimate: Estimate | None = None) -> DiscoveryResult:
+    def run(self, estimate: Estimate | None = None,
+            structure: Structure | None = None) -> DiscoveryResult:
         """
         Run the loop, refit the base and final structures on all the data; return it.
 
         ``estimate``, the base model already fitted on all of the records (same model: mode,
         quasi-static armature), warm-starts the base fit on the training parts and is reused
-        when no effect is added.
+        when no effect is added.  ``structure``: effects the base holds from the start (the
+        model-free evidence's, :mod:`~dcmotor_id.identification.second_start`), their
+        coefficients started from ``estimate``'s values.
         """
-        base = self._base_fit(estimate)
+        base = self._base_fit(estimate, structure or Structure())
         analysis_before = analyse(self, base)
         search = self._search(base, analysis_before)
         current, reason = never_worse(base, search.current, search.reason)
@@ -73,24 +76,25 @@ class DiscoveryLoop(LoopState):
             error_after=current.errors(self.error_channels), out_of_time=out_of_time,
             quasi_static=self.quasi_static, criterion=self.criterion)
 
-    def _base_fit(self, estimate: Estimate | None) -> Fit:
+    def _base_fit(self, estimate: Estimate | None, structure: Structure) -> Fit:
         """
-        Fit the base model on the training parts (from ``estimate`` if given); the anchor.
+        Fit the base structure on the training parts (from ``estimate`` if given); the anchor.
 
-        On the position, a base fit that fails or lands far from the model-free evidence
+        On the position, a base model fit that fails or lands far from the model-free evidence
         (:func:`~dcmotor_id.identification.discovery.refitting.base_unsound`) gives way to the
         base fitted on the speed (:func:`speed_base_on_the_position`).
         """
         if self.progress is not None:
             self.progress.set_stage('discovery: base model on the training parts')
+        on_the_position = self.criterion != 'speed' and not len(structure)
         try:
-            base = self._fit_base(estimate)
+            base = self._fit_base(estimate, structure)
         except DcMotorIdError:
-            fallback = None if self.criterion == 'speed' else speed_base_on_the_position(self)
+            fallback = speed_base_on_the_position(self) if on_the_position else None
             if fallback is None:
                 raise
             return fallback
-        if self.criterion != 'speed' and base_unsound(self, base):
+        if on_the_position and base_unsound(self, base):
             fallback = speed_base_on_the_position(self)
             if fallback is not None:
                 return fallback
@@ -101,14 +105,14 @@ class DiscoveryLoop(LoopState):
         self.anchor = anchor_fit(self)
         return base
 
-    def _fit_base(self, estimate: Estimate | None) -> Fit:
+    def _fit_base(self, estimate: Estimate | None, structure: Structure) -> Fit:
         """Fit the base structure on the training parts, from ``estimate`` if given."""
         if estimate is None:
-            return fit_structure(self, Structure())
+            return fit_structure(self, structure)
         start = {name: float(estimate.parameters[name])
                  for name in parameter_names(self.mechanical_only)
                  if name in estimate.parameters}
-        return fit_structure(self, Structure(), start=start,
+        return fit_structure(self, structure, start=start, initial=dict(estimate.parameters),
                              initial_states=estimate.initial_states)
 
     def _search(self, base: Fit, analysis: dict) -> Search:
@@ -152,7 +156,7 @@ class DiscoveryLoop(LoopState):
                 # The base model on all of the data is the one given: no refit.
                 return list(self.records), (), estimate, estimate, out_of_time
             records, terms, estimate = refit_all(self, current)
-            base_estimate = self._base_on_all_data(base) if len(current.structure) else estimate
+            base_estimate = self._base_on_all_data(base) if current is not base else estimate
             return records, terms, estimate, base_estimate, out_of_time
         except TimeBudgetExceeded:
             # The training-part fits are what there is: report them, said so in the result.
