@@ -37,7 +37,6 @@ The names of those modules that callers import from here stay importable from he
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-import time
 from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
@@ -431,7 +430,7 @@ def _discovery(run: _Run) -> None:
             # A base model this far off is rarely rescued by one effect: a short look only, so
             # that a record that cannot be fitted is refused in seconds.
             progress.deadline = min(deadline if deadline is not None else np.inf,
-                                    time.monotonic() + HOPELESS_DISCOVERY_S)
+                                    progress.now() + HOPELESS_DISCOVERY_S)
         try:
             run.found, run.discovery_info = run_discovery(
                 run.records, run.torque_constant, run.estimator, run.vocabulary, progress,

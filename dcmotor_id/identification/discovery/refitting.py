@@ -167,8 +167,17 @@ def anchor_fit(loop: LoopState) -> Fit | None:
 
 
 def refit_candidate(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
-    """Refit all parameters with the candidate added; return it with its fit and problem."""
+    """
+    Refit all parameters with the candidate added; return it with its fit and problem.
+
+    A data effect whose screened inner parameters are already not admissible (an early
+    sensor: a negative delay, which the Gauss-Newton on the integer shift only moves
+    further, HSM150: -16 to -1500 samples) is not refitted: its problem is said as it is.
+    """
     if candidate.effect.TRANSFORM:
+        reason = candidate.effect.from_fit({}, candidate.inner).problem({}, loop.records)
+        if reason:
+            return replace(candidate, problem=f'{reason} (by the screen, not refitted)')
         fitted = _refit_delay(loop, current, candidate.inner['channel'],
                               candidate.inner['samples'])
     else:
