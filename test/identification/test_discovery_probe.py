@@ -26,6 +26,10 @@ def test_the_excerpt_is_evenly_spread_within_the_budget():
     assert probe.excerpt([14_000] * 2, 40_000) is None  # within the budget: no excerpt
     assert probe.excerpt([300_000], 40_000) is None
     assert probe.excerpt([30_000] * 3, 40_000) is None  # no two records fit
+    # At most a quarter of the samples: on four records a look that succeeds would add half
+    # the cost of the refit (HSM150 runs of four records: 1.4 s more), so there is none.
+    assert probe.excerpt([14_000] * 4, 40_000) is None
+    assert probe.excerpt([14_000] * 8, 40_000) == [0, 7]
 
 
 def _counting(monkeypatch, succeed_on_excerpt):
@@ -44,6 +48,7 @@ def test_a_costly_refit_failing_on_the_excerpt_is_not_run_on_all_records(fitted,
     loop, current = fitted
     assert sum(current.stops) > 2 * 20_000
     monkeypatch.setattr(probe, 'PROBE_SAMPLES', 40_000)
+    monkeypatch.setattr(probe, 'PROBE_SHARE', 0.75)  # four records: an excerpt of two or three
     calls = _counting(monkeypatch, succeed_on_excerpt=False)
     result = refitting.try_candidate(loop, current, Stribeck, {'velocity_rad_s': 5.0},
                                      {'stribeck.excess_Nm': 0.01})
@@ -56,6 +61,7 @@ def test_a_costly_refit_failing_on_the_excerpt_is_not_run_on_all_records(fitted,
 def test_a_refit_that_succeeds_on_the_excerpt_runs_on_all_records(fitted, monkeypatch):
     loop, current = fitted
     monkeypatch.setattr(probe, 'PROBE_SAMPLES', 40_000)
+    monkeypatch.setattr(probe, 'PROBE_SHARE', 0.75)  # four records: an excerpt of two or three
     calls = _counting(monkeypatch, succeed_on_excerpt=True)
     refitting.try_candidate(loop, current, Stribeck, {'velocity_rad_s': 5.0},
                             {'stribeck.excess_Nm': 0.01})
@@ -66,6 +72,7 @@ def test_a_refit_that_succeeds_on_the_excerpt_runs_on_all_records(fitted, monkey
 def test_cheap_refits_and_small_data_are_not_cut(fitted, monkeypatch):
     loop, current = fitted
     monkeypatch.setattr(probe, 'PROBE_SAMPLES', 40_000)
+    monkeypatch.setattr(probe, 'PROBE_SHARE', 0.75)  # four records: an excerpt of two or three
     calls = _counting(monkeypatch, succeed_on_excerpt=False)
     refitting.try_candidate(loop, current, LoadTorque, {}, {})
     assert calls == [4]  # compiled sensitivities: no excerpt

@@ -6,9 +6,10 @@ on sub-steps) is refitted with finite differences: every evaluation simulates ev
 per parameter.  On many records that is seconds per start (twelve HSM150 records, 168,000
 training samples: 6.5 s a start, two starts, both running out of their evaluations).  Such a
 refit is first tried on evenly spread records holding at most :data:`PROBE_SAMPLES` training
-samples, from the same starts; when it fails there from every start, the refit on all of the
-records is not run (:func:`fails_on_an_excerpt`).  A refit that succeeds on the excerpt is then
-run on all records exactly as without the look, so only refits that fail on the excerpt are
+samples and at most :data:`PROBE_SHARE` of them, from the same starts; when it fails there
+from every start, the refit on all of the records is not run (:func:`fails_on_an_excerpt`).
+A refit that succeeds on the excerpt is then run on all records exactly as without the look
+(the look then cost at most a quarter more), so only refits that fail on the excerpt are
 affected; records within the budget are never cut.
 """
 
@@ -27,6 +28,8 @@ from dcmotor_id.identification.estimators.refined import (has_analytic_sensitivi
 #: Training samples beyond which a finite-difference candidate refit is first tried on an
 #: excerpt of the records holding at most this many.
 PROBE_SAMPLES = 40_000
+#: Largest share of the training samples an excerpt holds (a look that succeeds costs little).
+PROBE_SHARE = 0.25
 
 #: ``attempt(loop, structure, start, initial, initial_states)``: a Fit, or None when it fails.
 Attempt = Callable[..., 'Fit | None']
@@ -45,13 +48,15 @@ def excerpt(stops: Sequence[int], budget: int | None = None) -> list[int] | None
     """
     Return evenly spread records (indices) whose training parts hold at most ``budget`` samples.
 
-    ``budget`` defaults to :data:`PROBE_SAMPLES`.  None when all of them fit the budget (no
+    ``budget`` defaults to :data:`PROBE_SAMPLES`; the excerpt also holds at most
+    :data:`PROBE_SHARE` of all the samples.  None when all of them fit the budget (no
     excerpt is needed) or no two records do.
     """
     budget = PROBE_SAMPLES if budget is None else int(budget)
     stops = [int(stop) for stop in stops]
     if sum(stops) <= budget or len(stops) < 2:
         return None
+    budget = min(budget, int(PROBE_SHARE * sum(stops)))
     for count in range(len(stops) - 1, 1, -1):
         chosen = sorted({int(index) for index in np.round(np.linspace(0, len(stops) - 1,
                                                                       count))})
