@@ -95,7 +95,8 @@ METHODS = {'refined': RefinedEstimator, 'paper': PaperEstimator}
 NO_FIT_NRMSE_PCT = 60.0
 #: Simulation error of the base model above which effect discovery is not tried (percent).
 HOPELESS_NRMSE_PCT = 100.0
-#: Time given to effect discovery when the base model is off by more than NO_FIT_NRMSE_PCT [s].
+#: Time given to effect discovery when the base model is off by more than NO_FIT_NRMSE_PCT
+#: [s of CPU time, as the budget: :func:`dcmotor_id.core.progress.budget_clock`].
 HOPELESS_DISCOVERY_S = 3.0
 #: Default time budget [s] (``--max-time``).
 DEFAULT_MAX_TIME_S = 120.0
