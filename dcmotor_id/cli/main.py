@@ -398,8 +398,9 @@ def _add_identify_command(commands: Any) -> None:
                                 f'{BAG_TOPICS[channel]!r}, any namespace)')
     _add_reading_options(ident)
     ident.add_argument('--max-time', type=positive, default=DEFAULT_MAX_TIME_S, metavar='S',
-                       help='time budget [s]: past it the best result so far is returned with '
-                            f'a warning (default {DEFAULT_MAX_TIME_S:g})')
+                       help='time budget [s of CPU time of the process, so that other work '
+                            'on the machine does not cut it short]: past it the best result '
+                            f'so far is returned with a warning (default {DEFAULT_MAX_TIME_S:g})')
     ident.add_argument('--quiet', action='store_true',
                        help='no progress line on stderr (it only shows on a terminal anyway)')
     ident.add_argument('--initial-state', choices=INITIAL_STATES, default='estimate',

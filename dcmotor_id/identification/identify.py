@@ -37,7 +37,6 @@ The names of those modules that callers import from here stay importable from he
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-import time
 from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
@@ -97,7 +96,8 @@ METHODS = {'refined': RefinedEstimator, 'paper': PaperEstimator}
 NO_FIT_NRMSE_PCT = 60.0
 #: Simulation error of the base model above which effect discovery is not tried (percent).
 HOPELESS_NRMSE_PCT = 100.0
-#: Time given to effect discovery when the base model is off by more than NO_FIT_NRMSE_PCT [s].
+#: Time given to effect discovery when the base model is off by more than NO_FIT_NRMSE_PCT
+#: [s of CPU time, as the budget: :func:`dcmotor_id.core.progress.budget_clock`].
 HOPELESS_DISCOVERY_S = 3.0
 #: Default time budget [s] (``--max-time``).
 DEFAULT_MAX_TIME_S = 120.0
@@ -459,7 +459,7 @@ def _discovery(run: _Run) -> None:
             # A base model this far off is rarely rescued by one effect: a short look only, so
             # that a record that cannot be fitted is refused in seconds.
             progress.deadline = min(deadline if deadline is not None else np.inf,
-                                    time.monotonic() + HOPELESS_DISCOVERY_S)
+                                    progress.now() + HOPELESS_DISCOVERY_S)
         try:
             run.found, run.discovery_info = run_discovery(
                 run.records, run.torque_constant, run.estimator, run.vocabulary, progress,

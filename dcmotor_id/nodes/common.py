@@ -35,14 +35,16 @@ SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
 
 def declare(node: Node, name: str, default: Any, description: str, low: Optional[float] = None,
             high: Optional[float] = None, choices: Optional[Sequence[str]] = None,
-            read_only: bool = False) -> Any:
+            read_only: bool = False, dynamic_typing: bool = False) -> Any:
     """
     Declare a parameter with a descriptor and return its value.
 
     ``low``/``high`` give an inclusive range for numbers (checked by rclpy); ``choices`` is
-    listed in the description and checked by :func:`check_choice`.
+    listed in the description and checked by :func:`check_choice`; with ``dynamic_typing`` a
+    value of any type is taken (the node checks it).
     """
-    descriptor = ParameterDescriptor(description=description, read_only=read_only)
+    descriptor = ParameterDescriptor(description=description, read_only=read_only,
+                                     dynamic_typing=dynamic_typing)
     if choices:
         descriptor.additional_constraints = 'one of: ' + ', '.join(choices)
     if low is not None or high is not None:

@@ -33,7 +33,9 @@ at ``online_rate_hz``.
 Service ``~/identify`` (``std_srvs/srv/Trigger``): closes the current window and identifies
 the most recent windows (at least ``window_s`` of data). The callback is a coroutine: a thread
 waits for the bags and runs the fit (the default method, and the paper's for comparison) in a
-separate process (``identify_in_subprocess``); a second call meanwhile is answered at once
+separate process (``identify_in_subprocess``), with ``structure_bootstrap`` noise resamples
+when that parameter is set (it can be changed while the node runs; a bad value is refused and
+logged, never taken); a second call meanwhile is answered at once
 with success false and a message starting ``busy:``. A burst of calls is queued
 (:data:`~dcmotor_id.nodes.common.SERVICE_QOS`), never dropped: every call gets an answer, also
 when the fit fails in an unexpected way.
@@ -48,9 +50,11 @@ from typing import Any, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
@@ -63,7 +67,7 @@ from dcmotor_id.formats.batch import decode_batch
 from dcmotor_id.formats.streams import SampleInbox, StreamAligner
 from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters, run,
                                      sample_qos, SERVICE_QOS)
-from dcmotor_id.nodes.settings import IdentifierSettings
+from dcmotor_id.nodes.settings import check_structure_bootstrap, IdentifierSettings
 from dcmotor_id.streaming.input_health import InputHealth
 from dcmotor_id.streaming.monitoring import LEVELS, monitor_from_settings
 from dcmotor_id.streaming.summary import (online_key_values, online_text, paper_status,
@@ -84,6 +88,8 @@ class Identifier(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('identifier', **kwargs)
         self.settings = settings = declare_settings(self, IdentifierSettings)
+        self.structure_bootstrap = self._startup_bootstrap(settings.structure_bootstrap)
+        self.add_on_set_parameters_callback(self._on_set_bootstrap)
         self.results = ResultParameters(self, 'identified.', {
             **dict.fromkeys(RESULT_KEYS, float('nan')), 'method': '', 'bags': ['']}, '~/identify')
 
@@ -223,6 +229,27 @@ class Identifier(Node):
                 window.written.set()
 
     # ------------------------------------------------------------------ identification
+    def _startup_bootstrap(self, value: Any) -> int:
+        """``structure_bootstrap`` as launched; a bad value is logged and the bootstrap off."""
+        try:
+            return check_structure_bootstrap(value)
+        except ValueError as error:
+            self.get_logger().error(f'{error}; the structure bootstrap is off (0)')
+            return 0
+
+    def _on_set_bootstrap(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Take a new ``structure_bootstrap`` for the next ``~/identify``, or refuse it."""
+        for parameter in parameters:
+            if parameter.name != 'structure_bootstrap':
+                continue
+            try:
+                value = check_structure_bootstrap(parameter.value)
+            except ValueError as error:
+                self.get_logger().error(f'{error}; it stays {self.structure_bootstrap}')
+                return SetParametersResult(successful=False, reason=str(error))
+            self.structure_bootstrap = value
+        return SetParametersResult(successful=True)
+
     async def _on_identify(self, request, response):
         if not self._identify_busy.acquire(blocking=False):
             response.success = False
@@ -255,7 +282,7 @@ class Identifier(Node):
         future.add_done_callback(lambda _: None)  # wakes the executor when done
         arguments = (windows, self.settings.method, self.settings.torque_constant if
                      self.mechanical else None, self.settings.discover,
-                     self.settings.compare_paper)
+                     self.settings.compare_paper, self.structure_bootstrap)
 
         def fit():
             try:

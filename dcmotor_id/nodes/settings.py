@@ -11,10 +11,41 @@ INPUTS = ('float64', 'batch', 'joint_state')
 
 
 def parameter(default: Any, description: str, low: Optional[float] = None,
-              high: Optional[float] = None, choices: Optional[Sequence[str]] = None) -> Any:
-    """Describe one ROS parameter: its default, description, range and choices."""
-    return field(default=default, metadata={'description': description, 'low': low,
-                                            'high': high, 'choices': choices})
+              high: Optional[float] = None, choices: Optional[Sequence[str]] = None,
+              dynamic_typing: bool = False) -> Any:
+    """
+    Describe one ROS parameter: its default, description, range and choices.
+
+    ``dynamic_typing``: a value of another type is taken (not refused by rclpy, which would
+    stop the node), for the node to check it and say what is wrong.
+    """
+    metadata = {'description': description, 'low': low, 'high': high, 'choices': choices}
+    if dynamic_typing:
+        metadata['dynamic_typing'] = True
+    return field(default=default, metadata=metadata)
+
+
+def check_structure_bootstrap(value: Any) -> int:
+    """
+    Return ``structure_bootstrap`` as an int; ValueError naming the parameter when unusable.
+
+    0 (off) or a whole number of resamples from 2 to
+    :data:`~dcmotor_id.identification.structure_uncertainty.MAX_RESAMPLES`, as
+    ``identify --structure-bootstrap N`` takes.
+    """
+    from dcmotor_id.core.errors import InputDataError
+    from dcmotor_id.identification.structure_uncertainty import check_resamples
+
+    try:
+        if isinstance(value, (bool, str)):
+            raise InputDataError('not a number')
+        return check_resamples(value)
+    except InputDataError:
+        from dcmotor_id.identification.structure_uncertainty import MAX_RESAMPLES
+        raise ValueError(f'parameter structure_bootstrap = {value!r} refused: give a whole '
+                         f'number of noise resamples from 2 to {MAX_RESAMPLES} (20 is a good '
+                         'start), or 0 to leave the structure choice out of the standard '
+                         'errors') from None
 
 
 @dataclass(frozen=True)
@@ -58,6 +89,11 @@ class IdentifierSettings:
                                           '(its process killed and replaced) and ~/identify '
                                           'answers with the timeout; 0 = no limit; needs '
                                           'identify_in_subprocess [s]', 0.0)
+    structure_bootstrap: int = parameter(
+        0, '~/identify: noise resamples that rerun the effect discovery so that the standard '
+        'errors cover the choice of effects (as identify --structure-bootstrap N; each one '
+        'costs about one more fit); 0 = off, else 2 to 1000; a bad value is refused and '
+        'logged, the last good one is kept', dynamic_typing=True)
     online: bool = parameter(True, 'run the recursive online estimator')
     online_rate_hz: float = parameter(2.0, 'rate of ~/online_parameters [Hz]', 0.01, 1e3)
     online_memory_s: float = parameter(10.0, 'forgetting time constant of the online estimate '

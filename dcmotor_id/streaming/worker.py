@@ -111,9 +111,12 @@ def warm_up() -> bool:
 
 def identify_windows(windows: Sequence[tuple[Any, dict, str]], method: str,
                      torque_constant: Optional[float], discover: bool,
-                     compare_paper: bool) -> tuple[str, Any]:
+                     compare_paper: bool, structure_bootstrap: int = 0) -> tuple[str, Any]:
     """
     Identify the motor from windows ``[(stamps_ns, channels, source), ...]``.
+
+    ``structure_bootstrap`` noise resamples rerun the discovery so that the standard errors
+    cover the choice of effects (``identify(..., structure_bootstrap=N)``; 0: not run).
 
     Returns
     -------
@@ -127,7 +130,7 @@ def identify_windows(windows: Sequence[tuple[Any, dict, str]], method: str,
         records = prepare_records([record_from_stamps(stamps, channels, source)
                                    for stamps, channels, source in windows], torque_constant)
         identified = identify(records, method=method, torque_constant=torque_constant,
-                              discover=discover)
+                              discover=discover, structure_bootstrap=structure_bootstrap)
         result = identified.as_dict()
     except DcMotorIdError as error:
         return 'error', str(error)
@@ -261,7 +264,7 @@ class FitProcess:
 
     def identify(self, windows: Sequence[Window], method: str,
                  torque_constant: Optional[float], discover: bool,
-                 compare_paper: bool) -> Union[dict, str]:
+                 compare_paper: bool, structure_bootstrap: int = 0) -> Union[dict, str]:
         """
         Wait until the windows are written, identify from them; return the result or why not.
 
@@ -274,7 +277,7 @@ class FitProcess:
                 window.written.wait(timeout=30.0)
             status, result = self.run(
                 [(window.stamps_ns, window.channels, window.source) for window in windows],
-                method, torque_constant, discover, compare_paper)
+                method, torque_constant, discover, compare_paper, structure_bootstrap)
             if status != 'ok':
                 return f'identification failed: {result}'
             result['bags'] = [window.path for window in windows if window.path]

@@ -37,6 +37,8 @@ One module per seam of the loop; each imports only the modules before it in this
   functions of the modules below take as their first argument;
 - :mod:`~dcmotor_id.identification.discovery.analysis`: the residual analysis of a fit (step 2);
 - :mod:`~dcmotor_id.identification.discovery.screening`: the linearised screen (step 3);
+- :mod:`~dcmotor_id.identification.discovery.probe`: a costly candidate refit on many
+  records first tried on an excerpt of them;
 - :mod:`~dcmotor_id.identification.discovery.refitting`: fitting a structure, a candidate's
   refit and its physical problems, the all-data refit (steps 3 and 5);
 - :mod:`~dcmotor_id.identification.discovery.judging`: the held-out gain, its noise, the

@@ -19,6 +19,7 @@ from dcmotor_id.core.model import parameter_names
 from dcmotor_id.identification.checks.start import EVIDENCE_FACTOR, regression_evidence
 from dcmotor_id.identification.criterion import with_position_states
 from dcmotor_id.identification.discovery.parts import excited_stop
+from dcmotor_id.identification.discovery.probe import fails_on_an_excerpt
 from dcmotor_id.identification.discovery.screening import (base_sensitivities, delay_estimate,
                                                            projector)
 from dcmotor_id.identification.discovery.state import LoopState
@@ -123,14 +124,18 @@ def try_candidate(loop: LoopState, current: Fit, cls: type[Effect], inner: dict,
 
     The screen's start is a linearisation at the current fit: from a poor base it can
     overshoot so far that the refit does not converge, so a failed refit is tried once
-    more from the candidate's own neutral start (its terms at their defaults).
+    more from the candidate's own neutral start (its terms at their defaults).  A costly
+    refit on many records is first tried on an excerpt of them
+    (:func:`~dcmotor_id.identification.discovery.probe.fails_on_an_excerpt`).
     """
     structure = current.structure.plus(cls, inner)
     fitted, initial = None, dict(current.values)
     starts: tuple[dict, ...] = (start_terms, {}) if start_terms else ({},)
-    for terms in starts:
-        initial = dict(current.values)
-        initial.update(terms)
+    initials = [{**current.values, **terms} for terms in starts]
+    if fails_on_an_excerpt(loop, current, structure, base_start(loop, current), initials,
+                           _try_from):
+        initials = []
+    for initial in initials:
         fitted = _try_from(loop, structure, base_start(loop, current), initial,
                            current.estimate.initial_states)
         if fitted is not None:
@@ -212,8 +217,18 @@ def speed_base_on_the_position(loop: LoopState) -> Fit | None:
 
 
 def refit_candidate(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
-    """Refit all parameters with the candidate added; return it with its fit and problem."""
+    """
+    Refit all parameters with the candidate added; return it with its fit and problem.
+
+    A data effect whose screened inner parameters are already not admissible (an early
+    sensor: a negative delay, which the Gauss-Newton on the integer shift moved further on
+    twelve HSM150 records, -56 to -203 samples, four refits) is not refitted: its problem
+    is said as it is.
+    """
     if candidate.effect.TRANSFORM:
+        reason = candidate.effect.from_fit({}, candidate.inner).problem({}, loop.records)
+        if reason:
+            return replace(candidate, problem=f'{reason} (by the screen, not refitted)')
         fitted = _refit_delay(loop, current, candidate.inner['channel'],
                               candidate.inner['samples'])
     else:
