@@ -66,7 +66,7 @@ from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
 from dcmotor_id.identification.fitting import (check_physical, record_names, run_discovery,
                                                simulation_errors, supports_discovery)
 from dcmotor_id.identification.heldout import HELDOUT_CHOICE, heldout_warnings, record_errors
-from dcmotor_id.identification.position_error import with_chosen_error_model
+from dcmotor_id.identification.position_error import check_base, with_chosen_error_model
 from dcmotor_id.identification.prepare import (check_excitation, common_period, one_level_reason,
                                                PERIOD_RTOL, prepare_records, SETTLE_SAMPLES,
                                                single_current_level)
@@ -240,6 +240,8 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
     _base_fit(run)
     _armature(run)
     _check_base_start(run)
+    if run.criterion != 'speed':
+        check_base(run.estimate.parameters, run.records, run.torque_constant)
     _discovery(run)
     _check_final_start(run)
     _final_fit(run)

@@ -16,17 +16,19 @@ the evidence is kept.  JSON ``position_error`` says which and why.
 
 from __future__ import annotations
 
+from contextvars import ContextVar
 from dataclasses import replace
-from typing import Any, Callable, TYPE_CHECKING
+from typing import Callable, Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from dcmotor_id.core.errors import FitError, NotIdentifiableError
+from dcmotor_id.core.errors import DcMotorIdError, FitError, NotIdentifiableError
 from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.identification.checks.start import regression_evidence
 from dcmotor_id.identification.criterion import position_error_model
 
 if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
     from dcmotor_id.identification.result import IdentificationResult
 
 #: Largest ratio between a white fit's J, b or Mc and the model-free regression's before the
@@ -55,42 +57,126 @@ def disagreement(parameters: dict[str, float], evidence: dict[str, float] | None
     return float(worst)
 
 
+class WhiteBaseDisagrees(Exception):
+    """A white run left after its base fit: the base contradicts the regression."""
+
+    def __init__(self, distance: float, parameters: dict[str, float]) -> None:
+        super().__init__('the base fit on the white position error disagrees with the '
+                         'model-free regression')
+        self.distance = distance
+        self.parameters = parameters
+
+
+# Whether the white run in progress is left as soon as its base fit disagrees (a context
+# variable: the pipeline calls :func:`check_base` without knowing who runs it).
+_CHECK_BASE: ContextVar[bool] = ContextVar('check_base', default=False)
+
+
+def check_base(parameters: dict[str, float], records: Sequence[Record],
+               torque_constant: float | None) -> None:
+    """
+    Leave a white run whose base fit (after the start check) contradicts the regression.
+
+    Raises :class:`WhiteBaseDisagrees` inside :func:`with_chosen_error_model`'s first run
+    only; elsewhere it does nothing.  The AR(1) run is then tried first, and the white run
+    is finished only when that one disagrees too.
+    """
+    if not _CHECK_BASE.get():
+        return
+    distance = disagreement(parameters, regression_evidence(records, torque_constant))
+    if distance > np.log(AGREEMENT_FACTOR):
+        raise WhiteBaseDisagrees(distance, {name: float(parameters[name]) for name in COMPARED
+                                            if name in parameters})
+
+
 def with_chosen_error_model(run: Callable[[], IdentificationResult]) -> IdentificationResult:
     """
     Run an identification on the position with the white error model, else the adaptive one.
 
-    ``run`` runs the whole identification (under the error model in force); it runs a second
-    time only when the white result disagrees with the regression by more than
+    ``run`` runs the whole identification (under the error model in force).  The white run
+    is left early when its base contradicts the regression (:func:`check_base`); the
+    adaptive one runs when the white result disagrees with the regression by more than
     :data:`AGREEMENT_FACTOR`, or failed (a second run that fails or runs out of time leaves
-    the white result).  Returns the result closer to the evidence, its
-    ``position_error`` filled in (and a warning when both disagree).
+    the white result).  Returns the result closer to the evidence, its ``position_error``
+    filled in (and a warning when both disagree).
     """
-    try:
-        with position_error_model('white'):
-            white = run()
-    except (FitError, NotIdentifiableError) as error:
-        if 'time budget' in str(error):
-            raise
+    white, left = _white_run(run)
+    if left is not None:
+        return _adaptive_first(run, left)
+    if isinstance(white, DcMotorIdError):
         return replace(run(), position_error={'model': 'adaptive',
-                                              'white': f'failed: {error}'})
+                                              'white': f'failed: {white}'})
     evidence = regression_evidence(white.input_records, white.torque_constant)
-    distances = {'white': disagreement(white.parameters, evidence)}
-    account: dict[str, Any] = {'model': 'white', 'evidence': _compared(evidence),
-                               'agreement_factor': AGREEMENT_FACTOR}
-    if distances['white'] <= np.log(AGREEMENT_FACTOR):
-        return replace(white, position_error={**account, 'disagreement': _factors(distances)})
+    distance = disagreement(white.parameters, evidence)
+    if distance <= np.log(AGREEMENT_FACTOR):
+        return replace(white, position_error={
+            'model': 'white', 'evidence': _compared(evidence),
+            'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors({'white': distance})})
     try:
         adaptive = run()
     except (FitError, NotIdentifiableError, TimeBudgetExceeded) as error:
-        account.update({'disagreement': _factors(distances), 'adaptive': f'failed: {error}'})
-        return replace(white, position_error=account)
-    distances['adaptive'] = disagreement(adaptive.parameters, evidence)
+        return replace(white, position_error={
+            'model': 'white', 'evidence': _compared(evidence),
+            'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors({'white': distance}),
+            'adaptive': f'failed: {error}'})
+    return _closer(white, adaptive, evidence)
+
+
+def _white_run(run: Callable[[], IdentificationResult]) -> tuple[
+        IdentificationResult | DcMotorIdError, WhiteBaseDisagrees | None]:
+    """Run the white model, left early when its base disagrees; ``(result or error, left)``."""
+    token = _CHECK_BASE.set(True)
+    try:
+        with position_error_model('white'):
+            return run(), None
+    except WhiteBaseDisagrees as left:
+        return FitError('left after its base fit'), left
+    except (FitError, NotIdentifiableError) as error:
+        if 'time budget' in str(error):
+            raise
+        return error, None
+    finally:
+        _CHECK_BASE.reset(token)
+
+
+def _adaptive_first(run: Callable[[], IdentificationResult],
+                    left: WhiteBaseDisagrees) -> IdentificationResult:
+    """Run the adaptive model after a white base that disagrees; the full white run if needed."""
+    left_note = ('left after its base fit (' + ', '.join(
+        f'{name} {value:.4g}' for name, value in left.parameters.items())
+        + f': {np.exp(left.distance):.3g}x from the regression)'
+        if np.isfinite(left.distance) else 'left after its base fit (a parameter at zero)')
+    try:
+        adaptive = run()
+    except (FitError, NotIdentifiableError, TimeBudgetExceeded):
+        adaptive = None
+    if adaptive is not None:
+        evidence = regression_evidence(adaptive.input_records, adaptive.torque_constant)
+        distance = disagreement(adaptive.parameters, evidence)
+        if distance <= np.log(AGREEMENT_FACTOR):
+            return replace(adaptive, position_error={
+                'model': 'adaptive', 'evidence': _compared(evidence),
+                'agreement_factor': AGREEMENT_FACTOR,
+                'disagreement': _factors({'adaptive': distance}), 'white': left_note})
+    with position_error_model('white'):
+        white = run()
+    if adaptive is None:
+        return replace(white, position_error={'model': 'white', 'adaptive': 'failed'})
+    return _closer(white, adaptive,
+                   regression_evidence(white.input_records, white.torque_constant))
+
+
+def _closer(white: IdentificationResult, adaptive: IdentificationResult,
+            evidence: dict[str, float] | None) -> IdentificationResult:
+    """Return the result closer to the regression, accounted for (a warning if both far)."""
+    distances = {'white': disagreement(white.parameters, evidence),
+                 'adaptive': disagreement(adaptive.parameters, evidence)}
     chosen = 'adaptive' if distances['adaptive'] < distances['white'] else 'white'
-    result = adaptive if chosen == 'adaptive' else white
-    account.update({'model': chosen, 'disagreement': _factors(distances),
-                    'alternative': {name: float(value) for name, value in
-                                    (white if chosen == 'adaptive' else adaptive)
-                                    .parameters.items() if name in COMPARED}})
+    result, other = (adaptive, white) if chosen == 'adaptive' else (white, adaptive)
+    account = {'model': chosen, 'evidence': _compared(evidence),
+               'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors(distances),
+               'alternative': {name: float(value) for name, value in other.parameters.items()
+                               if name in COMPARED}}
     warnings = list(result.warnings)
     if distances[chosen] > np.log(AGREEMENT_FACTOR):
         warnings.append(_warning(evidence, result.parameters, distances))

@@ -113,16 +113,16 @@ def test_the_ball_screw_keeps_the_adaptive_error_model():
     """
     Friction along the travel: white bends the Coulomb friction, the drift's model does not.
 
-    The identification on the position first weights it as white; the ball screw's white fit
-    lies far from the regression, so the adaptive (AR(1)) run is kept and the white one is
-    named as the alternative.
+    The identification on the position first weights it as white; the ball screw's white base
+    fit already lies far from the regression, so the white run is left there and the
+    adaptive (AR(1)) run, which agrees, is kept.
     """
     scenario = ball_screw_sine()
     records = prepare_records(scenario.records, scenario.torque_constant)
     result = identify(records, torque_constant=scenario.torque_constant)
     account = result.position_error
     assert account['model'] == 'adaptive'
-    assert set(account['alternative']) == {'J', 'b', 'Mc'}
+    assert 'left after its base fit' in account['white']
     assert account['disagreement']['adaptive'] < AGREEMENT_FACTOR
     assert abs(result.parameters['Mc'] / scenario.truth.Mc - 1) < 0.15
 
@@ -155,11 +155,13 @@ def test_an_axis_driven_both_ways_with_an_offset_finds_its_effects():
     """
     Identify EMPS's class: a base with no fit on the position; the loop starts from the speed.
 
-    Without its force offset the model's position runs away over the record and its fit on
-    the position diverges (the identification used to find no effect: 135 mm on the pulses).
-    The loop starts from the base fitted on the speed, finds the offset and the viscous
-    asymmetry on the position, and the model follows a validation record within a millimetre.
+    Without its force offset the model's position runs away over the record: its fit on the
+    position diverges or runs to a friction of 1e10 (the identification used to find no
+    effect: 135 mm on the pulses).  The loop starts from the base fitted on the speed, finds
+    the offset and the viscous asymmetry on the position, and the model follows a validation
+    record within a millimetre.
     """
+    from dcmotor_id.identification.discovery import DiscoveryLoop
     from dcmotor_id.identification.effects import EXTENDED_VOCABULARY
     from dcmotor_id.identification.validate import model_from_dict, validate_record
     from dcmotor_id.simulation.lab_scenarios import axis_both_ways
@@ -167,9 +169,13 @@ def test_an_axis_driven_both_ways_with_an_offset_finds_its_effects():
     scenario = axis_both_ways()
     constant = scenario.torque_constant
     records = prepare_records(scenario.records, constant)
+    with position_error_model('white'):
+        found = DiscoveryLoop(records, constant, vocabulary=EXTENDED_VOCABULARY,
+                              criterion='position').run()
+    assert 'base_from' in found.base.estimate.info
+    assert set(found.final.structure.names()) == {'load_torque', 'viscous_asymmetry'}
     result = identify(records, torque_constant=constant, vocabulary=EXTENDED_VOCABULARY)
     assert result.criterion == 'position'
-    assert result.position_error['model'] == 'white'
     effects = {effect['name']: effect['parameters'] for effect in result.effects}
     assert set(effects) == {'load_torque', 'viscous_asymmetry'}
     assert effects['load_torque']['torque_Nm'] == pytest.approx(-3.2, rel=0.1)
@@ -179,3 +185,38 @@ def test_an_axis_driven_both_ways_with_an_offset_finds_its_effects():
     validation = prepare_records(axis_both_ways(pulses=True).records, constant)[0]
     scores = validate_record(model_from_dict(result.as_dict()), validation).scores
     assert scores['position_rmse'] < 1e-3
+
+
+def test_a_white_base_that_bends_the_friction_leaves_the_white_run_early(agreeing):
+    """
+    The white run stops after its base fit when that contradicts the regression.
+
+    The adaptive run comes first; it agrees, so the white run is never finished (the time of
+    a whole identification saved).  When the adaptive run disagrees too, the white run is
+    finished and the closer result kept.
+    """
+    from dcmotor_id.identification.position_error import check_base
+
+    bent = {**agreeing.parameters, 'Mc': 0.0}
+    calls = []
+
+    def run_with(adaptive_result):
+        def run():
+            calls.append(position_ar(np.cumsum(np.ones(100)), 0.0) == 0.0)  # True: white
+            check_base(bent if calls[-1] else agreeing.parameters, agreeing.input_records,
+                       agreeing.torque_constant)
+            return adaptive_result if not calls[-1] else replace(agreeing, parameters=bent)
+        return run
+
+    result = with_chosen_error_model(run_with(agreeing))
+    assert calls == [True, False]
+    assert result.position_error['model'] == 'adaptive'
+    assert 'left after its base fit' in result.position_error['white']
+    # Outside the chooser the check does nothing.
+    check_base(bent, agreeing.input_records, agreeing.torque_constant)
+    calls.clear()
+    far = replace(agreeing, parameters={**agreeing.parameters, 'J': 9 * agreeing.parameters['J']})
+    result = with_chosen_error_model(run_with(far))
+    assert calls == [True, False, True]
+    assert result.position_error['model'] == 'adaptive'  # J 9x is closer than Mc at zero
+    assert result.position_error['alternative']['Mc'] == 0.0
