@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from contextvars import ContextVar
 from dataclasses import replace
-from typing import Callable, Sequence, TYPE_CHECKING
+from typing import Any, Callable, Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -122,10 +122,10 @@ def with_chosen_error_model(run: Callable[[], IdentificationResult]) -> Identifi
     return _closer(white, adaptive, evidence)
 
 
-def _white_run(run: Callable[[], IdentificationResult]) -> tuple[
+def _white_run(run: Callable[[], IdentificationResult], check: bool = True) -> tuple[
         IdentificationResult | DcMotorIdError, WhiteBaseDisagrees | None]:
     """Run the white model, left early when its base disagrees; ``(result or error, left)``."""
-    token = _CHECK_BASE.set(True)
+    token = _CHECK_BASE.set(check)
     try:
         with position_error_model('white'):
             return run(), None
@@ -150,6 +150,7 @@ def _adaptive_first(run: Callable[[], IdentificationResult],
         adaptive = run()
     except (FitError, NotIdentifiableError, TimeBudgetExceeded):
         adaptive = None
+    evidence = None
     if adaptive is not None:
         evidence = regression_evidence(adaptive.input_records, adaptive.torque_constant)
         distance = disagreement(adaptive.parameters, evidence)
@@ -158,30 +159,44 @@ def _adaptive_first(run: Callable[[], IdentificationResult],
                 'model': 'adaptive', 'evidence': _compared(evidence),
                 'agreement_factor': AGREEMENT_FACTOR,
                 'disagreement': _factors({'adaptive': distance}), 'white': left_note})
-    with position_error_model('white'):
-        white = run()
+    white, _ = _white_run(run, check=False)
+    if isinstance(white, DcMotorIdError):
+        if adaptive is None:
+            raise white
+        return _closer(None, adaptive, evidence, f'failed: {white}')
     if adaptive is None:
         return replace(white, position_error={'model': 'white', 'adaptive': 'failed'})
-    return _closer(white, adaptive,
-                   regression_evidence(white.input_records, white.torque_constant))
+    return _closer(white, adaptive, evidence)
 
 
-def _closer(white: IdentificationResult, adaptive: IdentificationResult,
-            evidence: dict[str, float] | None) -> IdentificationResult:
-    """Return the result closer to the regression, accounted for (a warning if both far)."""
-    distances = {'white': disagreement(white.parameters, evidence),
-                 'adaptive': disagreement(adaptive.parameters, evidence)}
-    chosen = 'adaptive' if distances['adaptive'] < distances['white'] else 'white'
-    result, other = (adaptive, white) if chosen == 'adaptive' else (white, adaptive)
-    account = {'model': chosen, 'evidence': _compared(evidence),
-               'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors(distances),
-               'alternative': {name: float(value) for name, value in other.parameters.items()
-                               if name in COMPARED}}
+def _closer(white: IdentificationResult | None, adaptive: IdentificationResult,
+            evidence: dict[str, float] | None,
+            white_failed: str | None = None) -> IdentificationResult:
+    """
+    Return the result closer to the regression, accounted for (a warning if both far).
+
+    ``white`` None: its run failed (``white_failed`` says how); the adaptive result is kept.
+    """
+    distances = {'adaptive': disagreement(adaptive.parameters, evidence)}
+    if white is not None:
+        distances['white'] = disagreement(white.parameters, evidence)
+    result: IdentificationResult = adaptive
+    other, chosen = white, 'adaptive'
+    if white is not None and distances['white'] <= distances['adaptive']:
+        result, other, chosen = white, adaptive, 'white'
+    account: dict[str, Any] = {'model': chosen, 'evidence': _compared(evidence),
+                               'agreement_factor': AGREEMENT_FACTOR,
+                               'disagreement': _factors(distances)}
+    if other is not None:
+        account['alternative'] = {name: float(value) for name, value in
+                                  other.parameters.items() if name in COMPARED}
+    if white_failed is not None:
+        account['white'] = white_failed
     warnings = list(result.warnings)
     if distances[chosen] > np.log(AGREEMENT_FACTOR):
         warnings.append(_warning(evidence, result.parameters, distances))
-    return replace(result, position_error=account, warnings=warnings,
-                   elapsed_s=white.elapsed_s + adaptive.elapsed_s)
+    elapsed = sum(item.elapsed_s for item in (white, adaptive) if item is not None)
+    return replace(result, position_error=account, warnings=warnings, elapsed_s=elapsed)
 
 
 def _compared(evidence: dict[str, float] | None) -> dict[str, float] | None:

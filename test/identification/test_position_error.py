@@ -220,3 +220,26 @@ def test_a_white_base_that_bends_the_friction_leaves_the_white_run_early(agreein
     assert calls == [True, False, True]
     assert result.position_error['model'] == 'adaptive'  # J 9x is closer than Mc at zero
     assert result.position_error['alternative']['Mc'] == 0.0
+
+
+def test_a_white_run_that_fails_after_a_far_adaptive_one_keeps_the_adaptive(agreeing):
+    """White base far, adaptive far, the finished white run fails: the adaptive, warned."""
+    from dcmotor_id.identification.position_error import check_base
+
+    bent = {**agreeing.parameters, 'Mc': 0.0}
+    far = replace(agreeing, parameters={**agreeing.parameters, 'J': 9 * agreeing.parameters['J']})
+    calls = []
+
+    def run():
+        white = position_ar(np.cumsum(np.ones(100)), 0.0) == 0.0
+        calls.append(white)
+        if white:
+            check_base(bent, agreeing.input_records, agreeing.torque_constant)
+            raise FitError('the output-error fit diverged')
+        return far
+
+    result = with_chosen_error_model(run)
+    assert calls == [True, False, True]
+    assert result.position_error['model'] == 'adaptive'
+    assert result.position_error['white'].startswith('failed')
+    assert any('disagrees with the model-free regression' in text for text in result.warnings)
