@@ -1128,11 +1128,16 @@ def main(argv: Optional[list[str]] = None) -> int:
     finally:
         if not args.work:
             shutil.rmtree(work, ignore_errors=True)
-    print(text)
-    if args.out:
-        with open(args.out, 'w') as stream:
-            stream.write(text + '\n')
+    emit(text, args.out)
     return 0
+
+
+def emit(text: str, out: str | None) -> None:
+    """Print the report and, with ``--out``, write it to that file."""
+    print(text)
+    if out:
+        with open(out, 'w') as stream:
+            stream.write(text + '\n')
 
 
 if __name__ == '__main__':

@@ -199,10 +199,7 @@ def main(argv: Optional[list[str]] = None) -> int:
               f'{len(rows) - len(over_cpu)}/{len(rows)} under 30 s of CPU'
               + (f' (over: {", ".join(over_cpu)})' if over_cpu else '') + '.']
     text = '\n'.join(lines)
-    print(text)
-    if args.out:
-        with open(args.out, 'w') as stream:
-            stream.write(text + '\n')
+    bench_real.emit(text, args.out)
     return 0
 
 

@@ -172,17 +172,26 @@ def suspect(estimate: Estimate, records: Sequence[Record], model: Any,
     moved = initial_state_warnings(estimate, records, output_channels(mechanical_only))
     if moved:
         reasons.append(f'{len(moved)} initial state(s) moved far from the first samples')
-    if evidence is not None:
-        for name in ('J', 'b'):
-            fitted, seen = estimate.parameters[name], evidence[name]
-            if seen > 0 and fitted > 0 and not (1 / EVIDENCE_FACTOR < fitted / seen
-                                                < EVIDENCE_FACTOR):
-                reasons.append(f'{name} = {fitted:.4g} is {fitted / seen:.3g}x the model-free '
-                               f'regression ({seen:.4g})')
+    reasons += far_from_evidence(estimate.parameters, evidence)
     if reasons:
         reasons.insert(0, f'the misfit is {ratio:.3g}x the sensor noise')
         return reasons
     return []
+
+
+def far_from_evidence(parameters: dict[str, float],
+                      evidence: dict[str, float] | None) -> list[str]:
+    """Say which of J and b lie more than :data:`EVIDENCE_FACTOR` from the regression's."""
+    reasons: list[str] = []
+    if evidence is None:
+        return reasons
+    for name in ('J', 'b'):
+        fitted, seen = parameters[name], evidence[name]
+        if seen > 0 and fitted > 0 and not (1 / EVIDENCE_FACTOR < fitted / seen
+                                            < EVIDENCE_FACTOR):
+            reasons.append(f'{name} = {fitted:.4g} is {fitted / seen:.3g}x the model-free '
+                           f'regression ({seen:.4g})')
+    return reasons
 
 
 def regression_start(evidence: dict[str, float] | None, fallback: dict[str, float],

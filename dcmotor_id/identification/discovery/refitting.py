@@ -16,7 +16,7 @@ import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
-from dcmotor_id.identification.checks.start import EVIDENCE_FACTOR, regression_evidence
+from dcmotor_id.identification.checks.start import far_from_evidence, regression_evidence
 from dcmotor_id.identification.criterion import with_position_states
 from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.discovery.probe import fails_on_an_excerpt
@@ -189,13 +189,7 @@ def base_unsound(loop: LoopState, base: Fit) -> bool:
     from.
     """
     evidence = regression_evidence(loop.records, loop.torque_constant)
-    if evidence is None:
-        return False
-    for name in ('J', 'b'):
-        seen, fitted = evidence[name], base.values[name]
-        if seen > 0 and not 1 / EVIDENCE_FACTOR < fitted / seen < EVIDENCE_FACTOR:
-            return True
-    return False
+    return bool(far_from_evidence(base.values, evidence))
 
 
 def speed_base_on_the_position(loop: LoopState) -> Fit | None:
