@@ -438,6 +438,7 @@ def _check_base_start(run: _Run) -> None:
         run.start_check = check
         run.errors = simulation_errors(run.estimate, run.records, run.torque_constant,
                                        quasi_static=run.quasi)
+        run.warnings += _discovery_time_warnings(run.found, run.discovery_info, run.progress)
 
 
 def _discovery(run: _Run) -> None:
@@ -488,9 +489,13 @@ def _discovery_time_warnings(found, discovery_info, progress):
 def _check_final_start(run: _Run) -> None:
     """Stage 6: when the base looked sound, check where discovery led; say what was found."""
     if run.checkable and run.start_check is None:
+        found = run.found
         run.found, run.estimate, run.discovery_info, run.start_check = check_start(
             run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
             run.progress, run.estimate, run.found, run.discovery_info, run.criterion)
+        if run.found is not found:  # the second start's own loop
+            run.warnings += _discovery_time_warnings(run.found, run.discovery_info,
+                                                     run.progress)
     warning = start_warning(run.start_check)
     if warning is not None:
         run.warnings.append(warning)
