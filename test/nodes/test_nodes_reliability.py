@@ -94,7 +94,10 @@ def publish(probe, topic, messages, message_type=Float64MultiArray):
 
 
 def test_a_5000_sample_batch_is_whole_and_a_fit_over_its_limit_is_stopped(graph):
-    ident, probe = graph('big', input='batch', identify_timeout_s=0.3)
+    # 1000 structure-bootstrap resamples make the first fit last about a thousand fits (a
+    # minute): far beyond its 0.3 s limit however fast the machine (one fit takes 0.05 s)
+    ident, probe = graph('big', input='batch', identify_timeout_s=0.3, discover=True,
+                         structure_bootstrap=1000)
     publish(probe, 'samples', [batch(*simulated(5.0))])
     assert wait_for(lambda: ident.aligner.stats.emitted == 5000, 30.0), ident.aligner.stats
     stats = ident.aligner.stats
@@ -107,6 +110,7 @@ def test_a_5000_sample_batch_is_whole_and_a_fit_over_its_limit_is_stopped(graph)
     assert 'call again' in response.message.lower()
     assert wait_for(lambda: not os.path.exists(f'/proc/{worker}'), 10.0)
     ident._fits.timeout_s = None  # a later call (with time enough) works
+    assert ident.set_parameters([Parameter('structure_bootstrap', value=0)])[0].successful
     response = call(probe, 'identifier/identify')
     assert response.success, response.message
     assert response.message.startswith('refined: Ra=')
