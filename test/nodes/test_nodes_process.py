@@ -43,7 +43,16 @@ def installed(tmp_path_factory):
          '--build-base', str(base / 'build'), '--install-base', str(base / 'install')],
         cwd=base, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    return base / 'install' / 'dcmotor_id'
+    installed = base / 'install' / 'dcmotor_id'
+    # the installed copy has a numba cache of its own: fill it as the set-up step does, or
+    # the nodes' first samples wait for the compiler (minutes on a loaded machine)
+    environment = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(next((installed / 'lib').glob('python3*/site-packages'))),
+         os.environ.get('PYTHONPATH', '')]))
+    result = subprocess.run([sys.executable, '-m', 'dcmotor_id.cli.warmup'], cwd=base,
+                            env=environment, capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return installed
 
 
 def test_colcon_installs_the_ros_layout(installed):
@@ -92,6 +101,21 @@ def client(ros_env):
     rclpy.try_shutdown()
 
 
+def spin_while_progressing(executor, progress, target, stall_s=60.0, limit_s=600.0):
+    """Spin until ``progress()`` reaches ``target``; give up when it stalls for ``stall_s``."""
+    start = last_change = time.monotonic()
+    seen = progress()
+    while seen < target:
+        now = time.monotonic()
+        if now - last_change > stall_s or now - start > limit_s:
+            return False
+        executor.spin_once(timeout_sec=0.05)
+        value = progress()
+        if value != seen:
+            seen, last_change = value, time.monotonic()
+    return True
+
+
 @pytest.mark.slow
 def test_installed_nodes_identify_across_processes_and_survive_sigkill(
         installed, ros_env, client, tmp_path):
@@ -110,11 +134,14 @@ def test_installed_nodes_identify_across_processes_and_survive_sigkill(
         node.create_subscription(DiagnosticStatus, '/identifier/online_parameters',
                                  online.append, 10)
 
-        def samples_seen():
+        def updates():
             values = {kv.key: kv.value for kv in online[-1].values} if online else {}
-            return int(values.get('n_updates', 0)) >= 6500  # more than two windows of 3 s
-        assert spin_until(executor, samples_seen, 120.0), \
-            (tmp_path / 'identifier.log').read_text()
+            return int(values.get('n_updates', 0))
+        # more than two windows of 3 s; on a loaded machine the nodes run slower than real
+        # time, so the wait lasts as long as the samples keep coming
+        assert spin_while_progressing(executor, updates, 6500), (
+            updates(), (tmp_path / 'identifier.log').read_text(),
+            (tmp_path / 'sim_motor.log').read_text())
         future = trigger.call_async(Trigger.Request())
         assert spin_until(executor, future.done, 120.0)
         response = future.result()
@@ -128,7 +155,8 @@ def test_installed_nodes_identify_across_processes_and_survive_sigkill(
         for key in RESULT_KEYS:
             assert values[key] == pytest.approx(truth[key], rel=0.02), key
         # kill the identifier in the middle of a window: what it finished stays readable
-        assert spin_until(executor, lambda: len(list(record_dir.glob('window_*'))) >= 3, 60.0)
+        assert spin_while_progressing(
+            executor, lambda: len(list(record_dir.glob('window_*'))), 3)
         time.sleep(1.0)
         workers = children(ident.pid)  # the fitting process started by ~/identify
         assert workers
