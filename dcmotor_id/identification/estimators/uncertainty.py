@@ -67,9 +67,10 @@ METHOD_RECORDS = ('max(Gauss-Newton, sandwich with batch-means score covariance 
 RECORD_ESTIMATORS = {'jackknife': 'delete-one-record jackknife',
                      'cluster': 'record-level (cluster) sandwich'}
 #: What ``between_records`` says when the cluster sandwich stands in for the jackknife.
-CLUSTER_NOTE = ('a record cannot be left out without losing a parameter (e.g. one record per '
-                'direction with a torque offset): the record-level figure is the cluster '
-                'sandwich, which understates the spread when the records are few')
+CLUSTER_NOTE = ('two records, or a record that cannot be left out without (nearly) losing a '
+                'parameter (e.g. one record per direction with a torque offset): the '
+                'record-level figure is the cluster sandwich, which understates the spread '
+                'when the records are few')
 #: Fewest samples in a fine block.
 MIN_BLOCK_SAMPLES = 4
 #: Parameters whose record-level figure is checked for the warning.
@@ -79,6 +80,9 @@ JACKKNIFE_MAX_RECORDS = 30
 #: What ``between_records`` says of a fit of two records.
 PAIR_NOTE = ('two records give the spread between records one degree of freedom: the '
              'record-level figure is a rough guide and can be several times too small')
+#: Growth of a reported parameter's variance without one record beyond which the jackknife
+#: over records is not used (the record carries more than 99 % of that parameter's information).
+LEVERAGE_LIMIT = 100.0
 #: Smallest eigenvalue of a normal matrix's correlation form below which it is singular.
 SINGULAR = 1e-9
 #: Record-level over within-record standard error from which the records are said to disagree.
@@ -170,11 +174,14 @@ def _record_covariance(scores: np.ndarray, owner: np.ndarray) -> np.ndarray | No
     return records / (records - 1.0) * (sums.T @ sums)
 
 
-def _leave_one_out_step(h: np.ndarray, normal: np.ndarray, score: np.ndarray) -> np.ndarray | None:
+def _leave_one_out_step(h: np.ndarray, h_inv: np.ndarray, normal: np.ndarray,
+                        score: np.ndarray, n_shared: int) -> np.ndarray | None:
     """
     Return the Gauss-Newton step of the fit without one record, ``(H - H_r)^-1 s_r``.
 
-    None when ``H - H_r`` is singular.
+    None when ``H - H_r`` is singular, or when without the record the variance of one of the
+    first ``n_shared`` parameters (those reported) would grow more than
+    :data:`LEVERAGE_LIMIT` times.
     The record's own columns (its initial states) vanish from ``H - H_r`` and stay zero; the
     rest must be well determined without the record (a shared parameter seen by that record
     alone, e.g. a torque offset beside Coulomb friction with one record per direction, is not).
@@ -186,24 +193,33 @@ def _leave_one_out_step(h: np.ndarray, normal: np.ndarray, score: np.ndarray) ->
     scale = np.sqrt(np.diag(block))
     if np.linalg.eigvalsh(block / np.outer(scale, scale))[0] < SINGULAR:
         return None
+    # Nearly lost: the step is then the subset's instability, not the fit's (leverage).
+    shared = active[:n_shared]
+    without = np.diag(np.linalg.inv(block))[:int(shared.sum())]
+    if np.any(without > LEVERAGE_LIMIT * np.diag(h_inv)[:n_shared][shared]):
+        return None
     step = np.zeros_like(score)
     step[active] = np.linalg.solve(block, score[active])
     return step
 
 
-def _record_jackknife(h: np.ndarray, scores: np.ndarray, owner: np.ndarray,
-                      normals: np.ndarray) -> np.ndarray | None:
+def _record_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owner: np.ndarray,
+                      normals: np.ndarray, n_shared: int) -> np.ndarray | None:
     """
     Delete-one-record jackknife covariance in ``z`` (linearised: one Gauss-Newton step each).
 
     ``(R - 1) / R sum_r (d_r - mean d)(d_r - mean d)^T`` with ``d_r`` the step of the fit
     without record ``r`` (CR3 of the cluster-robust literature); None when a record cannot be
-    left out (:func:`_leave_one_out_step`).
+    left out (:func:`_leave_one_out_step`) or there are only two (each then carries half of
+    everything: the cluster sandwich has the same one degree of freedom without the
+    leave-one-out fits' instability).
     """
     sums = record_scores(scores, owner)
+    if sums.shape[0] < 3:
+        return None
     steps = []
     for score, normal in zip(sums, normals):
-        step = _leave_one_out_step(h, normal, score)
+        step = _leave_one_out_step(h, h_inv, normal, score, n_shared)
         if step is None:
             return None
         steps.append(step)
@@ -224,7 +240,8 @@ def _between_records(h: np.ndarray, h_inv: np.ndarray, info: dict[str, Any], sco
         return None
     normals = info.get('record_normal_matrices')
     if normals is not None and len(normals) == len(np.unique(owner)):
-        jackknife = _record_jackknife(h, scores, owner, np.asarray(normals, dtype=float))
+        jackknife = _record_jackknife(h, h_inv, scores, owner, np.asarray(normals, dtype=float),
+                                      len(info['names']))
         if jackknife is not None:
             return jackknife, 'jackknife'
     cluster = _record_covariance(scores, owner)
