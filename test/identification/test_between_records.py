@@ -121,8 +121,10 @@ def test_records_with_a_friction_of_their_own_are_covered_by_the_jackknife_over_
     assert np.all(within[1:] > 2.5), within
     # The jackknife over records does (RMS z of a t with 3 degrees of freedom is 1.7).
     assert np.all(stated < 1.8), stated
-    assert all(account['records'] == 4 and account['dof'] == 3
-               and account['estimator'] == 'jackknife' for account in accounts)
+    assert all(account['records'] == 4 and account['dof'] == 3 for account in accounts)
+    # A half whose one record carries 99 % of a parameter falls back to the cluster sandwich.
+    estimators = [account['estimator'] for account in accounts]
+    assert estimators.count('jackknife') >= 0.75 * len(estimators), estimators
 
 
 def test_records_sharing_their_parameters_keep_about_the_within_record_figure():
