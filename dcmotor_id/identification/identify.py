@@ -62,7 +62,8 @@ from dcmotor_id.identification.current_limited import (electrical_part, JACKKNIF
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
+from dcmotor_id.identification.estimators.uncertainty import (between_record_warnings,
+                                                              with_robust_stderr)
 from dcmotor_id.identification.fitting import (check_physical, record_names, run_discovery,
                                                simulation_errors, supports_discovery)
 from dcmotor_id.identification.heldout import HELDOUT_CHOICE, heldout_warnings, record_errors
@@ -584,6 +585,7 @@ def _fit_warnings(run: _Run) -> None:
         shift = _structure_shift(run.found.base_estimate, run.parameters, run.stderr)
         if shift:
             run.warnings.append(shift)
+    run.warnings += between_record_warnings(run.final.info.get('between_records'))
 
 
 def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, skip,
@@ -677,4 +679,5 @@ def _result(run: _Run) -> IdentificationResult:
         input_records=list(records),
         discovery_result=found,
         criterion=run.criterion,
+        between_records=final.info.get('between_records'),
     )

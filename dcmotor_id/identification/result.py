@@ -117,6 +117,12 @@ class IdentificationResult:
         ``disagreement`` (each model's largest factor from the evidence; None: a parameter
         at zero), ``alternative`` (the other model's J, b, Mc when both ran); None when the
         position is not compared.
+    between_records : dict or None
+        With several records, the record-level (cluster) standard errors that cover a
+        difference between the records
+        (:func:`~dcmotor_id.identification.estimators.uncertainty.between_records`):
+        ``records``, ``dof``, ``stderr_within``, ``stderr_records``, ``dominant``; None for
+        one record.
 
     """
 
@@ -154,6 +160,7 @@ class IdentificationResult:
     criterion: str = 'speed'
     structure_uncertainty: dict[str, Any] | None = None
     position_error: dict[str, Any] | None = None
+    between_records: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""
@@ -190,6 +197,7 @@ class IdentificationResult:
             'criterion': self.criterion,
             'structure_uncertainty': self.structure_uncertainty,
             'position_error': self.position_error,
+            'between_records': self.between_records,
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out

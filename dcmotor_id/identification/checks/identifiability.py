@@ -185,11 +185,19 @@ def at_bound(estimate: Any, records: Sequence[Any],
 
 
 def loose(estimate: Any, names: Sequence[str]) -> dict[str, str]:
-    """Return the parameters whose (robust) standard error exceeds half their value."""
+    """
+    Return the parameters whose (robust) standard error exceeds half their value.
+
+    With several records, the within-record figure (``between_records.stderr_within`` of the
+    estimate's info): records that disagree do not make a parameter undetermined by the data
+    (a warning says that they disagree).
+    """
     out = {}
+    account = estimate.info.get('between_records') or {}
+    within = account.get('stderr_within', {})
     for name in names:
         value = estimate.parameters.get(name)
-        error = estimate.stderr.get(name, np.nan)
+        error = within.get(name, estimate.stderr.get(name, np.nan))
         if value is None or not np.isfinite(error):
             continue
         if error > IDENTIFIABLE_REL_STDERR * abs(value):

@@ -38,7 +38,7 @@ from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, S
 from dcmotor_id.identification.estimators.jacobian import record_sparse_jacobian
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
 from dcmotor_id.identification.estimators.paper import PaperEstimator
-from dcmotor_id.identification.estimators.uncertainty import block_scores
+from dcmotor_id.identification.estimators.uncertainty import block_scores, JACKKNIFE_MAX_RECORDS
 from dcmotor_id.signals.filters import low_pass, noise_std
 from dcmotor_id.simulation import (combine_contributions, EXACT_FIELDS, HybridSystem,
                                    motor_forcing, MotorEffects, simulate_mechanical,
@@ -329,8 +329,9 @@ class _Pass:
     """
 
     def __init__(self, cost, hessian=None, gradient=None, sums=None, blocks=None,
-                 block_record=None, parts=None):
+                 block_record=None, parts=None, record_normal=None):
         self.cost = cost
+        self.record_normal = record_normal
         self.hessian = hessian
         self.gradient = gradient
         self.sums = sums
@@ -561,6 +562,7 @@ class _FitProblem:
             'normal_matrix': final.hessian,
             'block_scores': final.blocks,
             'block_record': final.block_record,
+            'record_normal_matrices': final.record_normal,
             'chain': chain,
         }
 
@@ -823,12 +825,17 @@ def _assemble(equations, results, weights, chain, factors, base=None):
     size = equations.n_shared + equations.n_state * len(results)
     hessian = np.zeros((size, size))
     gradient = np.zeros(size)
-    blocks, block_record = [], []
+    blocks, block_record, normals = [], [], []
     cost = 0.0
     for index, (result, factor) in enumerate(zip(results, factors)):
         by_hessian, by_gradient, by_blocks = result.by_channel
         columns = equations.columns(index)
-        hessian[np.ix_(columns, columns)] += np.tensordot(factor, by_hessian, axes=1)
+        normal = np.tensordot(factor, by_hessian, axes=1)
+        hessian[np.ix_(columns, columns)] += normal
+        if 2 < len(results) <= JACKKNIFE_MAX_RECORDS:
+            full_normal = np.zeros((size, size))
+            full_normal[np.ix_(columns, columns)] = normal
+            normals.append(full_normal)
         gradient[columns] += factor @ by_gradient
         full = np.zeros((by_blocks.shape[0], size))
         full[:, columns] = np.tensordot(by_blocks, factor, axes=([1], [0]))
@@ -838,10 +845,13 @@ def _assemble(equations, results, weights, chain, factors, base=None):
     # Pinned initial states (``initial_state='measured'``) are not in ``z``: ``chain`` covers
     # the shared parameters only, and the states' columns are dropped.
     keep = _kept_columns(equations, len(results), len(chain))
-    return _Pass(cost, hessian[keep][:, keep] * np.outer(chain, chain), gradient[keep] * chain,
+    scale = np.outer(chain, chain)
+    return _Pass(cost, hessian[keep][:, keep] * scale, gradient[keep] * chain,
                  [result.sums for result in results], np.vstack(blocks)[:, keep] * chain,
                  np.concatenate(block_record),
-                 (equations, results, weights if base is None else base, chain))
+                 (equations, results, weights if base is None else base, chain),
+                 np.array([normal[keep][:, keep] * scale for normal in normals])
+                 if normals else None)
 
 
 def free_states(states: Sequence[str], initial_state: str) -> list[bool]:
@@ -928,7 +938,7 @@ def _numeric_pass(residual, z, model, noise, with_sens, n_shared):
         return _Pass(cost, sums=sums)
     scores = block_scores(r, jac, [len(rec) for rec in model.records], len(model.outputs))
     return _Pass(cost, jac.T @ jac, jac.T @ r, sums, scores['block_scores'],
-                 scores['block_record'])
+                 scores['block_record'], record_normal=scores.get('record_normal_matrices'))
 
 
 def _levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8,

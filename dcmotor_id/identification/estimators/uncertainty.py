@@ -13,11 +13,34 @@ whole; too few blocks make ``S`` noisy, so the figure is the largest over severa
 0.6-1.8x the Monte Carlo spread, where Newey-West with an automatic bandwidth gave 0.2x on a
 servo record and the Gauss-Newton figure 1/25x (bench/lab_results.md).
 
+With several records a third figure enters the largest: the spread *between* the records.
+Records of one motor rarely share one set of parameters exactly (each HSM150 record's friction
+differs, it settles differently); blocks within a record cannot see that, so disjoint subsets
+of the HSM150 records disagreed at z = 4.7 (b, the three 4-record runs) with the figures
+above.  The record-level figure is a delete-one-record jackknife, linearised: ``d_r = (H -
+H_r)^-1 s_r`` is the Gauss-Newton step of the fit without record ``r`` (``s_r`` its score sum,
+``H_r`` its normal matrix), and the covariance ``(R - 1) / R sum_r (d_r - mean d)(d_r - mean
+d)^T`` (CR3 of the cluster-robust literature).  The cluster sandwich CR1 ``R / (R - 1) sum_r
+s_r s_r^T`` understates with few records of unequal weight: on the HSM150 runs it was
+1.5-5.5x below the jackknife that refits each leave-one-out subset, where the linearised one
+was 1.1-1.4x it on runs 2 and 3 and 2.5-3.3x on run 1 (a fit 46 % off in J); the runs' max z
+fell to 0.58 (J) and 0.56 (b) (bench/real_results_coverage.md).  With two records, or when a
+record cannot be left out without (nearly) losing a parameter (one record per direction with a
+torque offset), the cluster sandwich stands in; two records give it one degree of freedom:
+the HSM150 pairs stay at z 3.2 (J) and 6.9 (b), and ``between_records`` says that the figure
+is a rough guide there (:data:`PAIR_NOTE`).  On a simulated class of 4-record halves whose
+friction differs record to record (10 %), the RMS z between halves went from 3.4 to 1.5 (b)
+and from 3.0 to 0.8 (Mc) (a t with 3 degrees of freedom has 1.7); with the friction shared,
+from 1.3-1.6 to 0.9-1.1; on the laboratory scenarios with two records (parameters shared) the
+stated figure is the within-record one but for Mc of a record pair whose load the base model
+lacks (2.1x) (bench/records_results.md).  One record: nothing changes.
+
 The estimator delivers what is needed in ``Estimate.info`` (keys of :data:`INFO_KEYS`):
 ``normal_matrix`` (``J^T J`` in its internal coordinates ``z``), ``block_scores`` (score sums
 over fine blocks, ``n_blocks x p``), ``block_record`` (the record of every block), ``chain``
-(``d theta / d z`` per parameter) and ``residual_rms_weighted`` (``s``); :func:`block_scores`
-computes the blocks from a residual and its Jacobian.
+(``d theta / d z`` per parameter) and ``residual_rms_weighted`` (``s``), and for the
+jackknife over records ``record_normal_matrices`` (``J_r^T J_r`` per record; without it the
+cluster sandwich); :func:`block_scores` computes the blocks from a residual and its Jacobian.
 """
 
 from __future__ import annotations
@@ -39,8 +62,33 @@ BLOCK_COUNTS = (8, 10, 32)
 #: Name of the method in the result.
 METHOD = ('max(Gauss-Newton, sandwich with batch-means score covariance over 8, 10 and 32 '
           'blocks per record)')
+#: Name of the method in the result of a fit of several records (with the record-level one).
+METHOD_RECORDS = ('max(Gauss-Newton, sandwich with batch-means score covariance over 8, 10 and '
+                  '32 blocks per record, {})')
+#: The record-level estimators by their key in ``between_records``.
+RECORD_ESTIMATORS = {'jackknife': 'delete-one-record jackknife',
+                     'cluster': 'record-level (cluster) sandwich'}
+#: What ``between_records`` says when the cluster sandwich stands in for the jackknife.
+CLUSTER_NOTE = ('two records, or a record that cannot be left out without (nearly) losing a '
+                'parameter (e.g. one record per direction with a torque offset): the '
+                'record-level figure is the cluster sandwich, which understates the spread '
+                'when the records are few')
 #: Fewest samples in a fine block.
 MIN_BLOCK_SAMPLES = 4
+#: Parameters whose record-level figure is checked for the warning.
+CORE_NAMES = ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
+#: Most records for the jackknife over records (more: the cluster sandwich, as good then).
+JACKKNIFE_MAX_RECORDS = 30
+#: What ``between_records`` says of a fit of two records.
+PAIR_NOTE = ('two records give the spread between records one degree of freedom: the '
+             'record-level figure is a rough guide and can be several times too small')
+#: Growth of a reported parameter's variance without one record beyond which the jackknife
+#: over records is not used (the record carries more than 99 % of that parameter's information).
+LEVERAGE_LIMIT = 100.0
+#: Smallest eigenvalue of a normal matrix's correlation form below which it is singular.
+SINGULAR = 1e-9
+#: Record-level over within-record standard error from which the records are said to disagree.
+WARN_RATIO = 3.0
 
 
 def block_edges(length: int, fine_blocks: int = FINE_BLOCKS) -> np.ndarray:
@@ -70,22 +118,31 @@ def block_scores(residual: np.ndarray, jac: np.ndarray, record_lengths: Sequence
     Returns
     -------
     dict
-        ``block_scores`` (``n_blocks x p``) and ``block_record`` (record index per block).
+        ``block_scores`` (``n_blocks x p``), ``block_record`` (record index per block) and,
+        for 3 to :data:`JACKKNIFE_MAX_RECORDS` records, ``record_normal_matrices``
+        (``J_r^T J_r`` of every record, ``n_records x p x p``).
 
     """
-    scores, owner = [], []
+    scores, owner, normals = [], [], []
     position = 0
     for index, length in enumerate(record_lengths):
         g = np.zeros((length, jac.shape[1]))
+        normal = np.zeros((jac.shape[1], jac.shape[1]))
         for _ in range(n_outputs):
             rows = slice(position, position + length)
             g += jac[rows] * residual[rows, None]
+            normal += jac[rows].T @ jac[rows]
             position += length
         edges = block_edges(length, fine_blocks)
         scores.append(np.add.reduceat(g, edges[:-1], axis=0))
         owner.extend([index] * (len(edges) - 1))
-    return {'block_scores': np.vstack(scores) if scores else np.zeros((0, jac.shape[1])),
-            'block_record': np.array(owner, dtype=int)}
+        normals.append(normal)
+    p = jac.shape[1]
+    out = {'block_scores': np.vstack(scores) if scores else np.zeros((0, p)),
+           'block_record': np.array(owner, dtype=int)}
+    if 2 < len(normals) <= JACKKNIFE_MAX_RECORDS:
+        out['record_normal_matrices'] = np.array(normals)
+    return out
 
 
 def _score_covariance(scores: np.ndarray, owner: np.ndarray, blocks: int) -> np.ndarray:
@@ -100,6 +157,100 @@ def _score_covariance(scores: np.ndarray, owner: np.ndarray, blocks: int) -> np.
     return total
 
 
+def record_scores(scores: np.ndarray, owner: np.ndarray) -> np.ndarray:
+    """Sum the fine-block scores of every record (``n_records x p``, in record order)."""
+    return np.vstack([scores[owner == record].sum(axis=0) for record in np.unique(owner)])
+
+
+def _record_covariance(scores: np.ndarray, owner: np.ndarray) -> np.ndarray | None:
+    """
+    Record-level (cluster) ``S``: ``R / (R - 1) sum_r s_r s_r^T``; None for one record.
+
+    ``s_r`` is the score of record ``r`` at the fit, which sums to zero over the records, so
+    ``R - 1`` of them are free: the factor makes ``S`` unbiased (CR1).
+    """
+    if len(np.unique(owner)) < 2:
+        return None
+    sums = record_scores(scores, owner)
+    records = sums.shape[0]
+    return records / (records - 1.0) * (sums.T @ sums)
+
+
+def _leave_one_out_step(h: np.ndarray, h_inv: np.ndarray, normal: np.ndarray,
+                        score: np.ndarray, n_shared: int) -> np.ndarray | None:
+    """
+    Return the Gauss-Newton step of the fit without one record, ``(H - H_r)^-1 s_r``.
+
+    None when ``H - H_r`` is singular, or when without the record the variance of one of the
+    first ``n_shared`` parameters (those reported) would grow more than
+    :data:`LEVERAGE_LIMIT` times.
+    The record's own columns (its initial states) vanish from ``H - H_r`` and stay zero; the
+    rest must be well determined without the record (a shared parameter seen by that record
+    alone, e.g. a torque offset beside Coulomb friction with one record per direction, is not).
+    """
+    rest = h - normal
+    diagonal = np.diag(rest)
+    active = diagonal > SINGULAR * np.maximum(np.diag(h), 1e-300)
+    block = rest[np.ix_(active, active)]
+    scale = np.sqrt(np.diag(block))
+    if np.linalg.eigvalsh(block / np.outer(scale, scale))[0] < SINGULAR:
+        return None
+    # Nearly lost: the step is then the subset's instability, not the fit's (leverage).
+    shared = active[:n_shared]
+    without = np.diag(np.linalg.inv(block))[:int(shared.sum())]
+    if np.any(without > LEVERAGE_LIMIT * np.diag(h_inv)[:n_shared][shared]):
+        return None
+    step = np.zeros_like(score)
+    step[active] = np.linalg.solve(block, score[active])
+    return step
+
+
+def _record_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owner: np.ndarray,
+                      normals: np.ndarray, n_shared: int) -> np.ndarray | None:
+    """
+    Delete-one-record jackknife covariance in ``z`` (linearised: one Gauss-Newton step each).
+
+    ``(R - 1) / R sum_r (d_r - mean d)(d_r - mean d)^T`` with ``d_r`` the step of the fit
+    without record ``r`` (CR3 of the cluster-robust literature); None when a record cannot be
+    left out (:func:`_leave_one_out_step`) or there are only two (each then carries half of
+    everything: the cluster sandwich has the same one degree of freedom without the
+    leave-one-out fits' instability).
+    """
+    sums = record_scores(scores, owner)
+    if sums.shape[0] < 3:
+        return None
+    steps = []
+    for score, normal in zip(sums, normals):
+        step = _leave_one_out_step(h, h_inv, normal, score, n_shared)
+        if step is None:
+            return None
+        steps.append(step)
+    d = np.array(steps)
+    d -= d.mean(axis=0)
+    return (len(d) - 1.0) / len(d) * (d.T @ d)
+
+
+def _between_records(h: np.ndarray, h_inv: np.ndarray, info: dict[str, Any], scores: np.ndarray,
+                     owner: np.ndarray) -> tuple[np.ndarray, str] | None:
+    """
+    Record-level covariance in ``z`` and its estimator's name; None for one record.
+
+    The jackknife over records when every record can be left out and the fit carries the
+    records' normal matrices, else the cluster sandwich (which understates with few records).
+    """
+    if len(np.unique(owner)) < 2:
+        return None
+    normals = info.get('record_normal_matrices')
+    if normals is not None and len(normals) == len(np.unique(owner)):
+        jackknife = _record_jackknife(h, h_inv, scores, owner, np.asarray(normals, dtype=float),
+                                      len(info['names']))
+        if jackknife is not None:
+            return jackknife, 'jackknife'
+    cluster = _record_covariance(scores, owner)
+    assert cluster is not None  # several records
+    return h_inv @ cluster @ h_inv, 'cluster'
+
+
 def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
     """
     Return the data-based covariance of the parameters, or None when the info lacks it.
@@ -107,9 +258,12 @@ def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
     Returns
     -------
     dict or None
-        ``covariance`` (of ``info['names']``: the per-parameter largest of the Gauss-Newton
-        and batch-means variances, with the correlations of the largest sandwich),
-        ``stderr_model`` and ``stderr`` (arrays in the order of ``names``), ``method``.
+        ``covariance`` (of ``info['names']``: the per-parameter largest of the Gauss-Newton,
+        batch-means and (with several records) record-level variances, with the correlations
+        of the largest batch-means sandwich), ``stderr_model``, ``stderr_within`` (the
+        largest without the record-level figure), ``stderr_records`` (the record-level
+        figure, None for one record) and ``stderr`` (arrays in the order of ``names``),
+        ``records`` (how many), ``method``.
 
     """
     if any(key not in info for key in INFO_KEYS):
@@ -127,28 +281,95 @@ def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
     n = len(names)
     model = (model_z * scale)[:n, :n]
     variances = [np.diag(model)] + [np.diag((c * scale)[:n, :n]) for c in sandwiches]
-    stacked = np.vstack(variances)
-    largest = np.max(stacked, axis=0)
-    # The correlations of the sandwich with the largest total relative variance.
+    within = np.max(np.vstack(variances), axis=0)
+    # The correlations of the sandwich with the largest total relative variance (not of the
+    # record-level one: its rank is the number of records less one).
     relative = [np.sum(v / np.maximum(np.diag(model), 1e-300)) for v in variances[1:]]
     widest = (sandwiches[int(np.argmax(relative))] * scale)[:n, :n]
     sd = np.sqrt(np.maximum(np.diag(widest), 1e-300))
     correlation = widest / np.outer(sd, sd)
+    between = _between_records(h, h_inv, info, scores, owner)
+    records, estimator = None, None
+    largest = within
+    if between is not None:
+        records = np.sqrt(np.maximum(np.diag((between[0] * scale)[:n, :n]), 0.0))
+        estimator = between[1]
+        largest = np.maximum(within, records ** 2)
     stderr = np.sqrt(np.maximum(largest, 0.0))
     covariance = correlation * np.outer(stderr, stderr)
     return {'covariance': covariance, 'stderr': stderr,
-            'stderr_model': np.sqrt(np.maximum(np.diag(model), 0.0)), 'method': METHOD,
+            'stderr_model': np.sqrt(np.maximum(np.diag(model), 0.0)),
+            'stderr_within': np.sqrt(np.maximum(within, 0.0)), 'stderr_records': records,
+            'records': int(len(np.unique(owner))), 'record_estimator': estimator,
+            'method': (METHOD if estimator is None
+                       else METHOD_RECORDS.format(RECORD_ESTIMATORS[estimator])),
             'correlation': correlation}
+
+
+def between_records(names: Sequence[str], robust: dict[str, Any]) -> dict[str, Any] | None:
+    """
+    Return the JSON account of the record-level figure (``between_records``), None for one.
+
+    ``records`` and ``dof`` (records less one: how many independent record-level scores the
+    figure rests on), ``estimator`` (``jackknife`` or ``cluster``), ``note`` (why the cluster
+    sandwich, and that two records say little of their spread; absent otherwise),
+    ``stderr_within`` (Gauss-Newton and batch means, blind to a difference
+    between records) and ``stderr_records`` (the record-level sandwich) by parameter, and
+    ``dominant``: the parameters whose record-level figure is the larger, i.e. whose
+    ``stderr`` the spread between the records sets.
+    """
+    if robust.get('stderr_records') is None:
+        return None
+    within = {name: float(v) for name, v in zip(names, robust['stderr_within'])}
+    records = {name: float(v) for name, v in zip(names, robust['stderr_records'])}
+    account = {'records': int(robust['records']), 'dof': int(robust['records']) - 1,
+               'estimator': robust['record_estimator'],
+               'stderr_within': within, 'stderr_records': records,
+               'dominant': [name for name in names if records[name] > within[name]]}
+    notes = [CLUSTER_NOTE] if robust['record_estimator'] == 'cluster' else []
+    if account['dof'] == 1:
+        notes.append(PAIR_NOTE)
+    if notes:
+        account['note'] = '; '.join(notes)
+    return account
+
+
+def between_record_warnings(account: dict[str, Any] | None,
+                            names: Sequence[str] = CORE_NAMES) -> list[str]:
+    """
+    Say when the records disagree far beyond their noise (record-level figure >= 3x).
+
+    The spread between the records then sets the standard errors, and it rests on
+    ``records - 1`` degrees of freedom only: a standard error estimated from ``d`` of them is
+    itself uncertain by about ``1 / sqrt(2 d)``.
+    """
+    if not account:
+        return []
+    within, records = account['stderr_within'], account['stderr_records']
+    far = {name: records[name] / within[name] for name in names
+           if name in within and within[name] > 0 and np.isfinite(records[name])
+           and records[name] >= WARN_RATIO * within[name]}
+    if not far:
+        return []
+    dof = account['dof']
+    listing = ', '.join(f'{name} {ratio:.1f}x' for name, ratio in far.items())
+    return [f'the records disagree far beyond their noise (record-level standard error / '
+            f'within-record one: {listing}): the standard errors include the spread between '
+            f'the {account["records"]} records, estimated from {dof} degree(s) of freedom, so '
+            f'they are themselves uncertain by about {100 / np.sqrt(2 * dof):.0f} %; the '
+            'records do not share one set of parameters (fit them one by one to see which '
+            'differs)']
 
 
 def with_robust_stderr(estimate: Any) -> Any:
     """
     Return the estimate with data-based standard errors (unchanged when it has no info).
 
-    ``stderr`` becomes the larger of the Gauss-Newton and the batch-means figure per
-    parameter (Ka and Ta by the delta method on that covariance); ``info`` gains
-    ``stderr_model`` (the Gauss-Newton figures), ``uncertainty_method``,
-    ``robust_covariance`` and ``robust_correlation``.
+    ``stderr`` becomes the largest of the Gauss-Newton, the batch-means and (with several
+    records) the record-level figure per parameter (Ka and Ta by the delta method on that
+    covariance); ``info`` gains ``stderr_model`` (the Gauss-Newton figures),
+    ``uncertainty_method``, ``robust_covariance``, ``robust_correlation`` and
+    ``between_records`` (:func:`between_records`).
     """
     robust = robust_covariance(estimate.info)
     if robust is None:
@@ -162,5 +383,6 @@ def with_robust_stderr(estimate: Any) -> Any:
     info = {**estimate.info, 'stderr_model': dict(estimate.stderr),
             'uncertainty_method': robust['method'],
             'robust_covariance': robust['covariance'],
-            'robust_correlation': robust['correlation']}
+            'robust_correlation': robust['correlation'],
+            'between_records': between_records(names, robust)}
     return replace(estimate, stderr=stderr, info=info)
