@@ -6,7 +6,8 @@ Every HSM150 single record and opposite pair (github malik-robert/HSM150-data, c
 identified through the command line exactly as ``bench_real.py`` does (the original ``.mat``
 files with the reading options), once by a checkout of the code before the change (``--before
 DIR``, e.g. ``git worktree add /tmp/before 9c8e725``) and once by this checkout, one right
-after the other on each row (paired under the same load).  The table gives J, b and Mc against
+after the other on each row (paired under the same load), after the warm-up of each
+(``python -m dcmotor_id.cli.warmup``, in no row).  The table gives J, b and Mc against
 the references, the start the further starts chose (JSON ``start_check.starts_chosen``) and
 their cost (``starts_cpu_s``), the process's CPU time, and the warnings.  Set-up as in
 ``bench_real.py``::
@@ -152,6 +153,10 @@ def main() -> None:
     load_start = os.getloadavg()
     began = time.perf_counter()
     results = []
+    for tree in (args.before, args.after):
+        # The set-up step of a user (`make demo`): the compiled kernels' cache, in no row.
+        subprocess.run([sys.executable, '-m', 'dcmotor_id.cli.warmup'], cwd=tree,
+                       env=dict(os.environ, PYTHONPATH=tree), capture_output=True, check=True)
     with tempfile.TemporaryDirectory() as work:
         for data, label, cli in jobs(args.hsm150, args.mech467, work):
             entry = {'data': data, 'label': label}
