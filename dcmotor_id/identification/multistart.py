@@ -10,7 +10,8 @@ fits the same model again from a few further starts:
 
 * the regression's values (:func:`~dcmotor_id.identification.checks.start.regression_start`);
 * the same with J times 1/3 and times 3 (b kept): the mechanical time constant ``J / b``
-  spread over a decade around the regression's.
+  spread over a decade around the regression's, unless the regression's start already led
+  back to the default's fit (one basin: the spread is not paid for).
 
 It keeps the best by the criterion of the start check
 (:func:`~dcmotor_id.identification.checks.start.bic` over the samples the residuals are
@@ -47,6 +48,10 @@ TIME_CONSTANT_FACTORS = (1.0 / 3.0, 3.0)
 BUDGET_SHARE = 0.25
 #: BIC improvement a later start must bring to replace an earlier one's fit (not round-off).
 TIE_BIC = 0.01
+#: Relative difference under which two fits' base values are the same point.
+SAME_POINT = 1e-3
+#: The base values compared by :func:`_same_point` (the mechanical ones, always fitted).
+START_NAMES = ('J', 'b', 'Mc')
 #: BIC difference within which two results explain the data alike.
 SIMILAR_BIC = 2.0
 #: Relative difference of J or b beyond which two results lie in different basins ...
@@ -121,6 +126,8 @@ def several_starts(records: Sequence[Record], torque_constant: float | None, qua
                                   entries[-1]))
             if fits[-1] is None and entries[-1].get('failed', '').startswith('time budget'):
                 break
+            if name == 'regression' and fits[-1] is not None and _same_point(fits[-1], estimate):
+                break  # the model-free start leads to the default's fit: one basin, no spread
     finally:
         progress.deadline = deadline
     best = _score(fits, entries, records, model, estimate)
@@ -135,6 +142,13 @@ def _same_start(start: dict[str, float], default: dict[str, float]) -> bool:
     return bool(default) and all(
         name in default and np.isclose(value, default[name], rtol=1e-9, atol=0.0)
         for name, value in start.items())
+
+
+def _same_point(one: Estimate, other: Estimate) -> bool:
+    """Whether two base fits reached the same point (every base value within SAME_POINT)."""
+    return all(np.isclose(float(value), float(other.parameters.get(name, np.nan)),
+                          rtol=SAME_POINT, atol=0.0)
+               for name, value in one.parameters.items() if name in START_NAMES)
 
 
 def _fit_from(records, torque_constant, quasi, progress, start, criterion, entry):

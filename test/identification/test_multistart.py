@@ -11,7 +11,8 @@ from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.multistart import (ambiguity_warning, ambiguous_starts,
                                                   different_basins, further_starts, MAX_STARTS,
                                                   several_starts, SIMILAR_BIC, with_starts)
-from dcmotor_id.simulation.lab_scenarios import servo_collapsed_start, servo_torque_steps
+from dcmotor_id.simulation.lab_scenarios import (servo_collapsed_start, servo_opposite_steps,
+                                                 servo_torque_steps)
 
 
 @pytest.fixture(scope='module')
@@ -66,6 +67,18 @@ def test_a_sound_fit_gets_no_further_starts():
     assert account is None and best is base
     check = identify(records, torque_constant=scenario.torque_constant).as_dict()['start_check']
     assert check['chosen'] == 'first start' and 'starts' not in check, check
+
+
+def test_no_spread_when_the_regression_start_leads_back_to_the_default_fit():
+    # Without the offset in the model every start reaches J 40x with Mc at zero: one basin
+    # (the second start, holding the offset, is what escapes it); the spread is not paid for.
+    scenario = servo_opposite_steps(seed=0)
+    records = prepare_records(scenario.records, torque_constant=scenario.torque_constant)
+    base = RefinedEstimator().fit(records, torque_constant=scenario.torque_constant)
+    best, account = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    assert [entry['name'] for entry in account['starts']] == ['default', 'regression'], account
+    assert account['chosen'] == 'default' and best is base, account
+    assert not account['ambiguous']
 
 
 def test_the_further_starts_respect_the_time_budget(collapsed):
