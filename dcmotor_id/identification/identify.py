@@ -67,6 +67,7 @@ from dcmotor_id.identification.estimators.uncertainty import (between_record_war
 from dcmotor_id.identification.fitting import (check_physical, record_names, run_discovery,
                                                simulation_errors, supports_discovery)
 from dcmotor_id.identification.heldout import HELDOUT_CHOICE, heldout_warnings, record_errors
+from dcmotor_id.identification.multistart import ambiguity_warning, several_starts, with_starts
 from dcmotor_id.identification.position_error import check_base, with_chosen_error_model
 from dcmotor_id.identification.prepare import (check_excitation, common_period, one_level_reason,
                                                PERIOD_RTOL, prepare_records, SETTLE_SAMPLES,
@@ -285,6 +286,7 @@ class _Run:
     found: DiscoveryResult | None = None
     discovery_info: dict[str, Any] | None = None
     start_check: dict[str, Any] | None = None
+    starts: dict[str, Any] | None = None  # the further starts of the base fit
     final: Estimate = field(init=False)
     terms: Sequence = ()
     fitted_records: list[Record] = field(init=False)
@@ -424,12 +426,20 @@ def _check_base_start(run: _Run) -> None:
     """
     Stage 4: the base checked against model-free evidence before the loop.
 
-    A base in a wrong basin misleads the effect screen; when the second start explains the
-    data better it is the base, and it ran its own discovery
+    A base fit that misfits far above the noise or lies far from the evidence is fitted again
+    from further starts, the best kept
+    (:func:`~dcmotor_id.identification.multistart.several_starts`).  A base in a wrong
+    basin misleads the effect screen; when the second start explains the data better it is
+    the base, and it ran its own discovery
     (:func:`~dcmotor_id.identification.second_start.check_start`).
     """
     if not run.checkable:
         return
+    run.estimate, run.starts = several_starts(run.records, run.torque_constant, run.quasi,
+                                              run.progress, run.estimate, run.criterion)
+    if run.starts is not None and run.starts['chosen'] != 'default':
+        run.errors = simulation_errors(run.estimate, run.records, run.torque_constant,
+                                       quasi_static=run.quasi)
     run.found, run.estimate, run.discovery_info, check = check_start(
         run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
         run.progress, run.estimate, None, None, run.criterion)
@@ -497,9 +507,10 @@ def _check_final_start(run: _Run) -> None:
         if run.found is not found:  # the second start's own loop
             run.warnings += _discovery_time_warnings(run.found, run.discovery_info,
                                                      run.progress)
-    warning = start_warning(run.start_check)
-    if warning is not None:
-        run.warnings.append(warning)
+    run.start_check = with_starts(run.start_check, run.starts)
+    for warning in (start_warning(run.start_check), ambiguity_warning(run.starts)):
+        if warning is not None:
+            run.warnings.append(warning)
 
 
 def _final_fit(run: _Run) -> None:

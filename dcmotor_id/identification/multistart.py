@@ -1,0 +1,245 @@
+"""
+Several starts of the base fit when its misfit is large or it disagrees with the evidence.
+
+An output-error fit from one start point can settle in a local minimum: a friction run to its
+bound (no gradient leads back from there), or a mechanical time constant far from the one the
+data show.  When the base fit (the motor model without effects) misfits far above the sensor
+noise, or lies far from the model-free regression
+(:func:`~dcmotor_id.identification.checks.start.far_from_evidence`), :func:`several_starts`
+fits the same model again from a few further starts:
+
+* the regression's values (:func:`~dcmotor_id.identification.checks.start.regression_start`);
+* the same with J times 1/3 and times 3 (b kept): the mechanical time constant ``J / b``
+  spread over a decade around the regression's, unless the regression's start already led
+  back to the default's fit (one basin: the spread is not paid for).
+
+It keeps the best by the criterion of the start check
+(:func:`~dcmotor_id.identification.checks.start.bic` over the samples the residuals are
+worth) and accounts for every start in the JSON (``start_check.starts``).  Two starts that
+score alike (within :data:`SIMILAR_BIC`) in different basins make the answer ambiguous:
+:func:`ambiguity_warning` says so.  The further starts are base fits only (not discovery
+loops), at most :data:`MAX_STARTS`, and take at most :data:`BUDGET_SHARE` of the time left.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence, TYPE_CHECKING
+
+import numpy as np
+
+from dcmotor_id.core.errors import DcMotorIdError
+from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
+from dcmotor_id.identification.checks.identifiability import MISFIT_FACTOR
+from dcmotor_id.identification.checks.start import (bic, effective_samples, far_from_evidence,
+                                                    misfit_ratio, regression_evidence,
+                                                    regression_start)
+from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
+from dcmotor_id.identification.fitting import check_physical, record_names
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.estimators.base import Estimate
+
+#: Most further starts (base fits) after the default one.
+MAX_STARTS = 3
+#: Factors on the regression's J (b kept) that spread the mechanical time constant.
+TIME_CONSTANT_FACTORS = (1.0 / 3.0, 3.0)
+#: Most of the time left (budget) the further starts may take.
+BUDGET_SHARE = 0.25
+#: BIC improvement a later start must bring to replace an earlier one's fit (not round-off).
+TIE_BIC = 0.01
+#: Relative difference under which two fits' base values are the same point.
+SAME_POINT = 1e-3
+#: The base values compared by :func:`_same_point` (the mechanical ones, always fitted).
+START_NAMES = ('J', 'b', 'Mc')
+#: BIC difference within which two results explain the data alike.
+SIMILAR_BIC = 2.0
+#: Relative difference of J or b beyond which two results lie in different basins ...
+BASIN_SHARE = 0.25
+#: ... when it also exceeds this many of their combined standard errors.
+BASIN_STDERR = 3.0
+
+
+def start_reasons(estimate: Estimate, records: Sequence[Record], model: Any,
+                  evidence: dict[str, float] | None) -> list[str]:
+    """
+    Say why a base fit deserves further starts (empty: it does not).
+
+    The misfit far above the sensor noise (beyond
+    :data:`~dcmotor_id.identification.checks.identifiability.MISFIT_FACTOR`), or J or b far
+    from the model-free regression.
+    """
+    ratio = misfit_ratio(estimate, records, model)
+    reasons = [f'the misfit is {ratio:.3g}x the sensor noise'] if ratio > MISFIT_FACTOR else []
+    return reasons + far_from_evidence(estimate.parameters, evidence)
+
+
+def further_starts(evidence: dict[str, float] | None, fitted: dict[str, float],
+                   names: Sequence[str]) -> list[tuple[str, dict[str, float]]]:
+    """
+    Return the further starts ``(name, values)``: the regression's, then J spread around it.
+
+    Without evidence, J is spread around the fitted values (``fitted``), which also fill in
+    what the regression lacks.
+    """
+    base = regression_start(evidence, fitted, names)
+    starts = [('regression', base)] if evidence is not None else []
+    starts += [(f'regression, J x {factor:.3g}' if evidence is not None else
+                f'fit, J x {factor:.3g}', {**base, 'J': base['J'] * factor})
+               for factor in TIME_CONSTANT_FACTORS]
+    return starts[:MAX_STARTS]
+
+
+def several_starts(records: Sequence[Record], torque_constant: float | None, quasi: bool,
+                   progress: Progress, estimate: Estimate, criterion: str = 'speed'
+                   ) -> tuple[Estimate, dict[str, Any] | None]:
+    """
+    Fit the base model from further starts when the default's fit is doubted; keep the best.
+
+    Returns the best base fit and the account (None when no further start was needed):
+    ``reasons``, ``starts`` (per start its ``name``, ``start`` values, the fitted ``J`` and
+    ``b``, its ``bic``, or why it ``failed`` or was ``skipped``, and ``chosen``; the default's
+    entry has the ``effective_samples``), ``chosen`` (the name), ``ambiguous``
+    (:func:`ambiguous_starts`) and ``cpu_s`` (the cost of the further starts on the budget's
+    clock).
+    """
+    model = OutputErrorModel(records, torque_constant, (), quasi, criterion)
+    evidence = regression_evidence(records, torque_constant)
+    reasons = start_reasons(estimate, records, model, evidence)
+    if not reasons:
+        return estimate, None
+    began = progress.now()
+    entries: list[dict[str, Any]] = [{'name': 'default',
+                                      'start': dict(estimate.info.get('start', {}))}]
+    fits: list[Estimate | None] = [estimate]
+    deadline = progress.deadline
+    share = None if deadline is None else began + BUDGET_SHARE * max(deadline - began, 0.0)
+    try:
+        progress.deadline = share
+        for name, start in further_starts(evidence, estimate.parameters, model.base_names):
+            entries.append({'name': name, 'start': start})
+            if _same_start(start, entries[0]['start']):
+                entries[-1]['skipped'] = 'the default start (not fitted again)'
+                fits.append(None)
+                continue
+            fits.append(_fit_from(records, torque_constant, quasi, progress, start, criterion,
+                                  entries[-1]))
+            if fits[-1] is None and entries[-1].get('failed', '').startswith('time budget'):
+                break
+            if name == 'regression' and fits[-1] is not None and _same_point(fits[-1], estimate):
+                break  # the model-free start leads to the default's fit: one basin, no spread
+    finally:
+        progress.deadline = deadline
+    best = _score(fits, entries, records, model, estimate)
+    account = {'reasons': reasons, 'starts': entries, 'chosen': entries[best]['name'],
+               'ambiguous': ambiguous_starts(fits, entries, best),
+               'cpu_s': float(progress.now() - began)}
+    return fits[best] or estimate, account
+
+
+def _same_start(start: dict[str, float], default: dict[str, float]) -> bool:
+    """Whether a further start is the default one (every value within round-off)."""
+    return bool(default) and all(
+        name in default and np.isclose(value, default[name], rtol=1e-9, atol=0.0)
+        for name, value in start.items())
+
+
+def _same_point(one: Estimate, other: Estimate) -> bool:
+    """Whether two base fits reached the same point (every base value within SAME_POINT)."""
+    return all(np.isclose(float(value), float(other.parameters.get(name, np.nan)),
+                          rtol=SAME_POINT, atol=0.0)
+               for name, value in one.parameters.items() if name in START_NAMES)
+
+
+def _fit_from(records, torque_constant, quasi, progress, start, criterion, entry):
+    """Fit the base model from ``start``; None (and ``entry['failed']``) when it fails."""
+    try:
+        progress.set_stage(f'base fit from a further start ({entry["name"]})',
+                           record_names(records))
+        fit = RefinedEstimator(initial=start, quasi_static=quasi, progress=progress,
+                               criterion=criterion).fit(records, torque_constant=torque_constant)
+        check_physical(fit)
+    except TimeBudgetExceeded:
+        entry['failed'] = 'time budget: the further starts may take ' \
+                          f'{100 * BUDGET_SHARE:.0f} % of the time left'
+        return None
+    except (DcMotorIdError, np.linalg.LinAlgError, FloatingPointError) as error:
+        entry['failed'] = str(error) or type(error).__name__
+        return None
+    return fit
+
+
+def _score(fits, entries, records, model, first) -> int:
+    """Score the fits (BIC on the fewest effective samples); fill the entries; return the best."""
+    noise = dict(first.info.get('noise_std', {}))
+    done = [index for index, fit in enumerate(fits) if fit is not None]
+    effective = min(effective_samples(fits[index], records, model) for index in done)
+    scores = {index: bic(fits[index], records, model, noise, effective=effective)
+              for index in done}
+    # The first start (the default first) within TIE_BIC of the lowest: a point reached again
+    # from a later start does not replace it on round-off.
+    low = min(scores.values())
+    best = next(index for index in done if scores[index] <= low + TIE_BIC)
+    for index in done:
+        entries[index].update({'J': float(fits[index].parameters['J']),
+                               'b': float(fits[index].parameters['b']),
+                               'bic': float(scores[index]), 'chosen': index == best})
+    for entry in entries:
+        entry.setdefault('chosen', False)
+    entries[0]['effective_samples'] = float(effective)
+    return best
+
+
+def different_basins(one: Estimate, other: Estimate) -> bool:
+    """
+    Whether two fits of the same model lie in different basins.
+
+    J or b differs by more than :data:`BASIN_SHARE` of the larger and by more than
+    :data:`BASIN_STDERR` of their combined standard errors.
+    """
+    for name in ('J', 'b'):
+        a, b = float(one.parameters[name]), float(other.parameters[name])
+        spread = np.hypot(float(one.stderr.get(name, np.nan)),
+                          float(other.stderr.get(name, np.nan)))
+        apart = abs(a - b) > BASIN_SHARE * max(abs(a), abs(b))
+        if apart and not abs(a - b) <= BASIN_STDERR * spread:  # NaN errors count as apart
+            return True
+    return False
+
+
+def ambiguous_starts(fits: Sequence[Estimate | None], entries: Sequence[dict[str, Any]],
+                     best: int) -> list[str]:
+    """Name the starts that land in another basin than the best, scoring alike (the BIC)."""
+    chosen = fits[best]
+    if chosen is None:
+        return []
+    return [entries[index]['name'] for index, fit in enumerate(fits)
+            if fit is not None and index != best
+            and entries[index]['bic'] - entries[best]['bic'] < SIMILAR_BIC
+            and different_basins(fit, chosen)]
+
+
+def ambiguity_warning(account: dict[str, Any] | None) -> str | None:
+    """Return the warning of starts that land in different basins with similar scores."""
+    if account is None or not account.get('ambiguous'):
+        return None
+    by_name = {entry['name']: entry for entry in account['starts']}
+    best = by_name[account['chosen']]
+    others = '; '.join(f'from the {name} start J = {by_name[name]["J"]:.4g}, '
+                       f'b = {by_name[name]["b"]:.4g}' for name in account['ambiguous'])
+    return (f'the base fit is ambiguous: from the {account["chosen"]} start it gives '
+            f'J = {best["J"]:.4g}, b = {best["b"]:.4g}, and {others}, which explain the data '
+            f'about as well (BIC within {SIMILAR_BIC:g}); the data do not tell these apart: '
+            'record a richer excitation (steps of several sizes, both directions)')
+
+
+def with_starts(check: dict[str, Any] | None, account: dict[str, Any] | None
+                ) -> dict[str, Any] | None:
+    """Return the start check with the further starts' account (``starts`` and the rest)."""
+    if account is None:
+        return check
+    base = dict(check) if check is not None else {'doubts': [], 'chosen': 'first start'}
+    base.update({'starts': account['starts'], 'starts_chosen': account['chosen'],
+                 'starts_reasons': account['reasons'],
+                 'starts_ambiguous': account['ambiguous'], 'starts_cpu_s': account['cpu_s']})
+    return base

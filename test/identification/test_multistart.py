@@ -1,0 +1,127 @@
+"""Several starts of the base fit when its misfit is large (issue 19), in the lab simulator."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from dcmotor_id.core.progress import Progress
+from dcmotor_id.identification.estimators.refined import RefinedEstimator
+from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.identification.multistart import (ambiguity_warning, ambiguous_starts,
+                                                  different_basins, further_starts, MAX_STARTS,
+                                                  several_starts, SIMILAR_BIC, with_starts)
+from dcmotor_id.simulation.lab_scenarios import (servo_collapsed_start, servo_opposite_steps,
+                                                 servo_torque_steps)
+
+
+@pytest.fixture(scope='module')
+def collapsed():
+    scenario = servo_collapsed_start()
+    records = prepare_records(scenario.records, torque_constant=scenario.torque_constant)
+    base = RefinedEstimator().fit(records, torque_constant=scenario.torque_constant)
+    return scenario, records, base
+
+
+def test_a_further_start_escapes_the_basin_of_the_default_start(collapsed):
+    scenario, records, base = collapsed
+    truth = scenario.truth
+    # The class: from the default start the base fit runs b to its bound (no gradient leads
+    # back from there) and J to hundreds of times the truth.
+    assert base.parameters['J'] > 100 * truth.J, base.parameters
+    assert base.parameters['b'] < 1e-3 * truth.b, base.parameters
+    best, account = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    assert account is not None and account['chosen'] != 'default', account
+    scores = {entry['name']: entry['bic'] for entry in account['starts'] if 'bic' in entry}
+    assert scores[account['chosen']] < scores['default'] - 10, scores
+    # The base model lacks the offset, so J stays high; but b is found, J 10x nearer.
+    assert best.parameters['J'] < base.parameters['J'] / 10, best.parameters
+    assert best.parameters['b'] == pytest.approx(truth.b, rel=0.3), best.parameters
+    names = [entry['name'] for entry in account['starts']]
+    assert names[0] == 'default' and len(names) <= 1 + MAX_STARTS, names
+    assert {'regression', 'regression, J x 0.333', 'regression, J x 3'} <= set(names), names
+    assert account['cpu_s'] > 0.0
+
+
+def test_the_json_names_the_starts_and_keeps_the_start_check(collapsed):
+    scenario, records, _ = collapsed
+    result = identify(records, torque_constant=scenario.torque_constant)
+    check = result.as_dict()['start_check']
+    assert {'evidence', 'doubts', 'chosen', 'bic'} <= set(check), check  # the existing keys
+    assert check['starts_chosen'] != 'default', check
+    assert check['starts'][0]['name'] == 'default', check
+    assert all('start' in entry and ('bic' in entry or 'failed' in entry or 'skipped' in entry)
+               for entry in check['starts']), check
+    assert check['starts_reasons'][0].startswith('the misfit is'), check
+    assert check['starts_cpu_s'] >= 0.0
+    truth = scenario.truth
+    assert abs(result.parameters['J'] / truth.J - 1) < 0.4, result.parameters
+    assert abs(result.parameters['b'] / truth.b - 1) < 0.3, result.parameters
+
+
+def test_a_sound_fit_gets_no_further_starts():
+    scenario = servo_torque_steps()
+    records = prepare_records(scenario.records, torque_constant=scenario.torque_constant)
+    base = RefinedEstimator().fit(records, torque_constant=scenario.torque_constant)
+    best, account = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    assert account is None and best is base
+    check = identify(records, torque_constant=scenario.torque_constant).as_dict()['start_check']
+    assert check['chosen'] == 'first start' and 'starts' not in check, check
+
+
+def test_no_spread_when_the_regression_start_leads_back_to_the_default_fit():
+    # Without the offset in the model every start reaches J 40x with Mc at zero: one basin
+    # (the second start, holding the offset, is what escapes it); the spread is not paid for.
+    scenario = servo_opposite_steps(seed=0)
+    records = prepare_records(scenario.records, torque_constant=scenario.torque_constant)
+    base = RefinedEstimator().fit(records, torque_constant=scenario.torque_constant)
+    best, account = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    assert [entry['name'] for entry in account['starts']] == ['default', 'regression'], account
+    assert account['chosen'] == 'default' and best is base, account
+    assert not account['ambiguous']
+
+
+def test_the_further_starts_respect_the_time_budget(collapsed):
+    scenario, records, base = collapsed
+    progress = Progress(max_time_s=1e-9)
+    best, account = several_starts(records, scenario.torque_constant, False, progress, base)
+    assert best is base and account['chosen'] == 'default', account
+    failed = [entry for entry in account['starts'] if 'failed' in entry]
+    assert len(failed) == 1 and failed[0]['failed'].startswith('time budget'), account
+    assert progress.deadline is not None  # given back as it was
+
+
+def test_further_starts_without_evidence_spread_j_around_the_fit():
+    fitted = {'J': 2e-4, 'b': 1e-4, 'Mc': 0.01}
+    starts = further_starts(None, fitted, ['J', 'b', 'Mc'])
+    assert [name for name, _ in starts] == ['fit, J x 0.333', 'fit, J x 3']
+    assert starts[1][1] == {'J': pytest.approx(6e-4), 'b': 1e-4, 'Mc': 0.01}
+    evidence = {'J': 1e-4, 'b': -1.0, 'Mc': 0.02, 'offset': 0.0}
+    starts = further_starts(evidence, fitted, ['J', 'b', 'Mc'])
+    assert starts[0] == ('regression', {'J': 1e-4, 'b': 0.0, 'Mc': 0.02})
+
+
+def _fit(j, b, sj=1e-6, sb=1e-6):
+    return SimpleNamespace(parameters={'J': j, 'b': b}, stderr={'J': sj, 'b': sb})
+
+
+def test_different_basins_with_similar_scores_are_ambiguous():
+    near, far = _fit(1.0e-4, 7e-5), _fit(1.5e-4, 7e-5)
+    assert not different_basins(near, _fit(1.1e-4, 7e-5))  # 10 % apart: the same basin
+    assert not different_basins(near, _fit(1.5e-4, 7e-5, sj=5e-5))  # within the errors
+    assert different_basins(near, far)
+    entries = [{'name': 'default', 'bic': 10.0, 'J': 1.0e-4, 'b': 7e-5},
+               {'name': 'regression', 'bic': 10.0 + SIMILAR_BIC / 2, 'J': 1.5e-4, 'b': 7e-5},
+               {'name': 'regression, J x 3', 'bic': 10.0 + 2 * SIMILAR_BIC, 'J': 3e-4,
+                'b': 7e-5}]
+    fits = [near, far, _fit(3e-4, 7e-5)]
+    assert ambiguous_starts(fits, entries, 0) == ['regression']
+    account = {'starts': entries, 'chosen': 'default', 'ambiguous': ['regression'],
+               'reasons': [], 'cpu_s': 0.1}
+    text = ambiguity_warning(account)
+    assert 'ambiguous' in text and 'J = 0.00015' in text, text
+    assert ambiguity_warning({**account, 'ambiguous': []}) is None
+    check = with_starts({'doubts': ['x'], 'chosen': 'first start', 'bic': {}}, account)
+    assert check['doubts'] == ['x'] and check['starts'] is entries
+    assert with_starts(None, None) is None
+    assert np.isclose(with_starts(None, account)['starts_cpu_s'], 0.1)
