@@ -154,7 +154,7 @@ class _Runs:
         self.run, self.progress = run, progress
 
     def adaptive(self) -> IdentificationResult:
-        """Run the identification again with the adaptive (AR(1)) position error."""
+        """Run the identification again, the position error modelled as a drift (AR(1))."""
         self.name(ADAPTIVE_RUN)
         return self.run()
 
