@@ -278,3 +278,10 @@ def test_a_white_run_left_after_its_start_check_is_finished_from_there(monkeypat
     named = [next(i for i, line in enumerate(lines) if name + ': ' in line) for name in runs]
     assert named == sorted(named)
     assert progress.run == ''
+
+
+def test_the_elapsed_time_of_two_runs_is_the_later_one_s(agreeing):
+    """The runs share one Progress: the later result's elapsed time already counts both."""
+    bent = replace(agreeing, parameters={**agreeing.parameters, 'Mc': 0.0}, elapsed_s=2.0)
+    results = iter([bent, replace(agreeing, elapsed_s=5.0)])
+    assert with_chosen_error_model(lambda: next(results)).elapsed_s == 5.0
