@@ -99,6 +99,7 @@ class NormalEquations:
         #: Which initial states the fit estimates (set by the fit; None: all of them).
         self.free_states: list[bool] | None = None
         self._regressors = [self._stack_regressors(index) for index in range(len(model.records))]
+        self._edges: dict[int, np.ndarray] = {}  # block edges by record length (read only)
 
     @staticmethod
     def supports(model: Any) -> bool:
@@ -207,7 +208,9 @@ class NormalEquations:
             s_start[c, self.n_shared + c] = 1.0
         measured = [np.ascontiguousarray(getattr(rec, channel), dtype=float)
                     for channel in dynamic]
-        edges = block_edges(len(rec))
+        edges = self._edges.get(len(rec))
+        if edges is None:
+            edges = self._edges[len(rec)] = block_edges(len(rec))
         trajectory = np.empty((len(rec), n, m + 1)) if store else _NO_TRAJECTORY
         hessian, gradient, cost, sums, blocks = kernel('normal_kernel')(
             np.ascontiguousarray(a), da, forcing, gscale, *self._linear_terms(values, index, n),
