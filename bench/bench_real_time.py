@@ -1,5 +1,5 @@
 r"""
-Run time of ``dcmotor-id identify`` on the HSM150 records, paired against an earlier commit.
+Run time of ``dcmotor-id identify`` on real records, paired against an earlier commit.
 
 Issue 19 asks for any record up to 300k samples in under 30 s.  The scorecard
 (``bench_real.py``) found idf_pos_0.065_1 alone at 56 s of CPU and all 12 records at 58 s.
@@ -18,11 +18,20 @@ wall-clock and CPU seconds of the process, whether the time budget (``--max-time
 ``dcmotor_id.core.progress.budget_clock``) ran out, J and b of both, and whether the results
 are identical.
 
-Set-up: the HSM150 data as for ``bench_real.py`` (a work tree or a bare clone of
-github malik-robert/HSM150-data at 35c3b1b).  Run from the repository root::
+The MECH 467 ball-screw lab (``--mech467``) and EMPS (``--emps``) take the scorecard's
+fits and reading options too (every record, all of Part C, its halves, all parts; EMPS each
+record and both): their fits are on the position, where the identification may run twice
+(:mod:`dcmotor_id.identification.position_error`).  Their table gives J, b and Mc of both
+trees and the largest relative difference of the parameters when not identical.
+
+Set-up: the data as for ``bench_real.py`` (a work tree or a bare clone of
+github malik-robert/HSM150-data at 35c3b1b, of github brucecui97/mech467 at 36dde45; the EMPS
+files).  Run from the repository root::
 
     .venv/bin/python bench/bench_real_time.py --hsm150 HSM150-data --before 1b9de8a \
         --out bench/real_time_results.md
+    .venv/bin/python bench/bench_real_time.py --mech467 mech467 --emps ../shared/data/emps \
+        --before 9c8e725 --out bench/real_time_results_position.md
 """
 
 from __future__ import annotations
@@ -66,11 +75,15 @@ def run(tree: str, module: str, args: list[str]) -> dict[str, Any]:
             'stderr': done.stderr.strip().splitlines()[-1:] if done.returncode else []}
 
 
-def identify(tree: str, files: list[str], out: str) -> dict[str, Any]:
+HSM150_OPTIONS = ['--column', 't=data:1', '--column', 'current=data:7', '--column',
+                  'speed=data:4', '--torque-constant', f'{bench_real.HSM150_K:g}']
+
+
+def identify(tree: str, files: list[str], out: str,
+             options: Optional[list[str]] = None) -> dict[str, Any]:
     """Identify the records as the scorecard does; return the times and the result."""
-    hsm = ['--column', 't=data:1', '--column', 'current=data:7', '--column', 'speed=data:4',
-           '--torque-constant', f'{bench_real.HSM150_K:g}']
-    result = run(tree, 'dcmotor_id.cli', ['identify', *files, *hsm, '--json', out])
+    options = HSM150_OPTIONS if options is None else options
+    result = run(tree, 'dcmotor_id.cli', ['identify', *files, *options, '--json', out])
     result['json'] = None
     if result['rc'] == 0 and os.path.isfile(out):
         with open(out) as stream:
@@ -104,11 +117,46 @@ def cells(result: dict[str, Any]) -> tuple[str, str, str]:
 
 
 def same(a: dict[str, Any], b: dict[str, Any]) -> str:
-    """Whether two runs gave the same parameters and standard errors."""
+    """Whether two runs gave the same parameters and standard errors (else how far apart)."""
     if a['json'] is None or b['json'] is None:
         return '-'
     keys = ('parameters', 'stderr', 'effects', 'initial_states')
-    return 'yes' if all(a['json'].get(k) == b['json'].get(k) for k in keys) else 'no'
+    if all(a['json'].get(k) == b['json'].get(k) for k in keys):
+        return 'yes'
+    first, second = a['json']['parameters'], b['json']['parameters']
+    names = [name for name in first if name in second]
+    worst = max((abs(second[n] - first[n]) / max(abs(first[n]), 1e-300) for n in names),
+                default=float('nan'))
+    effects = [e['name'] for e in a['json'].get('effects', [])] == \
+        [e['name'] for e in b['json'].get('effects', [])]
+    return f'no: parameters within {worst:.1e} (relative)' + \
+        ('' if effects else '; other effects')
+
+
+def values_cell(result: dict[str, Any]) -> str:
+    """J, b and Mc of a run (4 significant digits) and its effects, or its exit code."""
+    data = result['json']
+    if data is None:
+        return f'exit {result["rc"]}'
+    values = data['parameters']
+    effects = ', '.join(effect['name'] for effect in data.get('effects', []))
+    return ' / '.join(f'{values[name]:.4g}' for name in ('J', 'b', 'Mc')) + \
+        (f' ({effects})' if effects else '')
+
+
+def position_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Return the markdown table of the paired runs on the position (MECH 467, EMPS)."""
+    lines = ['| data | fit | samples | before: wall s (CPU) | after: wall s (CPU) '
+             '| CPU after / before | J / b / Mc before | J / b / Mc after | identical results |',
+             '|---|---|---|---|---|---|---|---|---|']
+    for row in rows:
+        before, after = row['before'], row['after']
+        ratio = after['cpu'] / max(before['cpu'], 1e-9)
+        lines.append(f'| {row["data"]} | {row["label"]} | {row["samples"]} '
+                     f'| {before["wall"]:.1f} ({before["cpu"]:.1f}) '
+                     f'| {after["wall"]:.1f} ({after["cpu"]:.1f}) | {ratio:.2f} '
+                     f'| {values_cell(before)} | {values_cell(after)} | {same(before, after)} |')
+    return lines
 
 
 def table(rows: list[dict[str, Any]]) -> list[str]:
@@ -129,14 +177,44 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
 def parse(argv: Optional[list[str]]) -> argparse.Namespace:
     """Parse the command line."""
     parser = argparse.ArgumentParser(description=__doc__.strip().split('\n')[0])
-    parser.add_argument('--hsm150', metavar='DIR', required=True,
-                        help='HSM150-data (work tree or bare clone)')
+    parser.add_argument('--hsm150', metavar='DIR', help='HSM150-data (work tree or bare clone)')
+    parser.add_argument('--mech467', metavar='DIR', help='mech467 (work tree or bare clone)')
+    parser.add_argument('--emps', metavar='DIR', help='the EMPS .mat files')
     parser.add_argument('--before', metavar='REV', required=True,
                         help='the commit to pair against')
     parser.add_argument('--out', metavar='FILE.md', help='also write the report here')
     parser.add_argument('--fits', nargs='+', metavar='LABEL',
                         help="only these fits (labels as in the table, e.g. 'all 12')")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if not (args.hsm150 or args.mech467 or args.emps):
+        parser.error('give the data: --hsm150 DIR, --mech467 DIR and/or --emps DIR')
+    return args
+
+
+def fit_jobs(args: argparse.Namespace, work: str) -> list[dict[str, Any]]:
+    """Every fit asked for: data, label, files, samples and reading options."""
+    out: list[dict[str, Any]] = []
+    if args.hsm150:
+        records = bench_real._hsm150_records(bench_real.Repository(
+            args.hsm150, bench_real.HSM150_COMMIT, os.path.join(work, 'HSM150-data')))
+        out += [{'data': 'HSM150', 'label': label, 'names': names, 'records': records,
+                 'options': HSM150_OPTIONS} for label, names in jobs(list(records))]
+    if args.mech467:
+        repo = bench_real.Repository(args.mech467, bench_real.MECH467_COMMIT,
+                                     os.path.join(work, 'mech467'))
+        stems = bench_real._mech467_stems(repo, False)
+        records = bench_real._mech467_records(repo, stems)
+        options = bench_real.MECH467_READING + [
+            '--torque-constant', f'{bench_real.MECH467_K * bench_real.MECH467_GAIN:.6g}']
+        out += [{'data': 'MECH 467', 'label': job.label, 'names': job.members,
+                 'records': records, 'options': options}
+                for job in bench_real._mech467_jobs(stems, False)]
+    if args.emps:
+        emps = bench_real.emps_set(args.emps, False)
+        options = emps.reading + ['--torque-constant', f'{emps.torque_constant:.6g}']
+        out += [{'data': 'EMPS', 'label': job.label, 'names': job.members,
+                 'records': emps.records, 'options': options} for job in emps.jobs]
+    return [job for job in out if not args.fits or job['label'] in args.fits]
 
 
 def measure(args: argparse.Namespace, work: str) -> tuple[list[dict[str, Any]], dict, str]:
@@ -146,20 +224,44 @@ def measure(args: argparse.Namespace, work: str) -> tuple[list[dict[str, Any]], 
     commit = extract(args.before, before_tree)
     trees = {'before': before_tree, 'after': ROOT}
     setup = {side: run(tree, 'dcmotor_id.cli.warmup', []) for side, tree in trees.items()}
-    records = bench_real._hsm150_records(bench_real.Repository(
-        args.hsm150, bench_real.HSM150_COMMIT, os.path.join(work, 'HSM150-data')))
     rows = []
-    for label, names in jobs(list(records)):
-        if args.fits and label not in args.fits:
-            continue
-        row: dict[str, Any] = {'label': label,
-                               'samples': sum(len(records[n].t) for n in names)}
+    for job in fit_jobs(args, work):
+        records = job['records']
+        row: dict[str, Any] = {'data': job['data'], 'label': job['label'],
+                               'samples': sum(len(records[n].t) for n in job['names'])}
         for side, tree in trees.items():
-            row[side] = identify(tree, [records[n].path for n in names],
-                                 os.path.join(work, f'{side}.json'))
-        bench_real.log(f'{label}: CPU {row["before"]["cpu"]:.1f} -> {row["after"]["cpu"]:.1f} s')
+            row[side] = identify(tree, [records[n].path for n in job['names']],
+                                 os.path.join(work, f'{side}.json'), job['options'])
+        bench_real.log(f'{job["data"]} {job["label"]}: CPU {row["before"]["cpu"]:.1f} -> '
+                       f'{row["after"]["cpu"]:.1f} s')
         rows.append(row)
     return rows, setup, commit
+
+
+def command(args: argparse.Namespace) -> str:
+    """Return the command line of this run, as the report quotes it."""
+    parts = ['.venv/bin/python bench/bench_real_time.py']
+    parts += [f'--{name} {value}' for name, value in
+              (('hsm150', 'HSM150-data' if args.hsm150 else None),
+               ('mech467', 'mech467' if args.mech467 else None),
+               ('emps', '../shared/data/emps' if args.emps else None),
+               ('before', args.before), ('out', args.out)) if value]
+    if args.fits:
+        parts.append('--fits ' + ' '.join(f"'{label}'" for label in args.fits))
+    return ' '.join(parts)
+
+
+def summary(rows: list[dict[str, Any]]) -> list[str]:
+    """How many fits ran under 30 s (wall clock, CPU) after."""
+    over = [row['label'] for row in rows if row['after']['wall'] > 30.0]
+    over_cpu = [row['label'] for row in rows if row['after']['cpu'] > 30.0]
+    over_before = [row['label'] for row in rows if row['before']['cpu'] > 30.0]
+    return ['', f'After: {len(rows) - len(over)}/{len(rows)} fits under 30 s of wall clock'
+            + (f' (over: {", ".join(over)})' if over else '') + '; '
+            f'{len(rows) - len(over_cpu)}/{len(rows)} under 30 s of CPU'
+            + (f' (over: {", ".join(over_cpu)})' if over_cpu else '') + '.  Before: '
+            f'{len(rows) - len(over_before)}/{len(rows)} under 30 s of CPU'
+            + (f' (over: {", ".join(over_before)})' if over_before else '') + '.']
 
 
 def main(argv: Optional[list[str]] = None) -> int:
@@ -172,12 +274,9 @@ def main(argv: Optional[list[str]] = None) -> int:
     finally:
         shutil.rmtree(work, ignore_errors=True)
     end = os.getloadavg()
-    over = [row['label'] for row in rows if row['after']['wall'] > 30.0]
-    lines = ['# Run time of identify on the HSM150 records, paired (issue 19)', '',
-             f'Command: `.venv/bin/python bench/bench_real_time.py --hsm150 HSM150-data '
-             f'--before {args.before}' + (f' --out {args.out}' if args.out else '')
-             + (' --fits ' + ' '.join(f"'{label}'" for label in args.fits)
-                if args.fits else '') + '`  ',
+    data = ', '.join(sorted({row['data'] for row in rows}))
+    lines = [f'# Run time of identify on real records ({data}), paired (issue 19)', '',
+             f'Command: `{command(args)}`  ',
              f'Before: commit {commit}; after: commit {bench_real.code_version()}  ',
              f'Machine: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}; load average '
              f'(1, 5, 15 min) at the start {", ".join(f"{v:.2f}" for v in load)}, at the end '
@@ -191,13 +290,14 @@ def main(argv: Optional[list[str]] = None) -> int:
              'it) ran out (a warning, or the discovery loop kept its best structure so far), so '
              'that run did less work and its result differs. '
              '*identical results*: parameters, standard errors, effects and initial states '
-             'equal.', '']
-    lines += table(rows)
-    over_cpu = [row['label'] for row in rows if row['after']['cpu'] > 30.0]
-    lines += ['', f'After: {len(rows) - len(over)}/{len(rows)} fits under 30 s of wall clock'
-              + (f' (over: {", ".join(over)})' if over else '') + '; '
-              f'{len(rows) - len(over_cpu)}/{len(rows)} under 30 s of CPU'
-              + (f' (over: {", ".join(over_cpu)})' if over_cpu else '') + '.']
+             'equal (else the largest relative difference of the parameters).', '']
+    hsm = [row for row in rows if row['data'] == 'HSM150']
+    position = [row for row in rows if row['data'] != 'HSM150']
+    if hsm:
+        lines += table(hsm) + ['']
+    if position:
+        lines += position_table(position)
+    lines += summary(rows)
     text = '\n'.join(lines)
     bench_real.emit(text, args.out)
     return 0

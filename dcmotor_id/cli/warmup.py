@@ -6,7 +6,8 @@ The kernels are compiled with ``cache=True``: the first process that calls one c
 processes load it.  ``python -m dcmotor_id.cli.warmup`` (the Makefile's install rule) runs a tiny
 simulation and identification through the public entry points, on synthetic data, so that
 every kernel is compiled for the argument types the CLI and the nodes use (the identify steps
-compile the fit's sensitivity kernel, :func:`dcmotor_id.simulation.sensitivity.normal_kernel`).
+compile the fit's sensitivity kernel, :func:`dcmotor_id.simulation.sensitivity.normal_kernel`,
+and the fit on the position its position kernel).
 It goes through the command line and the public classes only, not the kernels' names, so it
 keeps covering them wherever they live.  Measured in ``bench/bench_cold_start.py`` and
 ``bench/bench_speed.py`` (cold start).
@@ -40,6 +41,17 @@ def _drop_column(source: str, target: str, column: str) -> None:
     with open(target, 'w', newline='', encoding='utf-8') as stream:
         csv.writer(stream).writerows([cell for i, cell in enumerate(row) if i != drop]
                                      for row in rows)
+
+
+def _with_position(source: str, target: str) -> None:
+    """Copy a record as current and position (the speed's running integral; no voltage)."""
+    import numpy as np
+
+    table = np.genfromtxt(source, delimiter=',', names=True)
+    t, speed = table['t'], table['speed']
+    position = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(t) * (speed[:-1] + speed[1:]))])
+    np.savetxt(target, np.column_stack([t, table['current'], position]), delimiter=',',
+               header='t,current,position', comments='')
 
 
 def _online(path: str) -> None:
@@ -90,12 +102,18 @@ def warm_up(directory: str) -> list[tuple[str, float]]:
     plain = os.path.join(directory, 'plain.csv')
     effects = os.path.join(directory, 'effects.csv')
     mechanical = os.path.join(directory, 'mechanical.csv')
+    position = os.path.join(directory, 'position.csv')
     simulate = ['simulate', '--duration', '1', '--sample-period', '1e-3', '--noise', '0.005']
     effect_args = [arg for text in SIMULATED_EFFECTS for arg in ('--effect', text)]
 
     def mechanical_mode() -> int:
         _drop_column(plain, mechanical, 'voltage')
         return cli(['identify', mechanical, '--no-discover', '--torque-constant', '0.7'])
+
+    def on_the_position() -> int:
+        _with_position(plain, position)
+        return cli(['identify', position, '--no-discover', '--torque-constant', '0.7',
+                    '--criterion', 'position'])
 
     steps = [
         ('ahead-of-time kernels', _ahead_of_time),
@@ -105,6 +123,7 @@ def warm_up(directory: str) -> list[tuple[str, float]]:
          lambda: cli(['identify', effects, '--extended-vocabulary',
                       '--json', os.path.join(directory, 'result.json')])),
         ('identify, mechanical mode', mechanical_mode),
+        ('identify on the position', on_the_position),
         ('identify, paper method', lambda: cli(['identify', plain, '--method', 'paper',
                                                 '--no-discover'])),
         ('online estimator', lambda: _online(plain)),

@@ -130,6 +130,7 @@ class Progress:
         self.callback = callback
         self.stage = ''
         self.record: str | None = None
+        self.run = ''  # which run of several (:meth:`set_run`); empty: the first
         self._last = 0.0
         # (its own throttle below: interval_s and delay_s; a forced write ignores them)
         self.line = (StatusLine(stream, 0.0, redraw=True)
@@ -161,6 +162,23 @@ class Progress:
         self.record = record
         self.update(force=True)
 
+    def set_run(self, run: str) -> None:
+        """
+        Say that another run of the identification starts (its stages follow, named after it).
+
+        An empty ``run`` ends the naming (nothing is written).
+
+        E.g. the identification on the position run again with another error model
+        (:mod:`dcmotor_id.identification.position_error`): without it the line would go back
+        to ``base fit`` without saying why.
+        """
+        self.run = run
+        if not run:
+            return
+        self.stage = 'starting'
+        self.record = None
+        self._show(None, None, force=True)  # (no budget check: the run's own stages do it)
+
     def update(self, iteration: int | None = None, cost: float | None = None,
                force: bool = False) -> None:
         """
@@ -175,13 +193,18 @@ class Progress:
         self.evaluations += 1
         if self.expired():
             raise TimeBudgetExceeded(f'time budget of {self.max_time_s:g} s (CPU) used up')
+        self._show(iteration, cost, force)
+
+    def _show(self, iteration: int | None, cost: float | None, force: bool) -> None:
+        """Write the line (or call back) when due."""
         now = time.monotonic()
         if not (self.enabled or self.callback):
             return
         if now - self.start < self.delay_s or (not force and now - self._last < self.interval_s):
             return
         self._last = now
-        text = f'dcmotor-id: {now - self.start:5.1f} s  {self.stage}'
+        text = f'dcmotor-id: {now - self.start:5.1f} s  ' + (f'{self.run}: ' if self.run else '') \
+            + self.stage
         if self.record:
             text += f'  [{self.record}]'
         text += f'  evaluation {self.evaluations if iteration is None else iteration}'

@@ -182,7 +182,7 @@ def _identify_on(criterion, arguments):
     try:
         if resolved == 'speed' or method != 'refined' or estimator is not None:
             return _identify(*arguments, resolved)
-        return with_chosen_error_model(lambda: _identify(*arguments, resolved))
+        return with_chosen_error_model(lambda: _identify(*arguments, resolved), arguments[6])
     except (FitError, NotIdentifiableError) as error:
         if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
             raise
@@ -243,7 +243,13 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
     _armature(run)
     _check_base_start(run)
     if run.criterion != 'speed':
-        check_base(run.estimate.parameters, run.records, run.torque_constant)
+        check_base(run.estimate.parameters, run.records, run.torque_constant,
+                   resume=lambda: _after_the_start_check(run))
+    return _after_the_start_check(run)
+
+
+def _after_the_start_check(run: _Run) -> IdentificationResult:
+    """Stages 5-12 of :func:`_identify` (a white run left after its base resumes here)."""
     _discovery(run)
     _check_final_start(run)
     _final_fit(run)

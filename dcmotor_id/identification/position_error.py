@@ -23,7 +23,7 @@ from typing import Any, Callable, Sequence, TYPE_CHECKING
 import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError, FitError, NotIdentifiableError
-from dcmotor_id.core.progress import TimeBudgetExceeded
+from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.identification.checks.start import regression_evidence
 from dcmotor_id.identification.criterion import position_error_model
 
@@ -37,6 +37,10 @@ if TYPE_CHECKING:
 AGREEMENT_FACTOR = 1.5
 #: Parameters compared with the regression.
 COMPARED = ('J', 'b', 'Mc')
+#: What the status line says of the runs after the first (the white one).
+ADAPTIVE_RUN = 'second run, position error as a drift (AR(1))'
+WHITE_RUN_RESUMED = 'white run resumed after its start check'
+WHITE_RUN_AGAIN = 'white run again, to its end'
 
 
 def disagreement(parameters: dict[str, float], evidence: dict[str, float] | None) -> float:
@@ -58,13 +62,20 @@ def disagreement(parameters: dict[str, float], evidence: dict[str, float] | None
 
 
 class WhiteBaseDisagrees(Exception):
-    """A white run left after its base fit: the base contradicts the regression."""
+    """
+    A white run left after its base fit: the base contradicts the regression.
 
-    def __init__(self, distance: float, parameters: dict[str, float]) -> None:
+    ``resume`` (when the run gave one) finishes the white run from where it was left, so
+    that a white run needed after all does not fit its base and second start again.
+    """
+
+    def __init__(self, distance: float, parameters: dict[str, float],
+                 resume: Callable[[], IdentificationResult] | None = None) -> None:
         super().__init__('the base fit on the white position error disagrees with the '
                          'model-free regression')
         self.distance = distance
         self.parameters = parameters
+        self.resume = resume
 
 
 # Whether the white run in progress is left as soon as its base fit disagrees (a context
@@ -73,23 +84,26 @@ _CHECK_BASE: ContextVar[bool] = ContextVar('check_base', default=False)
 
 
 def check_base(parameters: dict[str, float], records: Sequence[Record],
-               torque_constant: float | None) -> None:
+               torque_constant: float | None,
+               resume: Callable[[], IdentificationResult] | None = None) -> None:
     """
     Leave a white run whose base fit (after the start check) contradicts the regression.
 
     Raises :class:`WhiteBaseDisagrees` inside :func:`with_chosen_error_model`'s first run
     only; elsewhere it does nothing.  The AR(1) run is then tried first, and the white run
-    is finished only when that one disagrees too.
+    is finished only when that one disagrees too: by ``resume`` (the rest of the run from
+    this point, its state kept) when given, else by running it again from the start.
     """
     if not _CHECK_BASE.get():
         return
     distance = disagreement(parameters, regression_evidence(records, torque_constant))
     if distance > np.log(AGREEMENT_FACTOR):
         raise WhiteBaseDisagrees(distance, {name: float(parameters[name]) for name in COMPARED
-                                            if name in parameters})
+                                            if name in parameters}, resume)
 
 
-def with_chosen_error_model(run: Callable[[], IdentificationResult]) -> IdentificationResult:
+def with_chosen_error_model(run: Callable[[], IdentificationResult],
+                            progress: Progress | None = None) -> IdentificationResult:
     """
     Run an identification on the position with the white error model, else the adaptive one.
 
@@ -98,14 +112,24 @@ def with_chosen_error_model(run: Callable[[], IdentificationResult]) -> Identifi
     adaptive one runs when the white result disagrees with the regression by more than
     :data:`AGREEMENT_FACTOR`, or failed (a second run that fails or runs out of time leaves
     the white result).  Returns the result closer to the evidence, its ``position_error``
-    filled in (and a warning when both disagree).
+    filled in (and a warning when both disagree).  ``progress`` (the runs') names each run
+    after the first on its status line (:meth:`~dcmotor_id.core.progress.Progress.set_run`).
     """
-    white, left = _white_run(run)
+    runs = _Runs(run, progress)
+    try:
+        return _chosen(runs)
+    finally:
+        runs.name('')  # a later identification on the same Progress starts unnamed
+
+
+def _chosen(runs: _Runs) -> IdentificationResult:
+    """:func:`with_chosen_error_model`'s body."""
+    white, left = _white_run(runs.run)
     if left is not None:
-        return _adaptive_first(run, left)
+        return _adaptive_first(runs, left)
     if isinstance(white, DcMotorIdError):
-        return replace(run(), position_error={'model': 'adaptive',
-                                              'white': f'failed: {white}'})
+        return replace(runs.adaptive(), position_error={'model': 'adaptive',
+                                                        'white': f'failed: {white}'})
     evidence = regression_evidence(white.input_records, white.torque_constant)
     distance = disagreement(white.parameters, evidence)
     if distance <= np.log(AGREEMENT_FACTOR):
@@ -113,13 +137,40 @@ def with_chosen_error_model(run: Callable[[], IdentificationResult]) -> Identifi
             'model': 'white', 'evidence': _compared(evidence),
             'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors({'white': distance})})
     try:
-        adaptive = run()
+        adaptive = runs.adaptive()
     except (FitError, NotIdentifiableError, TimeBudgetExceeded) as error:
         return replace(white, position_error={
             'model': 'white', 'evidence': _compared(evidence),
             'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors({'white': distance}),
             'adaptive': f'failed: {error}'})
     return _closer(white, adaptive, evidence)
+
+
+class _Runs:
+    """The identification's runs after the first, each named on the status line."""
+
+    def __init__(self, run: Callable[[], IdentificationResult],
+                 progress: Progress | None) -> None:
+        self.run, self.progress = run, progress
+
+    def adaptive(self) -> IdentificationResult:
+        """Run the identification again, the position error modelled as a drift (AR(1))."""
+        self.name(ADAPTIVE_RUN)
+        return self.run()
+
+    def white(self, left: WhiteBaseDisagrees) -> tuple[
+            IdentificationResult | DcMotorIdError, WhiteBaseDisagrees | None]:
+        """Finish the white run that was left after its base (from there when it can)."""
+        if left.resume is None:
+            self.name(WHITE_RUN_AGAIN)
+            return _white_run(self.run, check=False)
+        self.name(WHITE_RUN_RESUMED)
+        return _white_run(left.resume, check=False)
+
+    def name(self, label: str) -> None:
+        """Name the run that starts on the status line (empty: none)."""
+        if self.progress is not None:
+            self.progress.set_run(label)
 
 
 def _white_run(run: Callable[[], IdentificationResult], check: bool = True) -> tuple[
@@ -139,15 +190,14 @@ def _white_run(run: Callable[[], IdentificationResult], check: bool = True) -> t
         _CHECK_BASE.reset(token)
 
 
-def _adaptive_first(run: Callable[[], IdentificationResult],
-                    left: WhiteBaseDisagrees) -> IdentificationResult:
+def _adaptive_first(runs: _Runs, left: WhiteBaseDisagrees) -> IdentificationResult:
     """Run the adaptive model after a white base that disagrees; the full white run if needed."""
     left_note = ('left after its base fit (' + ', '.join(
         f'{name} {value:.4g}' for name, value in left.parameters.items())
         + f': {np.exp(left.distance):.3g}x from the regression)'
         if np.isfinite(left.distance) else 'left after its base fit (a parameter at zero)')
     try:
-        adaptive = run()
+        adaptive = runs.adaptive()
     except (FitError, NotIdentifiableError, TimeBudgetExceeded):
         adaptive = None
     evidence = None
@@ -159,7 +209,7 @@ def _adaptive_first(run: Callable[[], IdentificationResult],
                 'model': 'adaptive', 'evidence': _compared(evidence),
                 'agreement_factor': AGREEMENT_FACTOR,
                 'disagreement': _factors({'adaptive': distance}), 'white': left_note})
-    white, _ = _white_run(run, check=False)
+    white, _ = runs.white(left)
     if isinstance(white, DcMotorIdError):
         if adaptive is None:
             raise white
@@ -195,7 +245,8 @@ def _closer(white: IdentificationResult | None, adaptive: IdentificationResult,
     warnings = list(result.warnings)
     if distances[chosen] > np.log(AGREEMENT_FACTOR):
         warnings.append(_warning(evidence, result.parameters, distances))
-    elapsed = sum(item.elapsed_s for item in (white, adaptive) if item is not None)
+    # The runs share one Progress: the later result's elapsed time is the whole of both.
+    elapsed = max(item.elapsed_s for item in (white, adaptive) if item is not None)
     return replace(result, position_error=account, warnings=warnings, elapsed_s=elapsed)
 
 

@@ -46,6 +46,8 @@ AHEAD_OF_TIME = {
     'sosfilt_kernel': ('kernels', 'void(f8[:, ::1], f8[::1], f8[:, ::1])'),
     'normal_kernel': ('sensitivity', 'Tuple((f8[:, :, ::1], f8[:, ::1], f8, f8[::1], '
                       f'f8[:, :, ::1]))({_NORMAL_ARGUMENTS})'),
+    'position_kernel': ('sensitivity', 'Tuple((f8[:, ::1], f8[::1], f8[:, ::1], f8, f8))('
+                        'f8[:, :, ::1], f8, f8, f8[::1], f8, f8, b1, i8[::1])'),
 }
 
 #: Kernels not compiled ahead of time, and their numba module.

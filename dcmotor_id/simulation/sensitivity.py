@@ -492,3 +492,76 @@ def normal_kernel(a, da, forcing, gscale, regs, reg_col, reg_row, reg_factor, or
             for i in range(j):
                 hessian[c, j, i] = hessian[c, i, j]
     return hessian, gradient, cost, sums, blocks
+
+
+@njit(cache=True)
+def _position_row(trajectory, k, speed, half, first, rho, weight, integral, last, row):
+    """Set ``row`` to sample ``k``'s weighted, whitened position sensitivities (and 1)."""
+    m = integral.shape[0]
+    for j in range(m + 1):
+        if j < m and k > 0:
+            integral[j] += half * (trajectory[k - 1, speed, 1 + j] + trajectory[k, speed, 1 + j])
+        raw = integral[j] if j < m else 1.0
+        if rho == 0.0:
+            row[j] = raw * weight
+        elif k == 0:
+            row[j] = first * raw * weight
+        else:
+            row[j] = (raw - rho * last[j]) * weight
+        last[j] = raw
+
+
+@njit(cache=True)
+def position_kernel(trajectory, dt, initial_position, measured, rho, weight, with_sens,
+                    block_edges):
+    """
+    Accumulate the position's normal equations from a stored trajectory, in one pass.
+
+    The position is the trapezoidal integral of the speed (the last state of ``trajectory``,
+    as :func:`normal_kernel` stores it) from ``initial_position``; its sensitivities are the
+    speed's integrated, and 1 for the initial position (column ``m``).  Error and rows are
+    whitened by the AR(1) ``rho`` and weighted by ``weight``: the values of
+    :func:`dcmotor_id.identification.criterion.integrate_speed` and
+    :func:`~dcmotor_id.identification.criterion.whiten` step for step.  Returns
+    ``(hessian, gradient, blocks, sum_of_squares, cost)`` (the first three zero unless
+    ``with_sens``; the sum of squares of the whitened error, the cost of the weighted one).
+    """
+    n_samples, speed, m = trajectory.shape[0], trajectory.shape[1] - 1, trajectory.shape[2] - 1
+    n_blocks = block_edges.shape[0] - 1
+    hessian = np.zeros((m + 1, m + 1))
+    gradient = np.zeros(m + 1)
+    blocks = np.zeros((n_blocks, m + 1))
+    half, first = 0.5 * dt, math.sqrt(1.0 - rho * rho)
+    running, previous, total, cost = 0.0, 0.0, 0.0, 0.0
+    integral, last, row = np.zeros(m), np.zeros(m + 1), np.zeros(m + 1)
+    block = 0
+    for k in range(n_samples):
+        position = initial_position
+        if k > 0:
+            running += half * (trajectory[k - 1, speed, 0] + trajectory[k, speed, 0])
+            position = running + initial_position
+        error = position - measured[k]
+        if rho == 0.0:
+            white = error
+        elif k == 0:
+            white = first * error
+        else:
+            white = error - rho * previous
+        previous = error
+        residual = white * weight
+        total += white * white
+        cost += residual * residual
+        if not with_sens:
+            continue
+        _position_row(trajectory, k, speed, half, first, rho, weight, integral, last, row)
+        while block + 1 < n_blocks and k >= block_edges[block + 1]:
+            block += 1
+        for j in range(m + 1):
+            gradient[j] += row[j] * residual
+            blocks[block, j] += row[j] * residual
+            for i in range(j, m + 1):
+                hessian[j, i] += row[j] * row[i]
+    for j in range(m + 1):
+        for i in range(j):
+            hessian[j, i] = hessian[i, j]
+    return hessian, gradient, blocks, total, cost

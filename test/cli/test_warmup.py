@@ -8,10 +8,11 @@ from dcmotor_id.cli.warmup import warm_up
 def test_every_warm_up_step_runs(tmp_path):
     steps = [name for name, seconds in warm_up(str(tmp_path)) if seconds >= 0.0]
     assert steps[:3] == ['ahead-of-time kernels', 'simulate', 'simulate with effects']
-    assert {'identify with discovery', 'identify, mechanical mode', 'identify, paper method',
-            'online estimator', 'sim_motor stepper'} <= set(steps)
+    assert {'identify with discovery', 'identify, mechanical mode', 'identify on the position',
+            'identify, paper method', 'online estimator', 'sim_motor stepper'} <= set(steps)
     written = {path.name for path in tmp_path.iterdir()}
-    assert written >= {'plain.csv', 'effects.csv', 'mechanical.csv', 'result.json'}
+    assert written >= {'plain.csv', 'effects.csv', 'mechanical.csv', 'position.csv',
+                       'result.json'}
 
 
 def test_ahead_of_time_kernels_equal_the_jit_ones(monkeypatch):

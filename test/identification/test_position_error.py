@@ -243,3 +243,45 @@ def test_a_white_run_that_fails_after_a_far_adaptive_one_keeps_the_adaptive(agre
     assert result.position_error['model'] == 'adaptive'
     assert result.position_error['white'].startswith('failed')
     assert any('disagrees with the model-free regression' in text for text in result.warnings)
+
+
+def test_a_white_run_left_after_its_start_check_is_finished_from_there(monkeypatch):
+    """
+    Both error models far from the regression: the white run resumes where it was left.
+
+    Its base fit and start check are not run again (two base fits in all, not three), the
+    result is that of a white run from the start, and the status line names each run after
+    the first.
+    """
+    from dcmotor_id.identification import identify as pipeline
+    from dcmotor_id.identification import position_error
+
+    scenario = ball_screw_sine()
+    records = prepare_records(scenario.records, scenario.torque_constant)
+    # Every result is "far" (any disagreement at all): white left, adaptive far, white finished.
+    monkeypatch.setattr(position_error, 'AGREEMENT_FACTOR', 1.0 + 1e-12)
+    base_fits, chosen = [], []
+    base_fit, closer = pipeline._base_fit, position_error._closer
+    monkeypatch.setattr(pipeline, '_base_fit', lambda run: base_fits.append(1) or base_fit(run))
+    monkeypatch.setattr(position_error, '_closer',
+                        lambda white, *rest: chosen.append(white) or closer(white, *rest))
+    lines = []
+    progress = Progress(None, callback=lines.append, delay_s=0.0)
+    identify(records, torque_constant=scenario.torque_constant, progress=progress)
+    assert len(base_fits) == 2
+    with position_error_model('white'):
+        direct = pipeline._identify(records, 'refined', scenario.torque_constant, True, None,
+                                    None, Progress(None), 'estimate', 'position')
+    assert chosen[0].parameters == direct.parameters
+    assert chosen[0].effects == direct.effects
+    runs = [position_error.ADAPTIVE_RUN, position_error.WHITE_RUN_RESUMED]
+    named = [next(i for i, line in enumerate(lines) if name + ': ' in line) for name in runs]
+    assert named == sorted(named)
+    assert progress.run == ''
+
+
+def test_the_elapsed_time_of_two_runs_is_the_later_one_s(agreeing):
+    """The runs share one Progress: the later result's elapsed time already counts both."""
+    bent = replace(agreeing, parameters={**agreeing.parameters, 'Mc': 0.0}, elapsed_s=2.0)
+    results = iter([bent, replace(agreeing, elapsed_s=5.0)])
+    assert with_chosen_error_model(lambda: next(results)).elapsed_s == 5.0

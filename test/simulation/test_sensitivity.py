@@ -156,3 +156,44 @@ def test_variants_outside_the_kernel_are_refused():
                          field='stribeck_excess_Nm', fixed=(('stribeck_velocity_rad_s', 1.0),))
     assert not NormalEquations.supports(OutputErrorModel([record], terms=(stribeck,)))
     assert NormalEquations.supports(OutputErrorModel([record]))
+
+
+@pytest.mark.parametrize('rho', [0.0, 0.7])
+@pytest.mark.parametrize('states', [1, 2])
+def test_position_kernel_equals_the_integral_of_the_stored_speed(rho, states):
+    """
+    The position's normal equations in one pass are those of the integral and its whitening.
+
+    The reference is the integral of the speed and of its sensitivities
+    (:func:`~dcmotor_id.identification.criterion.integrate_speed`), whitened
+    (:func:`~dcmotor_id.identification.criterion.whiten`) and multiplied out as matrices.
+    """
+    from dcmotor_id.identification.criterion import integrate_speed, whiten
+    from dcmotor_id.simulation.compiled import kernel
+
+    rng = np.random.default_rng(3)
+    n_samples, m, weight, p0 = 5_000, 5, 3.0, 0.25
+    trajectory = np.cumsum(rng.standard_normal((n_samples, states, m + 1)), axis=0)
+    measured = integrate_speed(trajectory[:, -1, 0], DT, p0) + rng.standard_normal(n_samples)
+    edges = block_edges(n_samples)
+    error = whiten(integrate_speed(trajectory[:, -1, 0], DT, p0) - measured, rho)
+    rows = np.empty((n_samples, m + 1))
+    rows[:, :m] = integrate_speed(trajectory[:, -1, 1:], DT, 0.0)
+    rows[:, m] = 1.0
+    rows = whiten(rows, rho) * weight
+    residual = error * weight
+    hessian, gradient, blocks, total, cost = kernel('position_kernel')(
+        trajectory, DT, p0, measured, rho, weight, True, edges)
+    assert total == pytest.approx(error @ error, rel=1e-12)
+    assert cost == pytest.approx(residual @ residual, rel=1e-12)
+    np.testing.assert_allclose(hessian, rows.T @ rows, rtol=1e-10)
+    np.testing.assert_allclose(gradient, rows.T @ residual, rtol=1e-9,
+                               atol=1e-12 * np.abs(rows).sum() * np.abs(residual).max())
+    np.testing.assert_allclose(blocks, np.add.reduceat(rows * residual[:, None], edges[:-1],
+                                                       axis=0),
+                               rtol=1e-9, atol=1e-12 * np.abs(rows * residual[:, None]).sum())
+    # Without the sensitivities: the sums only.
+    hessian, gradient, blocks, total_only, cost_only = kernel('position_kernel')(
+        trajectory, DT, p0, measured, rho, weight, False, edges)
+    assert (total_only, cost_only) == (total, cost)
+    assert not hessian.any() and not gradient.any() and not blocks.any()

@@ -22,7 +22,6 @@ from typing import Any, cast, Mapping, Sequence
 
 import numpy as np
 
-from dcmotor_id.identification.criterion import integrate_speed, whiten
 from dcmotor_id.identification.estimators.base import StateTerm
 from dcmotor_id.identification.estimators.uncertainty import block_edges
 from dcmotor_id.simulation.compiled import kernel
@@ -100,6 +99,7 @@ class NormalEquations:
         #: Which initial states the fit estimates (set by the fit; None: all of them).
         self.free_states: list[bool] | None = None
         self._regressors = [self._stack_regressors(index) for index in range(len(model.records))]
+        self._edges: dict[int, np.ndarray] = {}  # block edges by record length (read only)
 
     @staticmethod
     def supports(model: Any) -> bool:
@@ -156,8 +156,9 @@ class NormalEquations:
         position (:func:`dcmotor_id.identification.criterion.integrate_speed`), so its
         sensitivities are the
         running integral of the speed's, which the kernel stores (the trajectory), and 1 for
-        the initial position.  A channel not compared (the speed derived from the position)
-        enters the kernel with weight 0.
+        the initial position; :func:`~dcmotor_id.simulation.sensitivity.position_kernel`
+        accumulates them in one pass.  A channel not compared (the speed derived from the
+        position) enters the kernel with weight 0.
         """
         model = self.model
         dynamic, outputs = model.dynamic, model.outputs
@@ -167,42 +168,32 @@ class NormalEquations:
                                     [weight.get(channel, 0.0) for channel in dynamic],
                                     with_sens, True)
         trajectory = cast(np.ndarray, kernel_sums.trajectory)
-        dt = float(model.sample_periods_s[index])
         m = self.n_shared + n_dynamic
-        error = (integrate_speed(trajectory[:, -1, 0], dt, float(initial_state[n_dynamic]))
-                 - np.asarray(model.records[index].position, dtype=float))
         # The position error's AR(1) model (0: white) whitens the error and its sensitivities.
         rho = float(getattr(model, 'position_ar', (0.0,) * (index + 1))[index])
-        error = whiten(error, rho)
-        residual = error * weight['position']
-        kernel_h, kernel_g, kernel_b = kernel_sums.by_channel
         edges = kernel_sums.block_edges
+        position_h, position_g, position_b, position_sum, position_cost = kernel(
+            'position_kernel')(trajectory, float(model.sample_periods_s[index]),
+                               float(initial_state[n_dynamic]),
+                               np.ascontiguousarray(model.records[index].position, dtype=float),
+                               rho, float(weight['position']), bool(with_sens), edges)
+        kernel_h, kernel_g, kernel_b = kernel_sums.by_channel
         hessian = np.zeros((len(outputs), m + 1, m + 1))
         gradient = np.zeros((len(outputs), m + 1))
         blocks = np.zeros((edges.shape[0] - 1, len(outputs), m + 1))
         sums = np.zeros(len(outputs))
         for out, channel in enumerate(outputs):
             if channel == 'position':
-                sums[out] = float(error @ error)
-                if with_sens:
-                    rows = np.empty((error.shape[0], m + 1))
-                    rows[:, :m] = integrate_speed(trajectory[:, -1, 1:], dt, 0.0)
-                    rows[:, m] = 1.0
-                    rows = whiten(rows, rho)
-                    rows *= weight['position']
-                    hessian[out] = rows.T @ rows
-                    gradient[out] = rows.T @ residual
-                    blocks[:, out] = np.add.reduceat(rows * residual[:, None], edges[:-1],
-                                                     axis=0)
+                sums[out] = position_sum
+                hessian[out], gradient[out], blocks[:, out] = position_h, position_g, position_b
                 continue
             state = dynamic.index(channel)
             sums[out] = kernel_sums.sums[state]
             hessian[out, :m, :m] = kernel_h[state]
             gradient[out, :m] = kernel_g[state]
             blocks[:, out, :m] = kernel_b[:, state]
-        return RecordSums((hessian, gradient, blocks),
-                          kernel_sums.cost + float(residual @ residual), sums, edges,
-                          trajectory if store else None)
+        return RecordSums((hessian, gradient, blocks), kernel_sums.cost + position_cost, sums,
+                          edges, trajectory if store else None)
 
     def _dynamic(self, values, index, initial_state, inverse_sigma, with_sens, store):
         """Run the kernel (the ODE's states, weighted by ``inverse_sigma``)."""
@@ -217,7 +208,9 @@ class NormalEquations:
             s_start[c, self.n_shared + c] = 1.0
         measured = [np.ascontiguousarray(getattr(rec, channel), dtype=float)
                     for channel in dynamic]
-        edges = block_edges(len(rec))
+        edges = self._edges.get(len(rec))
+        if edges is None:
+            edges = self._edges[len(rec)] = block_edges(len(rec))
         trajectory = np.empty((len(rec), n, m + 1)) if store else _NO_TRAJECTORY
         hessian, gradient, cost, sums, blocks = kernel('normal_kernel')(
             np.ascontiguousarray(a), da, forcing, gscale, *self._linear_terms(values, index, n),
