@@ -603,6 +603,9 @@ class RefinedEstimator:
     name = 'refined'
     #: Effect terms are supported (the discovery loop uses this estimator).
     supports_terms = True
+    #: Evaluations of a base fit (the default ``max_nfev``); fits with effects given fewer
+    #: (candidate refits) are not retried when they do not converge.
+    base_nfev = 100
 
     def __init__(self, max_nfev: int = 100, reweight_passes: int = 2,
                  initial: Mapping[str, float] | None = None, quasi_static: bool = False,
@@ -638,12 +641,14 @@ class RefinedEstimator:
         try:
             estimate = self._fit(records, torque_constant, terms, self.initial_state)
         except FitError as error:
-            if not position or terms or 'did not converge' not in str(error):
+            if not position or (terms and self.max_nfev < self.base_nfev) or \
+                    'did not converge' not in str(error):
                 raise
             # The position's initial state (a record that starts at rest: the speed's
             # sensitivity vanishes while stuck) can take the fit many small steps near its
-            # optimum: once more, with POSITION_NFEV_FACTOR times the evaluations (the base
-            # model; the discovery loop's candidate refits keep their bound).
+            # optimum: once more, with POSITION_NFEV_FACTOR times the evaluations (a base
+            # fit, with its effects or not; the discovery loop's candidate refits, on fewer
+            # evaluations, keep their bound).
             estimate = self._fit(records, torque_constant, terms, self.initial_state,
                                  POSITION_NFEV_FACTOR * self.max_nfev)
         if self.initial_state != 'estimate' or not position:
