@@ -30,7 +30,7 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.identification.checks.identifiability import MISFIT_FACTOR
-from dcmotor_id.identification.checks.start import (bic, effective_samples, far_from_evidence,
+from dcmotor_id.identification.checks.start import (bic_scores, far_from_evidence,
                                                     misfit_ratio, regression_evidence,
                                                     regression_start)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
@@ -173,9 +173,8 @@ def _score(fits, entries, records, model, first) -> int:
     """Score the fits (BIC on the fewest effective samples); fill the entries; return the best."""
     noise = dict(first.info.get('noise_std', {}))
     done = [index for index, fit in enumerate(fits) if fit is not None]
-    effective = min(effective_samples(fits[index], records, model) for index in done)
-    scores = {index: bic(fits[index], records, model, noise, effective=effective)
-              for index in done}
+    scores, effective = bic_scores({index: (fits[index], records, model, True)
+                                    for index in done}, noise)
     # The first start (the default first) within TIE_BIC of the lowest: a point reached again
     # from a later start does not replace it on round-off.
     low = min(scores.values())

@@ -21,7 +21,7 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
-from dcmotor_id.identification.checks.start import (bic, effective_samples, offset_supported,
+from dcmotor_id.identification.checks.start import (bic_scores, offset_supported,
                                                     regression_evidence, regression_start,
                                                     suspect)
 from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
@@ -191,10 +191,7 @@ def _choose(check, first, first_records, model, second):
                                                           second.model, False)}
     if second.freed is not None:
         candidates['second start'] = (second.freed, second.records, second.model, True)
-    effective = min(effective_samples(fit, records, fit_model)
-                    for fit, records, fit_model, _ in candidates.values())
-    scores = {name: bic(fit, records, fit_model, noise, free_states=free, effective=effective)
-              for name, (fit, records, fit_model, free) in candidates.items()}
+    scores, effective = bic_scores(candidates, noise)
     chosen = min(scores, key=lambda key: scores[key])
     shown = second.freed if second.freed is not None else second.pinned_final
     check.update({'second_start': {'effects': second.structure.names(),

@@ -260,6 +260,22 @@ def correlation_time(residual: np.ndarray) -> float:
     return float(max(1.0 + 2.0 * np.sum(acf[1:stop]), 1.0))
 
 
+def bic_scores(candidates: dict[Any, tuple[Estimate, Sequence[Record], Any, bool]],
+               noise: dict[str, float]) -> tuple[dict[Any, float], float]:
+    """
+    Score fits of one data set by :func:`bic` on the samples their residuals are worth.
+
+    ``candidates``: key -> ``(fit, records, model, free_states)``.  Every fit is counted on
+    the fewest :func:`effective_samples` over the candidates, so that a free parameter
+    absorbing a slow misfit does not win on thousands of correlated samples.  Returns the
+    scores by key and that number of samples.
+    """
+    effective = min(effective_samples(fit, records, model)
+                    for fit, records, model, _ in candidates.values())
+    return ({key: bic(fit, records, model, noise, free_states=free, effective=effective)
+             for key, (fit, records, model, free) in candidates.items()}, effective)
+
+
 def effective_samples(estimate: Estimate, records: Sequence[Record], model: Any) -> float:
     """
     Return the number of independent samples a fit's residuals are worth.
