@@ -20,6 +20,8 @@ import csv
 import io
 from itertools import islice
 import os
+import re
+import shlex
 from typing import Callable, IO
 
 import numpy as np
@@ -36,10 +38,27 @@ _ALIASES = {
     'speed': ('w', 'omega', 'speed_rad_s', 'velocity', 'rpm', 'n'),
     'position': ('theta', 'pos', 'angle', 'position_rad'),
 }
+#: A unit written after a column's name: ``Time [s]``, ``Current (A)``, ``speed {rad/s}``.
+_UNIT_SUFFIX = re.compile(r'\s*[\[({][^\])}]*[\])}]\s*$')
 #: Rows parsed per block (the block's array is the only temporary copy).
 BLOCK_ROWS = 1 << 18
 #: Bytes looked at to tell text from binary data.
 SNIFF_BYTES = 1 << 16
+
+
+def _bare(column: str) -> str:
+    """
+    Return a header name as compared with the known ones: lower case, a unit suffix dropped.
+
+    ``Time [s]``, ``Current (A)`` and ``speed_rad_s`` are looked up as ``time``, ``current``
+    and ``speed_rad_s`` (spreadsheet and logger exports name their columns with units).
+    """
+    return _UNIT_SUFFIX.sub('', column).strip().lower()
+
+
+def _mapping(channel: str, column: str) -> str:
+    """Return the ``--column`` option that maps ``column`` to ``channel``, quoted for a shell."""
+    return '--column ' + shlex.quote(f'{channel}={column}')
 
 
 def _check_names(path: PathLike, header: list[str], index: dict[str, int]) -> None:
@@ -48,26 +67,25 @@ def _check_names(path: PathLike, header: list[str], index: dict[str, int]) -> No
 
     A missing ``current``, or ``speed`` and ``position`` both missing, are refused here with the
     header's likely candidates named (every mode needs them); a missing ``voltage`` is left to
-    the caller, since the mechanical-only mode does without it.
+    the caller, since the mechanical-only mode does without it.  The message gives the
+    ``--column`` options of every column the header names like a known one.
     """
-    for name in COLUMNS:
-        if name in index:
-            continue
-        near = [column for column in header
-                if column.lower() == name or column.lower() in _ALIASES[name]]
+    nearest = {name: [column for column in header
+                      if _bare(column) == name or _bare(column) in _ALIASES[name]]
+               for name in COLUMNS if name not in index}
+    options = ' '.join(_mapping(name, near[0]) for name, near in nearest.items() if near)
+    for name, near in nearest.items():
         exact_case = [column for column in near if column.lower() == name]
         if exact_case:
             raise InputDataError(
                 f'{path}: column {exact_case[0]!r} must be named {name!r} (column names are '
-                f'lower case: {", ".join(COLUMNS)}); rename it or map it with --column '
-                f'{name}={exact_case[0]}')
-        position_given = 'position' in index or any(
-            column.lower() in _ALIASES['position'] for column in header)
+                f'lower case: {", ".join(COLUMNS)}); rename it or map it with {options}')
+        position_given = 'position' in index or bool(nearest.get('position'))
         if near and (name == 'current' or (name == 'speed' and not position_given)):
             unit = ' (in rad/s)' if name == 'speed' else ' (in A)'
             raise InputDataError(
                 f'{path}: no column named {name!r}; found {near[0]!r}: if that is the {name}, '
-                f'rename it to {name}{unit} or map it with --column {name}={near[0]}. The '
+                f'rename it to {name}{unit} or map it with {options}. The '
                 f'columns must be named {", ".join(COLUMNS)}')
 
 
@@ -206,12 +224,13 @@ def _column_index(path: PathLike, header: list[str], options: ReadOptions) -> di
     standard = {channel: number for channel, number in index.items() if channel in COLUMNS}
     _check_names(path, header, standard)
     if 't' not in index and options.sample_period_s is None:
-        near = [name for name in header if name.lower() in ('t', 'time', 'time_s', 'timestamp')]
-        hint = f' (found {near[0]!r}: rename it to t or map it with --column t={near[0]})' \
+        near = [name for name in header if _bare(name) in ('t',) + _ALIASES['t']]
+        hint = f' (found {near[0]!r}: rename it to t or map it with {_mapping("t", near[0])})' \
             if near else ''
         raise InputDataError(f'{path}: no time column t in the header {header}{hint}; the '
-                             f'columns must be named {", ".join(COLUMNS)}, or give the sample '
-                             'period with --sample-period S')
+                             f'columns must be named {", ".join(COLUMNS)} (or mapped with '
+                             '--column CHANNEL=NAME), or give the sample period with '
+                             '--sample-period S')
     return index
 
 

@@ -105,6 +105,18 @@ def test_missing_or_misnamed_columns(table, tmp_path, out, capsys, header, phras
     assert not out.exists()
 
 
+def test_columns_named_with_units_get_the_options_that_map_them(table, tmp_path, out, capsys):
+    header = ['Time [s]', 'Voltage (V)', 'Current (A)', 'velocity']
+    path = write(tmp_path / 'units.csv', header, table)
+    options = ["--column 't=Time [s]'", "--column 'voltage=Voltage (V)'",
+               "--column 'current=Current (A)'", '--column speed=velocity']
+    expect_refusal(capsys, [path, '--json', out], "found 'Current (A)'", *options)
+    mapped = ['--column', 't=Time [s]', '--column', 'voltage=Voltage (V)',
+              '--column', 'current=Current (A)', '--column', 'speed=velocity']
+    code, message = run(capsys, path, '--no-discover', '--json', out, *mapped)
+    assert code == 0, message
+
+
 @pytest.mark.parametrize('column, value', [(2, 'nan'), (3, 'inf'), (1, '-inf'), (0, 'nan')])
 def test_nan_and_inf(table, tmp_path, out, capsys, column, value):
     rows = table.tolist()
