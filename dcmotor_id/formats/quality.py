@@ -182,6 +182,20 @@ def back_emf_balance(voltage: float, current: np.ndarray, speed: Optional[np.nda
     return float(np.sqrt(np.mean(residual ** 2)) / abs(voltage))
 
 
+def _speed_seen(record: Record, sample_period_s: float) -> Optional[np.ndarray]:
+    """
+    Return the record's speed, or its position's difference quotient when it has no speed.
+
+    Speed derived from an encoder is filtered later (:mod:`~dcmotor_id.signals`); the
+    balance's moving mean is filter enough for the check.
+    """
+    if record.speed is not None:
+        return np.asarray(record.speed, dtype=float)
+    if record.position is None or len(record.position) < 2:
+        return None
+    return np.gradient(np.asarray(record.position, dtype=float), sample_period_s)
+
+
 def command_voltage(record: Record) -> Optional[str]:
     """
     Return the message when the voltage is constant while current or speed change unexplained.
@@ -208,7 +222,8 @@ def command_voltage(record: Record) -> Optional[str]:
     if not changes:
         return None
     period = float(np.median(np.diff(record.time_s))) if len(record) > 1 else 1.0
-    residual = back_emf_balance(float(voltage[0]), current, record.speed, period)
+    residual = back_emf_balance(float(voltage[0]), current, _speed_seen(record, period),
+                                period)
     if residual is not None and residual < BALANCE_RESIDUAL:
         return None
     seen = ('no positive Ra with a visible back-EMF balances it' if residual is None else

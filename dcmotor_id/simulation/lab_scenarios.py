@@ -338,15 +338,27 @@ def pwm_sampled_current(record: Record, duty_threshold: float = 0.6,
 
 
 def voltage_step_from_rest(seed: int = 0, sample_period_s: float = 1e-3,
-                           level_v: float = 12.0, duration_s: float = 1.0) -> Scenario:
-    """Simulate a step test logged from the instant the voltage was applied (motor at rest)."""
+                           level_v: float = 12.0, duration_s: float = 1.0,
+                           encoder_counts_per_rev: float | None = None) -> Scenario:
+    """
+    Simulate a step test logged from the instant the voltage was applied (motor at rest).
+
+    With ``encoder_counts_per_rev`` the record has no speed but the encoder's count as
+    position (read with ``--position-counts-per-rev``), as a rig with only an encoder logs it.
+    """
     rng = np.random.default_rng(seed)
     truth = SMALL_MOTOR
     command = np.full(int(round(duration_s / sample_period_s)), level_v)
     out = simulate_drive(truth, command, sample_period_s)
     t = np.arange(command.shape[0]) * sample_period_s
-    record = Record(t, current=_noisy(out['current'], 0.01, rng), voltage=command,
-                    speed=_noisy(out['speed'], 0.5, rng), source='voltage_step_from_rest')
+    current = _noisy(out['current'], 0.01, rng)
+    if encoder_counts_per_rev is None:
+        record = Record(t, current=current, voltage=command,
+                        speed=_noisy(out['speed'], 0.5, rng), source='voltage_step_from_rest')
+    else:
+        counts = np.floor(out['angle'] / (2 * np.pi) * encoder_counts_per_rev)
+        record = Record(t, current=current, voltage=command, position=counts,
+                        source='voltage_step_from_rest')
     return Scenario('voltage_step_from_rest', [record], truth,
                     note='constant voltage from t = 0, current and speed rising from rest')
 

@@ -310,3 +310,21 @@ def test_a_structure_shift_from_a_zero_base_value_is_said_without_dividing_by_it
     text = _structure_shift(base, {'J': 1.0, 'b': 2.0, 'Mc': 0.5},
                             {'J': 0.001, 'b': 0.01, 'Mc': 0.01})
     assert 'Mc 0 -> 0.5 (50 stderr)' in text
+
+
+def test_correlations_stay_within_one_when_a_parameter_sits_at_its_bound():
+    from dcmotor_id.identification.estimators.uncertainty import correlation_of
+
+    # a sandwich of J, b and Mc with Mc pressed to 1e-35 N m: its variance (1e-104) is below
+    # the rounding of the others', and the plain quotient read correlations of 2 and more
+    rng = np.random.default_rng(3)
+    scores = rng.normal(size=(40, 3)) * np.array([1e-5, 1e-4, 1e-52])
+    sandwich = scores.T @ scores
+    sandwich[2, :2] = sandwich[:2, 2] = 1e-55  # rounding far above the variance of Mc
+    plain = sandwich / np.sqrt(np.outer(np.diag(sandwich), np.diag(sandwich)))
+    assert np.max(np.abs(plain)) > 1.5  # as a step record from rest read (Ra and Mc -2.08)
+    correlation = correlation_of(sandwich)
+    assert np.all(np.abs(correlation) <= 1.0) and np.allclose(np.diag(correlation), 1.0)
+    healthy = sandwich[:2, :2]
+    expected = healthy / np.sqrt(np.outer(np.diag(healthy), np.diag(healthy)))
+    assert np.allclose(correlation_of(healthy), expected, atol=1e-12)

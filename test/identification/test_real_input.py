@@ -26,6 +26,19 @@ def test_voltage_step_logged_from_its_start_is_identified(tmp_path, capsys):
     assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
 
 
+def test_voltage_step_logged_from_its_start_with_only_an_encoder_is_identified(tmp_path):
+    scenario = lab_scenarios.voltage_step_from_rest(encoder_counts_per_rev=4000)
+    path = str(tmp_path / 'step_encoder.csv')
+    write_csv(path, scenario.records[0])
+    # refused as a command voltage before: the balance had no speed to check against
+    record = read_record(path, options=ReadOptions(position_counts_per_rev=4000))
+    result = identify(prepare_records([record]), discover=False)
+    truth = scenario.truth
+    assert result.parameters['CPhi'] == pytest.approx(truth.CPhi, rel=0.05)
+    assert result.parameters['Ra'] == pytest.approx(truth.Ra, rel=0.1)
+    assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
+
+
 def test_constant_setpoint_voltage_is_still_refused_with_a_fix_that_works(tmp_path, capsys):
     scenario = lab_scenarios.current_steps_from_rest()
     paths = []

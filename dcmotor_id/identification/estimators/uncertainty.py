@@ -285,9 +285,7 @@ def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
     # The correlations of the sandwich with the largest total relative variance (not of the
     # record-level one: its rank is the number of records less one).
     relative = [np.sum(v / np.maximum(np.diag(model), 1e-300)) for v in variances[1:]]
-    widest = (sandwiches[int(np.argmax(relative))] * scale)[:n, :n]
-    sd = np.sqrt(np.maximum(np.diag(widest), 1e-300))
-    correlation = widest / np.outer(sd, sd)
+    correlation = correlation_of((sandwiches[int(np.argmax(relative))] * scale)[:n, :n])
     between = _between_records(h, h_inv, info, scores, owner)
     records, estimator = None, None
     largest = within
@@ -304,6 +302,25 @@ def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
             'method': (METHOD if estimator is None
                        else METHOD_RECORDS.format(RECORD_ESTIMATORS[estimator])),
             'correlation': correlation}
+
+
+def correlation_of(covariance: np.ndarray) -> np.ndarray:
+    """
+    Return the correlation matrix of a covariance, every entry within [-1, 1].
+
+    A sandwich is positive semi-definite in exact arithmetic only: with a parameter pressed
+    to its bound (a Coulomb friction of 1e-35 N m, its variance some 1e-100) rounding leaves
+    negative eigenvalues, and the quotient by the standard deviations reads correlations of
+    2 or more.  The nearest positive semi-definite matrix (negative eigenvalues set to zero,
+    Higham 1988) is what the data can say; numpy has no such projection.
+    """
+    symmetric = 0.5 * (covariance + covariance.T)
+    values, vectors = np.linalg.eigh(symmetric)
+    projected = (vectors * np.maximum(values, 0.0)) @ vectors.T
+    sd = np.sqrt(np.maximum(np.diag(projected), 1e-300))
+    correlation = np.clip(projected / np.outer(sd, sd), -1.0, 1.0)
+    np.fill_diagonal(correlation, 1.0)
+    return correlation
 
 
 def between_records(names: Sequence[str], robust: dict[str, Any]) -> dict[str, Any] | None:
