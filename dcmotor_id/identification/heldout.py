@@ -157,7 +157,8 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
                        for part in ('whole_record', 'heldout')} for label in ('before', 'after')}
     note = None
     if notes:
-        note = ('held-out part without motion (standstill), not used to judge the fit: '
+        note = ('held-out part without excitation (its speed holds within its noise: '
+                'standstill or a steady speed), not used to judge the fit: '
                 + ', '.join(notes))
     worse = _worse_than_constant(items)
     return {'records': items, **summary,
@@ -192,7 +193,7 @@ def heldout_warnings(errors: dict[str, Any]) -> list[str]:
     """
     Return the warnings of :func:`record_errors`' result (``errors``), in this order.
 
-    A held-out part without motion (not used to judge the fit), and records whose held-out
+    A held-out part without excitation (not used to judge the fit), and records whose held-out
     error exceeds a constant predictor's.
     """
     warnings = []

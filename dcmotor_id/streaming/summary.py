@@ -103,7 +103,7 @@ def _record_error_lines(detail: Mapping[str, Any], result: Mapping[str, Any]) ->
                 f"{_metric_text(item['after']['whole_record'])}")
         if heldout:
             if item['after'].get('heldout') is None:
-                text += '; held-out part at standstill, not judged'
+                text += '; held-out part holds steady (no excitation), not judged'
             else:
                 segment = (item.get('heldout_segments') or [{}])[0]
                 where = (f" from {segment['start_s']:.4g} s" if 'start_s' in segment else '')
