@@ -158,12 +158,8 @@ def check_record(record: Record, need_voltage: bool = True,
     period = float(np.median(steps))
     deviation = np.abs(steps - period) / period
     if np.max(deviation) > SAMPLING_TOLERANCE:
-        row = int(np.argmax(deviation)) + 1
         if not resample:
-            raise InputDataError(
-                f'{name}: irregular sampling: the step before sample {row} is '
-                f'{steps[row - 1]:.6g} s against a median of {period:.6g} s. The methods need a '
-                'uniform grid: pass --resample to interpolate onto one, or fix the recording')
+            raise InputDataError(irregular_sampling(name, steps, period))
         return resample_uniform(record, period)
     return record
 
@@ -218,6 +214,38 @@ def check_magnitudes(record: Record) -> None:
                 f'{OUTLIER_RATIO:g} times its typical magnitude ({typical:.3g} {unit}), the first '
                 f'{float(values[row]):.6g} {unit} at sample {row} (t = '
                 f'{float(record.time_s[row]):.9g} s): corrupt samples; remove or repair them')
+
+
+#: A step this many median periods long is a gap (samples missing), not a jittered stamp.
+GAP_PERIODS = 3.0
+
+
+def irregular_sampling(name: str, steps: np.ndarray, period: float) -> str:
+    """
+    Return the refusal of a record off a uniform grid, with the fix for what it is.
+
+    Gaps (samples missing: a lost packet, a paused logger) and stamps that jitter around a
+    fixed rate (a logger on a PC stamping on arrival) need different fixes: a gap is better
+    split off than interpolated across, jittered stamps are better replaced by the rate.
+    """
+    row = int(np.argmax(np.abs(steps - period))) + 1
+    text = (f'{name}: irregular sampling: the step before sample {row} is '
+            f'{steps[row - 1]:.6g} s against a median of {period:.6g} s. The methods need a '
+            'uniform grid')
+    gaps = np.flatnonzero(steps > GAP_PERIODS * period)
+    if gaps.size:
+        longest = int(gaps[np.argmax(steps[gaps])])
+        missing = int(round(steps[longest] / period)) - 1
+        return (f'{text}: {gaps.size} gap(s) in the time stamps, the longest '
+                f'{steps[longest]:.6g} s before sample {longest + 1} (about {missing} samples '
+                'missing). Split the record at the gaps into files of their own (each is '
+                'fitted from its own initial state), or pass --resample to interpolate across '
+                'them (it invents the samples in between)')
+    return (f'{text}: the stamps jitter between {float(np.min(steps)):.6g} and '
+            f'{float(np.max(steps)):.6g} s. If the samples were taken at a fixed rate and only '
+            f'the stamps jitter (a logger stamping on arrival), give --sample-period '
+            f'{period:.6g} (the time column is then not used); else pass --resample to '
+            'interpolate onto a uniform grid')
 
 
 def resample_uniform(record: Record, sample_period_s: float) -> Record:

@@ -154,7 +154,8 @@ def test_irregular_sampling_refused_with_reason_and_resampled_on_request(table, 
     rows = np.delete(table, [100, 101, 102], axis=0)  # a 4 ms gap
     path = write(tmp_path / 'gap.csv', HEADER, rows)
     expect_refusal(capsys, [path, '--json', out], 'irregular sampling', '0.004',
-                   'median of 0.001', '--resample')
+                   'median of 0.001', '--resample', '1 gap(s)', 'about 3 samples missing',
+                   'split the record')
     code, message = run(capsys, path, '--json', out, '--resample')
     assert code == 0, message
     assert out.exists()
@@ -164,8 +165,10 @@ def test_jittered_timestamps_are_resampled_onto_a_uniform_grid(table):
     rng = np.random.default_rng(1)
     t = table[:, 0] + rng.uniform(-0.2, 0.2, table.shape[0]) * DT
     record = Record(t, table[:, 2], table[:, 1], table[:, 3], source='jitter')
-    with pytest.raises(InputDataError, match='irregular sampling'):
+    with pytest.raises(InputDataError, match='irregular sampling') as refusal:
         prepare_records([record])
+    assert 'jitter' in str(refusal.value) and '--sample-period 0.001' in str(refusal.value)
+    assert 'gap' not in str(refusal.value)
     uniform = prepare_records([record], resample=True)[0]
     assert np.allclose(np.diff(uniform.time_s), uniform.sample_period_s, rtol=1e-9)
 
