@@ -20,45 +20,19 @@ import csv
 import io
 from itertools import islice
 import os
-import re
-import shlex
 from typing import Callable, IO
 
 import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import COLUMNS, PathLike, Record
-from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, note, ReadOptions
+from dcmotor_id.formats.mapping import (ALIASES, bare_name, build_record, column_option,
+                                        DEFAULT_OPTIONS, note, ReadOptions)
 
-#: Other names seen for the columns, for the hint of a refusal (never accepted silently).
-_ALIASES = {
-    't': ('time', 'time_s', 'timestamp', 'stamp'),
-    'voltage': ('u', 'v', 'ua', 'volt', 'volts', 'voltage_v', 'armature_voltage'),
-    'current': ('i', 'ia', 'amps', 'current_a', 'armature_current'),
-    'speed': ('w', 'omega', 'speed_rad_s', 'velocity', 'rpm', 'n'),
-    'position': ('theta', 'pos', 'angle', 'position_rad'),
-}
-#: A unit written after a column's name: ``Time [s]``, ``Current (A)``, ``speed {rad/s}``.
-_UNIT_SUFFIX = re.compile(r'\s*[\[({][^\])}]*[\])}]\s*$')
 #: Rows parsed per block (the block's array is the only temporary copy).
 BLOCK_ROWS = 1 << 18
 #: Bytes looked at to tell text from binary data.
 SNIFF_BYTES = 1 << 16
-
-
-def _bare(column: str) -> str:
-    """
-    Return a header name as compared with the known ones: lower case, a unit suffix dropped.
-
-    ``Time [s]``, ``Current (A)`` and ``speed_rad_s`` are looked up as ``time``, ``current``
-    and ``speed_rad_s`` (spreadsheet and logger exports name their columns with units).
-    """
-    return _UNIT_SUFFIX.sub('', column).strip().lower()
-
-
-def _mapping(channel: str, column: str) -> str:
-    """Return the ``--column`` option that maps ``column`` to ``channel``, quoted for a shell."""
-    return '--column ' + shlex.quote(f'{channel}={column}')
 
 
 def _check_names(path: PathLike, header: list[str], index: dict[str, int]) -> None:
@@ -71,9 +45,9 @@ def _check_names(path: PathLike, header: list[str], index: dict[str, int]) -> No
     ``--column`` options of every column the header names like a known one.
     """
     nearest = {name: [column for column in header
-                      if _bare(column) == name or _bare(column) in _ALIASES[name]]
+                      if bare_name(column) == name or bare_name(column) in ALIASES[name]]
                for name in COLUMNS if name not in index}
-    options = ' '.join(_mapping(name, near[0]) for name, near in nearest.items() if near)
+    options = ' '.join(column_option(name, near[0]) for name, near in nearest.items() if near)
     for name, near in nearest.items():
         exact_case = [column for column in near if column.lower() == name]
         if exact_case:
@@ -224,9 +198,9 @@ def _column_index(path: PathLike, header: list[str], options: ReadOptions) -> di
     standard = {channel: number for channel, number in index.items() if channel in COLUMNS}
     _check_names(path, header, standard)
     if 't' not in index and options.sample_period_s is None:
-        near = [name for name in header if _bare(name) in ('t',) + _ALIASES['t']]
-        hint = f' (found {near[0]!r}: rename it to t or map it with {_mapping("t", near[0])})' \
-            if near else ''
+        near = [name for name in header if bare_name(name) in ('t',) + ALIASES['t']]
+        hint = (f' (found {near[0]!r}: rename it to t or map it with '
+                f'{column_option("t", near[0])})') if near else ''
         raise InputDataError(f'{path}: no time column t in the header {header}{hint}; the '
                              f'columns must be named {", ".join(COLUMNS)} (or mapped with '
                              '--column CHANNEL=NAME), or give the sample period with '

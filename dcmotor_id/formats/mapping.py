@@ -14,6 +14,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 import math
+import re
+import shlex
 from typing import Optional
 import warnings
 
@@ -31,6 +33,49 @@ SPEED_UNITS = {'rad/s': 1.0, 'rpm': 2.0 * math.pi / 60.0, 'rps': 2.0 * math.pi,
                'deg/s': math.pi / 180.0}
 #: Position units -> factor to rad (``m`` for linear axes: kept as it is).
 POSITION_UNITS = {'rad': 1.0, 'deg': math.pi / 180.0, 'm': 1.0}
+
+
+#: Other names seen for the channels, for the hint of a refusal (never accepted silently).
+ALIASES = {
+    't': ('time', 'time_s', 'timestamp', 'stamp', 'tout'),
+    'voltage': ('u', 'v', 'ua', 'va', 'volt', 'volts', 'voltage_v', 'armature_voltage'),
+    'current': ('i', 'ia', 'amps', 'current_a', 'armature_current'),
+    'speed': ('w', 'omega', 'speed_rad_s', 'velocity', 'rpm', 'n'),
+    'position': ('theta', 'pos', 'angle', 'position_rad'),
+}
+#: A unit written after a column's name: ``Time [s]``, ``Current (A)``, ``speed {rad/s}``.
+UNIT_SUFFIX = re.compile(r'\s*[\[({][^\])}]*[\])}]\s*$')
+
+
+def bare_name(column: str) -> str:
+    """
+    Return a column's name as compared with the channels' names: lower case, no unit suffix.
+
+    ``Time [s]``, ``Current (A)`` and ``speed_rad_s`` are looked up as ``time``, ``current``
+    and ``speed_rad_s`` (spreadsheet and logger exports name their columns with units).
+    """
+    return UNIT_SUFFIX.sub('', column).strip().lower()
+
+
+def column_option(channel: str, column: str) -> str:
+    """Return the ``--column`` option that maps ``column`` to ``channel``, quoted for a shell."""
+    return '--column ' + shlex.quote(f'{channel}={column}')
+
+
+def likely_columns(names: list[str], channels: tuple[str, ...]) -> dict[str, str]:
+    """
+    Return, per channel, the first name that looks like it (its own name or an alias).
+
+    A dotted name (a MATLAB struct's field, ``output.time``) is judged by its last part.
+    """
+    found = {}
+    for channel in channels:
+        for name in names:
+            bare = bare_name(name.rsplit('.', 1)[-1])
+            if bare == channel or bare in ALIASES.get(channel, ()):
+                found[channel] = name
+                break
+    return found
 
 
 @dataclass(frozen=True)

@@ -6,21 +6,24 @@ the optional ``h5py`` (``pip install h5py``). By default the variables are named
 channels (``t``, ``voltage``, ``current``, ``speed``, ``position``); ``--column current=data:7``
 takes column 7 (1-based, as in MATLAB) of the matrix ``data`` (a matrix stored one channel a
 row, e.g. 11 x N, is transposed and said so); ``--column t=output.time`` takes a field of a
-struct (``data.signals.values:2`` a column of a field).  Without a time variable, the time
-comes from ``--sample-period``.
+struct (``data.signals.values:2`` a column of a field, ``ScopeData.signals(2).values`` a
+field of an element of a struct array, 1-based, as Simulink logs them).  Without a time
+variable, the time comes from ``--sample-period``.
 """
 
 from __future__ import annotations
 
 import os
+import re
 from typing import Any, Callable, Collection
 
 import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
-from dcmotor_id.core.records import PathLike, Record
+from dcmotor_id.core.records import COLUMNS, PathLike, Record
 from dcmotor_id.formats.budget import check_budget
-from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, note, ReadOptions
+from dcmotor_id.formats.mapping import (build_record, column_option, DEFAULT_OPTIONS,
+                                        likely_columns, note, ReadOptions)
 
 #: The first bytes of an HDF5 file (MATLAB v7.3 puts them after a 512-byte header).
 HDF5_MAGIC = b'\x89HDF\r\n\x1a\n'
@@ -37,12 +40,57 @@ def _is_hdf5(path: PathLike) -> bool:
 STRUCT_EXPANSION = 20.0
 
 
+#: A struct array's element in a name, 1-based as in MATLAB: ``signals(2)``.
+ELEMENT = re.compile(r'^(?P<field>[A-Za-z]\w*)\((?P<index>\d+)\)$')
+
+
+def _elements(value: Any) -> list[Any] | None:
+    """Return the elements of an array of structs (a list, or an object array), else None."""
+    if isinstance(value, (list, tuple)):
+        return list(value)
+    if isinstance(value, np.ndarray) and value.dtype == object:
+        return list(value.ravel(order='F'))
+    return None
+
+
 def _field_names(value: Any, prefix: str) -> list[str]:
-    """Return ``prefix`` or, for a struct (a dict), the dotted names of its fields."""
+    """
+    Return ``prefix`` or, for a struct (a dict), the dotted names of its fields.
+
+    An array of structs (Simulink's ``ScopeData.signals``) lists each element's fields
+    as ``signals(K).values``, the way they are mapped.
+    """
     if isinstance(value, dict):
         return [name for key in sorted(value) if not key.startswith('__')
                 for name in _field_names(value[key], f'{prefix}.{key}')]
+    elements = _elements(value)
+    if elements and all(isinstance(element, dict) for element in elements):
+        return [name for number, element in enumerate(elements, 1)
+                for name in _field_names(element, f'{prefix}({number})')]
     return [prefix]
+
+
+def _member(path: PathLike, name: str, value: Any, part: str) -> Any:
+    """Return the field ``part`` (``field`` or ``field(K)``) of a struct ``value``, or None."""
+    element = ELEMENT.match(part)
+    field = element['field'] if element else part
+    if _elements(value) is not None:
+        raise InputDataError(
+            f'{path}: {name!r}: the struct before {field!r} is an array of structs; pick '
+            f'its element, 1-based as in MATLAB (e.g. ...(1).{field})')
+    if not isinstance(value, dict) or field not in value:
+        return None
+    value = value[field]
+    if element is None:
+        return value
+    elements = _elements(value)
+    number = int(element['index'])
+    if elements is None:
+        elements = [value]  # a struct array of one element is loaded as the struct
+    if not 1 <= number <= len(elements):
+        raise InputDataError(f'{path}: {name!r}: {field!r} has {len(elements)} element(s) '
+                             '(1-based)')
+    return elements[number - 1]
 
 
 def _load_v5(path: PathLike, needed: Collection[str]) -> Callable[[str], Any]:
@@ -77,17 +125,12 @@ def _load_v5(path: PathLike, needed: Collection[str]) -> Callable[[str], Any]:
                              'the record')
 
     def get(name: str) -> Any:
-        # ``output.time``, ``data.signals.values``: fields of MATLAB structs
+        # ``output.time``, ``ScopeData.signals(2).values``: fields of MATLAB structs
         value: Any = variables
         for part in name.split('.'):
-            array_of_structs = isinstance(value, np.ndarray) and value.dtype == object
-            if isinstance(value, (list, tuple)) or array_of_structs:
-                raise InputDataError(
-                    f'{path}: {name!r}: {part!r} is a field of an array of structs; save the '
-                    'signal as its own variable or as a struct of one element')
-            if not isinstance(value, dict) or part not in value:
+            value = _member(path, name, value, part)
+            if value is None:
                 return None
-            value = value[part]
         return value
     get.names = [name for key in sorted(variables)  # type: ignore[attr-defined]
                  for name in _field_names(variables[key], key)]
@@ -177,6 +220,16 @@ def _samples_as_rows(path: PathLike, name: str, matrix: np.ndarray) -> np.ndarra
     return matrix
 
 
+def _suggestion(names: list[str], options: ReadOptions) -> str:
+    """Return the ``--column`` options of the variables named like a channel (or nothing)."""
+    unmapped = tuple(channel for channel in COLUMNS if channel not in options.columns)
+    likely = likely_columns(names, unmapped)
+    if not likely:
+        return ''
+    return ('; the names suggest ' + ' '.join(column_option(channel, name)
+                                              for channel, name in likely.items()))
+
+
 def read_mat(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     """
     Read a record from a MATLAB ``.mat`` file (v5 via scipy, v7.3 via h5py).
@@ -208,7 +261,8 @@ def read_mat(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
                         f'{channel}; the file has {", ".join(get.names)}'  # type: ignore
                         f'. Map it with --column {channel}=NAME (or NAME:COLUMN, or '
                         'STRUCT.FIELD)' + (', or give the sample period with --sample-period '
-                                           'S' if channel == 't' else ''))
+                                           'S' if channel == 't' else '')
+                        + _suggestion(get.names, options))  # type: ignore[attr-defined]
                 continue
             columns[channel] = values
     finally:
