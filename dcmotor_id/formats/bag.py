@@ -26,7 +26,7 @@ from dcmotor_id.core.records import PathLike, Record, record_from_stamps
 from dcmotor_id.formats.batch import (BATCH_CHANNELS, batch_message, BATCH_TYPE, BatchTypes,
                                       decode_batch_message)
 from dcmotor_id.formats.budget import check_budget
-from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
+from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, note, ReadOptions
 
 #: Topic of every channel in a bag, as the identifier node names them (relative names match
 #: any namespace: ``voltage`` matches ``/voltage`` and ``/drive/voltage``).
@@ -347,10 +347,9 @@ def open_bag(path: PathLike) -> Iterator[MessageSource]:
 
     path = str(path)
     if os.path.isdir(path) and not os.path.isfile(os.path.join(path, 'metadata.yaml')):
-        raise InputDataError(
-            f'{path}: a directory without metadata.yaml is not a finished rosbag2 bag (a '
-            'recording that was killed before it closed?); give a bag directory or a .mcap '
-            'file')
+        with open_bag(_unfinished_bag_file(path)) as source:
+            yield source
+        return
     if not os.path.exists(path):
         raise InputDataError(f'{path}: no such file or directory; give a CSV file, a rosbag2 '
                              'directory or a .mcap file')
@@ -374,6 +373,27 @@ def open_bag(path: PathLike) -> Iterator[MessageSource]:
         _warn_damage(path, source)
     finally:
         reader.close()
+
+
+def _unfinished_bag_file(path: str) -> str:
+    """
+    Return the one MCAP file of a bag directory without ``metadata.yaml``, said in a note.
+
+    rosbag2 writes ``metadata.yaml`` when it closes: a recording that was killed leaves the
+    directory without it, and its MCAP file is read as it is (up to a cut, if it has one).
+    """
+    files = sorted(name for name in os.listdir(path) if name.endswith('.mcap'))
+    if len(files) != 1:
+        found = (f'it holds {len(files)} .mcap files ({", ".join(files[:4])}'
+                 f'{", ..." if len(files) > 4 else ""}): give them one by one' if files
+                 else 'it holds no .mcap file')
+        raise InputDataError(
+            f'{path}: a directory without metadata.yaml is not a finished rosbag2 bag (a '
+            f'recording that was killed before it closed?) and {found}; give a bag directory '
+            'or a .mcap file')
+    note(f'{path}: no metadata.yaml (the recording did not close): read its file {files[0]} '
+         'as it is')
+    return os.path.join(path, files[0])
 
 
 def _warn_damage(path: str, source: MessageSource) -> None:

@@ -75,11 +75,20 @@ def test_missing_topics_are_named(tmp_path):
     np.testing.assert_array_equal(record.speed, channels['speed'])
 
 
-def test_unfinished_bag_directory_is_refused_clearly(tmp_path):
+def test_unfinished_bag_directory_is_read_from_its_file_or_refused_clearly(tmp_path):
+    stamps, channels = motor_samples(0.5)
+    write_bag(tmp_path / 'killed', stamps, channels)
+    (tmp_path / 'killed' / 'metadata.yaml').unlink()  # rosbag2 writes it on closing
+    with pytest.warns(UserWarning, match='no metadata.yaml'):
+        record = read_bag(str(tmp_path / 'killed'))
+    np.testing.assert_array_equal(record.current, channels['current'])
     (tmp_path / 'half').mkdir()
     (tmp_path / 'half' / 'half.mcap').write_bytes(b'\x89MCAP0\r\n')
-    with pytest.raises(InputDataError, match='without metadata.yaml'):
+    with pytest.warns(UserWarning), pytest.raises(InputDataError, match='cannot open'):
         read_bag(str(tmp_path / 'half'))
+    (tmp_path / 'empty').mkdir()
+    with pytest.raises(InputDataError, match='without metadata.yaml.*no .mcap file'):
+        read_bag(str(tmp_path / 'empty'))
 
 
 def test_cli_identifies_a_bag_like_the_library(tmp_path, capsys):
