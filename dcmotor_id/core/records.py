@@ -106,6 +106,14 @@ def record_from_stamps(stamps_ns: np.ndarray, channels: Mapping[str, np.ndarray]
                   source=str(source))
 
 
+#: Why a record without a current cannot be identified, and what to record.
+NO_CURRENT = ('. Without the current, voltage and speed determine only the combinations '
+              'J Ra/CPhi, CPhi + b Ra/CPhi and Mc Ra/CPhi (the voltage-to-speed dynamics), not '
+              'the parameters: record the armature current (a shunt, a current probe or the '
+              "drive's current monitor); with a current-controlled drive its current set-point "
+              'is the current')
+
+
 def check_record(record: Record, need_voltage: bool = True,
                  resample: bool = False) -> Record:
     """
@@ -131,7 +139,8 @@ def check_record(record: Record, need_voltage: bool = True,
         raise InputDataError(
             f'{name}: missing column(s) {", ".join(missing)}; found {", ".join(present)}. '
             'Name the columns t, voltage, current, speed (position optional); without a '
-            'voltage column give --torque-constant for the mechanical-only mode')
+            'voltage column give --torque-constant for the mechanical-only mode'
+            + (NO_CURRENT if missing[0] == 'current' else ''))
     if len(record) < MIN_SAMPLES:
         raise InputDataError(f'{name}: only {len(record)} samples; at least {MIN_SAMPLES} are '
                              'needed to identify the motor: record for longer')
