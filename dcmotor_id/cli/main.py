@@ -165,7 +165,8 @@ def reading_options(args: argparse.Namespace) -> ReadOptions:
         columns=parse_assignments(args.column, '--column'), current_unit=args.current_unit,
         speed_unit=args.speed_unit, speed_counts_per_rev=args.speed_counts_per_rev,
         position_unit=args.position_unit, position_counts_per_rev=args.position_counts_per_rev,
-        gear_ratio=args.gear_ratio, bus_voltage=args.voltage_from_duty, joint=args.joint,
+        gear_ratio=args.gear_ratio, bus_voltage=args.voltage_from_duty,
+        duty_full_scale=args.duty_full_scale, joint=args.joint,
         interfaces=parse_assignments(args.interface, '--interface'),
         sample_period_s=args.sample_period)
 
@@ -194,6 +195,9 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
     group.add_argument('--voltage-from-duty', type=positive, metavar='BUS_V',
                        help='voltage = duty column in [-1, 1] (or 0..1 with a direction '
                             'column) times the bus voltage BUS_V')
+    group.add_argument('--duty-full-scale', type=positive, default=1.0, metavar='N',
+                       help='the duty column at full duty: 100 for percent, 255 for an 8-bit '
+                            'PWM value (default 1: a fraction)')
     group.add_argument('--joint', metavar='NAME',
                        help='bags with control_msgs/msg/DynamicJointState or '
                             'sensor_msgs/msg/JointState: the joint (default: the only one)')

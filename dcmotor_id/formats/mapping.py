@@ -104,6 +104,9 @@ class ReadOptions:
     bus_voltage : float or None
         The voltage is ``duty * bus_voltage`` from a ``duty`` column in [-1, 1] (or in [0, 1]
         with a ``direction`` column whose positive values mean forward).
+    duty_full_scale : float
+        The duty column's value at full duty (1; 100 for percent, 255 for an 8-bit PWM
+        register): the duty is divided by it.
     joint : str or None
         Bags with ``control_msgs/msg/DynamicJointState``: the joint to read.
     interfaces : dict
@@ -124,6 +127,7 @@ class ReadOptions:
     position_counts_per_rev: Optional[float] = None
     gear_ratio: float = 1.0
     bus_voltage: Optional[float] = None
+    duty_full_scale: float = 1.0
     joint: Optional[str] = None
     interfaces: Mapping[str, str] = field(default_factory=dict)
     sample_period_s: Optional[float] = None
@@ -143,6 +147,7 @@ class ReadOptions:
                               (self.position_counts_per_rev, '--position-counts-per-rev'),
                               (self.gear_ratio, '--gear-ratio'),
                               (self.bus_voltage, '--voltage-from-duty'),
+                              (self.duty_full_scale, '--duty-full-scale'),
                               (self.sample_period_s, '--sample-period')):
             if value is not None and not (np.isfinite(value) and value > 0):
                 raise InputDataError(f'{option} must be a positive number, got {value}')
@@ -260,20 +265,36 @@ def _voltage_from_duty(columns: Mapping[str, np.ndarray], options: ReadOptions,
     if duty is None:
         raise InputDataError(f'{source}: --voltage-from-duty needs a duty column (named '
                              f'{options.column("duty")!r}); map it with --column duty=NAME')
-    duty = np.asarray(duty, dtype=float)
+    duty = np.asarray(duty, dtype=float) / options.duty_full_scale
     direction = columns.get('direction')
     finite = duty[np.isfinite(duty)]
     if direction is not None:
         if finite.size and (finite.min() < -1e-9 or finite.max() > 1 + 1e-9):
             raise InputDataError(f'{source}: duty with a direction column must lie in [0, 1]; '
-                                 f'found {finite.min():.6g} .. {finite.max():.6g}')
+                                 f'found {finite.min():.6g} .. {finite.max():.6g}'
+                                 + _full_scale_hint(finite, options))
         duty = duty * np.where(np.asarray(direction, dtype=float) > 0, 1.0, -1.0)
     elif finite.size and np.max(np.abs(finite)) > 1 + 1e-9:
         raise InputDataError(
             f'{source}: the duty column must lie in [-1, 1] (or [0, 1] with a direction '
-            f'column); found {finite.min():.6g} .. {finite.max():.6g}. Give duty as a fraction '
-            '(a percentage divided by 100)')
+            f'column); found {finite.min():.6g} .. {finite.max():.6g}'
+            + _full_scale_hint(finite, options))
     return duty * float(options.bus_voltage or 0.0)
+
+
+#: Full scales of duty columns as logged: percent, 8-, 10-, 12- and 16-bit PWM registers.
+DUTY_FULL_SCALES = (100.0, 255.0, 1023.0, 4095.0, 65535.0)
+
+
+def _full_scale_hint(duty: np.ndarray, options: ReadOptions) -> str:
+    """Say which ``--duty-full-scale`` the column's largest value suggests."""
+    peak = float(np.max(np.abs(duty))) * options.duty_full_scale
+    likely = [scale for scale in DUTY_FULL_SCALES if peak <= scale + 1e-9]
+    if options.duty_full_scale != 1.0 or not likely:
+        return (". Give the duty column's value at full duty with --duty-full-scale N "
+                f'(now {options.duty_full_scale:g})')
+    return (f'. If {likely[0]:g} is full duty (percent: 100; an 8-bit PWM value: 255), give '
+            f'--duty-full-scale {likely[0]:g}')
 
 
 def output_shaft(parameters: Mapping[str, float], gear_ratio: float) -> dict[str, float]:

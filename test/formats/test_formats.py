@@ -118,6 +118,24 @@ def test_duty_out_of_range_is_refused(tmp_path, si_record, capsys):
     assert 'duty column must lie in [-1, 1]' in capsys.readouterr().err
 
 
+def test_an_8_bit_pwm_duty_with_a_direction_pin_is_read_with_its_full_scale(
+        tmp_path, si_record, capsys):
+    r = si_record
+    bus = 48.0
+    path = str(tmp_path / 'arduino.csv')
+    register = np.round(np.abs(r.voltage) / bus * 255)  # analogWrite 0..255, a direction pin
+    write_table(path, ['t', 'duty', 'dir', 'current', 'speed'],
+                [r.time_s, register, (r.voltage >= 0).astype(float), r.current, r.speed])
+    args = ['identify', path, '--voltage-from-duty', '48', '--column', 'direction=dir',
+            '--no-discover']
+    assert cli_main(args) == 2
+    assert 'give --duty-full-scale 255' in capsys.readouterr().err
+    options = ReadOptions(columns={'direction': 'dir'}, bus_voltage=bus, duty_full_scale=255)
+    voltage = read_record(path, options=options).voltage
+    np.testing.assert_allclose(voltage, np.sign(r.voltage) * register / 255 * bus, atol=1e-12)
+    assert np.max(np.abs(voltage - r.voltage)) <= bus / 255
+
+
 def test_mapped_column_missing_is_named(tmp_path, si_record, capsys):
     path = str(tmp_path / 'x.csv')
     write_csv(path, si_record)
