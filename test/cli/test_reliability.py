@@ -684,6 +684,7 @@ def test_design_says_which_design_it_makes(tmp_path, capsys):
     (1, 1e3, 'the voltage looks like millivolts', 'Ra', 1600.0),
     (0, 1e3, 'the time looks like milliseconds', 'La', 16.0),
     (2, 1e3, 'the current looks like milliamperes', 'Ra', 1.6e-3),
+    (2, 1e3, 'J, b and Mc 1000 times too large', 'J', 31.5),
 ])
 def test_units_off_by_1000_are_named_in_the_warnings(table, tmp_path, capsys, column, factor,
                                                      phrase, parameter, wrong):

@@ -67,6 +67,6 @@ def unit_warnings(parameters: Mapping[str, float], records: Sequence[Any],
     if current > 1000.0 and ra < 0.01:
         found.append(
             f'the current looks like milliamperes: it reaches {current:.4g} "A" through an '
-            f'armature of Ra = {ra:.4g} Ohm; give --current-unit mA, else Ra, La, J, b and Mc '
-            'are 1000 times too small')
+            f'armature of Ra = {ra:.4g} Ohm; give --current-unit mA, else Ra and La are 1000 '
+            'times too small and J, b and Mc 1000 times too large')
     return found
