@@ -26,7 +26,8 @@ from dcmotor_id.formats.budget import add_memory_budget, set_memory_budget
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.json_file import write_json
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
-                                        POSITION_UNITS, ReadingNote, ReadOptions, SPEED_UNITS)
+                                        POSITION_UNITS, ReadingNote, ReadOptions,
+                                        SIGNED_CHANNELS, SPEED_UNITS)
 from dcmotor_id.formats.paths import check_input_path, check_output_path
 from dcmotor_id.identification.checks.dropouts import repair_all
 from dcmotor_id.identification.criterion import CRITERIA
@@ -166,7 +167,8 @@ def reading_options(args: argparse.Namespace) -> ReadOptions:
         speed_unit=args.speed_unit, speed_counts_per_rev=args.speed_counts_per_rev,
         position_unit=args.position_unit, position_counts_per_rev=args.position_counts_per_rev,
         gear_ratio=args.gear_ratio, bus_voltage=args.voltage_from_duty,
-        duty_full_scale=args.duty_full_scale, joint=args.joint,
+        duty_full_scale=args.duty_full_scale, negated=tuple(args.negate or ()),
+        joint=args.joint,
         interfaces=parse_assignments(args.interface, '--interface'),
         sample_period_s=args.sample_period)
 
@@ -198,6 +200,11 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
     group.add_argument('--duty-full-scale', type=positive, default=1.0, metavar='N',
                        help='the duty column at full duty: 100 for percent, 255 for an 8-bit '
                             'PWM value (default 1: a fraction)')
+    group.add_argument('--negate', action='append', choices=SIGNED_CHANNELS,
+                       metavar='CHANNEL',
+                       help='flip the sign of a channel (voltage, current, speed, position): '
+                            'an encoder counting the other way, a current sensor mounted '
+                            'reversed; repeatable')
     group.add_argument('--joint', metavar='NAME',
                        help='bags with control_msgs/msg/DynamicJointState or '
                             'sensor_msgs/msg/JointState: the joint (default: the only one)')

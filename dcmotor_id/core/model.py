@@ -161,6 +161,10 @@ def derived_stderr(values: Mapping[str, float], covariance: np.ndarray,
     """
     index = {name: position for position, name in enumerate(names)}
     ra, la = values['Ra'], values['La']
+    if not (np.isfinite(ra) and ra ** 2 > 0.0):
+        # Ra pressed to its bound (1e-170 Ohm: its square is zero): Ka and Ta are not
+        # determined
+        return {'Ka': float('inf'), 'Ta': float('inf')}
     grad_ka = np.zeros(len(names))
     grad_ka[index['Ra']] = -1.0 / ra ** 2
     grad_ta = np.zeros(len(names))

@@ -26,6 +26,8 @@ from dcmotor_id.core.records import Record
 
 #: Channels a column can be mapped to (``duty`` and ``direction`` make the voltage).
 CHANNELS = ('t', 'voltage', 'current', 'speed', 'position', 'duty', 'direction')
+#: Channels whose sign ``--negate`` flips.
+SIGNED_CHANNELS = ('voltage', 'current', 'speed', 'position')
 #: Current units -> factor to A.
 CURRENT_UNITS = {'A': 1.0, 'mA': 1e-3}
 #: Speed units -> factor to rad/s.
@@ -107,6 +109,9 @@ class ReadOptions:
     duty_full_scale : float
         The duty column's value at full duty (1; 100 for percent, 255 for an 8-bit PWM
         register): the duty is divided by it.
+    negated : tuple of str
+        Channels (:data:`SIGNED_CHANNELS`) whose sign is flipped: an encoder counting the
+        other way, a current sensor mounted the other way round.
     joint : str or None
         Bags with ``control_msgs/msg/DynamicJointState``: the joint to read.
     interfaces : dict
@@ -128,6 +133,7 @@ class ReadOptions:
     gear_ratio: float = 1.0
     bus_voltage: Optional[float] = None
     duty_full_scale: float = 1.0
+    negated: tuple[str, ...] = ()
     joint: Optional[str] = None
     interfaces: Mapping[str, str] = field(default_factory=dict)
     sample_period_s: Optional[float] = None
@@ -138,6 +144,10 @@ class ReadOptions:
             if channel not in CHANNELS:
                 raise InputDataError(f'--column/--interface {channel}=...: unknown channel '
                                      f'{channel!r}; the channels are {", ".join(CHANNELS)}')
+        for channel in self.negated:
+            if channel not in SIGNED_CHANNELS:
+                raise InputDataError(f'--negate {channel}: choose one of '
+                                     f'{", ".join(SIGNED_CHANNELS)}')
         for unit, units, option in ((self.current_unit, CURRENT_UNITS, '--current-unit'),
                                     (self.speed_unit, SPEED_UNITS, '--speed-unit'),
                                     (self.position_unit, POSITION_UNITS, '--position-unit')):
@@ -241,10 +251,14 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
     if time_s is None:
         raise InputDataError(f'{source}: no time column; map it with --column t=NAME, or give '
                              'the sample period with --sample-period S')
-    voltage = scaled('voltage', 1.0)
+
+    def sign(channel: str) -> float:
+        return -1.0 if channel in options.negated else 1.0
+
+    voltage = scaled('voltage', sign('voltage'))
     if options.bus_voltage is not None:
-        voltage = _voltage_from_duty(columns, options, source)
-    current = scaled('current', CURRENT_UNITS[options.current_unit])
+        voltage = sign('voltage') * _voltage_from_duty(columns, options, source)
+    current = scaled('current', CURRENT_UNITS[options.current_unit] * sign('current'))
     speed = columns.get('speed')
     if speed is not None:
         if options.speed_counts_per_rev is not None:
@@ -252,8 +266,8 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
             factor = 2.0 * math.pi / options.speed_counts_per_rev / period
         else:
             factor = SPEED_UNITS[options.speed_unit]
-        speed = scaled('speed', factor * options.gear_ratio)
-    position = scaled('position', options.position_factor)
+        speed = scaled('speed', factor * options.gear_ratio * sign('speed'))
+    position = scaled('position', options.position_factor * sign('position'))
     return Record(np.asarray(time_s, dtype=float), current=current, voltage=voltage,
                   speed=speed, position=position, source=source)
 

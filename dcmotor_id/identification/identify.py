@@ -55,7 +55,7 @@ from dcmotor_id.identification.checks.identifiability import (at_bound, correlat
                                                               ONE_DIRECTION_CONFOUNDED,
                                                               one_direction_note, useful)
 from dcmotor_id.identification.checks.plausibility import check_plausibility
-from dcmotor_id.identification.checks.units import unit_warnings
+from dcmotor_id.identification.checks.units import sign_problem, unit_warnings
 from dcmotor_id.identification.criterion import resolve_criterion, with_position_states
 from dcmotor_id.identification.current_limited import (electrical_part, JACKKNIFE_GROUPS,
                                                        with_electrical_part)
@@ -166,8 +166,16 @@ def identify(records: Sequence[Record], method: str = 'refined',
                             estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,
                             progress=progress, initial_state=initial_state, criterion=criterion)
     progress = progress if progress is not None else Progress(max_time_s)
-    return _identify_on(criterion, (records, method, torque_constant, discover, estimator,
-                                    vocabulary, progress, initial_state))
+    try:
+        return _identify_on(criterion, (records, method, torque_constant, discover, estimator,
+                                        vocabulary, progress, initial_state))
+    except FitError as error:
+        reversed_channel = None if 'time budget' in str(error) else \
+            sign_problem(records, torque_constant)
+        if reversed_channel is None:
+            raise
+        raise FitError(f'{str(error).rstrip(".")}. {reversed_channel[0].upper()}'
+                       f'{reversed_channel[1:]}') from None
 
 
 def _identify_on(criterion, arguments):

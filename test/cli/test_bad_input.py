@@ -332,3 +332,35 @@ def test_structure_bootstrap_is_reported_in_the_json(table, tmp_path, out, capsy
     info = json.loads(out.read_text())['structure_uncertainty']
     assert info['resamples'] == 2 and info['completed'] + info['failed'] == 2
     assert sum(item['count'] for item in info['structures']) == info['completed']
+
+
+@pytest.mark.parametrize('column, channel', [(3, 'speed'), (2, 'current'), (1, 'voltage')])
+def test_a_reversed_channel_is_named_and_negate_fixes_it(table, tmp_path, out, capsys, column,
+                                                         channel):
+    rows = table.copy()
+    rows[:, column] *= -1.0  # an encoder counting the other way, a sensor mounted reversed
+    path = write(tmp_path / 'reversed.csv', HEADER, rows)
+    expect_refusal(capsys, [path, '--no-discover'], f'the {channel} looks reversed',
+                   f'--negate {channel}')
+    code, message = run(capsys, path, '--no-discover', '--negate', channel, '--json', out)
+    assert code == 0, message
+    parameters = json.loads(out.read_text())['parameters']
+    assert parameters['CPhi'] == pytest.approx(MOTOR.CPhi, rel=0.02)
+    assert parameters['J'] == pytest.approx(MOTOR.J, rel=0.05)
+
+
+def test_a_reversed_speed_is_named_in_the_mechanical_only_mode(table, tmp_path, capsys):
+    rows = table.copy()
+    rows[:, 3] *= -1.0
+    path = write(tmp_path / 'reversed.csv', HEADER, rows)
+    expect_refusal(capsys, [path, '--no-discover', '--torque-constant', str(MOTOR.CPhi)],
+                   'the speed looks reversed', 'J = -', '--negate speed')
+
+
+def test_ka_and_ta_errors_of_an_armature_resistance_at_its_bound_are_infinite():
+    from dcmotor_id.core.model import derived_stderr
+
+    # Ra pressed to 1e-170 Ohm by a reversed voltage: its square underflowed to a division
+    # by zero, an internal error instead of the refusal
+    errors = derived_stderr({'Ra': 1e-170, 'La': 1e-3}, np.eye(2), ['Ra', 'La'])
+    assert errors == {'Ka': np.inf, 'Ta': np.inf}

@@ -1,5 +1,5 @@
 """
-Units checked against the answer's physics: a column off by 1000 is named, not fitted silently.
+Units and signs checked against physics: a column off by 1000 or reversed is named.
 
 Every channel scaled by 1000 still fits a DC motor (the model is scale invariant), so the
 fit alone cannot tell millivolts from volts.  What gives them away is the answer measured
@@ -7,7 +7,9 @@ against what DC motors are: an electrical time constant ``La/Ra`` of seconds (DC
 0.01 ms to 100 ms) with a sample period of a second says the time is in milliseconds;
 thousands of volts across an armature of kilo-ohms say millivolts; thousands of amperes
 through milli-ohms say milliamperes.  Each finding is a warning naming the channel, the
-numbers behind it and what to do.
+numbers behind it and what to do.  A channel whose sign is reversed (an encoder counting the
+other way) gives no fit at all: :func:`sign_problem` names it from the signs of the
+model-free regression's Ra, CPhi and J, for the refusal.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ MAX_ELECTRICAL_S = 1.0
 #: Longest sample period of a drive recording [s].
 MAX_SAMPLE_PERIOD_S = 0.5
 
-__all__ = ['unit_warnings']
+__all__ = ['sign_problem', 'unit_warnings']
 
 
 def _peak(records: Sequence[Any], channel: str) -> float:
@@ -70,3 +72,34 @@ def unit_warnings(parameters: Mapping[str, float], records: Sequence[Any],
             f'armature of Ra = {ra:.4g} Ohm; give --current-unit mA, else Ra and La are 1000 '
             'times too small and J, b and Mc 1000 times too large')
     return found
+
+
+def sign_problem(records: Sequence[Any], torque_constant: float | None = None) -> str | None:
+    """
+    Name the channel whose sign looks reversed, by the model-free regression; None if none.
+
+    ``u = Ra i + La di/dt + CPhi w`` needs Ra and CPhi positive: CPhi negative with Ra
+    positive is a reversed speed, Ra negative with CPhi positive a reversed current, both
+    negative a reversed voltage.  In the mechanical-only mode ``K i = J dw/dt + ...`` needs J
+    positive: negative is a speed (or current) reversed against the other.
+    """
+    from dcmotor_id.identification.checks.start import regression_evidence
+
+    evidence = regression_evidence(records, torque_constant)
+    if evidence is None:
+        return None
+    if torque_constant is not None:
+        reversed_channel = 'speed' if evidence['J'] < 0 else None
+        seen = f'J = {evidence["J"]:.3g} kg m^2'
+    else:
+        ra, cphi = evidence['Ra'], evidence['CPhi']
+        reversed_channel = {(True, False): 'speed', (False, True): 'current',
+                            (False, False): 'voltage'}.get((ra > 0, cphi > 0))
+        seen = f'Ra = {ra:.3g} Ohm, CPhi = {cphi:.3g} V s'
+    if reversed_channel is None:
+        return None
+    speed_note = (' (or --negate position, when the speed is derived from it)'
+                  if reversed_channel == 'speed' else '')
+    return (f'the {reversed_channel} looks reversed against the other channels: a regression '
+            f'on the data gives {seen}, where a motor has them positive; flip its sign with '
+            f'--negate {reversed_channel}{speed_note}')
