@@ -166,16 +166,20 @@ def identify(records: Sequence[Record], method: str = 'refined',
                             estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,
                             progress=progress, initial_state=initial_state, criterion=criterion)
     progress = progress if progress is not None else Progress(max_time_s)
+    return _identify_checked(criterion, (records, method, torque_constant, discover, estimator,
+                                         vocabulary, progress, initial_state))
+
+
+def _identify_checked(criterion, arguments):
+    """Run :func:`_identify_on`; a refusal names a channel that looks reversed, if one does."""
     try:
-        return _identify_on(criterion, (records, method, torque_constant, discover, estimator,
-                                        vocabulary, progress, initial_state))
+        return _identify_on(criterion, arguments)
     except FitError as error:
-        reversed_channel = None if 'time budget' in str(error) else \
-            sign_problem(records, torque_constant)
-        if reversed_channel is None:
+        records, torque_constant = arguments[0], arguments[2]
+        found = None if 'time budget' in str(error) else sign_problem(records, torque_constant)
+        if found is None:
             raise
-        raise FitError(f'{str(error).rstrip(".")}. {reversed_channel[0].upper()}'
-                       f'{reversed_channel[1:]}') from None
+        raise FitError(f'{str(error).rstrip(".")}. {found[0].upper()}{found[1:]}') from None
 
 
 def _identify_on(criterion, arguments):
