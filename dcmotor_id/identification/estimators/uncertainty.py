@@ -73,6 +73,21 @@ CLUSTER_NOTE = ('two records, or a record that cannot be left out without (nearl
                 'parameter (e.g. one record per direction with a torque offset): the '
                 'record-level figure is the cluster sandwich, which understates the spread '
                 'when the records are few')
+#: What ``between_records`` says of the parameters the jackknife of two records leaves to the
+#: cluster sandwich.
+PAIR_CLUSTER_NOTE = ('{}: one record alone does not determine them (e.g. Coulomb friction '
+                     'beside a torque offset with one record per direction), so the pair does '
+                     'not measure their spread between records: their record-level figure is '
+                     'the cluster sandwich, blind to it')
+#: Two-sided 95 % quantiles of Student's t with 1 to 30 degrees of freedom.
+T_975 = (12.7062, 4.3027, 3.1824, 2.7764, 2.5706, 2.4469, 2.3646, 2.3060, 2.2622, 2.2281,
+         2.2010, 2.1788, 2.1604, 2.1448, 2.1314, 2.1199, 2.1098, 2.1009, 2.0930, 2.0860,
+         2.0796, 2.0739, 2.0687, 2.0639, 2.0595, 2.0555, 2.0518, 2.0484, 2.0452, 2.0423)
+#: Two-sided 95 % quantile of the normal distribution.
+Z_975 = 1.959964
+#: Ridge on the correlation form of a leave-one-out normal matrix (a lost direction shows as
+#: a huge variance instead of a failed inverse).
+RIDGE = 1e-12
 #: Fewest samples in a fine block.
 MIN_BLOCK_SAMPLES = 4
 #: Parameters whose record-level figure is checked for the warning.
@@ -81,7 +96,9 @@ CORE_NAMES = ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
 JACKKNIFE_MAX_RECORDS = 30
 #: What ``between_records`` says of a fit of two records.
 PAIR_NOTE = ('two records give the spread between records one degree of freedom: the '
-             'record-level figure is a rough guide and can be several times too small')
+             'record-level figure is a rough guide and can be several times too small; '
+             'interval_95 allows for it (Student t with 1 degree of freedom: +- 12.7 standard '
+             'errors where the record-level figure sets the standard error)')
 #: Growth of a reported parameter's variance without one record beyond which the jackknife
 #: over records is not used (the record carries more than 99 % of that parameter's information).
 LEVERAGE_LIMIT = 100.0
@@ -119,7 +136,7 @@ def block_scores(residual: np.ndarray, jac: np.ndarray, record_lengths: Sequence
     -------
     dict
         ``block_scores`` (``n_blocks x p``), ``block_record`` (record index per block) and,
-        for 3 to :data:`JACKKNIFE_MAX_RECORDS` records, ``record_normal_matrices``
+        for 2 to :data:`JACKKNIFE_MAX_RECORDS` records, ``record_normal_matrices``
         (``J_r^T J_r`` of every record, ``n_records x p x p``).
 
     """
@@ -140,7 +157,7 @@ def block_scores(residual: np.ndarray, jac: np.ndarray, record_lengths: Sequence
     p = jac.shape[1]
     out = {'block_scores': np.vstack(scores) if scores else np.zeros((0, p)),
            'block_record': np.array(owner, dtype=int)}
-    if 2 < len(normals) <= JACKKNIFE_MAX_RECORDS:
+    if 1 < len(normals) <= JACKKNIFE_MAX_RECORDS:
         out['record_normal_matrices'] = np.array(normals)
     return out
 
@@ -230,25 +247,107 @@ def _record_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owne
     return (len(d) - 1.0) / len(d) * (d.T @ d)
 
 
-def _between_records(h: np.ndarray, h_inv: np.ndarray, info: dict[str, Any], scores: np.ndarray,
-                     owner: np.ndarray) -> tuple[np.ndarray, str] | None:
+def _growth(rest: np.ndarray, active: np.ndarray, h_inv: np.ndarray,
+            n_shared: int) -> np.ndarray:
     """
-    Record-level covariance in ``z`` and its estimator's name; None for one record.
+    Return how many times the variance of every shared parameter grows without a record.
+
+    ``inf`` for a parameter whose column is gone; a (near-)singular direction shows as a huge
+    growth of the parameters in it (the inverse carries a tiny ridge, :data:`RIDGE`).
+    """
+    block = rest[np.ix_(active, active)]
+    scale = np.sqrt(np.diag(block))
+    form = block / np.outer(scale, scale) + RIDGE * np.eye(len(block))
+    without = np.diag(np.linalg.inv(form)) / scale ** 2
+    growth = np.full(n_shared, np.inf)
+    shared = active[:n_shared]
+    growth[shared] = without[:int(shared.sum())] / np.diag(h_inv)[:n_shared][shared]
+    return growth
+
+
+def _pair_step(h: np.ndarray, h_inv: np.ndarray, normal: np.ndarray, score: np.ndarray,
+               n_shared: int) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return the Gauss-Newton step of the fit of two records without one, and what it loses.
+
+    The shared parameters whose variance grows beyond :data:`LEVERAGE_LIMIT` times without the
+    record (the lost ones: one record per direction cannot tell Coulomb friction from a torque
+    offset) are held one at a time, the worst first, until the rest is well determined: the
+    partner left free absorbs the sum (the direction's total friction), so the step of the
+    others is the one-record fit's.  Returns the step and the mask of lost shared parameters.
+    """
+    rest = h - normal
+    active = np.diag(rest) > SINGULAR * np.maximum(np.diag(h), 1e-300)
+    lost = _growth(rest, active, h_inv, n_shared) > LEVERAGE_LIMIT
+    for _ in range(n_shared):
+        growth = _growth(rest, active, h_inv, n_shared)
+        grown = active[:n_shared] & (growth > LEVERAGE_LIMIT)
+        if not grown.any():
+            break
+        active[int(np.argmax(np.where(grown, growth, -np.inf)))] = False
+    step = np.zeros_like(score)
+    if active[:n_shared].any():
+        block = rest[np.ix_(active, active)]
+        step[active] = np.linalg.solve(block, score[active])
+    return step, lost
+
+
+def _pair_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owner: np.ndarray,
+                    normals: np.ndarray, n_shared: int) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Delete-one-record jackknife of two records, centred at the fit (CV3); and what it lacks.
+
+    ``1/2 sum_r d_r d_r^T``, ``d_r = theta_(-r) - theta`` (the step of the fit on the other
+    record alone).  Centred at the fit, not at the mean of the two steps: the latter is
+    ``(d_1 - d_2)^2 / 4``, the cluster sandwich of two equal records, blind to their unequal
+    weight, where this one is unbiased for the spread between records whatever the weights
+    (MacKinnon, Nielsen and Webb 2023, CV3).  Returns the covariance in ``z`` and the mask of
+    shared parameters that one record alone does not determine (their figure is not this).
+    """
+    steps, lost = [], np.zeros(n_shared, dtype=bool)
+    for score, normal in zip(record_scores(scores, owner), normals):
+        step, gone = _pair_step(h, h_inv, normal, score, n_shared)
+        steps.append(step)
+        lost |= gone
+    d = np.array(steps)
+    return 0.5 * (d.T @ d), lost
+
+
+def _between_records(h: np.ndarray, h_inv: np.ndarray, info: dict[str, Any], scores: np.ndarray,
+                     owner: np.ndarray) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """
+    Record-level covariance in ``z``, the cluster sandwich's, and the estimator's name.
 
     The jackknife over records when every record can be left out and the fit carries the
     records' normal matrices, else the cluster sandwich (which understates with few records).
+    With two records the jackknife (:func:`_pair_jackknife`) stands for the parameters one
+    record determines and the cluster sandwich for the rest: the second array is the mask of
+    the shared parameters whose figure is the cluster sandwich's.  None for one record.
     """
-    if len(np.unique(owner)) < 2:
+    count = len(np.unique(owner))
+    if count < 2:
         return None
-    normals = info.get('record_normal_matrices')
-    if normals is not None and len(normals) == len(np.unique(owner)):
-        jackknife = _record_jackknife(h, h_inv, scores, owner, np.asarray(normals, dtype=float),
-                                      len(info['names']))
-        if jackknife is not None:
-            return jackknife, 'jackknife'
+    n_shared = len(info['names'])
     cluster = _record_covariance(scores, owner)
     assert cluster is not None  # several records
-    return h_inv @ cluster @ h_inv, 'cluster'
+    cluster = h_inv @ cluster @ h_inv
+    everything = np.ones(n_shared, dtype=bool)
+    normals = info.get('record_normal_matrices')
+    if normals is None or len(normals) != count:
+        return cluster, everything, 'cluster'
+    normals = np.asarray(normals, dtype=float)
+    if count == 2:
+        pair, lost = _pair_jackknife(h, h_inv, scores, owner, normals, n_shared)
+        if lost.all():
+            return cluster, everything, 'cluster'
+        variance = np.where(lost, np.diag(cluster)[:n_shared], np.diag(pair)[:n_shared])
+        merged = pair.copy()
+        merged[np.arange(n_shared), np.arange(n_shared)] = variance
+        return merged, lost, 'jackknife'
+    jackknife = _record_jackknife(h, h_inv, scores, owner, normals, n_shared)
+    if jackknife is None:
+        return cluster, everything, 'cluster'
+    return jackknife, ~everything, 'jackknife'
 
 
 def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
@@ -289,11 +388,13 @@ def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
     sd = np.sqrt(np.maximum(np.diag(widest), 1e-300))
     correlation = widest / np.outer(sd, sd)
     between = _between_records(h, h_inv, info, scores, owner)
-    records, estimator = None, None
+    records, estimator, by_cluster = None, None, []
     largest = within
     if between is not None:
         records = np.sqrt(np.maximum(np.diag((between[0] * scale)[:n, :n]), 0.0))
-        estimator = between[1]
+        estimator = between[2]
+        if estimator == 'jackknife':
+            by_cluster = [name for name, lost in zip(names, between[1]) if lost]
         largest = np.maximum(within, records ** 2)
     stderr = np.sqrt(np.maximum(largest, 0.0))
     covariance = correlation * np.outer(stderr, stderr)
@@ -301,22 +402,70 @@ def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
             'stderr_model': np.sqrt(np.maximum(np.diag(model), 0.0)),
             'stderr_within': np.sqrt(np.maximum(within, 0.0)), 'stderr_records': records,
             'records': int(len(np.unique(owner))), 'record_estimator': estimator,
+            'record_cluster': by_cluster,
             'method': (METHOD if estimator is None
                        else METHOD_RECORDS.format(RECORD_ESTIMATORS[estimator])),
             'correlation': correlation}
 
 
-def between_records(names: Sequence[str], robust: dict[str, Any]) -> dict[str, Any] | None:
+def t_quantile_95(dof: float) -> float:
+    """
+    Return the two-sided 95 % quantile of Student's t with ``dof`` degrees of freedom.
+
+    Tabulated for whole numbers to 30 (:data:`T_975`), the Cornish-Fisher expansion beyond
+    (within 1e-5 there);
+    the normal 1.96 for an infinite ``dof``.  Not scipy: the identify path does not import it.
+    """
+    if not np.isfinite(dof):
+        return Z_975
+    if dof <= len(T_975):
+        if dof < 1 or not float(dof).is_integer():
+            raise ValueError(f'degrees of freedom must be a whole number >= 1, got {dof}')
+        return T_975[int(dof) - 1]
+    z = Z_975
+    return float(z + (z ** 3 + z) / (4 * dof)
+                 + (5 * z ** 5 + 16 * z ** 3 + 3 * z) / (96 * dof ** 2)
+                 + (3 * z ** 7 + 19 * z ** 5 + 17 * z ** 3 - 15 * z) / (384 * dof ** 3))
+
+
+def _intervals(names: Sequence[str], account: dict[str, Any], stderr: Sequence[float],
+               parameters: Any) -> dict[str, Any]:
+    """
+    Return ``t_95`` and ``interval_95`` of :func:`between_records`.
+
+    A parameter whose ``stderr`` the spread between the records sets (``dominant``) rests on
+    ``dof`` degrees of freedom: its 95 % interval is ``+- t_(0.975, dof)`` standard errors
+    (Cameron and Miller 2015, Imbens and Kolesar 2016: t with G - 1 degrees of freedom for G
+    clusters; with two groups Ibragimov and Mueller 2016 show that this t interval keeps its
+    level at 95 % even when the groups' variances differ).  The others' figure is the
+    within-record one, which rests on many blocks: the normal 1.96.
+    """
+    dominant = set(account['dominant'])
+    factor = {name: t_quantile_95(account['dof'] if name in dominant else np.inf)
+              for name in names}
+    out: dict[str, Any] = {'t_95': factor}
+    if parameters is not None:
+        out['interval_95'] = {
+            name: [float(parameters[name] - factor[name] * error),
+                   float(parameters[name] + factor[name] * error)]
+            for name, error in zip(names, stderr) if name in parameters}
+    return out
+
+
+def between_records(names: Sequence[str], robust: dict[str, Any],
+                    parameters: Any = None) -> dict[str, Any] | None:
     """
     Return the JSON account of the record-level figure (``between_records``), None for one.
 
     ``records`` and ``dof`` (records less one: how many independent record-level scores the
     figure rests on), ``estimator`` (``jackknife`` or ``cluster``), ``note`` (why the cluster
-    sandwich, and that two records say little of their spread; absent otherwise),
+    sandwich, which parameters it stands for beside the jackknife of two records, and that two
+    records say little of their spread; absent otherwise),
     ``stderr_within`` (Gauss-Newton and batch means, blind to a difference
-    between records) and ``stderr_records`` (the record-level sandwich) by parameter, and
+    between records) and ``stderr_records`` (the record-level figure) by parameter,
     ``dominant``: the parameters whose record-level figure is the larger, i.e. whose
-    ``stderr`` the spread between the records sets.
+    ``stderr`` the spread between the records sets, and ``t_95`` / ``interval_95``
+    (:func:`_intervals`; the interval with the parameters' values only).
     """
     if robust.get('stderr_records') is None:
         return None
@@ -327,10 +476,13 @@ def between_records(names: Sequence[str], robust: dict[str, Any]) -> dict[str, A
                'stderr_within': within, 'stderr_records': records,
                'dominant': [name for name in names if records[name] > within[name]]}
     notes = [CLUSTER_NOTE] if robust['record_estimator'] == 'cluster' else []
+    if robust.get('record_cluster'):
+        notes.append(PAIR_CLUSTER_NOTE.format(', '.join(robust['record_cluster'])))
     if account['dof'] == 1:
         notes.append(PAIR_NOTE)
     if notes:
         account['note'] = '; '.join(notes)
+    account.update(_intervals(names, account, robust['stderr'], parameters))
     return account
 
 
@@ -384,5 +536,5 @@ def with_robust_stderr(estimate: Any) -> Any:
             'uncertainty_method': robust['method'],
             'robust_covariance': robust['covariance'],
             'robust_correlation': robust['correlation'],
-            'between_records': between_records(names, robust)}
+            'between_records': between_records(names, robust, estimate.parameters)}
     return replace(estimate, stderr=stderr, info=info)
