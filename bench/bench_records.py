@@ -39,6 +39,13 @@ from dcmotor_id.simulation.lab_scenarios import (SCENARIOS, SERVO_MOTOR, simulat
                                                  step_levels)
 
 NAMES = ('J', 'b', 'Mc')
+#: What the HSM150 part is.
+HSM_TEXT = (
+    'github malik-robert/HSM150-data at 35c3b1b, `Data/Identification/idf_*.mat`, fitted by '
+    '`dcmotor-id identify` with the reading options of `bench/bench_real.py` (discovery on, '
+    'as a user runs it): the six opposite pairs (one record per direction, so Mc and the load '
+    'torque keep the cluster sandwich) and the three 4-record runs.  z and the Welch bound as '
+    'above; t_95: `between_records.t_95` of each fit.')
 #: What part 3's columns are.
 FEW_TEXT = (
     "Per seed, `2 x size` torque-step records of the servo (both ways in turn, each record's "
@@ -206,6 +213,59 @@ def few_record_rows(seeds, spread, sizes=(2, 3)):
     return lines
 
 
+def _real_z(results, key):
+    """z, and whether within the Welch t 95 % bound, over the pairs of disjoint subsets."""
+    from scipy.stats import t as student
+    out = []
+    for first in range(len(results)):
+        for second in range(first + 1, len(results)):
+            parts = []
+            for result in (results[first], results[second]):
+                account = result.get('between_records') or {}
+                dof = account['dof'] if key in account.get('dominant', []) else np.inf
+                parts.append((result['stderr'][key] ** 2, dof))
+            total = parts[0][0] + parts[1][0]
+            spread = sum(v ** 2 / dof for v, dof in parts)
+            nu = total ** 2 / spread if spread > 0 else np.inf
+            z = abs(results[first]['parameters'][key] - results[second]['parameters'][key]) \
+                / np.sqrt(total)
+            out.append((z, z <= student.ppf(0.975, nu)))
+    return out
+
+
+def hsm150_rows(path, work):
+    """Part 4: the six HSM150 opposite pairs and the three runs, as the scorecard runs them."""
+    import json
+    from bench_real import hsm150_set, run_cli
+    data = hsm150_set(path, work, quick=False)
+    lines = ['| disjoint subsets | parameter | value +- stated stderr (estimator, t_95) | '
+             'max z | RMS z | \\|z\\| <= Welch t 95 % |', '|---|---|---|---|---|---|']
+    for family in ('pairs', 'runs'):
+        results = []
+        for job in (job for job in data.jobs if job.family == family):
+            out = os.path.join(work, f'{family}_{len(results)}.json')
+            run = run_cli(['identify', *[data.records[name].path for name in job.members],
+                           *data.reading, '--torque-constant', f'{data.torque_constant:.6g}',
+                           '--json', out])
+            if run['rc'] != 0:
+                raise SystemExit(f'{job.label}: exit {run["rc"]}: {run["message"]}')
+            with open(out) as stream:
+                results.append(json.load(stream))
+            print(f'hsm150 {job.label}', file=sys.stderr)
+        for key in NAMES:
+            cells = '; '.join(
+                f'{r["parameters"][key]:.3g} +- {r["stderr"][key]:.2g} '
+                f'({r["between_records"]["estimator"]}, '
+                f'{r["between_records"].get("t_95", {}).get(key, 1.959964):.3g})'
+                for r in results)
+            zs = _real_z(results, key)
+            z = np.array([value for value, _ in zs])
+            lines.append(f'| {family} ({len(results)}) | {key} | {cells} | {z.max():.2f} | '
+                         f'{np.sqrt(np.mean(z ** 2)):.2f} | '
+                         f'{sum(ok for _, ok in zs)}/{len(zs)} |')
+    return lines
+
+
 def main(argv=None):
     """Print the markdown report."""
     parser = argparse.ArgumentParser(description=__doc__.strip().split('\n')[0])
@@ -215,14 +275,25 @@ def main(argv=None):
     parser.add_argument('--few-seeds', type=int, default=40,
                         help='seeds of part 3 (2- and 3-record fits; 0: not run)')
     parser.add_argument('--only-few', action='store_true', help='part 3 only')
+    parser.add_argument('--hsm150', metavar='DIR',
+                        help='HSM150-data (work tree or bare clone, commit 35c3b1b): with '
+                        '--only-few, also its opposite pairs and runs as bench_real.py fits them')
     args = parser.parse_args(argv)
     start = time.process_time()
     load = f'load average before: {" ".join(f"{v:.2f}" for v in os.getloadavg())}'
     if args.only_few:
         lines = ['# Standard errors of fits of two and three records', '',
                  f'`bench/bench_records.py --only-few --few-seeds {args.few_seeds} '
-                 f'--friction-spread {args.friction_spread}`; {load}', '', FEW_TEXT, '']
+                 f'--friction-spread {args.friction_spread}'
+                 f'{" --hsm150 HSM150-data" if args.hsm150 else ""}`; {load}', '', FEW_TEXT,
+                 '']
         lines += few_record_rows(args.few_seeds, args.friction_spread)
+        if args.hsm150:
+            import tempfile
+            lines += ['', '## HSM150: the opposite pairs and the runs (real records)', '',
+                      HSM_TEXT, '']
+            with tempfile.TemporaryDirectory() as work:
+                lines += hsm150_rows(args.hsm150, work)
     else:
         lines = ['# Standard errors of fits of several records', '',
                  f'`bench/bench_records.py --seeds {args.seeds} --records {args.records} '

@@ -24,16 +24,38 @@ d)^T`` (CR3 of the cluster-robust literature).  The cluster sandwich CR1 ``R / (
 s_r s_r^T`` understates with few records of unequal weight: on the HSM150 runs it was
 1.5-5.5x below the jackknife that refits each leave-one-out subset, where the linearised one
 was 1.1-1.4x it on runs 2 and 3 and 2.5-3.3x on run 1 (a fit 46 % off in J); the runs' max z
-fell to 0.58 (J) and 0.56 (b) (bench/real_results_coverage.md).  With two records, or when a
-record cannot be left out without (nearly) losing a parameter (one record per direction with a
-torque offset), the cluster sandwich stands in; two records give it one degree of freedom:
-the HSM150 pairs stay at z 3.2 (J) and 6.9 (b), and ``between_records`` says that the figure
-is a rough guide there (:data:`PAIR_NOTE`).  On a simulated class of 4-record halves whose
-friction differs record to record (10 %), the RMS z between halves went from 3.4 to 1.5 (b)
-and from 3.0 to 0.8 (Mc) (a t with 3 degrees of freedom has 1.7); with the friction shared,
-from 1.3-1.6 to 0.9-1.1; on the laboratory scenarios with two records (parameters shared) the
-stated figure is the within-record one but for Mc of a record pair whose load the base model
-lacks (2.1x) (bench/records_results.md).  One record: nothing changes.
+fell to 0.58 (J) and 0.56 (b) (bench/real_results_coverage.md).  When one of three or more
+records cannot be left out without (nearly) losing a parameter (one record per direction with
+a torque offset) or carries more than 99 % of one, the cluster sandwich stands in.  On a
+simulated class of 4-record halves whose friction differs record to record (10 %), the RMS z
+between halves went from 3.4 to 1.5 (b) and from 3.0 to 0.8 (Mc) (a t with 3 degrees of
+freedom has 1.7); with the friction shared, from 1.3-1.6 to 0.9-1.1; on the laboratory
+scenarios with two records (parameters shared) the stated figure is the within-record one but
+for Mc of a record pair whose load the base model lacks (2.1x) (bench/records_results.md).
+
+Two records are the jackknife's too, centred at the fit (CV3 of MacKinnon, Nielsen and Webb
+2023): ``1/2 sum_r d_r d_r^T``, ``d_r`` the step to the other record's fit, unbiased for the
+spread between records whatever their weights, where the cluster sandwich of two records is
+unbiased only when they weigh the same (with weights 0.9 / 0.1 it has 8 % of the variance; it
+can be fully downward biased when one record dominates, Hansen 2025).  A parameter that one
+record alone does not determine (Coulomb friction beside a torque offset with one record per
+direction) is held while the step is taken, and keeps the cluster sandwich (named in the
+note: the pair does not measure its spread).  On the HSM150 opposite pairs the largest z
+between pairs went from 3.2 to 2.5 (J) and from 6.9 to 2.3 (b); Mc stays at 6.7.
+
+However it is estimated, the figure of R records rests on R - 1 degrees of freedom: from two
+records a variance is a chi-square with one degree of freedom, half the time below 45 % of the
+truth, and the z between two disjoint pairs is a Student t with about two degrees of freedom.
+``stderr`` stays a standard error; ``between_records`` adds ``t_95`` and ``interval_95``, the
+95 % interval with the t quantile of ``dof`` degrees of freedom where the record-level figure
+sets ``stderr`` (12.7 for two records, 4.3 for three; Cameron, Gelbach and Miller 2008, Imbens
+and Kolesar 2016; for two groups the t interval keeps its level even when their variances
+differ, Ibragimov and Mueller 2010) and the normal 1.96 where the within-record figure does.
+On a simulated class of pairs whose friction differs by 10 % it covered the population value
+of b and Mc in 97 % and 94 % of the fits (the normal interval before: 90 % and 85 %)
+(bench/records_few_results.md).  Three records whose information one record dominates keep
+the cluster sandwich and are not covered there (see that table).  One record: nothing
+changes.
 
 The estimator delivers what is needed in ``Estimate.info`` (keys of :data:`INFO_KEYS`):
 ``normal_matrix`` (``J^T J`` in its internal coordinates ``z``), ``block_scores`` (score sums
@@ -69,10 +91,10 @@ METHOD_RECORDS = ('max(Gauss-Newton, sandwich with batch-means score covariance 
 RECORD_ESTIMATORS = {'jackknife': 'delete-one-record jackknife',
                      'cluster': 'record-level (cluster) sandwich'}
 #: What ``between_records`` says when the cluster sandwich stands in for the jackknife.
-CLUSTER_NOTE = ('two records, or a record that cannot be left out without (nearly) losing a '
-                'parameter (e.g. one record per direction with a torque offset): the '
-                'record-level figure is the cluster sandwich, which understates the spread '
-                'when the records are few')
+CLUSTER_NOTE = ('a record that cannot be left out without (nearly) losing a parameter (e.g. '
+                'one record per direction with a torque offset), or one that carries 99 % of '
+                'one: the record-level figure is the cluster sandwich, which understates the '
+                'spread when the records are few')
 #: What ``between_records`` says of the parameters the jackknife of two records leaves to the
 #: cluster sandwich.
 PAIR_CLUSTER_NOTE = ('{}: one record alone does not determine them (e.g. Coulomb friction '
@@ -88,6 +110,10 @@ Z_975 = 1.959964
 #: Ridge on the correlation form of a leave-one-out normal matrix (a lost direction shows as
 #: a huge variance instead of a failed inverse).
 RIDGE = 1e-12
+#: Variance inflation (correlation form) beyond which the record left of a pair does not
+#: determine a parameter (correlation with the others beyond 1 - 5e-7; Coulomb friction beside
+#: a torque offset in one direction: 5e11 on an HSM150 pair, J and b 2-100).
+LOST_INFLATION = 1e6
 #: Fewest samples in a fine block.
 MIN_BLOCK_SAMPLES = 4
 #: Parameters whose record-level figure is checked for the warning.
@@ -229,9 +255,7 @@ def _record_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owne
 
     ``(R - 1) / R sum_r (d_r - mean d)(d_r - mean d)^T`` with ``d_r`` the step of the fit
     without record ``r`` (CR3 of the cluster-robust literature); None when a record cannot be
-    left out (:func:`_leave_one_out_step`) or there are only two (each then carries half of
-    everything: the cluster sandwich has the same one degree of freedom without the
-    leave-one-out fits' instability).
+    left out (:func:`_leave_one_out_step`) or there are only two (:func:`_pair_jackknife`).
     """
     sums = record_scores(scores, owner)
     if sums.shape[0] < 3:
@@ -247,53 +271,54 @@ def _record_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owne
     return (len(d) - 1.0) / len(d) * (d.T @ d)
 
 
-def _growth(rest: np.ndarray, active: np.ndarray, h_inv: np.ndarray,
-            n_shared: int) -> np.ndarray:
+def _inflation(rest: np.ndarray, active: np.ndarray, n_shared: int) -> np.ndarray:
     """
-    Return how many times the variance of every shared parameter grows without a record.
+    Return the variance inflation of every shared parameter in a leave-one-out normal matrix.
 
-    ``inf`` for a parameter whose column is gone; a (near-)singular direction shows as a huge
-    growth of the parameters in it (the inverse carries a tiny ridge, :data:`RIDGE`).
+    The diagonal of the inverse of its correlation form: how far the parameter is tangled
+    with the others within what is left, whatever that weighs; ``inf`` for a parameter whose
+    column is gone.  A tiny ridge (:data:`RIDGE`) keeps a singular direction finite and huge.
     """
     block = rest[np.ix_(active, active)]
     scale = np.sqrt(np.diag(block))
     form = block / np.outer(scale, scale) + RIDGE * np.eye(len(block))
-    without = np.diag(np.linalg.inv(form)) / scale ** 2
-    growth = np.full(n_shared, np.inf)
+    inflation = np.full(n_shared, np.inf)
     shared = active[:n_shared]
-    growth[shared] = without[:int(shared.sum())] / np.diag(h_inv)[:n_shared][shared]
-    return growth
+    inflation[shared] = np.diag(np.linalg.inv(form))[:int(shared.sum())]
+    return inflation
 
 
-def _pair_step(h: np.ndarray, h_inv: np.ndarray, normal: np.ndarray, score: np.ndarray,
+def _pair_step(h: np.ndarray, normal: np.ndarray, score: np.ndarray,
                n_shared: int) -> tuple[np.ndarray, np.ndarray]:
     """
     Return the Gauss-Newton step of the fit of two records without one, and what it loses.
 
-    The shared parameters whose variance grows beyond :data:`LEVERAGE_LIMIT` times without the
-    record (the lost ones: one record per direction cannot tell Coulomb friction from a torque
-    offset) are held one at a time, the worst first, until the rest is well determined: the
-    partner left free absorbs the sum (the direction's total friction), so the step of the
-    others is the one-record fit's.  Returns the step and the mask of lost shared parameters.
+    The shared parameters that the other record alone does not determine (variance inflation
+    beyond :data:`LOST_INFLATION`: one record per direction cannot tell Coulomb friction from
+    a torque offset) are held one at a time, the worst first, until the rest is determined:
+    the partner left free absorbs the sum (the direction's total friction), so the step of the
+    others is the one-record fit's.  No limit on the leverage here (unlike
+    :func:`_leave_one_out_step`): with two records the step to the other record's fit is the
+    only evidence of their spread, however unequal their weights.  Returns the step and the
+    mask of lost shared parameters.
     """
     rest = h - normal
     active = np.diag(rest) > SINGULAR * np.maximum(np.diag(h), 1e-300)
-    lost = _growth(rest, active, h_inv, n_shared) > LEVERAGE_LIMIT
+    lost = _inflation(rest, active, n_shared) > LOST_INFLATION
     for _ in range(n_shared):
-        growth = _growth(rest, active, h_inv, n_shared)
-        grown = active[:n_shared] & (growth > LEVERAGE_LIMIT)
-        if not grown.any():
+        inflation = _inflation(rest, active, n_shared)
+        tangled = active[:n_shared] & (inflation > LOST_INFLATION)
+        if not tangled.any():
             break
-        active[int(np.argmax(np.where(grown, growth, -np.inf)))] = False
+        active[int(np.argmax(np.where(tangled, inflation, -np.inf)))] = False
     step = np.zeros_like(score)
     if active[:n_shared].any():
-        block = rest[np.ix_(active, active)]
-        step[active] = np.linalg.solve(block, score[active])
+        step[active] = np.linalg.solve(rest[np.ix_(active, active)], score[active])
     return step, lost
 
 
-def _pair_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owner: np.ndarray,
-                    normals: np.ndarray, n_shared: int) -> tuple[np.ndarray, np.ndarray]:
+def _pair_jackknife(h: np.ndarray, scores: np.ndarray, owner: np.ndarray, normals: np.ndarray,
+                    n_shared: int) -> tuple[np.ndarray, np.ndarray]:
     """
     Delete-one-record jackknife of two records, centred at the fit (CV3); and what it lacks.
 
@@ -306,7 +331,7 @@ def _pair_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owner:
     """
     steps, lost = [], np.zeros(n_shared, dtype=bool)
     for score, normal in zip(record_scores(scores, owner), normals):
-        step, gone = _pair_step(h, h_inv, normal, score, n_shared)
+        step, gone = _pair_step(h, normal, score, n_shared)
         steps.append(step)
         lost |= gone
     d = np.array(steps)
@@ -337,7 +362,7 @@ def _between_records(h: np.ndarray, h_inv: np.ndarray, info: dict[str, Any], sco
         return cluster, everything, 'cluster'
     normals = np.asarray(normals, dtype=float)
     if count == 2:
-        pair, lost = _pair_jackknife(h, h_inv, scores, owner, normals, n_shared)
+        pair, lost = _pair_jackknife(h, scores, owner, normals, n_shared)
         if lost.all():
             return cluster, everything, 'cluster'
         variance = np.where(lost, np.diag(cluster)[:n_shared], np.diag(pair)[:n_shared])
