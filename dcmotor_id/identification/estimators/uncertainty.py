@@ -31,7 +31,9 @@ simulated class of 4-record halves whose friction differs record to record (10 %
 between halves went from 3.4 to 1.5 (b) and from 3.0 to 0.8 (Mc) (a t with 3 degrees of
 freedom has 1.7); with the friction shared, from 1.3-1.6 to 0.9-1.1; on the laboratory
 scenarios with two records (parameters shared) the stated figure is the within-record one but
-for Mc of a record pair whose load the base model lacks (2.1x) (bench/records_results.md).
+for Mc of a record pair whose load the base model lacks (2.1x) and for the servo pair that the
+base model (discovery off) fits 40x off in J, whose records then disagree: 13x (J) and 9x (b)
+the within-record figure (bench/records_results.md).
 
 Two records are the jackknife's too, centred at the fit (CV3 of MacKinnon, Nielsen and Webb
 2023): ``1/2 sum_r d_r d_r^T``, ``d_r`` the step to the other record's fit, unbiased for the
