@@ -50,8 +50,8 @@ records a variance is a chi-square with one degree of freedom, half the time bel
 truth, and the z between two disjoint pairs is a Student t with about two degrees of freedom.
 ``stderr`` stays a standard error; ``between_records`` adds ``t_95`` and ``interval_95``, the
 95 % interval with the t quantile of ``dof`` degrees of freedom where the record-level figure
-sets ``stderr`` (12.7 for two records, 4.3 for three; Cameron, Gelbach and Miller 2008, Imbens
-and Kolesar 2016; for two groups the t interval keeps its level even when their variances
+sets ``stderr`` (12.7 for two records, 4.3 for three; Cameron and Miller 2015, Imbens and
+Kolesar 2016; for two groups the t interval keeps its level even when their variances
 differ, Ibragimov and Mueller 2010) and the normal 1.96 where the within-record figure does.
 On a simulated class of pairs whose friction differs by 10 % it covered the population value
 of b and Mc in 97 % and 94 % of the fits (the normal interval before: 90 % and 85 %)
@@ -440,8 +440,8 @@ def t_quantile_95(dof: float) -> float:
     Return the two-sided 95 % quantile of Student's t with ``dof`` degrees of freedom.
 
     Tabulated for whole numbers to 30 (:data:`T_975`), the Cornish-Fisher expansion beyond
-    (within 1e-5 there);
-    the normal 1.96 for an infinite ``dof``.  Not scipy: the identify path does not import it.
+    (within 1e-5 there), the normal 1.96 for an infinite ``dof``.  Not scipy: the identify
+    path does not import it.
     """
     if not np.isfinite(dof):
         return Z_975
@@ -463,7 +463,7 @@ def _intervals(names: Sequence[str], account: dict[str, Any], stderr: Sequence[f
     A parameter whose ``stderr`` the spread between the records sets (``dominant``) rests on
     ``dof`` degrees of freedom: its 95 % interval is ``+- t_(0.975, dof)`` standard errors
     (Cameron and Miller 2015, Imbens and Kolesar 2016: t with G - 1 degrees of freedom for G
-    clusters; with two groups Ibragimov and Mueller 2016 show that this t interval keeps its
+    clusters; with two groups Ibragimov and Mueller 2010 show that this t interval keeps its
     level at 95 % even when the groups' variances differ).  The others' figure is the
     within-record one, which rests on many blocks: the normal 1.96.
     """
