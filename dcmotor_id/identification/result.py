@@ -121,8 +121,9 @@ class IdentificationResult:
         With several records, the record-level (cluster) standard errors that cover a
         difference between the records
         (:func:`~dcmotor_id.identification.estimators.uncertainty.between_records`):
-        ``records``, ``dof``, ``stderr_within``, ``stderr_records``, ``dominant``; None for
-        one record.
+        ``records``, ``dof``, ``estimator``, ``stderr_within``, ``stderr_records``,
+        ``dominant``, ``t_95`` and ``interval_95`` (Student t with ``dof`` degrees of freedom
+        where the record-level figure sets ``stderr``), ``note``; None for one record.
 
     """
 

@@ -4,12 +4,14 @@ from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from dcmotor_id.core.records import Record
 from dcmotor_id.identification.checks.identifiability import loose
 from dcmotor_id.identification.estimators.uncertainty import (between_record_warnings,
                                                               between_records, block_scores,
-                                                              METHOD, robust_covariance)
+                                                              METHOD, robust_covariance,
+                                                              t_quantile_95)
 from dcmotor_id.identification.identify import identify
 from dcmotor_id.simulation.lab_scenarios import SERVO_MOTOR, simulate_drive, step_levels
 
@@ -163,3 +165,115 @@ def test_records_that_disagree_do_not_make_a_parameter_undetermined():
     assert loose(estimate, ['J']) == {}
     alone = SimpleNamespace(parameters={'J': 1.755e-4}, stderr={'J': 1.2e-4}, info={})
     assert 'J' in loose(alone, ['J'])
+
+
+def _named_fit(xs, ys, names):
+    """Pooled least squares over records with named columns; estimate and robust dict."""
+    x, y = np.vstack(xs), np.concatenate(ys)
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    residual = y - x @ beta
+    info = {'normal_matrix': x.T @ x, 'chain': np.ones(x.shape[1]), 'names': list(names),
+            'residual_rms_weighted': float(np.sqrt(residual @ residual / (len(y) - len(names)))),
+            **block_scores(residual, x, [len(v) for v in ys], 1)}
+    return beta, robust_covariance(info)
+
+
+def _two_records(rng, lengths=(3600, 400), slope_spread=1.0):
+    """Two records of unequal length (weight), each with a slope of its own, white noise."""
+    xs, ys = [], []
+    for length in lengths:
+        x = np.column_stack([np.sin(np.linspace(0, 12 * np.pi, length)), np.ones(length)])
+        xs.append(x)
+        ys.append(x @ [1.0 + slope_spread * rng.normal(), 2.0] + 0.1 * rng.normal(size=length))
+    return xs, ys
+
+
+def test_two_records_get_the_jackknife_centred_at_the_fit():
+    xs, ys = _two_records(np.random.default_rng(3))
+    beta, robust = _named_fit(xs, ys, ['a', 'c'])
+    alone = [np.linalg.lstsq(x, y, rcond=None)[0] for x, y in zip(xs, ys)]
+    # CV3: half the sum of squares of the one-record fits about the fit of both (exact here).
+    cv3 = np.sqrt(0.5 * sum((theta - beta) ** 2 for theta in alone))
+    assert robust['record_estimator'] == 'jackknife'
+    np.testing.assert_allclose(robust['stderr_records'], cv3, rtol=1e-6)
+
+
+def test_two_records_of_unequal_weight_are_not_understated():
+    # The cluster sandwich of two records of weights 0.9 / 0.1 has about 8 % of the variance
+    # of the fit's spread (the record-level variance is 0.82 of one record's); CV3 has it all.
+    rng = np.random.default_rng(11)
+    estimates, variances = [], []
+    for _ in range(400):
+        beta, robust = _named_fit(*_two_records(rng), ['a', 'c'])
+        estimates.append(beta[0] - 1.0)
+        variances.append(robust['stderr'][0] ** 2)
+    ratio = np.sqrt(np.mean(variances) / np.mean(np.square(estimates)))
+    assert 0.75 < ratio < 1.35, ratio
+
+
+def test_interval_of_two_records_is_a_t_interval_with_one_degree_of_freedom():
+    # Normal quantiles on a 1-degree-of-freedom error cover about 70 %; t_1's 12.7 covers 95 %.
+    rng = np.random.default_rng(12)
+    normal, student, accounts = [], [], []
+    for _ in range(400):
+        xs, ys = _two_records(rng, lengths=(2000, 2000))
+        beta, robust = _named_fit(xs, ys, ['a', 'c'])
+        account = between_records(['a', 'c'], robust, {'a': beta[0], 'c': beta[1]})
+        low, high = account['interval_95']['a']
+        student.append(low <= 1.0 <= high)
+        normal.append(abs(beta[0] - 1.0) <= 1.959964 * robust['stderr'][0])
+        accounts.append(account)
+    assert np.mean(normal) < 0.8, np.mean(normal)
+    assert 0.92 < np.mean(student) < 0.99, np.mean(student)
+    assert all(account['t_95']['a'] == (12.7062 if 'a' in account['dominant'] else 1.959964)
+               for account in accounts)
+    assert sum('a' in account['dominant'] for account in accounts) > 360
+    # The intercept is shared exactly: its figure is the within-record one, normal quantiles.
+    assert sum(account['t_95']['c'] == 1.959964 for account in accounts) > 300
+
+
+def test_a_parameter_one_record_cannot_determine_keeps_the_cluster_sandwich():
+    # One record per direction: Coulomb friction (sign) and a torque offset (1) are one column
+    # within a record; the slope is determined by each record alone.
+    rng = np.random.default_rng(4)
+    xs, ys = [], []
+    for sign, slope in ((1.0, 1.3), (-1.0, 0.8)):
+        t = np.linspace(0, 8 * np.pi, 2000)
+        x = np.column_stack([np.sin(t), np.full_like(t, sign), np.ones_like(t)])
+        xs.append(x)
+        ys.append(x @ [slope, 0.5, 0.2] + 0.1 * rng.normal(size=len(t)))
+    beta, robust = _named_fit(xs, ys, ['a', 'Mc', 'T'])
+    alone = [np.linalg.lstsq(x[:, [0, 2]], y, rcond=None)[0][0] for x, y in zip(xs, ys)]
+    assert robust['record_estimator'] == 'jackknife' and robust['record_cluster'] == ['Mc', 'T']
+    np.testing.assert_allclose(robust['stderr_records'][0],
+                               np.sqrt(0.5 * sum((v - beta[0]) ** 2 for v in alone)), rtol=1e-6)
+    account = between_records(['a', 'Mc', 'T'], robust)
+    assert account['note'].startswith('Mc, T: one record alone does not determine them')
+    assert 'interval_95' not in account and account['t_95']['a'] == 12.7062
+
+
+def test_t_quantiles_are_student_ones():
+    from scipy.stats import t as student
+    for dof in (1, 2, 3, 7, 30, 31, 45, 200):
+        assert abs(t_quantile_95(dof) - student.ppf(0.975, dof)) < 1e-4, dof
+    assert t_quantile_95(np.inf) == 1.959964
+    with pytest.raises(ValueError, match='whole number'):
+        t_quantile_95(1.5)
+
+
+def test_identify_of_an_opposite_pair_states_the_jackknife_and_a_t_interval():
+    rng = np.random.default_rng(3)
+    records = []
+    for sign, factor in ((1.0, 1.0), (-1.0, 1.3)):  # the second record's viscous friction
+        truth = replace(SERVO_MOTOR, b=factor * SERVO_MOTOR.b)
+        command = sign * step_levels([1.0, 1.4, 1.15], 5.0, 2e-3)
+        out = simulate_drive(truth, command, 2e-3, torque_input=True)
+        t = np.arange(command.shape[0]) * 2e-3
+        records.append(Record(t, current=out['current'] + rng.normal(0.0, 0.05, len(t)),
+                              speed=np.round(out['speed'] / 0.1) * 0.1))
+    result = identify(records, torque_constant=SERVO_MOTOR.CPhi, discover=False).as_dict()
+    account = result['between_records']
+    assert account['estimator'] == 'jackknife' and account['dof'] == 1
+    assert 'b' in account['dominant'] and account['t_95']['b'] == 12.7062
+    low, high = account['interval_95']['b']
+    assert np.isclose(high - low, 2 * 12.7062 * result['stderr']['b'])

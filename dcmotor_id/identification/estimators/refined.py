@@ -837,7 +837,7 @@ def _assemble(equations, results, weights, chain, factors, base=None):
         columns = equations.columns(index)
         normal = np.tensordot(factor, by_hessian, axes=1)
         hessian[np.ix_(columns, columns)] += normal
-        if 2 < len(results) <= JACKKNIFE_MAX_RECORDS:
+        if 1 < len(results) <= JACKKNIFE_MAX_RECORDS:
             full_normal = np.zeros((size, size))
             full_normal[np.ix_(columns, columns)] = normal
             normals.append(full_normal)

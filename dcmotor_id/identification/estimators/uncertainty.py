@@ -24,16 +24,40 @@ d)^T`` (CR3 of the cluster-robust literature).  The cluster sandwich CR1 ``R / (
 s_r s_r^T`` understates with few records of unequal weight: on the HSM150 runs it was
 1.5-5.5x below the jackknife that refits each leave-one-out subset, where the linearised one
 was 1.1-1.4x it on runs 2 and 3 and 2.5-3.3x on run 1 (a fit 46 % off in J); the runs' max z
-fell to 0.58 (J) and 0.56 (b) (bench/real_results_coverage.md).  With two records, or when a
-record cannot be left out without (nearly) losing a parameter (one record per direction with a
-torque offset), the cluster sandwich stands in; two records give it one degree of freedom:
-the HSM150 pairs stay at z 3.2 (J) and 6.9 (b), and ``between_records`` says that the figure
-is a rough guide there (:data:`PAIR_NOTE`).  On a simulated class of 4-record halves whose
-friction differs record to record (10 %), the RMS z between halves went from 3.4 to 1.5 (b)
-and from 3.0 to 0.8 (Mc) (a t with 3 degrees of freedom has 1.7); with the friction shared,
-from 1.3-1.6 to 0.9-1.1; on the laboratory scenarios with two records (parameters shared) the
-stated figure is the within-record one but for Mc of a record pair whose load the base model
-lacks (2.1x) (bench/records_results.md).  One record: nothing changes.
+fell to 0.58 (J) and 0.56 (b) (bench/real_results_coverage.md).  When one of three or more
+records cannot be left out without (nearly) losing a parameter (one record per direction with
+a torque offset) or carries more than 99 % of one, the cluster sandwich stands in.  On a
+simulated class of 4-record halves whose friction differs record to record (10 %), the RMS z
+between halves went from 3.4 to 1.5 (b) and from 3.0 to 0.8 (Mc) (a t with 3 degrees of
+freedom has 1.7); with the friction shared, from 1.3-1.6 to 0.9-1.1; on the laboratory
+scenarios with two records (parameters shared) the stated figure is the within-record one but
+for Mc of a record pair whose load the base model lacks (2.1x) and for the servo pair that the
+base model (discovery off) fits 40x off in J, whose records then disagree: 13x (J) and 9x (b)
+the within-record figure (bench/records_results.md).
+
+Two records are the jackknife's too, centred at the fit (CV3 of MacKinnon, Nielsen and Webb
+2023): ``1/2 sum_r d_r d_r^T``, ``d_r`` the step to the other record's fit, unbiased for the
+spread between records whatever their weights, where the cluster sandwich of two records is
+unbiased only when they weigh the same (with weights 0.9 / 0.1 it has 8 % of the variance; it
+can be fully downward biased when one record dominates, Hansen 2025).  A parameter that one
+record alone does not determine (Coulomb friction beside a torque offset with one record per
+direction) is held while the step is taken, and keeps the cluster sandwich (named in the
+note: the pair does not measure its spread).  On the HSM150 opposite pairs the largest z
+between pairs went from 3.2 to 2.5 (J) and from 6.9 to 2.3 (b); Mc stays at 6.7.
+
+However it is estimated, the figure of R records rests on R - 1 degrees of freedom: from two
+records a variance is a chi-square with one degree of freedom, half the time below 45 % of the
+truth, and the z between two disjoint pairs is a Student t with about two degrees of freedom.
+``stderr`` stays a standard error; ``between_records`` adds ``t_95`` and ``interval_95``, the
+95 % interval with the t quantile of ``dof`` degrees of freedom where the record-level figure
+sets ``stderr`` (12.7 for two records, 4.3 for three; Cameron and Miller 2015, Imbens and
+Kolesar 2016; for two groups the t interval keeps its level even when their variances
+differ, Ibragimov and Mueller 2010) and the normal 1.96 where the within-record figure does.
+On a simulated class of pairs whose friction differs by 10 % it covered the population value
+of b and Mc in 97 % and 94 % of the fits (the normal interval before: 90 % and 85 %)
+(bench/records_few_results.md).  Three records whose information one record dominates keep
+the cluster sandwich and are not covered there (see that table).  One record: nothing
+changes.
 
 The estimator delivers what is needed in ``Estimate.info`` (keys of :data:`INFO_KEYS`):
 ``normal_matrix`` (``J^T J`` in its internal coordinates ``z``), ``block_scores`` (score sums
@@ -69,10 +93,29 @@ METHOD_RECORDS = ('max(Gauss-Newton, sandwich with batch-means score covariance 
 RECORD_ESTIMATORS = {'jackknife': 'delete-one-record jackknife',
                      'cluster': 'record-level (cluster) sandwich'}
 #: What ``between_records`` says when the cluster sandwich stands in for the jackknife.
-CLUSTER_NOTE = ('two records, or a record that cannot be left out without (nearly) losing a '
-                'parameter (e.g. one record per direction with a torque offset): the '
-                'record-level figure is the cluster sandwich, which understates the spread '
-                'when the records are few')
+CLUSTER_NOTE = ('a record that cannot be left out without (nearly) losing a parameter (e.g. '
+                'one record per direction with a torque offset), or one that carries 99 % of '
+                'one: the record-level figure is the cluster sandwich, which understates the '
+                'spread when the records are few')
+#: What ``between_records`` says of the parameters the jackknife of two records leaves to the
+#: cluster sandwich.
+PAIR_CLUSTER_NOTE = ('{}: one record alone does not determine them (e.g. Coulomb friction '
+                     'beside a torque offset with one record per direction), so the pair does '
+                     'not measure their spread between records: their record-level figure is '
+                     'the cluster sandwich, blind to it')
+#: Two-sided 95 % quantiles of Student's t with 1 to 30 degrees of freedom.
+T_975 = (12.7062, 4.3027, 3.1824, 2.7764, 2.5706, 2.4469, 2.3646, 2.3060, 2.2622, 2.2281,
+         2.2010, 2.1788, 2.1604, 2.1448, 2.1314, 2.1199, 2.1098, 2.1009, 2.0930, 2.0860,
+         2.0796, 2.0739, 2.0687, 2.0639, 2.0595, 2.0555, 2.0518, 2.0484, 2.0452, 2.0423)
+#: Two-sided 95 % quantile of the normal distribution.
+Z_975 = 1.959964
+#: Ridge on the correlation form of a leave-one-out normal matrix (a lost direction shows as
+#: a huge variance instead of a failed inverse).
+RIDGE = 1e-12
+#: Variance inflation (correlation form) beyond which the record left of a pair does not
+#: determine a parameter (correlation with the others beyond 1 - 5e-7; Coulomb friction beside
+#: a torque offset in one direction: 5e11 on an HSM150 pair, J and b 2-100).
+LOST_INFLATION = 1e6
 #: Fewest samples in a fine block.
 MIN_BLOCK_SAMPLES = 4
 #: Parameters whose record-level figure is checked for the warning.
@@ -81,7 +124,9 @@ CORE_NAMES = ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
 JACKKNIFE_MAX_RECORDS = 30
 #: What ``between_records`` says of a fit of two records.
 PAIR_NOTE = ('two records give the spread between records one degree of freedom: the '
-             'record-level figure is a rough guide and can be several times too small')
+             'record-level figure is a rough guide and can be several times too small; '
+             'interval_95 allows for it (Student t with 1 degree of freedom: +- 12.7 standard '
+             'errors where the record-level figure sets the standard error)')
 #: Growth of a reported parameter's variance without one record beyond which the jackknife
 #: over records is not used (the record carries more than 99 % of that parameter's information).
 LEVERAGE_LIMIT = 100.0
@@ -119,7 +164,7 @@ def block_scores(residual: np.ndarray, jac: np.ndarray, record_lengths: Sequence
     -------
     dict
         ``block_scores`` (``n_blocks x p``), ``block_record`` (record index per block) and,
-        for 3 to :data:`JACKKNIFE_MAX_RECORDS` records, ``record_normal_matrices``
+        for 2 to :data:`JACKKNIFE_MAX_RECORDS` records, ``record_normal_matrices``
         (``J_r^T J_r`` of every record, ``n_records x p x p``).
 
     """
@@ -140,7 +185,7 @@ def block_scores(residual: np.ndarray, jac: np.ndarray, record_lengths: Sequence
     p = jac.shape[1]
     out = {'block_scores': np.vstack(scores) if scores else np.zeros((0, p)),
            'block_record': np.array(owner, dtype=int)}
-    if 2 < len(normals) <= JACKKNIFE_MAX_RECORDS:
+    if 1 < len(normals) <= JACKKNIFE_MAX_RECORDS:
         out['record_normal_matrices'] = np.array(normals)
     return out
 
@@ -212,9 +257,7 @@ def _record_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owne
 
     ``(R - 1) / R sum_r (d_r - mean d)(d_r - mean d)^T`` with ``d_r`` the step of the fit
     without record ``r`` (CR3 of the cluster-robust literature); None when a record cannot be
-    left out (:func:`_leave_one_out_step`) or there are only two (each then carries half of
-    everything: the cluster sandwich has the same one degree of freedom without the
-    leave-one-out fits' instability).
+    left out (:func:`_leave_one_out_step`) or there are only two (:func:`_pair_jackknife`).
     """
     sums = record_scores(scores, owner)
     if sums.shape[0] < 3:
@@ -230,25 +273,108 @@ def _record_jackknife(h: np.ndarray, h_inv: np.ndarray, scores: np.ndarray, owne
     return (len(d) - 1.0) / len(d) * (d.T @ d)
 
 
-def _between_records(h: np.ndarray, h_inv: np.ndarray, info: dict[str, Any], scores: np.ndarray,
-                     owner: np.ndarray) -> tuple[np.ndarray, str] | None:
+def _inflation(rest: np.ndarray, active: np.ndarray, n_shared: int) -> np.ndarray:
     """
-    Record-level covariance in ``z`` and its estimator's name; None for one record.
+    Return the variance inflation of every shared parameter in a leave-one-out normal matrix.
+
+    The diagonal of the inverse of its correlation form: how far the parameter is tangled
+    with the others within what is left, whatever that weighs; ``inf`` for a parameter whose
+    column is gone.  A tiny ridge (:data:`RIDGE`) keeps a singular direction finite and huge.
+    """
+    block = rest[np.ix_(active, active)]
+    scale = np.sqrt(np.diag(block))
+    form = block / np.outer(scale, scale) + RIDGE * np.eye(len(block))
+    inflation = np.full(n_shared, np.inf)
+    shared = active[:n_shared]
+    inflation[shared] = np.diag(np.linalg.inv(form))[:int(shared.sum())]
+    return inflation
+
+
+def _pair_step(h: np.ndarray, normal: np.ndarray, score: np.ndarray,
+               n_shared: int) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return the Gauss-Newton step of the fit of two records without one, and what it loses.
+
+    The shared parameters that the other record alone does not determine (variance inflation
+    beyond :data:`LOST_INFLATION`: one record per direction cannot tell Coulomb friction from
+    a torque offset) are held one at a time, the worst first, until the rest is determined:
+    the partner left free absorbs the sum (the direction's total friction), so the step of the
+    others is the one-record fit's.  No limit on the leverage here (unlike
+    :func:`_leave_one_out_step`): with two records the step to the other record's fit is the
+    only evidence of their spread, however unequal their weights.  Returns the step and the
+    mask of lost shared parameters.
+    """
+    rest = h - normal
+    active = np.diag(rest) > SINGULAR * np.maximum(np.diag(h), 1e-300)
+    lost = _inflation(rest, active, n_shared) > LOST_INFLATION
+    for _ in range(n_shared):
+        inflation = _inflation(rest, active, n_shared)
+        tangled = active[:n_shared] & (inflation > LOST_INFLATION)
+        if not tangled.any():
+            break
+        active[int(np.argmax(np.where(tangled, inflation, -np.inf)))] = False
+    step = np.zeros_like(score)
+    if active[:n_shared].any():
+        step[active] = np.linalg.solve(rest[np.ix_(active, active)], score[active])
+    return step, lost
+
+
+def _pair_jackknife(h: np.ndarray, scores: np.ndarray, owner: np.ndarray, normals: np.ndarray,
+                    n_shared: int) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Delete-one-record jackknife of two records, centred at the fit (CV3); and what it lacks.
+
+    ``1/2 sum_r d_r d_r^T``, ``d_r = theta_(-r) - theta`` (the step of the fit on the other
+    record alone).  Centred at the fit, not at the mean of the two steps: the latter is
+    ``(d_1 - d_2)^2 / 4``, the cluster sandwich of two equal records, blind to their unequal
+    weight, where this one is unbiased for the spread between records whatever the weights
+    (MacKinnon, Nielsen and Webb 2023, CV3).  Returns the covariance in ``z`` and the mask of
+    shared parameters that one record alone does not determine (their figure is not this).
+    """
+    steps, lost = [], np.zeros(n_shared, dtype=bool)
+    for score, normal in zip(record_scores(scores, owner), normals):
+        step, gone = _pair_step(h, normal, score, n_shared)
+        steps.append(step)
+        lost |= gone
+    d = np.array(steps)
+    return 0.5 * (d.T @ d), lost
+
+
+def _between_records(h: np.ndarray, h_inv: np.ndarray, info: dict[str, Any], scores: np.ndarray,
+                     owner: np.ndarray) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """
+    Record-level covariance in ``z``, the cluster sandwich's, and the estimator's name.
 
     The jackknife over records when every record can be left out and the fit carries the
     records' normal matrices, else the cluster sandwich (which understates with few records).
+    With two records the jackknife (:func:`_pair_jackknife`) stands for the parameters one
+    record determines and the cluster sandwich for the rest: the second array is the mask of
+    the shared parameters whose figure is the cluster sandwich's.  None for one record.
     """
-    if len(np.unique(owner)) < 2:
+    count = len(np.unique(owner))
+    if count < 2:
         return None
-    normals = info.get('record_normal_matrices')
-    if normals is not None and len(normals) == len(np.unique(owner)):
-        jackknife = _record_jackknife(h, h_inv, scores, owner, np.asarray(normals, dtype=float),
-                                      len(info['names']))
-        if jackknife is not None:
-            return jackknife, 'jackknife'
+    n_shared = len(info['names'])
     cluster = _record_covariance(scores, owner)
     assert cluster is not None  # several records
-    return h_inv @ cluster @ h_inv, 'cluster'
+    cluster = h_inv @ cluster @ h_inv
+    everything = np.ones(n_shared, dtype=bool)
+    normals = info.get('record_normal_matrices')
+    if normals is None or len(normals) != count:
+        return cluster, everything, 'cluster'
+    normals = np.asarray(normals, dtype=float)
+    if count == 2:
+        pair, lost = _pair_jackknife(h, scores, owner, normals, n_shared)
+        if lost.all():
+            return cluster, everything, 'cluster'
+        variance = np.where(lost, np.diag(cluster)[:n_shared], np.diag(pair)[:n_shared])
+        merged = pair.copy()
+        merged[np.arange(n_shared), np.arange(n_shared)] = variance
+        return merged, lost, 'jackknife'
+    jackknife = _record_jackknife(h, h_inv, scores, owner, normals, n_shared)
+    if jackknife is None:
+        return cluster, everything, 'cluster'
+    return jackknife, ~everything, 'jackknife'
 
 
 def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
@@ -287,11 +413,13 @@ def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
     relative = [np.sum(v / np.maximum(np.diag(model), 1e-300)) for v in variances[1:]]
     correlation = correlation_of((sandwiches[int(np.argmax(relative))] * scale)[:n, :n])
     between = _between_records(h, h_inv, info, scores, owner)
-    records, estimator = None, None
+    records, estimator, by_cluster = None, None, []
     largest = within
     if between is not None:
         records = np.sqrt(np.maximum(np.diag((between[0] * scale)[:n, :n]), 0.0))
-        estimator = between[1]
+        estimator = between[2]
+        if estimator == 'jackknife':
+            by_cluster = [name for name, lost in zip(names, between[1]) if lost]
         largest = np.maximum(within, records ** 2)
     stderr = np.sqrt(np.maximum(largest, 0.0))
     covariance = correlation * np.outer(stderr, stderr)
@@ -299,6 +427,7 @@ def robust_covariance(info: dict[str, Any]) -> dict[str, Any] | None:
             'stderr_model': np.sqrt(np.maximum(np.diag(model), 0.0)),
             'stderr_within': np.sqrt(np.maximum(within, 0.0)), 'stderr_records': records,
             'records': int(len(np.unique(owner))), 'record_estimator': estimator,
+            'record_cluster': by_cluster,
             'method': (METHOD if estimator is None
                        else METHOD_RECORDS.format(RECORD_ESTIMATORS[estimator])),
             'correlation': correlation}
@@ -323,17 +452,64 @@ def correlation_of(covariance: np.ndarray) -> np.ndarray:
     return correlation
 
 
-def between_records(names: Sequence[str], robust: dict[str, Any]) -> dict[str, Any] | None:
+def t_quantile_95(dof: float) -> float:
+    """
+    Return the two-sided 95 % quantile of Student's t with ``dof`` degrees of freedom.
+
+    Tabulated for whole numbers to 30 (:data:`T_975`), the Cornish-Fisher expansion beyond
+    (within 1e-5 there), the normal 1.96 for an infinite ``dof``.  Not scipy: the identify
+    path does not import it.
+    """
+    if not np.isfinite(dof):
+        return Z_975
+    if dof <= len(T_975):
+        if dof < 1 or not float(dof).is_integer():
+            raise ValueError(f'degrees of freedom must be a whole number >= 1, got {dof}')
+        return T_975[int(dof) - 1]
+    z = Z_975
+    return float(z + (z ** 3 + z) / (4 * dof)
+                 + (5 * z ** 5 + 16 * z ** 3 + 3 * z) / (96 * dof ** 2)
+                 + (3 * z ** 7 + 19 * z ** 5 + 17 * z ** 3 - 15 * z) / (384 * dof ** 3))
+
+
+def _intervals(names: Sequence[str], account: dict[str, Any], stderr: Sequence[float],
+               parameters: Any) -> dict[str, Any]:
+    """
+    Return ``t_95`` and ``interval_95`` of :func:`between_records`.
+
+    A parameter whose ``stderr`` the spread between the records sets (``dominant``) rests on
+    ``dof`` degrees of freedom: its 95 % interval is ``+- t_(0.975, dof)`` standard errors
+    (Cameron and Miller 2015, Imbens and Kolesar 2016: t with G - 1 degrees of freedom for G
+    clusters; with two groups Ibragimov and Mueller 2010 show that this t interval keeps its
+    level at 95 % even when the groups' variances differ).  The others' figure is the
+    within-record one, which rests on many blocks: the normal 1.96.
+    """
+    dominant = set(account['dominant'])
+    factor = {name: t_quantile_95(account['dof'] if name in dominant else np.inf)
+              for name in names}
+    out: dict[str, Any] = {'t_95': factor}
+    if parameters is not None:
+        out['interval_95'] = {
+            name: [float(parameters[name] - factor[name] * error),
+                   float(parameters[name] + factor[name] * error)]
+            for name, error in zip(names, stderr) if name in parameters}
+    return out
+
+
+def between_records(names: Sequence[str], robust: dict[str, Any],
+                    parameters: Any = None) -> dict[str, Any] | None:
     """
     Return the JSON account of the record-level figure (``between_records``), None for one.
 
     ``records`` and ``dof`` (records less one: how many independent record-level scores the
     figure rests on), ``estimator`` (``jackknife`` or ``cluster``), ``note`` (why the cluster
-    sandwich, and that two records say little of their spread; absent otherwise),
+    sandwich, which parameters it stands for beside the jackknife of two records, and that two
+    records say little of their spread; absent otherwise),
     ``stderr_within`` (Gauss-Newton and batch means, blind to a difference
-    between records) and ``stderr_records`` (the record-level sandwich) by parameter, and
+    between records) and ``stderr_records`` (the record-level figure) by parameter,
     ``dominant``: the parameters whose record-level figure is the larger, i.e. whose
-    ``stderr`` the spread between the records sets.
+    ``stderr`` the spread between the records sets, and ``t_95`` / ``interval_95``
+    (:func:`_intervals`; the interval with the parameters' values only).
     """
     if robust.get('stderr_records') is None:
         return None
@@ -344,10 +520,13 @@ def between_records(names: Sequence[str], robust: dict[str, Any]) -> dict[str, A
                'stderr_within': within, 'stderr_records': records,
                'dominant': [name for name in names if records[name] > within[name]]}
     notes = [CLUSTER_NOTE] if robust['record_estimator'] == 'cluster' else []
+    if robust.get('record_cluster'):
+        notes.append(PAIR_CLUSTER_NOTE.format(', '.join(robust['record_cluster'])))
     if account['dof'] == 1:
         notes.append(PAIR_NOTE)
     if notes:
         account['note'] = '; '.join(notes)
+    account.update(_intervals(names, account, robust['stderr'], parameters))
     return account
 
 
@@ -401,5 +580,5 @@ def with_robust_stderr(estimate: Any) -> Any:
             'uncertainty_method': robust['method'],
             'robust_covariance': robust['covariance'],
             'robust_correlation': robust['correlation'],
-            'between_records': between_records(names, robust)}
+            'between_records': between_records(names, robust, estimate.parameters)}
     return replace(estimate, stderr=stderr, info=info)
