@@ -26,10 +26,14 @@ Last, ``dcmotor-id identify`` (the Python API, discovery on) on single records o
 project's own lab simulator of this servo
 (:func:`dcmotor_id.simulation.lab_scenarios.servo_opposite_steps`, 0.45 A current noise,
 ``--seeds`` seeds, one record per direction) and with a tenth of that noise: the spread of J
-and b against the truth, and the stated standard errors.  Set-up as in ``bench_real.py``::
+and b against the truth, and the stated standard errors.  And ``dcmotor-id identify`` on each
+real record as a user runs it, by this checkout and (``--before DIR``, e.g. ``git archive
+d373b3c dcmotor_id | tar -x -C /tmp/before``) by the code before the current-noise check
+(:mod:`dcmotor_id.identification.checks.input_noise`), paired per record, both warmed up: J, b
+and the misfit warning.  Set-up as in ``bench_real.py``::
 
-    .venv/bin/python bench/bench_hsm150_singles.py --hsm150 HSM150-data \
-        --out bench/hsm150_singles_results.md
+    .venv/bin/python bench/bench_hsm150_singles.py --hsm150 HSM150-data --before /tmp/before \
+        --before-commit d373b3c --out bench/hsm150_singles_results.md
 """
 
 from __future__ import annotations
@@ -179,26 +183,78 @@ def tool_rows(seeds: int) -> list[dict[str, Any]]:
     return rows
 
 
-def cli_rows(repo: Repository, work: str) -> dict[str, dict[str, float]]:
-    """``dcmotor-id identify`` on each real record as a user runs it: J, b, stated stderr."""
+def run_tree(tree: str, args: list[str], out: str) -> dict[str, Any]:
+    """Run ``python -m dcmotor_id.cli identify ARGS`` from ``tree``: J, b, stderr, warnings."""
     import json
+    import resource
+    import subprocess
+    env = dict(os.environ, PYTHONPATH=tree)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    done = subprocess.run([sys.executable, '-m', 'dcmotor_id.cli', 'identify', *args, '--json',
+                           out, '--quiet'], cwd=tree, env=env, capture_output=True, text=True,
+                          timeout=900)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    if done.returncode != 0:
+        return {'message': (done.stderr.strip().splitlines() or ['(no message)'])[-1],
+                'cpu': cpu}
+    with open(out, encoding='utf-8') as stream:
+        result = json.load(stream)
+    row = {key: result['parameters'][key] for key in ('J', 'b')}
+    row.update({'se_' + key: result['stderr'][key] for key in ('J', 'b')})
+    row.update(cpu=cpu, warnings=result.get('warnings') or [])
+    return row
 
-    from bench_real import run_cli
-    rows = {}
+
+def warm(tree: str) -> None:
+    """Run a tree's warm-up (the set-up's ``python -m dcmotor_id.cli.warmup``)."""
+    import subprocess
+    subprocess.run([sys.executable, '-m', 'dcmotor_id.cli.warmup'], cwd=tree,
+                   env=dict(os.environ, PYTHONPATH=tree), capture_output=True, timeout=900)
+
+
+def cli_rows(repo: Repository, work: str, trees: dict[str, str]) -> dict[str, dict[str, Any]]:
+    """``dcmotor-id identify`` on each real record as a user runs it, by each tree, paired."""
+    for tree in trees.values():
+        warm(tree)
+    rows: dict[str, dict[str, Any]] = {}
     for name in repo.files('Data/Identification'):
         stem = os.path.basename(name)[:-4]
-        out = os.path.join(work, stem + '.json')
-        run = run_cli(['identify', repo.local(name), '--column', 't=data:1', '--column',
-                       'current=data:7', '--column', 'speed=data:4', '--torque-constant',
-                       f'{HSM150_K:.6g}', '--json', out, '--quiet'])
-        if run['rc'] != 0:
-            rows[stem] = {'message': run['message']}
-            continue
-        with open(out, encoding='utf-8') as stream:
-            result = json.load(stream)
-        rows[stem] = {key: result['parameters'][key] for key in ('J', 'b')}
-        rows[stem].update({'se_' + key: result['stderr'][key] for key in ('J', 'b')})
+        args = [repo.local(name), '--column', 't=data:1', '--column', 'current=data:7',
+                '--column', 'speed=data:4', '--torque-constant', f'{HSM150_K:.6g}']
+        rows[stem] = {label: run_tree(tree, args, os.path.join(work, f'{stem}.{label}.json'))
+                      for label, tree in trees.items()}
     return rows
+
+
+def misfit_kind(row: dict[str, Any]) -> str:
+    """Return which misfit warning a run gave: the model's, the current noise's, or none."""
+    if 'message' in row:
+        return 'refused: ' + row['message']
+    for text in row['warnings']:
+        if text.startswith('the speed misfit') and "current's own noise" in text:
+            return "the current's noise ({})".format(text.split('through the model (')[1]
+                                                     .split('x the')[0] + 'x')
+        if text.startswith('the model misfits far above'):
+            return 'the model misfits ({})'.format(text.split('noise: ')[1].split(')')[0])
+    return 'none'
+
+
+def cli_table(cli: dict[str, dict[str, Any]]) -> list[str]:
+    """Return the table of the command line's runs, before and after, per record."""
+    body = []
+    for stem, runs in sorted(cli.items()):
+        cells = [stem]
+        for label in ('before', 'after'):
+            run = runs.get(label)
+            if run is None or 'J' not in run:
+                cells += ['-', misfit_kind(run) if run else '-', '-']
+                continue
+            cells += [f'{100 * (run["J"] / J_REF - 1):+.0f} / {100 * (run["b"] / B_REF - 1):+.0f}',
+                      misfit_kind(run), f'{run["cpu"]:.1f}']
+        body.append(cells)
+    return table(['record', 'before: J / b [%]', 'before: misfit warning', 'before: CPU s',
+                  'after: J / b [%]', 'after: misfit warning', 'after: CPU s'], body)
 
 
 def mc_z(row: dict[str, Any]) -> tuple[float, float]:
@@ -214,14 +270,15 @@ def table(header: list[str], rows: list[list[str]]) -> list[str]:
         '| ' + ' | '.join(row) + ' |' for row in rows]
 
 
-def real_tables(rows: list[dict[str, Any]], cli: dict[str, dict[str, float]]) -> list[str]:
+def real_tables(rows: list[dict[str, Any]], cli: dict[str, dict[str, Any]]) -> list[str]:
     """Return the per-record tables of the real records."""
     noise = [[row['name'], f'{row["sigma_a"]:.3f}', f'{row["sigma_pct"]:.0f}',
               f'{row["acf1"]:+.2f}', f'{row["white"]:.2f}', f'{row["slow_current_mnm"]:.2f}',
               f'{row["slow_need_mnm"]:.2f}', f'{row["slow_corr"]:+.2f}'] for row in rows]
     fits = []
     for row in rows:
-        fit, mc, tenth, tool = row['fit'], row['mc'], row['mc_tenth'], cli.get(row['name'], {})
+        fit, mc, tenth = row['fit'], row['mc'], row['mc_tenth']
+        tool = cli.get(row['name'], {}).get('after', {})
         z = (f'{(tool["J"] - J_REF) / tool["se_J"]:+.1f} / '
              f'{(tool["b"] - B_REF) / tool["se_b"]:+.1f}'
              if 'J' in tool else tool.get('message', '-'))
@@ -258,7 +315,8 @@ def tool_table(rows: list[dict[str, Any]]) -> list[str]:
                   'outside 15 % [%]', 'CPU s'], body)
 
 
-def summary(rows: list[dict[str, Any]], tool: list[dict[str, Any]]) -> list[str]:
+def summary(rows: list[dict[str, Any]], tool: list[dict[str, Any]],
+            cli: dict[str, dict[str, Any]]) -> list[str]:
     """Return the findings in a few lines."""
     outside = [row['name'] for row in rows
                if max(abs(row['fit']['J'] / J_REF - 1), abs(row['fit']['b'] / B_REF - 1)) > 0.15]
@@ -288,7 +346,27 @@ def summary(rows: list[dict[str, Any]], tool: list[dict[str, Any]]) -> list[str]
         '- The tool on its lab simulator of this servo (single records, 0.45 A noise): J '
         + ', '.join(f'{row["J"].mean():+.0f} ± {row["J"].std():.0f} %' for row in full)
         + ', b ' + ', '.join(f'{row["b"].mean():+.0f} ± {row["b"].std():.0f} %' for row in full)
-        + ' (forward, back).']
+        + ' (forward, back).',
+        '- The command line on the 12 real records, misfit warnings: '
+        + '; '.join(f'{label}: ' + ', '.join(
+            f'{kind} {count}' for kind, count in sorted(
+                {kind: [misfit_kind(runs[label]).split(' (')[0] for runs in cli.values()
+                        if label in runs].count(kind)
+                 for kind in {misfit_kind(runs[label]).split(' (')[0]
+                              for runs in cli.values() if label in runs}}.items()))
+            for label in ('before', 'after') if any(label in runs for runs in cli.values()))
+        + '; J and b are the same (the check changes the warning, not the fit).']
+
+
+def head() -> str:
+    """Return the short commit of this checkout (and '+' when its bench or package differ)."""
+    import subprocess
+    root = os.path.dirname(HERE)
+    commit = subprocess.run(['git', '-C', root, 'rev-parse', '--short', 'HEAD'],
+                            capture_output=True, text=True).stdout.strip() or 'unknown'
+    dirty = subprocess.run(['git', '-C', root, 'status', '--porcelain', '--', 'dcmotor_id'],
+                           capture_output=True, text=True).stdout.strip()
+    return commit + ('+' if dirty else '')
 
 
 def main() -> None:
@@ -297,6 +375,9 @@ def main() -> None:
     parser.add_argument('--hsm150', required=True, help='HSM150-data clone (work tree or bare)')
     parser.add_argument('--runs', type=int, default=60, help='Monte Carlo draws per record')
     parser.add_argument('--seeds', type=int, default=20, help='simulator seeds per row')
+    parser.add_argument('--before', metavar='DIR',
+                        help='a checkout of the code before the change, run beside this one')
+    parser.add_argument('--before-commit', default='', help='the commit BEFORE holds')
     parser.add_argument('--out', help='also write the report here')
     args = parser.parse_args()
     load_start = os.getloadavg()
@@ -304,20 +385,26 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as work:
         repo = Repository(args.hsm150, HSM150_COMMIT, os.path.join(work, 'HSM150-data'))
         rows = real_rows(repo, args.runs)
-        cli = cli_rows(repo, work)
+        trees = {'before': os.path.abspath(args.before)} if args.before else {}
+        cli = cli_rows(repo, work, {**trees, 'after': os.path.dirname(HERE)})
         tool = tool_rows(args.seeds)
     import scipy
     lines = ["# HSM150 single records: the current's noise as a data limit (issue 19)", '',
              f'Command: `.venv/bin/python bench/{os.path.basename(__file__)} --hsm150 '
-             f'HSM150-data --runs {args.runs} --seeds {args.seeds}`  ',
+             f'HSM150-data --runs {args.runs} --seeds {args.seeds}'
+             + (' --before BEFORE' if args.before else '') + '`  ',
+             f'Code: commit {head()} (after)'
+             + (f'; BEFORE: commit {args.before_commit}' if args.before_commit else '') + '  ',
              f'Data: github malik-robert/HSM150-data at {repo.revision()}, '
              '`Data/Identification/idf_{pos,neg}_*.mat` (current column 7, speed column 4)  ',
              f'Machine: {os.cpu_count()} CPUs, Python {platform.python_version()}, numpy '
              f'{np.__version__}, scipy {scipy.__version__}; load average (1, 5, 15 min) at the '
              f'start {", ".join(f"{v:.2f}" for v in load_start)}; '
              f'{time.perf_counter() - start:.0f} s wall clock', '', '## Findings', '',
-             *summary(rows, tool), '', '## The real records', '',
-             *real_tables(rows, cli), '', '## The tool on its lab simulator of this servo', '',
+             *summary(rows, tool, cli), '', '## The real records', '',
+             *real_tables(rows, cli), '', '### The command line on each record, before and '
+             'after the current-noise check (paired, both trees warmed up)', '',
+             *cli_table(cli), '', '## The tool on its lab simulator of this servo', '',
              *tool_table(tool), '']
     report = '\n'.join(lines)
     print(report)
