@@ -8,9 +8,10 @@ are, so its simulated speed wanders by what the model makes of the scatter: in m
 mode (torque ``K i``) white current noise of ``s`` gives, through ``J dw/dt = K i - b w``
 sampled at ``dt``, a speed of RMS ``g K s / sqrt(1 - a^2)`` with ``a = exp(-b dt / J)`` and
 ``g = (1 - a) / b``.  When the residual is no more than :data:`INPUT_NOISE_FACTOR` times that,
-the misfit is this noise, not a missing effect: the result says so, and what a user can do
-about it, instead of blaming the model (:func:`input_noise_warning`).  On the HSM150 servo's
-torque-step records the current samples scatter by 0.4-0.5 A (40-50 % of the current) and the
+the misfit is this noise (an effect smaller than it cannot be told from it): the result says
+so, and what a user can do about it, instead of blaming the model
+(:func:`input_noise_warning`).  On the HSM150 servo's
+torque-step records the current samples scatter by 0.43-0.54 A (39-53 % of the current) and the
 residual is 0.7-1.6 times this figure (``bench/bench_hsm150_singles.py``).
 """
 
