@@ -628,7 +628,7 @@ def _result_warnings(estimate, records, terms, outputs, torque_constant, quasi, 
     rms = {channel: float(np.sqrt(np.mean(np.concatenate(
         [out[channel] - getattr(rec, channel) for out, rec in zip(simulated, records)]) ** 2)))
         for channel in outputs}
-    misfit = misfit_warning(estimate, records, outputs, rms)
+    misfit = misfit_warning(estimate, records, outputs, rms, torque_constant)
     if misfit:
         warnings.append(misfit)
     return warnings

@@ -15,7 +15,9 @@ The checks of the data and of the answer, in the order a record meets them.
    checks the fit against model-free evidence and tries a second start when it landed in a
    wrong basin (the JSON's ``start_check``).
 3. **After the final fit**: :mod:`~dcmotor_id.identification.checks.identifiability` (bounds,
-   correlations, initial states, misfit against the noise, what is not identifiable),
+   correlations, initial states, misfit against the noise, what is not identifiable; a speed
+   misfit that the measured current's own noise explains is said so by
+   :mod:`~dcmotor_id.identification.checks.input_noise`),
    :mod:`~dcmotor_id.identification.checks.plausibility` (the answer against the scales the
    data imply; refuses what must not be reported) and
    :mod:`~dcmotor_id.identification.checks.units` (a channel off by 1000, named by the

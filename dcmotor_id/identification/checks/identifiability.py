@@ -18,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from dcmotor_id.core.model import UNITS
+from dcmotor_id.identification.checks.input_noise import input_noise_warning
 from dcmotor_id.identification.effects.base import torque_spread
 from dcmotor_id.signals.filters import low_pass, noise_std
 
@@ -266,8 +267,15 @@ def initial_state_warnings(estimate: Any, records: Sequence[Any],
 
 
 def misfit_warning(estimate: Any, records: Sequence[Any], outputs: Sequence[str],
-                   residual_rms: dict[str, float]) -> str | None:
-    """Return a warning when the model misfits far above the sensor noise, else None."""
+                   residual_rms: dict[str, float],
+                   torque_constant: float | None = None) -> str | None:
+    """
+    Return a warning when the model misfits far above the sensor noise, else None.
+
+    In mechanical mode (``torque_constant`` given) a speed misfit that the measured current's
+    own noise explains gets the warning of
+    :func:`~dcmotor_id.identification.checks.input_noise.input_noise_warning` instead.
+    """
     ratios = {}
     for channel in outputs:
         noise = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2 for rec in records]))
@@ -276,6 +284,11 @@ def misfit_warning(estimate: Any, records: Sequence[Any], outputs: Sequence[str]
     bad = {channel: ratio for channel, ratio in ratios.items() if ratio > MISFIT_FACTOR}
     if not bad:
         return None
+    if list(bad) == ['speed'] and tuple(outputs) == ('speed',):
+        explained = input_noise_warning(estimate.parameters, records, torque_constant,
+                                        residual_rms['speed'], bad['speed'])
+        if explained:
+            return explained
     listing = ', '.join(f'{channel} {ratio:.3g}x' for channel, ratio in bad.items())
     return (f'the model misfits far above the sensor noise (residual / noise: {listing}): the '
             "standard errors cover the noise and the residual's correlation, not the model "
