@@ -118,10 +118,13 @@ def with_chosen_error_model(run: Callable[[], IdentificationResult],
     the white result).  Returns the result closer to the evidence, its ``position_error``
     filled in (and a warning when both disagree).  ``progress`` (the runs') names each run
     after the first on its status line (:meth:`~dcmotor_id.core.progress.Progress.set_run`).
+    The runs fit the further starts of the base once
+    (:func:`~dcmotor_id.identification.multistart.once_per_identification`).
     """
     runs = _Runs(run, progress)
     try:
-        return _chosen(runs)
+        with once_per_identification():
+            return _chosen(runs)
     finally:
         runs.name('')  # a later identification on the same Progress starts unnamed
 
