@@ -154,7 +154,7 @@ def _chosen(runs: _Runs) -> IdentificationResult:
 
 
 def _evidence(result: IdentificationResult) -> dict[str, float] | None:
-    """The regression on a run's records: the run's own (``result.evidence``) when it has it."""
+    """Return the regression on a run's records: the run's own (``result.evidence``) if any."""
     return known_evidence(result.input_records, result.torque_constant,
                           FROM_RECORDS if result.evidence is None else result.evidence)
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from dcmotor_id.core.progress import Progress
-from dcmotor_id.identification.estimators.refined import RefinedEstimator
-from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification import multistart
 from dcmotor_id.identification.checks import start as start_check
+from dcmotor_id.identification.estimators.refined import RefinedEstimator
+from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.multistart import (ambiguity_warning, ambiguous_starts,
                                                   different_basins, further_starts, MAX_STARTS,
                                                   NOT_CHOSEN_EARLIER, once_per_identification,
@@ -143,8 +143,8 @@ def _counting_fits(monkeypatch):
     return fitted
 
 
-def test_a_later_run_of_one_identification_fits_only_the_start_the_first_chose(collapsed,
-                                                                              monkeypatch):
+def test_a_later_run_of_one_identification_fits_only_the_start_the_first_chose(
+        collapsed, monkeypatch):
     """
     The runs of one identification share the further starts (the position's two runs).
 

@@ -608,6 +608,7 @@ class RefinedEstimator:
     name = 'refined'
     #: Effect terms are supported (the discovery loop uses this estimator).
     supports_terms = True
+
     def __init__(self, max_nfev: int = 100, reweight_passes: int = 2,
                  initial: Mapping[str, float] | None = None, quasi_static: bool = False,
                  initial_state: str = 'estimate',
