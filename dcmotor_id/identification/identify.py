@@ -314,7 +314,7 @@ class _Run:
 
     @cached_property
     def evidence(self) -> dict[str, float] | None:
-        """The model-free regression on the records, computed once and shared by the checks."""
+        """Return the model-free regression on the records (computed once, for every check)."""
         return regression_evidence(self.records, self.torque_constant)
 
     @property
