@@ -37,6 +37,7 @@ The names of those modules that callers import from here stay importable from he
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
@@ -55,6 +56,7 @@ from dcmotor_id.identification.checks.identifiability import (at_bound, correlat
                                                               ONE_DIRECTION_CONFOUNDED,
                                                               one_direction_note, useful)
 from dcmotor_id.identification.checks.plausibility import check_plausibility
+from dcmotor_id.identification.checks.start import regression_evidence
 from dcmotor_id.identification.checks.units import sign_problem, unit_warnings
 from dcmotor_id.identification.criterion import resolve_criterion, with_position_states
 from dcmotor_id.identification.current_limited import (electrical_part, JACKKNIFE_GROUPS,
@@ -256,7 +258,7 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
     _check_base_start(run)
     if run.criterion != 'speed':
         check_base(run.estimate.parameters, run.records, run.torque_constant,
-                   resume=lambda: _after_the_start_check(run))
+                   resume=lambda: _after_the_start_check(run), evidence=run.evidence)
     return _after_the_start_check(run)
 
 
@@ -321,6 +323,11 @@ class _Run:
     def mechanical_only(self) -> bool:
         """Whether the torque constant is given (J, b and Mc only)."""
         return self.torque_constant is not None
+
+    @cached_property
+    def evidence(self) -> dict[str, float] | None:
+        """Return the model-free regression on the records (computed once, for every check)."""
+        return regression_evidence(self.records, self.torque_constant)
 
     @property
     def checkable(self) -> bool:
@@ -454,13 +461,14 @@ def _check_base_start(run: _Run) -> None:
     if not run.checkable:
         return
     run.estimate, run.starts = several_starts(run.records, run.torque_constant, run.quasi,
-                                              run.progress, run.estimate, run.criterion)
+                                              run.progress, run.estimate, run.criterion,
+                                              run.evidence)
     if run.starts is not None and run.starts['chosen'] != 'default':
         run.errors = simulation_errors(run.estimate, run.records, run.torque_constant,
                                        quasi_static=run.quasi)
     run.found, run.estimate, run.discovery_info, check = check_start(
         run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
-        run.progress, run.estimate, None, None, run.criterion)
+        run.progress, run.estimate, None, None, run.criterion, run.evidence)
     if check['chosen'] == 'first start':
         run.start_check = None if not check['doubts'] else check
     else:
@@ -521,7 +529,8 @@ def _check_final_start(run: _Run) -> None:
         found = run.found
         run.found, run.estimate, run.discovery_info, run.start_check = check_start(
             run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
-            run.progress, run.estimate, run.found, run.discovery_info, run.criterion)
+            run.progress, run.estimate, run.found, run.discovery_info, run.criterion,
+            run.evidence)
         if run.found is not found:  # the second start's own loop
             run.warnings += _discovery_time_warnings(run.found, run.discovery_info,
                                                      run.progress)
@@ -709,4 +718,5 @@ def _result(run: _Run) -> IdentificationResult:
         discovery_result=found,
         criterion=run.criterion,
         between_records=final.info.get('between_records'),
+        evidence=run.evidence if run.criterion != 'speed' else None,  # the position error's
     )

@@ -19,20 +19,29 @@ worth) and accounts for every start in the JSON (``start_check.starts``).  Two s
 score alike (within :data:`SIMILAR_BIC`) in different basins make the answer ambiguous:
 :func:`ambiguity_warning` says so.  The further starts are base fits only (not discovery
 loops), at most :data:`MAX_STARTS`, and take at most :data:`BUDGET_SHARE` of the time left.
+
+They are fitted once per identification.  A fit on the position may run the identification
+twice (:mod:`~dcmotor_id.identification.position_error`: the position error as white noise,
+then as a drift), with the same records and the same regression, hence the same further
+starts.  Within :func:`once_per_identification` the first run that needs them fits them all;
+a later run fits again only the start the first one chose (none when that was its default:
+the further starts led nowhere better) and those it found ambiguous, under its own error
+model, and keeps the best of them and its own default fit.  The others are accounted as
+``skipped`` (:data:`NOT_CHOSEN_EARLIER`).
 """
 
 from __future__ import annotations
 
-from typing import Any, Sequence, TYPE_CHECKING
+from contextlib import contextmanager
+from contextvars import ContextVar
+from typing import Any, Iterator, Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
-from dcmotor_id.identification.checks.identifiability import MISFIT_FACTOR
-from dcmotor_id.identification.checks.start import (bic_scores, far_from_evidence,
-                                                    misfit_ratio, regression_evidence,
-                                                    regression_start)
+from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, known_evidence,
+                                                    regression_start, start_doubts)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.fitting import check_physical, record_names
 
@@ -60,20 +69,6 @@ BASIN_SHARE = 0.25
 BASIN_STDERR = 3.0
 
 
-def start_reasons(estimate: Estimate, records: Sequence[Record], model: Any,
-                  evidence: dict[str, float] | None) -> list[str]:
-    """
-    Say why a base fit deserves further starts (empty: it does not).
-
-    The misfit far above the sensor noise (beyond
-    :data:`~dcmotor_id.identification.checks.identifiability.MISFIT_FACTOR`), or J or b far
-    from the model-free regression.
-    """
-    ratio = misfit_ratio(estimate, records, model)
-    reasons = [f'the misfit is {ratio:.3g}x the sensor noise'] if ratio > MISFIT_FACTOR else []
-    return reasons + far_from_evidence(estimate.parameters, evidence)
-
-
 def further_starts(evidence: dict[str, float] | None, fitted: dict[str, float],
                    names: Sequence[str]) -> list[tuple[str, dict[str, float]]]:
     """
@@ -90,8 +85,27 @@ def further_starts(evidence: dict[str, float] | None, fitted: dict[str, float],
     return starts[:MAX_STARTS]
 
 
+#: What a later run of one identification says of a further start it does not fit again.
+NOT_CHOSEN_EARLIER = 'not chosen in an earlier run of this identification (fitted there)'
+
+# The further starts' account of the identification in progress, shared by its runs
+# (:func:`once_per_identification`); None outside such a scope.
+_EARLIER: ContextVar[dict[str, Any] | None] = ContextVar('further_starts', default=None)
+
+
+@contextmanager
+def once_per_identification() -> Iterator[None]:
+    """Within this scope, the runs of one identification fit the further starts once."""
+    token = _EARLIER.set({})
+    try:
+        yield
+    finally:
+        _EARLIER.reset(token)
+
+
 def several_starts(records: Sequence[Record], torque_constant: float | None, quasi: bool,
-                   progress: Progress, estimate: Estimate, criterion: str = 'speed'
+                   progress: Progress, estimate: Estimate, criterion: str = 'speed',
+                   evidence: dict[str, float] | None | str = FROM_RECORDS
                    ) -> tuple[Estimate, dict[str, Any] | None]:
     """
     Fit the base model from further starts when the default's fit is doubted; keep the best.
@@ -101,13 +115,17 @@ def several_starts(records: Sequence[Record], torque_constant: float | None, qua
     ``b``, its ``bic``, or why it ``failed`` or was ``skipped``, and ``chosen``; the default's
     entry has the ``effective_samples``), ``chosen`` (the name), ``ambiguous``
     (:func:`ambiguous_starts`) and ``cpu_s`` (the cost of the further starts on the budget's
-    clock).
+    clock).  ``evidence``: the model-free regression on the records when the caller has it
+    (:func:`~dcmotor_id.identification.checks.start.known_evidence`).  Within
+    :func:`once_per_identification`, a later run fits only the start an earlier one chose.
     """
     model = OutputErrorModel(records, torque_constant, (), quasi, criterion)
-    evidence = regression_evidence(records, torque_constant)
-    reasons = start_reasons(estimate, records, model, evidence)
+    evidence = known_evidence(records, torque_constant, evidence)
+    reasons = start_doubts(estimate, records, model, evidence).further_starts
     if not reasons:
         return estimate, None
+    shared = _EARLIER.get()
+    earlier = None if shared is None else shared.get('account')
     began = progress.now()
     entries: list[dict[str, Any]] = [{'name': 'default',
                                       'start': dict(estimate.info.get('start', {}))}]
@@ -116,25 +134,55 @@ def several_starts(records: Sequence[Record], torque_constant: float | None, qua
     share = None if deadline is None else began + BUDGET_SHARE * max(deadline - began, 0.0)
     try:
         progress.deadline = share
-        for name, start in further_starts(evidence, estimate.parameters, model.base_names):
-            entries.append({'name': name, 'start': start})
-            if _same_start(start, entries[0]['start']):
-                entries[-1]['skipped'] = 'the default start (not fitted again)'
-                fits.append(None)
-                continue
-            fits.append(_fit_from(records, torque_constant, quasi, progress, start, criterion,
-                                  entries[-1]))
-            if fits[-1] is None and entries[-1].get('failed', '').startswith('time budget'):
-                break
-            if name == 'regression' and fits[-1] is not None and _same_point(fits[-1], estimate):
-                break  # the model-free start leads to the default's fit: one basin, no spread
+        _fit_starts(records, torque_constant, quasi, progress, criterion,
+                    _starts_of(evidence, estimate, model, earlier), entries, fits)
     finally:
         progress.deadline = deadline
     best = _score(fits, entries, records, model, estimate)
     account = {'reasons': reasons, 'starts': entries, 'chosen': entries[best]['name'],
                'ambiguous': ambiguous_starts(fits, entries, best),
                'cpu_s': float(progress.now() - began)}
+    if shared is not None and earlier is None:
+        shared['account'] = account
     return fits[best] or estimate, account
+
+
+def _starts_of(evidence: dict[str, float] | None, estimate: Estimate, model: OutputErrorModel,
+               earlier: dict[str, Any] | None) -> list[tuple[str, dict[str, float], bool]]:
+    """
+    Return the further starts ``(name, values, fitted)``; not fitted: an earlier run did.
+
+    Without an earlier run's account, :func:`further_starts`, all fitted; with it, that run's
+    further starts, fitted (from the same values) only the one it chose and those it found
+    ambiguous (:func:`ambiguous_starts`), whose warning this run then gives as well.
+    """
+    if earlier is None:
+        return [(name, start, True) for name, start in
+                further_starts(evidence, estimate.parameters, model.base_names)]
+    return [(entry['name'], dict(entry['start']),
+             bool(entry['chosen']) or entry['name'] in earlier['ambiguous'])
+            for entry in earlier['starts'][1:]]
+
+
+def _fit_starts(records, torque_constant, quasi, progress, criterion, starts, entries, fits):
+    """Fit the base model from each start in turn (appending to ``entries`` and ``fits``)."""
+    estimate = fits[0]
+    for name, start, fitted in starts:
+        entries.append({'name': name, 'start': start})
+        if not fitted:
+            entries[-1]['skipped'] = NOT_CHOSEN_EARLIER
+            fits.append(None)
+            continue
+        if _same_start(start, entries[0]['start']):
+            entries[-1]['skipped'] = 'the default start (not fitted again)'
+            fits.append(None)
+            continue
+        fits.append(_fit_from(records, torque_constant, quasi, progress, start, criterion,
+                              entries[-1]))
+        if fits[-1] is None and entries[-1].get('failed', '').startswith('time budget'):
+            break
+        if name == 'regression' and fits[-1] is not None and _same_point(fits[-1], estimate):
+            break  # the model-free start leads to the default's fit: one basin, no spread
 
 
 def _same_start(start: dict[str, float], default: dict[str, float]) -> bool:

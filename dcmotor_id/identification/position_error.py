@@ -24,8 +24,9 @@ import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError, FitError, NotIdentifiableError
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
-from dcmotor_id.identification.checks.start import regression_evidence
+from dcmotor_id.identification.checks.start import FROM_RECORDS, known_evidence
 from dcmotor_id.identification.criterion import position_error_model
+from dcmotor_id.identification.multistart import once_per_identification
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -85,7 +86,8 @@ _CHECK_BASE: ContextVar[bool] = ContextVar('check_base', default=False)
 
 def check_base(parameters: dict[str, float], records: Sequence[Record],
                torque_constant: float | None,
-               resume: Callable[[], IdentificationResult] | None = None) -> None:
+               resume: Callable[[], IdentificationResult] | None = None,
+               evidence: dict[str, float] | None | str = FROM_RECORDS) -> None:
     """
     Leave a white run whose base fit (after the start check) contradicts the regression.
 
@@ -93,10 +95,12 @@ def check_base(parameters: dict[str, float], records: Sequence[Record],
     only; elsewhere it does nothing.  The AR(1) run is then tried first, and the white run
     is finished only when that one disagrees too: by ``resume`` (the rest of the run from
     this point, its state kept) when given, else by running it again from the start.
+    ``evidence``: the regression on ``records`` when the run has it
+    (:func:`~dcmotor_id.identification.checks.start.known_evidence`).
     """
     if not _CHECK_BASE.get():
         return
-    distance = disagreement(parameters, regression_evidence(records, torque_constant))
+    distance = disagreement(parameters, known_evidence(records, torque_constant, evidence))
     if distance > np.log(AGREEMENT_FACTOR):
         raise WhiteBaseDisagrees(distance, {name: float(parameters[name]) for name in COMPARED
                                             if name in parameters}, resume)
@@ -114,10 +118,13 @@ def with_chosen_error_model(run: Callable[[], IdentificationResult],
     the white result).  Returns the result closer to the evidence, its ``position_error``
     filled in (and a warning when both disagree).  ``progress`` (the runs') names each run
     after the first on its status line (:meth:`~dcmotor_id.core.progress.Progress.set_run`).
+    The runs fit the further starts of the base once
+    (:func:`~dcmotor_id.identification.multistart.once_per_identification`).
     """
     runs = _Runs(run, progress)
     try:
-        return _chosen(runs)
+        with once_per_identification():
+            return _chosen(runs)
     finally:
         runs.name('')  # a later identification on the same Progress starts unnamed
 
@@ -130,7 +137,7 @@ def _chosen(runs: _Runs) -> IdentificationResult:
     if isinstance(white, DcMotorIdError):
         return replace(runs.adaptive(), position_error={'model': 'adaptive',
                                                         'white': f'failed: {white}'})
-    evidence = regression_evidence(white.input_records, white.torque_constant)
+    evidence = _evidence(white)
     distance = disagreement(white.parameters, evidence)
     if distance <= np.log(AGREEMENT_FACTOR):
         return replace(white, position_error={
@@ -144,6 +151,12 @@ def _chosen(runs: _Runs) -> IdentificationResult:
             'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors({'white': distance}),
             'adaptive': f'failed: {error}'})
     return _closer(white, adaptive, evidence)
+
+
+def _evidence(result: IdentificationResult) -> dict[str, float] | None:
+    """Return the regression on a run's records: the run's own (``result.evidence``) if any."""
+    return known_evidence(result.input_records, result.torque_constant,
+                          FROM_RECORDS if result.evidence is None else result.evidence)
 
 
 class _Runs:
@@ -202,7 +215,7 @@ def _adaptive_first(runs: _Runs, left: WhiteBaseDisagrees) -> IdentificationResu
         adaptive = None
     evidence = None
     if adaptive is not None:
-        evidence = regression_evidence(adaptive.input_records, adaptive.torque_constant)
+        evidence = _evidence(adaptive)
         distance = disagreement(adaptive.parameters, evidence)
         if distance <= np.log(AGREEMENT_FACTOR):
             return replace(adaptive, position_error={

@@ -117,6 +117,12 @@ class IdentificationResult:
         ``disagreement`` (each model's largest factor from the evidence; None: a parameter
         at zero), ``alternative`` (the other model's J, b, Mc when both ran); None when the
         position is not compared.
+    evidence : dict or None
+        The model-free regression on the records
+        (:func:`~dcmotor_id.identification.checks.start.regression_evidence`) as the run
+        computed it for its checks (once), for the position error's choice; not in the JSON
+        (its values are in ``start_check`` and ``position_error``).  None when the run did not
+        compute it.
     between_records : dict or None
         With several records, the record-level (cluster) standard errors that cover a
         difference between the records
@@ -162,6 +168,7 @@ class IdentificationResult:
     structure_uncertainty: dict[str, Any] | None = None
     position_error: dict[str, Any] | None = None
     between_records: dict[str, Any] | None = None
+    evidence: dict[str, float] | None = field(repr=False, default=None)
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""

@@ -21,9 +21,9 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
-from dcmotor_id.identification.checks.start import (bic_scores, offset_supported,
-                                                    regression_evidence, regression_start,
-                                                    suspect)
+from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, known_evidence,
+                                                    offset_supported, regression_start,
+                                                    start_doubts)
 from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.fitting import check_physical, record_names, run_discovery
@@ -39,7 +39,7 @@ def check_start(
         records: Sequence[Record], torque_constant: float | None, quasi: bool, discover: bool,
         vocabulary: Sequence[type[Effect]], progress: Progress, estimate: Estimate,
         found: DiscoveryResult | None, discovery_info: dict[str, Any] | None,
-        criterion: str = 'speed'
+        criterion: str = 'speed', evidence: dict[str, float] | None | str = FROM_RECORDS
 ) -> tuple[DiscoveryResult | None, Estimate, dict[str, Any] | None, dict[str, Any]]:
     """
     Check the fit against model-free evidence; when doubted, try a second start, keep the best.
@@ -48,13 +48,16 @@ def check_start(
     replaced by the second start's when it explains all of the data better (lower BIC).
     ``start_check`` is the JSON account (:mod:`dcmotor_id.identification.checks.start`).
     Every fit and score of the check is on the run's ``criterion`` (the channels compared).
+    ``evidence``: the model-free regression on ``records``
+    (:func:`~dcmotor_id.identification.checks.start.regression_evidence`) when the caller
+    has it (computed once per run); computed here by default.
     """
-    evidence = regression_evidence(records, torque_constant)
+    evidence = known_evidence(records, torque_constant, evidence)
     first = found.estimate if found is not None else estimate
     first_records = found.records if found is not None else list(records)
     first_terms = found.terms if found is not None else ()
     model = OutputErrorModel(first_records, torque_constant, first_terms, quasi, criterion)
-    doubts = suspect(first, first_records, model, evidence)
+    doubts = start_doubts(first, first_records, model, evidence).second_start
     check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
     if not doubts:
         return found, estimate, discovery_info, check

@@ -6,10 +6,13 @@ import numpy as np
 import pytest
 
 from dcmotor_id.core.progress import Progress
+from dcmotor_id.identification import multistart
+from dcmotor_id.identification.checks import start as start_check
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.multistart import (ambiguity_warning, ambiguous_starts,
                                                   different_basins, further_starts, MAX_STARTS,
+                                                  NOT_CHOSEN_EARLIER, once_per_identification,
                                                   several_starts, SIMILAR_BIC, with_starts)
 from dcmotor_id.simulation.lab_scenarios import (servo_collapsed_start, servo_opposite_steps,
                                                  servo_torque_steps)
@@ -125,3 +128,92 @@ def test_different_basins_with_similar_scores_are_ambiguous():
     assert check['doubts'] == ['x'] and check['starts'] is entries
     assert with_starts(None, None) is None
     assert np.isclose(with_starts(None, account)['starts_cpu_s'], 0.1)
+
+
+def _counting_fits(monkeypatch):
+    """Count the further starts fitted (their names), by wrapping ``multistart._fit_from``."""
+    fitted = []
+    fit_from = multistart._fit_from
+
+    def counted(*arguments):
+        fitted.append(arguments[-1]['name'])
+        return fit_from(*arguments)
+
+    monkeypatch.setattr(multistart, '_fit_from', counted)
+    return fitted
+
+
+def test_a_later_run_of_one_identification_fits_only_the_start_the_first_chose(
+        collapsed, monkeypatch):
+    """
+    The runs of one identification share the further starts (the position's two runs).
+
+    The first run fits them all; a later one, with the same records and regression, fits
+    only the start the first chose and reaches the same base; outside the scope every run
+    fits them all again.
+    """
+    scenario, records, base = collapsed
+    fitted = _counting_fits(monkeypatch)
+    with once_per_identification():
+        first_best, first = several_starts(records, scenario.torque_constant, False,
+                                           Progress(), base)
+        assert len(fitted) >= 2 and first['chosen'] != 'default', first
+        fitted.clear()
+        best, later = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    assert fitted == [first['chosen']]
+    assert later['chosen'] == first['chosen']
+    assert best.parameters == first_best.parameters
+    assert [entry['name'] for entry in later['starts']] == \
+        [entry['name'] for entry in first['starts']]
+    skipped = [entry for entry in later['starts'][1:] if entry['name'] != first['chosen']]
+    assert skipped and all(entry['skipped'] == NOT_CHOSEN_EARLIER for entry in skipped)
+    fitted.clear()
+    several_starts(records, scenario.torque_constant, False, Progress(), base)
+    assert len(fitted) >= 2  # a new identification
+
+
+def test_a_later_run_whose_first_kept_its_default_fits_no_further_start(monkeypatch):
+    """The first run's further starts led nowhere better: a later run does not fit them."""
+    scenario = servo_opposite_steps(seed=0)
+    records = prepare_records(scenario.records, torque_constant=scenario.torque_constant)
+    base = RefinedEstimator().fit(records, torque_constant=scenario.torque_constant)
+    fitted = _counting_fits(monkeypatch)
+    with once_per_identification():
+        several_starts(records, scenario.torque_constant, False, Progress(), base)
+        assert fitted == ['regression']
+        best, later = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    assert fitted == ['regression'] and best is base
+    assert later['chosen'] == 'default' and later['reasons'], later
+    assert later['starts'][1] == {'name': 'regression', 'start': later['starts'][1]['start'],
+                                  'skipped': NOT_CHOSEN_EARLIER, 'chosen': False}
+
+
+def test_the_start_doubts_state_both_tests_in_one_place(collapsed, monkeypatch):
+    """
+    Further starts on the misfit or on J or b far from the regression; a second start on both.
+
+    A second start (its own discovery loop) needs the misfit and, besides, initial states
+    moved far or J or b far from the regression.
+    """
+    scenario, records, base = collapsed
+    model = multistart.OutputErrorModel(records, scenario.torque_constant, ())
+    parameters = base.parameters
+    near = {'J': parameters['J'], 'b': parameters['b'], 'Mc': 0.0, 'offset': 0.0}
+    far = {**near, 'J': 10.0 * parameters['J']}
+
+    def doubts(ratio, moved, evidence):
+        monkeypatch.setattr(start_check, 'misfit_ratio', lambda *_: ratio)
+        monkeypatch.setattr(start_check, 'initial_state_warnings', lambda *_: moved)
+        return start_check.start_doubts(base, records, model, evidence)
+
+    high = 2.0 * start_check.MISFIT_FACTOR
+    assert doubts(1.0, [], near) == start_check.StartDoubts([], [])
+    assert doubts(1.0, ['moved'], far).further_starts[0].startswith('J = ')
+    assert doubts(1.0, ['moved'], far).second_start == []
+    misfit_only = doubts(high, [], near)
+    assert misfit_only.further_starts[0].startswith('the misfit is') and \
+        misfit_only.second_start == []
+    moved = doubts(high, ['moved'], near).second_start
+    assert moved[0].startswith('the misfit is') and 'initial state' in moved[1]
+    both = doubts(high, [], far)
+    assert both.further_starts == both.second_start and len(both.second_start) == 2

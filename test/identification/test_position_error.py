@@ -285,3 +285,36 @@ def test_the_elapsed_time_of_two_runs_is_the_later_one_s(agreeing):
     bent = replace(agreeing, parameters={**agreeing.parameters, 'Mc': 0.0}, elapsed_s=2.0)
     results = iter([bent, replace(agreeing, elapsed_s=5.0)])
     assert with_chosen_error_model(lambda: next(results)).elapsed_s == 5.0
+
+
+def test_the_ball_screw_s_two_runs_fit_the_further_starts_and_the_regression_once(monkeypatch):
+    """
+    The white run and the AR(1) run share the records: what depends on them alone is done once.
+
+    The white base misfits far above the noise (the preload's drift): the white run fits the
+    further starts, and the AR(1) run fits again only the start it chose (none: the default
+    was kept).  The model-free regression is computed once per run and passed on to the
+    further starts, the start checks and the chooser.
+    """
+    from dcmotor_id.identification import identify as pipeline
+    from dcmotor_id.identification import multistart
+    from dcmotor_id.identification.checks import start as checks_start
+
+    scenario = ball_screw_sine()
+    records = prepare_records(scenario.records, scenario.torque_constant)
+    fitted, regressions, fallbacks = [], [], []
+    fit_from, evidence = multistart._fit_from, pipeline.regression_evidence
+    monkeypatch.setattr(multistart, '_fit_from',
+                        lambda *arguments: fitted.append(arguments[-1]['name'])
+                        or fit_from(*arguments))
+    monkeypatch.setattr(pipeline, 'regression_evidence',
+                        lambda *arguments: regressions.append(1) or evidence(*arguments))
+    monkeypatch.setattr(checks_start, 'regression_evidence',
+                        lambda *arguments: fallbacks.append(1) or evidence(*arguments))
+    result = identify(records, torque_constant=scenario.torque_constant)
+    assert result.position_error['model'] == 'adaptive'
+    starts = result.start_check['starts']
+    assert result.start_check['starts_chosen'] == 'default'
+    assert fitted == [entry['name'] for entry in starts[1:]][:1] == ['regression']
+    assert starts[1]['skipped'] == multistart.NOT_CHOSEN_EARLIER
+    assert len(regressions) == 2 and not fallbacks  # one a run; none computed again

@@ -4,7 +4,7 @@ A fit checked against model-free evidence, and a second start when it landed in 
 An output-error fit whose model lacks a decisive effect (a constant torque offset on records
 that turn both ways) can settle where the initial states absorb the misfit: a huge J that
 never reaches the steady states, initial speeds moved by hundreds of noise levels.  The
-effect screen run from there does not find what is missing.  :func:`suspect` says when a
+effect screen run from there does not find what is missing.  :func:`start_doubts` says when a
 result looks like that, judged against evidence that needs no model fit:
 
 * the steady-state balance and the dynamics, by continuous-time least squares on low-passed
@@ -24,7 +24,7 @@ the data is kept (:func:`bic`), counting the samples the residuals are worth
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
@@ -47,6 +47,9 @@ EVIDENCE_FACTOR = 3.0
 OFFSET_T = 3.0
 #: Least share of the regression's Coulomb friction of an offset taken as an effect.
 OFFSET_SHARE = 0.1
+#: Default of the ``evidence`` arguments of the start checks: the regression is computed from
+#: the records (:func:`known_evidence`); callers that have it pass it instead (once a run).
+FROM_RECORDS = 'from the records'
 
 
 def both_directions(records: Sequence[Record]) -> bool:
@@ -109,6 +112,14 @@ def regression_evidence(records: Sequence[Record],
     return values
 
 
+def known_evidence(records: Sequence[Record], torque_constant: float | None,
+                   evidence: dict[str, float] | None | str) -> dict[str, float] | None:
+    """Return ``evidence``, or :func:`regression_evidence` when it is :data:`FROM_RECORDS`."""
+    if isinstance(evidence, str):
+        return regression_evidence(records, torque_constant)
+    return evidence
+
+
 def _last_stderr(matrix: np.ndarray, rhs: np.ndarray, solution: np.ndarray) -> float:
     """
     Return the standard error of the last coefficient of a least-squares fit on low-passed data.
@@ -155,28 +166,46 @@ def misfit_ratio(estimate: Estimate, records: Sequence[Record], model: Any) -> f
     return worst
 
 
-def suspect(estimate: Estimate, records: Sequence[Record], model: Any,
-            evidence: dict[str, float] | None) -> list[str]:
+@dataclass(frozen=True)
+class StartDoubts:
     """
-    Reasons to doubt that a fit found the right basin (empty: no doubt).
+    Why a fit may sit in a wrong basin, per remedy (:func:`start_doubts`; empty: no doubt).
 
-    Doubted only when the model misfits far above the noise and either the initial states
-    moved far from the first samples or J or b is more than :data:`EVIDENCE_FACTOR` off the
-    regression's values.
+    ``further_starts``: reasons to fit the base model again from further starts
+    (:mod:`~dcmotor_id.identification.multistart`); ``second_start``: reasons for a second
+    start with the initial states pinned (:mod:`~dcmotor_id.identification.second_start`).
     """
-    mechanical_only = model.torque_constant is not None
+
+    further_starts: list[str]
+    second_start: list[str]
+
+
+def start_doubts(estimate: Estimate, records: Sequence[Record], model: Any,
+                 evidence: dict[str, float] | None) -> StartDoubts:
+    """
+    Say why a fit may have settled in a wrong basin, for both remedies (one place, one test).
+
+    Both read the misfit over the sensor noise (beyond
+    :data:`~dcmotor_id.identification.checks.identifiability.MISFIT_FACTOR`) and J or b
+    against the model-free regression (beyond :data:`EVIDENCE_FACTOR`,
+    :func:`far_from_evidence`):
+
+    * further starts of the base fit (cheap): either of the two suffices;
+    * a second start (a discovery loop of its own): the misfit, and besides it initial states
+      moved far from the first samples or J or b far from the regression.
+
+    Every list starts with the misfit when it is beyond the threshold.
+    """
     ratio = misfit_ratio(estimate, records, model)
-    if not ratio > MISFIT_FACTOR:
-        return []
-    reasons = []
-    moved = initial_state_warnings(estimate, records, output_channels(mechanical_only))
-    if moved:
-        reasons.append(f'{len(moved)} initial state(s) moved far from the first samples')
-    reasons += far_from_evidence(estimate.parameters, evidence)
-    if reasons:
-        reasons.insert(0, f'the misfit is {ratio:.3g}x the sensor noise')
-        return reasons
-    return []
+    misfit = [f'the misfit is {ratio:.3g}x the sensor noise'] if ratio > MISFIT_FACTOR else []
+    far = far_from_evidence(estimate.parameters, evidence)
+    if not misfit:
+        return StartDoubts(far, [])
+    moved = initial_state_warnings(estimate, records,
+                                   output_channels(model.torque_constant is not None))
+    second = ([f'{len(moved)} initial state(s) moved far from the first samples']
+              if moved else []) + far
+    return StartDoubts(misfit + far, misfit + second if second else [])
 
 
 def far_from_evidence(parameters: dict[str, float],

@@ -60,12 +60,15 @@ def make_estimator(loop: LoopState, **options: Any) -> RefinedEstimator:
 
 def fit_structure(loop: LoopState, structure: Structure, start: dict | None = None,
                   initial: dict | None = None, max_nfev: int = 100,
-                  initial_states: Sequence[Sequence[float]] | None = None) -> Fit:
+                  initial_states: Sequence[Sequence[float]] | None = None,
+                  retry: bool = True) -> Fit:
     """
     Fit a structure on the training parts and simulate the whole records.
 
     ``initial_states`` (one per record, e.g. of an earlier fit) warm-start the fit's
-    initial states; the training parts start where the records do.
+    initial states; the training parts start where the records do.  ``retry`` false: a fit
+    with effect terms that does not converge within ``max_nfev`` is not retried with more
+    (a candidate's refit; the estimator's ``retry``).
     """
     records = structure.transformed(loop.records)
     stops = training_stops(loop, records)
@@ -74,7 +77,8 @@ def fit_structure(loop: LoopState, structure: Structure, start: dict | None = No
                          initial or {})
     train = [rec.slice(0, stop) for rec, stop in zip(records, stops)]
     estimator = make_estimator(loop, max_nfev=max_nfev, initial=start or None,
-                               initial_states=initial_states, position_ar=loop.position_ar)
+                               initial_states=initial_states, position_ar=loop.position_ar,
+                               retry=retry)
     if not start and terms:
         raise ValueError('a structure with effects needs a start point')
     estimate = estimator.fit(train, torque_constant=loop.torque_constant,
@@ -161,7 +165,8 @@ def _try_from(loop: LoopState, structure: Structure, start: dict, initial: dict,
     try:
         with np.errstate(all='ignore'):  # a wild candidate may overflow; it is scored
             return fit_structure(loop, structure, start=start, initial=initial,
-                                 max_nfev=CANDIDATE_MAX_NFEV, initial_states=initial_states)
+                                 max_nfev=CANDIDATE_MAX_NFEV, initial_states=initial_states,
+                                 retry=False)
     except (DcMotorIdError, ValueError, np.linalg.LinAlgError, FloatingPointError):
         return None
 

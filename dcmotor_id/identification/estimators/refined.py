@@ -597,15 +597,17 @@ class RefinedEstimator:
     position_ar : sequence of float, optional
         Start of every record's AR(1) coefficient of the position error (a warm start, e.g.
         from an earlier fit of the same records; :func:`_update_position_ar`); default white.
+    retry : bool
+        A fit on the position that does not converge is tried once more with
+        :data:`POSITION_NFEV_FACTOR` times ``max_nfev`` (default).  False: the fit keeps its
+        bound (the discovery loop's candidate refits with effect terms: a candidate that needs
+        more is not the one to keep).
 
     """
 
     name = 'refined'
     #: Effect terms are supported (the discovery loop uses this estimator).
     supports_terms = True
-    #: Evaluations of a base fit (the default ``max_nfev``); fits with effects given fewer
-    #: (candidate refits) are not retried when they do not converge.
-    base_nfev = 100
 
     def __init__(self, max_nfev: int = 100, reweight_passes: int = 2,
                  initial: Mapping[str, float] | None = None, quasi_static: bool = False,
@@ -613,7 +615,7 @@ class RefinedEstimator:
                  progress: Callable[..., None] | None = None,
                  initial_states: Sequence[Sequence[float]] | None = None,
                  criterion: str = 'speed',
-                 position_ar: Sequence[float] | None = None) -> None:
+                 position_ar: Sequence[float] | None = None, retry: bool = True) -> None:
         if initial_state not in ('estimate', 'measured'):
             raise ValueError(f'initial_state must be estimate or measured, not {initial_state}')
         self.max_nfev = max_nfev
@@ -625,6 +627,7 @@ class RefinedEstimator:
         self.initial_states = initial_states
         self.criterion = criterion
         self.position_ar = position_ar
+        self.retry = retry
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
@@ -641,14 +644,14 @@ class RefinedEstimator:
         try:
             estimate = self._fit(records, torque_constant, terms, self.initial_state)
         except FitError as error:
-            if not position or (terms and self.max_nfev < self.base_nfev) or \
+            if not position or (terms and not self.retry) or \
                     'did not converge' not in str(error):
                 raise
             # The position's initial state (a record that starts at rest: the speed's
             # sensitivity vanishes while stuck) can take the fit many small steps near its
             # optimum: once more, with POSITION_NFEV_FACTOR times the evaluations (a base
-            # fit, with its effects or not; the discovery loop's candidate refits, on fewer
-            # evaluations, keep their bound).
+            # fit, with its effects or not; the discovery loop's candidate refits, ``retry``
+            # false, keep their bound).
             estimate = self._fit(records, torque_constant, terms, self.initial_state,
                                  POSITION_NFEV_FACTOR * self.max_nfev)
         if self.initial_state != 'estimate' or not position:
