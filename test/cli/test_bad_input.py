@@ -364,3 +364,11 @@ def test_ka_and_ta_errors_of_an_armature_resistance_at_its_bound_are_infinite():
     # by zero, an internal error instead of the refusal
     errors = derived_stderr({'Ra': 1e-170, 'La': 1e-3}, np.eye(2), ['Ra', 'La'])
     assert errors == {'Ka': np.inf, 'Ta': np.inf}
+
+
+def test_a_current_of_zero_is_not_called_reversed(table, tmp_path, capsys):
+    rows = table.copy()
+    rows[:, 2] = 0.0  # a current sensor that was not connected: no flip mends it
+    path = write(tmp_path / 'nocurrent.csv', HEADER, rows)
+    message = expect_refusal(capsys, [path, '--no-discover'])
+    assert 'looks reversed' not in message

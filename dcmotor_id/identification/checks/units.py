@@ -81,7 +81,9 @@ def sign_problem(records: Sequence[Any], torque_constant: float | None = None) -
     ``u = Ra i + La di/dt + CPhi w`` needs Ra and CPhi positive: CPhi negative with Ra
     positive is a reversed speed, Ra negative with CPhi positive a reversed current, both
     negative a reversed voltage.  In the mechanical-only mode ``K i = J dw/dt + ...`` needs J
-    positive: negative is a speed (or current) reversed against the other.
+    positive: negative is a speed (or current) reversed against the other.  The channel is
+    named only when the regression with it negated gives them all positive (a current that is
+    zero, or columns of noise, give signs that no flip mends).
     """
     from dcmotor_id.identification.checks.start import regression_evidence
 
@@ -98,8 +100,24 @@ def sign_problem(records: Sequence[Any], torque_constant: float | None = None) -
         seen = f'Ra = {ra:.3g} Ohm, CPhi = {cphi:.3g} V s'
     if reversed_channel is None:
         return None
+    if not _consistent_when_negated(records, torque_constant, reversed_channel):
+        return None
     speed_note = (' (or --negate position, when the speed is derived from it)'
                   if reversed_channel == 'speed' else '')
     return (f'the {reversed_channel} looks reversed against the other channels: a regression '
             f'on the data gives {seen}, where a motor has them positive; flip its sign with '
             f'--negate {reversed_channel}{speed_note}')
+
+
+def _consistent_when_negated(records: Sequence[Any], torque_constant: float | None,
+                             channel: str) -> bool:
+    """Whether the regression on the records with ``channel`` negated has Ra, CPhi, J > 0."""
+    from dcmotor_id.identification.checks.start import regression_evidence
+
+    flipped = [rec.replace(**{channel: -np.asarray(getattr(rec, channel), dtype=float)})
+               for rec in records]
+    evidence = regression_evidence(flipped, torque_constant)
+    if evidence is None:
+        return False
+    names = ('J',) if torque_constant is not None else ('Ra', 'CPhi', 'J')
+    return all(evidence[name] > 0 for name in names)
