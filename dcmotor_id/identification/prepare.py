@@ -112,7 +112,8 @@ def check_excitation(records: Sequence[Record], mechanical_only: bool) -> Excita
     Raises
     ------
     NotIdentifiableError
-        A motor that never moves, or a constant voltage with the motor in steady state.
+        A motor that never moves, or a constant voltage (a constant current in the
+        mechanical-only mode) with the motor in steady state.
 
     """
     excitation = assess_excitation(records, mechanical_only)
@@ -122,6 +123,12 @@ def check_excitation(records: Sequence[Record], mechanical_only: bool) -> Excita
             'identifiable' + ('' if mechanical_only else ' (Ra and La would be, from the '
                               'current alone, but the model needs motion)')
             + '. Record while the motor turns, e.g. with a sine or PRBS voltage.')
+    if excitation.constant_voltage_steady and mechanical_only:
+        raise NotIdentifiableError(
+            'the current is constant and the motor stays in steady state: only the '
+            'steady-state balance K i = b w + Mc is seen, so J is not identifiable and b '
+            'cannot be separated from Mc. Excite the motor with a changing current (steps '
+            'between two non-zero levels, a sine, PRBS).')
     if excitation.constant_voltage_steady:
         raise NotIdentifiableError(
             'the voltage is constant and the motor stays in steady state: only the '

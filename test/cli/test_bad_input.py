@@ -372,3 +372,12 @@ def test_a_current_of_zero_is_not_called_reversed(table, tmp_path, capsys):
     path = write(tmp_path / 'nocurrent.csv', HEADER, rows)
     message = expect_refusal(capsys, [path, '--no-discover'])
     assert 'looks reversed' not in message
+
+
+def test_a_constant_current_in_steady_state_is_refused_in_the_mechanical_only_mode(
+        table, tmp_path, capsys):
+    rows = table.copy()
+    rows[:, 2], rows[:, 3] = 2.0, 10.0  # one torque, one speed: b w + Mc = K i only
+    path = write(tmp_path / 'steady.csv', HEADER, rows)
+    expect_refusal(capsys, [path, '--torque-constant', '0.7'], 'the current is constant',
+                   'J is not identifiable', 'changing current')

@@ -52,7 +52,8 @@ class Excitation:
     positive, negative : bool
         It turns visibly forward / backward.
     constant_voltage_steady : bool
-        A constant voltage with the motor in steady state (full mode only).
+        A constant input with the motor in steady state: the voltage, or the current in the
+        mechanical-only mode.
     noise : float
         Speed noise level used [rad/s].
     level : float
@@ -117,12 +118,12 @@ def assess_excitation(records: Sequence[Any], mechanical_only: bool) -> Excitati
                 0.02 * float(np.max(np.abs(smooth))))
     positive = bool(np.sum(smooth > level) >= 3)
     negative = bool(np.sum(smooth < -level) >= 3)
-    steady = False
-    if not mechanical_only:
-        voltages = np.concatenate([rec.voltage for rec in records])
-        constant_voltage = np.ptp(voltages) <= 1e-9 * max(np.max(np.abs(voltages)), 1e-300)
-        speed_change = np.ptp(smooth) / max(np.max(np.abs(smooth)), 1e-300)
-        steady = bool(constant_voltage and speed_change < 0.05)
+    # The input (the voltage; the current in the mechanical-only mode) held constant with the
+    # motor in steady state.
+    inputs = np.concatenate([rec.current if mechanical_only else rec.voltage for rec in records])
+    constant_input = np.ptp(inputs) <= 1e-9 * max(np.max(np.abs(inputs)), 1e-300)
+    speed_change = np.ptp(smooth) / max(np.max(np.abs(smooth)), 1e-300)
+    steady = bool(constant_input and speed_change < 0.05)
     return Excitation(moves, positive, negative, steady, noise, level)
 
 
