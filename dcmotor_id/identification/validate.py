@@ -560,8 +560,54 @@ def validate(model: Model, records: Sequence[Record], init_samples: int = INIT_S
                          f'model was identified at {model.sample_period_s:.6g} s (the model is '
                          'continuous-time; delays are converted to this period)')
         notes += range_warnings(model.description.get('operating_range'), record)
-    return Validation([validate_record(model, record, init_samples, position_scale)
-                       for record in records], model, notes)
+    validated = [validate_record(model, record, init_samples, position_scale)
+                 for record in records]
+    for item in validated:
+        notes += reversed_warnings(item, model.mechanical_only)
+    return Validation(validated, model, notes)
+
+
+#: A channel whose negation fits this much better (NRMSE ratio) looks reversed.
+REVERSED_RATIO = 0.5
+
+
+def reversed_warnings(item: RecordValidation, mechanical_only: bool) -> list[str]:
+    """
+    Say when a record's outputs match the model with their sign flipped (a reversed channel).
+
+    The model's simulation against the measured channel and against its negation: a channel
+    that matches only negated (NRMSE below :data:`REVERSED_RATIO` of the direct one and below
+    50 %) was recorded with the other sign (an encoder counting the other way).  Every output
+    reversed at once is the input reversed.
+    """
+    record, scored = item.record, slice(item.init_samples, None)
+    flipped = []
+    for channel in ('current', 'speed', 'position'):
+        measured = None if mechanical_only and channel == 'current' else \
+            getattr(record, channel)
+        if measured is None:
+            continue
+        values = np.asarray(measured, dtype=float)[scored]
+        simulated = item.simulated[channel][scored]
+        direct, negated = _nrmse(values, simulated), _nrmse(-values, simulated)
+        if direct is not None and negated is not None and negated < 50.0 and \
+                negated < REVERSED_RATIO * direct:
+            flipped.append((channel, direct, negated))
+    if not flipped:
+        return []
+    names = {name for name, _, _ in flipped}
+    if mechanical_only:
+        culprit, option = 'speed (or the current, the input: they cannot be told apart)', \
+            flipped[0][0]
+    elif {'current', 'speed'} <= names:
+        culprit, option = 'voltage (the input: every output is reversed)', 'voltage'
+    else:
+        culprit = option = flipped[0][0]
+    seen = '; '.join(f'{name} NRMSE {direct:.3g} % as recorded, {negated:.3g} % negated'
+                     for name, direct, negated in flipped)
+    return [f'{record.source}: the model matches this record with its sign flipped ({seen}): '
+            f'the {culprit} looks reversed (an encoder counting the other way, a sensor '
+            f'mounted reversed); give --negate {option}']
 
 
 def format_validation(result: Mapping[str, Any]) -> str:

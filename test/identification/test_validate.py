@@ -171,3 +171,17 @@ def test_identify_result_model_block_round_trips():
     identified = identify([simulated('sine', 0)], discover=False)
     model = model_from_dict(identified.as_dict())
     assert model.parameters['Ra'] == pytest.approx(identified.parameters['Ra'])
+
+
+@pytest.mark.parametrize('negated, named', [(('speed', 'position'), '--negate speed'),
+                                            (('current',), '--negate current'),
+                                            (None, '--negate voltage')])
+def test_a_record_with_a_reversed_channel_is_said_to_be_reversed(negated, named):
+    record = simulated('prbs', 3)
+    if negated is None:  # the input reversed: the drive's outputs follow the true voltage
+        reversed_record = record.replace(voltage=-record.voltage)
+    else:
+        reversed_record = record.replace(**{name: -getattr(record, name) for name in negated})
+    assert not validate(truth_model(), [record]).warnings
+    warnings = validate(truth_model(), [reversed_record]).warnings
+    assert len(warnings) == 1 and 'sign flipped' in warnings[0] and named in warnings[0]
