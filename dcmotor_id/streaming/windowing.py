@@ -135,6 +135,7 @@ class WindowCutter:
         self._period_ns = 1e9 / self.sample_rate_hz
         self._last_index: Optional[int] = None
         self._reference: tuple[int, int] = (0, 0)   # (index, its stamp [ns])
+        self._clock_pending = False  # anchored on a clock without time (sim time, no /clock)
         self._last_stamp_ns: Optional[int] = None
         self._current: list[tuple[np.ndarray, np.ndarray]] = []
         self._current_count = 0
@@ -175,6 +176,8 @@ class WindowCutter:
                     first <= self._last_index or
                     first - self._last_index > self.restart_samples)):
                 self._anchor(first)
+            elif self._clock_pending:
+                self._settle_clock(first)
             self._last_index = int(run_indices[-1])
             runs.append(Run(run_indices, run_values, bool(after_gap)))
             start = 0
@@ -197,6 +200,21 @@ class WindowCutter:
             self.restarts += 1
         self._reference = (int(index), stamp)
         self.anchor_ns = stamp - int(round(index * self._period_ns))
+        self._clock_pending = stamp <= 0 and self._last_stamp_ns is None
+
+    def _settle_clock(self, index: int) -> None:
+        """
+        Anchor sample ``index`` anew once a clock that had no time yet has one.
+
+        A node on simulated time (``use_sim_time``) reads 0 until its first ``/clock``
+        message, which may come after the first samples: they are stamped from the first
+        time the clock gives, as long as no window was stamped before.
+        """
+        stamp = int(self._clock_ns())
+        if stamp > 0 and self._last_stamp_ns is None:
+            self._clock_pending = False
+            self._reference = (int(index), stamp)
+            self.anchor_ns = stamp - int(round(index * self._period_ns))
 
     def close(self, keep_short: bool = False) -> Optional[Window]:
         """

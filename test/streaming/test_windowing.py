@@ -116,3 +116,17 @@ def test_runs_cover_the_samples_in_order():
     runs = windows.add(*samples(indices))
     assert [run.indices.tolist() for run in runs] == \
         [indices[part].tolist() for part in contiguous_runs(indices)]
+
+
+def test_samples_before_a_simulated_clock_has_time_are_stamped_from_its_first_time():
+    # use_sim_time: the node's clock reads 0 until the first /clock message, which may come
+    # after the first samples (the replayed bag's windows were stamped from 1970)
+    times = [0, 0, ANCHOR_NS]
+    windows = WindowCutter(CHANNELS, RATE_HZ, 1.0, 0.2, min_samples=100,
+                           clock_ns=lambda: times.pop(0) if len(times) > 1 else times[0])
+    windows.add(*samples(np.arange(300)))
+    windows.add(*samples(np.arange(300, 600)))   # the clock still has no time
+    windows.add(*samples(np.arange(600, 1200)))  # it has: samples 600.. arrived now
+    assert windows.anchor_ns == ANCHOR_NS - 600 * 1_000_000
+    first = windows.pop_closed()[0]
+    assert first.stamps_ns[600] == ANCHOR_NS and windows.restarts == 0
