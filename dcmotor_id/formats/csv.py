@@ -26,8 +26,8 @@ import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import COLUMNS, PathLike, Record
-from dcmotor_id.formats.mapping import (ALIASES, bare_name, build_record, column_option,
-                                        DEFAULT_OPTIONS, note, ReadOptions)
+from dcmotor_id.formats.mapping import (build_record, column_option, DEFAULT_OPTIONS,
+                                        looks_like, note, ReadOptions)
 
 #: Rows parsed per block (the block's array is the only temporary copy).
 BLOCK_ROWS = 1 << 18
@@ -45,7 +45,7 @@ def _check_names(path: PathLike, header: list[str], index: dict[str, int]) -> No
     ``--column`` options of every column the header names like a known one.
     """
     nearest = {name: [column for column in header
-                      if bare_name(column) == name or bare_name(column) in ALIASES[name]]
+                      if looks_like(column, name)]
                for name in COLUMNS if name not in index}
     options = ' '.join(column_option(name, near[0]) for name, near in nearest.items() if near)
     for name, near in nearest.items():
@@ -198,7 +198,7 @@ def _column_index(path: PathLike, header: list[str], options: ReadOptions) -> di
     standard = {channel: number for channel, number in index.items() if channel in COLUMNS}
     _check_names(path, header, standard)
     if 't' not in index and options.sample_period_s is None:
-        near = [name for name in header if bare_name(name) in ('t',) + ALIASES['t']]
+        near = [name for name in header if looks_like(name, 't')]
         hint = (f' (found {near[0]!r}: rename it to t or map it with '
                 f'{column_option("t", near[0])})') if near else ''
         raise InputDataError(f'{path}: no time column t in the header {header}{hint}; the '

@@ -64,6 +64,12 @@ def column_option(channel: str, column: str) -> str:
     return '--column ' + shlex.quote(f'{channel}={column}')
 
 
+def looks_like(column: str, channel: str) -> bool:
+    """Whether a column's name is the channel's own or one of its aliases (any case, units)."""
+    bare = bare_name(column)
+    return bare == channel or bare in ALIASES.get(channel, ())
+
+
 def likely_columns(names: list[str], channels: tuple[str, ...]) -> dict[str, str]:
     """
     Return, per channel, the first name that looks like it (its own name or an alias).
@@ -73,8 +79,7 @@ def likely_columns(names: list[str], channels: tuple[str, ...]) -> dict[str, str
     found = {}
     for channel in channels:
         for name in names:
-            bare = bare_name(name.rsplit('.', 1)[-1])
-            if bare == channel or bare in ALIASES.get(channel, ()):
+            if looks_like(name.rsplit('.', 1)[-1], channel):
                 found[channel] = name
                 break
     return found
