@@ -1,25 +1,50 @@
 # Two commands set everything up on a fresh machine: `make demo` and `make test`.
-PYTHON ?= python3.11
+# The interpreter of the venv: the first of python3.12 (Ubuntu 24.04, ROS 2 Jazzy's own),
+# python3.11 and python3 that runs and is 3.11 or 3.12 (the versions the ROS Jazzy wheels of
+# requirements.txt exist for). Another one: `make test PYTHON=/path/to/python3.12`.
+SUPPORTED_PYTHON := import sys; sys.exit(not (3, 11) <= sys.version_info[:2] <= (3, 12))
+ifndef PYTHON
+PYTHON := $(firstword $(foreach p,python3.12 python3.11 python3,\
+	$(shell $(p) -c '$(SUPPORTED_PYTHON)' >/dev/null 2>&1 && echo $(p))))
+endif
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 # Where `make bench` writes its tables (the committed ones in bench/ stay as they are).
 BENCH_OUT := out/bench
 
-.PHONY: demo demo-loop demo-offline test test-fast typecheck warmup bench docs clean
+.PHONY: demo demo-loop demo-offline test test-fast typecheck warmup bench docs clean \
+	upgrade-deps check-python
 
 # The install also compiles the numba kernels into their on-disk cache (dcmotor_id.cli.warmup),
 # and the identify path's kernels ahead of time (dcmotor_id/simulation/compiled.py, needs a C
 # compiler): the user's first `dcmotor-id identify` then runs as fast as the second one, and
 # without importing numba.
-$(STAMP): requirements.txt setup.py setup.cfg package.xml
+# The versions come from constraints.txt (the ones the tests passed on; `make upgrade-deps`).
+$(STAMP): requirements.txt constraints.txt setup.py setup.cfg package.xml
+	test -x $(PY) || $(MAKE) --no-print-directory check-python
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	@echo "installing the dependencies into $(VENV) (a few minutes on a fresh machine; pip shows each package)"
-	$(PY) -m pip install --progress-bar off -r requirements.txt
+	$(PY) -m pip install --progress-bar off -r requirements.txt -c constraints.txt
 	$(PY) -m pip install --quiet --no-deps -e .
 	$(PY) -m dcmotor_id.cli.warmup
 	touch $(STAMP)
+
+check-python:
+	@test -n "$(PYTHON)" || { echo "no Python 3.11 or 3.12 found (tried python3.12," \
+	    "python3.11, python3): install one, or name it: make PYTHON=/path/to/python3.12" >&2; \
+	    exit 2; }
+	@$(PYTHON) -c '$(SUPPORTED_PYTHON)' || echo "$(PYTHON) is not Python 3.11 or 3.12, the" \
+	    "versions the ROS 2 Jazzy wheels exist for; trying anyway" >&2
+
+# Upgrade the venv to the newest versions requirements.txt allows and write them to
+# constraints.txt; then run `make test` and commit constraints.txt if it passes.
+upgrade-deps: $(STAMP)
+	$(PY) -m pip install --progress-bar off --upgrade -r requirements.txt
+	$(PY) tools/freeze_constraints.py > constraints.txt.new
+	mv constraints.txt.new constraints.txt
+	@echo "constraints.txt regenerated: run make test, then commit it if the tests pass"
 
 # Recompile the numba cache and the ahead-of-time module by hand (after editing a kernel, say).
 warmup: $(STAMP)

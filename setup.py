@@ -19,7 +19,7 @@ setup(
     # py.typed: the package's type hints apply to its users (PEP 561).
     package_data={PACKAGE: ['py.typed']},
     install_requires=['numpy', 'scipy', 'numba>=0.68,<0.69', 'matplotlib', 'rosbags', 'mcap',
-                      'control>=0.10', 'dask[distributed]', 'pyarrow', 'threadpoolctl'],
+                      'control>=0.10,<0.11', 'dask[distributed]', 'pyarrow', 'threadpoolctl'],
     extras_require={'test': ['pytest', 'mypy'], 'mat73': ['h5py']},
     zip_safe=True,
     maintainer='dcmotor_id developers',
