@@ -15,6 +15,9 @@ import subprocess
 import sys
 
 PROJECT = 'dcmotor-id'
+# Left out as pip freeze leaves them out: the venv's own installers. A pin of the setuptools a
+# Python 3.11 venv bundles (65.5) breaks numba.pycc on 3.12 (pkgutil.ImpImporter is gone).
+BOOTSTRAP = ('pip', 'setuptools', 'wheel', 'distribute')
 
 
 def pinned_lines(inspect_report: dict) -> list:
@@ -34,7 +37,7 @@ def pinned_lines(inspect_report: dict) -> list:
     for dist in inspect_report['installed']:
         name = dist['metadata']['name']
         canonical = name.lower().replace('_', '-').replace('.', '-')
-        if dist.get('installer') != 'pip' or canonical in (PROJECT, 'dcmotor-id'):
+        if dist.get('installer') != 'pip' or canonical == PROJECT or canonical in BOOTSTRAP:
             continue
         if dist['metadata_location'].endswith('.egg-info'):
             continue
