@@ -14,6 +14,7 @@ import warnings
 
 import numpy as np
 
+from dcmotor_id.cli.output import emit_json, json_on_stdout, package_version, STDOUT
 from dcmotor_id.core.command_line import non_negative, positive, run_reporting
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
@@ -24,7 +25,7 @@ from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
 from dcmotor_id.formats.budget import add_memory_budget, set_memory_budget
 from dcmotor_id.formats.csv import write_csv
-from dcmotor_id.formats.json_file import write_json
+from dcmotor_id.formats.json_file import with_schema_version, write_json
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
                                         POSITION_UNITS, ReadingNote, ReadOptions,
                                         SIGNED_CHANNELS, SPEED_UNITS)
@@ -89,9 +90,17 @@ def load_records_reporting_loss(paths: Sequence[str], topics: Mapping[str, str] 
     return records, list(dict.fromkeys(loss))
 
 
+def _write_result(args: argparse.Namespace, result: Mapping[str, Any]) -> None:
+    """Write a result with its schema version to ``--json``: the file, or stdout for ``-``."""
+    if args.json == STDOUT:
+        emit_json(args, result)
+    else:
+        write_json(args.json, with_schema_version(result))
+
+
 def _cmd_identify(args):
     # Every output place is checked first: a fit of minutes is never lost to a typo.
-    if args.json:
+    if args.json and args.json != STDOUT:
         check_output_path(args.json, '--json', inputs=args.files)
     if args.report:
         check_output_path(args.report, '--report', directory=True)
@@ -138,7 +147,7 @@ def _cmd_identify(args):
             failures.append(f'--report {args.report}: not written: {error.strerror or error}')
     if args.json:
         try:
-            write_json(args.json, result)
+            _write_result(args, result)
         except OSError as error:
             failures.append(f'--json {args.json}: not written: {error.strerror or error}')
     print(format_table(result))
@@ -220,7 +229,7 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
 def _cmd_validate(args):
     from dcmotor_id.identification.validate import format_validation, load_model, validate
     check_input_path(args.model, 'model ')
-    if args.json:
+    if args.json and args.json != STDOUT:
         check_output_path(args.json, '--json', inputs=[args.model, *args.files])
     if args.report:
         check_output_path(args.report, '--report', directory=True)
@@ -238,7 +247,7 @@ def _cmd_validate(args):
         result['warnings'] = loss + list(result.get('warnings') or [])
         result['data_loss'] = loss
     if args.json:
-        write_json(args.json, result)
+        _write_result(args, result)
     if args.report:
         from dcmotor_id.reports.identification import write_validation_report
         print(f'report: {write_validation_report(args.report, validation)}')
@@ -278,7 +287,7 @@ def _cmd_design(args):
     from dcmotor_id.design import control as control_design
     from dcmotor_id.design.export import write_exports
     check_input_path(args.result, 'RESULT.json ')
-    if args.json:
+    if args.json and args.json != STDOUT:
         check_output_path(args.json, '--json', inputs=[args.result])
     for option, place in (('--report', args.report), ('--export', args.export)):
         if place:
@@ -297,7 +306,7 @@ def _cmd_design(args):
         from dcmotor_id.reports.design import write_design_report
         print(f'report: {write_design_report(args.report, design, motor, gains)}')
     if args.json:
-        write_json(args.json, design)
+        _write_result(args, design)
     print(control_design.format_design(design))
     return 0
 
@@ -384,7 +393,9 @@ def _add_identify_command(commands: Any) -> None:
     ident.add_argument('files', nargs='+', metavar='FILE',
                        help='CSV with columns t, voltage, current, speed (position optional), '
                             'rosbag2 directory (MCAP or sqlite3), or .mcap file')
-    ident.add_argument('--json', metavar='OUT', help='write the result as JSON here')
+    ident.add_argument('--json', metavar='OUT',
+                       help='write the result as JSON here (- : on stdout, everything else '
+                            'on stderr)')
     ident.add_argument('--method', choices=sorted(METHODS), default='refined',
                        help='refined (default: exact output error) or paper (the baseline)')
     ident.add_argument('--torque-constant', type=positive, metavar='K',
@@ -413,7 +424,8 @@ def _add_identify_command(commands: Any) -> None:
                             'on the machine does not cut it short]: past it the best result '
                             f'so far is returned with a warning (default {DEFAULT_MAX_TIME_S:g})')
     ident.add_argument('--quiet', action='store_true',
-                       help='no progress line on stderr (it only shows on a terminal anyway)')
+                       help='no progress on stderr (on a terminal a line redrawn in place; '
+                            'in a pipe or a log a line every few seconds)')
     ident.add_argument('--initial-state', choices=INITIAL_STATES, default='estimate',
                        help='estimate (default) the initial current and speed of every record, '
                             'or pin them to the first measured samples (measured)')
@@ -436,7 +448,7 @@ def _add_validate_command(commands: Any) -> None:
                                                'and score it (NRMSE, fit %%, position RMSE)')
     val.add_argument('model', metavar='MODEL.json', help='the JSON identify --json wrote')
     val.add_argument('files', nargs='+', metavar='FILE', help='records, as for identify')
-    val.add_argument('--json', metavar='OUT', help='write the scores as JSON here')
+    val.add_argument('--json', metavar='OUT', help='write the scores as JSON here (- : on stdout)')
     val.add_argument('--report', metavar='DIR',
                      help='write measured vs simulated, residuals and fit figures to DIR')
     val.add_argument('--init-samples', type=int, default=20, metavar='N',
@@ -493,7 +505,7 @@ def _add_design_command(commands: Any) -> None:
                      help='motor speed / output speed (default 1)')
     ctl.add_argument('--output-shaft', action='store_true',
                      help='express speeds, gains and the model on the output shaft')
-    ctl.add_argument('--json', metavar='OUT', help='write the design as JSON here')
+    ctl.add_argument('--json', metavar='OUT', help='write the design as JSON here (- : on stdout)')
     ctl.add_argument('--report', metavar='DIR', help='write design.html with step responses '
                      'and Bode plots to DIR')
     ctl.add_argument('--export', metavar='DIR', help='write model_statespace.json, '
@@ -505,6 +517,8 @@ def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser (the CLI contract)."""
     parser = argparse.ArgumentParser(
         prog='dcmotor-id', description='Identify DC motor parameters (Ra, La, CPhi, J, b, Mc).')
+    parser.add_argument('--version', action='version',
+                        version=f'%(prog)s {package_version()}')
     commands = parser.add_subparsers(dest='command', required=True)
     _add_identify_command(commands)
     _add_validate_command(commands)
@@ -531,7 +545,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     parser = build_parser()
     args = parser.parse_args(argv)
-    return run_reporting(args.handler, args)
+    with json_on_stdout(args):
+        return run_reporting(args.handler, args)
 
 
 if __name__ == '__main__':

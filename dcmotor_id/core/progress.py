@@ -133,8 +133,8 @@ class Progress:
         self.run = ''  # which run of several (:meth:`set_run`); empty: the first
         self._last = 0.0
         # (its own throttle below: interval_s and delay_s; a forced write ignores them)
-        self.line = (StatusLine(stream, 0.0, redraw=True)
-                     if self.enabled and stream is not None else None)
+        # Redrawn in place on a terminal; plain lines elsewhere (a pipe, a CI log).
+        self.line = (StatusLine(stream, 0.0) if self.enabled and stream is not None else None)
         self.evaluations = 0
 
     @staticmethod
@@ -200,7 +200,10 @@ class Progress:
         now = time.monotonic()
         if not (self.enabled or self.callback):
             return
-        if now - self.start < self.delay_s or (not force and now - self._last < self.interval_s):
+        # In a log (plain lines) even a new stage waits for the interval: a line every few
+        # seconds, not one per candidate of the discovery loop.
+        throttled = not force or (self.line is not None and not self.line.tty)
+        if now - self.start < self.delay_s or (throttled and now - self._last < self.interval_s):
             return
         self._last = now
         text = f'dcmotor-id: {now - self.start:5.1f} s  ' + (f'{self.run}: ' if self.run else '') \
@@ -229,6 +232,22 @@ class Progress:
 SILENT = Progress()
 
 
-def terminal_progress(max_time_s: float | None, quiet: bool = False) -> Progress:
-    """Return the CLI's progress: on stderr when it is a terminal and not ``quiet``."""
-    return Progress(max_time_s, stream=None if quiet else sys.stderr)
+#: Least time between two progress lines when stderr is not a terminal (a pipe, a CI log) [s].
+LOG_INTERVAL_S = 5.0
+
+
+def terminal_progress(max_time_s: float | None, quiet: bool = False,
+                      stream: TextIO | None = None) -> Progress:
+    """
+    Return the CLI's progress on ``stream`` (default stderr); nothing when ``quiet``.
+
+    On a terminal a line redrawn in place a few times a second; elsewhere (a pipe, a CI log,
+    where a run was silent for up to its time budget) a plain line every
+    :data:`LOG_INTERVAL_S` seconds.
+    """
+    stream = sys.stderr if stream is None else stream
+    if quiet:
+        return Progress(max_time_s, stream=None)
+    tty = bool(getattr(stream, 'isatty', lambda: False)())
+    return Progress(max_time_s, stream=stream, enabled=True,
+                    interval_s=0.25 if tty else LOG_INTERVAL_S)

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 from dcmotor_id.core.command_line import non_negative, positive
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.formats.budget import add_memory_budget, check_budget, set_memory_budget
-from dcmotor_id.formats.json_file import write_json
+from dcmotor_id.formats.json_file import STDOUT, write_result_json
 from dcmotor_id.formats.paths import check_input_path, check_output_path
 
 if TYPE_CHECKING:
@@ -51,7 +51,8 @@ def add_plan_arguments(plan: argparse.ArgumentParser) -> None:
     plan.add_argument('--margin', type=positive, default=0.9,
                       help='share of the current/speed limits the simulation may reach')
     plan.add_argument('--seed', type=int, default=0)
-    plan.add_argument('--json', metavar='OUT', help='write the plan here (exciter plan_file)')
+    plan.add_argument('--json', metavar='OUT',
+                      help='write the plan here (exciter plan_file; - : on stdout)')
     add_memory_budget(plan)
 
 
@@ -77,7 +78,7 @@ def make_plan(args: argparse.Namespace) -> Plan:
     from dcmotor_id.design.routines import Limits
     if os.path.exists(args.prior) or os.path.islink(args.prior):
         check_input_path(args.prior, '--prior ')
-    if args.json:
+    if args.json and args.json != STDOUT:
         check_output_path(args.json, '--json', inputs=[args.prior])
     set_memory_budget(args.memory_budget * 1e9)
     samples = args.duration / args.sample_period
@@ -102,6 +103,8 @@ def run_plan(args: argparse.Namespace) -> int:
     plan = make_plan(args)
     print(plan.describe())
     if args.json:
-        write_json(args.json, plan.as_dict())
-        print(f'plan written to {args.json} (exciter -p plan_file:={args.json})')
+        # (``-``: on the real stdout the command line kept; the rest goes to stderr)
+        write_result_json(args.json, plan.as_dict(), getattr(args, 'json_stream', None))
+        if args.json != STDOUT:
+            print(f'plan written to {args.json} (exciter -p plan_file:={args.json})')
     return 0
