@@ -18,7 +18,7 @@ from typing import Callable, Optional
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
-from dcmotor_id.formats import bag, csv, mat, parquet
+from dcmotor_id.formats import bag, csv, mat, parquet, wpilog
 from dcmotor_id.formats.mapping import DEFAULT_OPTIONS, ReadOptions
 from dcmotor_id.formats.paths import check_input_path, same_file
 from dcmotor_id.formats.quality import check_channels
@@ -29,6 +29,7 @@ READERS: dict[str, Callable[..., Record]] = {
     'csv': lambda path, options=DEFAULT_OPTIONS, **_: csv.read_csv(path, options),
     'mat': lambda path, options=DEFAULT_OPTIONS, **_: mat.read_mat(path, options),
     'parquet': lambda path, options=DEFAULT_OPTIONS, **_: parquet.read_parquet(path, options),
+    'wpilog': wpilog.read_wpilog,
 }
 #: File name endings of the single-file bag formats (a directory is always a bag).
 BAG_SUFFIXES = ('.mcap', '.db3')
@@ -45,6 +46,8 @@ def detect_format(path: PathLike) -> str:
         return 'bag'
     if text.lower().endswith(MAT_SUFFIXES):
         return 'mat'
+    if text.lower().endswith(wpilog.WPILOG_SUFFIXES):
+        return 'wpilog'
     return 'parquet' if text.lower().endswith(parquet.PARQUET_SUFFIXES) else 'csv'
 
 
