@@ -7,7 +7,7 @@ parameters, the 4-parameter rigid-model output-error fits and the extensions tri
 in the same run (:func:`studies.emps.emps_score`), with the friction of each record and two
 diagnosis fits on PULSES that show what limits the score.
 
-    EMPS_DATA_DIR=../shared/data/emps python bench/bench_emps_score.py [--out FILE.md]
+    EMPS_DATA_DIR=data/emps python bench/bench_emps_score.py [--out FILE.md]
 """
 
 from __future__ import annotations
@@ -242,7 +242,7 @@ def main() -> int:
     seconds = time.perf_counter() - start
     pulses = score['pulses']
     text = ['# EMPS: position RMSE on the PULSES validation record', '',
-            'Command: `EMPS_DATA_DIR=../shared/data/emps python bench/bench_emps_score.py` '
+            'Command: `EMPS_DATA_DIR=data/emps python bench/bench_emps_score.py` '
             f'({seconds:.0f} s; load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f} at '
             'the start, 2 shared cores). Every model is trained on DATA_EMPS and simulated '
             'open loop on DATA_EMPS_PULSES from the force gtau * vir (exact simulation, '

@@ -22,7 +22,7 @@ record.
 
 Run from the repository root::
 
-    EMPS_DATA_DIR=../shared/data/emps .venv/bin/python bench/bench_lab.py > bench/lab_results.md
+    EMPS_DATA_DIR=data/emps .venv/bin/python bench/bench_lab.py > bench/lab_results.md
 """
 
 import argparse

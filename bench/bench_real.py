@@ -33,7 +33,7 @@ then read at the named commit with ``git show``).  Run from the repository root 
 ``--quick`` for a subset, ``--only hsm150|mech467|emps``; progress on stderr)::
 
     .venv/bin/python bench/bench_real.py --hsm150 HSM150-data --mech467 mech467 \
-        --emps ../shared/data/emps --out bench/real_results.md
+        --emps data/emps --out bench/real_results.md
 """
 
 from __future__ import annotations
@@ -356,7 +356,8 @@ def emps_set(path: str, quick: bool) -> DataSet:
     for stem in EMPS_FILES:
         file = os.path.join(path, stem + '.mat')
         if not os.path.isfile(file):
-            raise SystemExit(f'{file}: missing (EMPS data: see shared/data/emps/README.md)')
+            raise SystemExit(f'{file}: missing (EMPS data: python bench/fetch_emps.py DIR '
+                             'downloads them)')
         data = loadmat(file)
         gtau = float(np.ravel(data['gtau'])[0])
         records[stem] = Rec(stem, file, 'both', np.ravel(data['t']).astype(float),
@@ -366,7 +367,7 @@ def emps_set(path: str, quick: bool) -> DataSet:
                 family='records') for stem in EMPS_FILES[:1 if quick else 2]]
     if not quick:
         jobs.append(Job('both records', 'all', list(EMPS_FILES)))
-    note = ('EMPS (Janot, Gautier, Brunot 2019; the copy in shared/data/emps): a '
+    note = ('EMPS (Janot, Gautier, Brunot 2019; the public records, bench/fetch_emps.py): a '
             'current-controlled ball-screw drive in closed position loop, 1 kHz, force '
             f'`gtau vir` (gtau {EMPS_GTAU} N/V as the torque constant), carriage position `qm` '
             'in m (M, Fv, Fc, offset in the roles of J, b, Mc, T).  References: the published '

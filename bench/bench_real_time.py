@@ -30,7 +30,7 @@ files).  Run from the repository root::
 
     .venv/bin/python bench/bench_real_time.py --hsm150 HSM150-data --before 1b9de8a \
         --out bench/real_time_results.md
-    .venv/bin/python bench/bench_real_time.py --mech467 mech467 --emps ../shared/data/emps \
+    .venv/bin/python bench/bench_real_time.py --mech467 mech467 --emps data/emps \
         --before 9c8e725 --out bench/real_time_results_position.md
 """
 

@@ -1,4 +1,5 @@
-"""Download the EMPS benchmark records (DATA_EMPS.mat, DATA_EMPS_PULSES.mat) into a directory.
+"""
+Download the EMPS benchmark records (DATA_EMPS.mat, DATA_EMPS_PULSES.mat) into a directory.
 
 EMPS, the Electro-Mechanical Positioning System of A. Janot, M. Gautier and M. Brunot, "Data
 Set and Reference Models of EMPS", Workshop on Nonlinear System Identification Benchmarks,
@@ -30,7 +31,8 @@ FILES = {
 
 
 def fetch(directory: str, base_url: str = BASE_URL, timeout: float = 30.0) -> list:
-    """Download the EMPS files into ``directory`` (created) and return their paths.
+    """
+    Download the EMPS files into ``directory`` (created) and return their paths.
 
     A file already there with the right checksum is kept. Raises SystemExit with a message
     naming the URL and the error when a download fails or a checksum differs.

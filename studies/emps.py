@@ -4,7 +4,7 @@ The EMPS measured data: loading, the published IDIM-LS cross-check, the discover
 EMPS (Electro-Mechanical Positioning System) is a real DC-motor drive turning a ball screw
 that moves a carriage, published with reference models by A. Janot, M. Gautier and
 M. Brunot, "Data Set and Reference Models of EMPS", Nonlinear System Identification
-Benchmarks workshop, Eindhoven, 2019 (shared/data/emps/README.md).  The drive is
+Benchmarks workshop, Eindhoven, 2019 (records: ``python bench/fetch_emps.py DIR``).  The drive is
 current-controlled and the motor force is ``gtau * vir``, so only the mechanical part is
 identifiable: this module maps it onto the mechanical-only mode of the package (``current``
 = ``vir``, torque constant ``gtau``, position ``qm``, speed from the differentiating filter)

@@ -1,4 +1,5 @@
-"""package.xml: every dependency key resolves for ROS 2 Jazzy on Ubuntu noble.
+"""
+package.xml: every dependency key resolves for ROS 2 Jazzy on Ubuntu noble.
 
 Against test/rosdep_snapshot.yaml (ros/rosdistro's rules for these keys, its commit recorded;
 tools/rosdep_snapshot.py regenerates it) and the keys the repository ships in

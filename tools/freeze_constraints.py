@@ -1,4 +1,5 @@
-"""Write the versions installed in this interpreter's environment as a pip constraints file.
+"""
+Write the versions installed in this interpreter's environment as a pip constraints file.
 
 `make upgrade-deps` runs it after upgrading the venv to the newest versions requirements.txt
 allows; `make` installs with ``-c constraints.txt``, so a fresh install gets the versions the
@@ -21,7 +22,8 @@ BOOTSTRAP = ('pip', 'setuptools', 'wheel', 'distribute')
 
 
 def pinned_lines(inspect_report: dict) -> list:
-    """Return ``name==version`` for every pip-installed distribution but the project.
+    """
+    Return ``name==version`` for every pip-installed distribution but the project.
 
     Parameters
     ----------

@@ -1,4 +1,5 @@
-"""Extract the rosdistro rules for package.xml's keys into test/rosdep_snapshot.yaml.
+"""
+Extract the rosdistro rules for package.xml's keys into test/rosdep_snapshot.yaml.
 
 test/test_package_xml.py checks every key of package.xml against that committed snapshot
 (plus the keys the repository ships in rosdep/dcmotor_id.yaml), without the network. To
