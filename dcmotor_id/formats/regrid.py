@@ -38,6 +38,7 @@ aligner behind it pairs the channels.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 from typing import Any, Mapping, Optional, Protocol, Sequence
 
 import numpy as np
@@ -162,9 +163,14 @@ class StampRegridder:
         self.hold_channels = frozenset(hold_channels)
         self.settle_ns = float(settle_s) * 1e9
         self._sources: dict[str, _Source] = {}
+        #: Channel name -> values refused because they were not finite (their grid values
+        #: are never handed on: the aligner counts those samples as lost).
+        self.invalid_by_channel: dict[str, int] = {}
         self._base_ns: Optional[int] = None    # stamps are kept relative to this
         self._origin: Optional[float] = None   # grid index 0 [ns, relative to the base]
         self._origin_bursty = False
+        #: (stamps, positions) of the first bursty source placed
+        self._anchor: Optional[tuple[np.ndarray, np.ndarray]] = None
 
     @property
     def stats(self) -> dict[str, SourceStats]:
@@ -174,6 +180,8 @@ class StampRegridder:
     def add_source(self, name: str, channels: Sequence[str]) -> None:
         """Declare a source (a topic) and the channels each of its messages carries."""
         self._sources[name] = _Source(tuple(channels))
+        for channel in channels:
+            self.invalid_by_channel.setdefault(channel, 0)
 
     def put(self, name: str, stamp_ns: int, number: Optional[int],
             values: Sequence[float]) -> None:
@@ -187,6 +195,9 @@ class StampRegridder:
         source = self._sources[name]
         stats = source.stats
         stats.received += 1
+        for channel, value in zip(source.channels, values):
+            if not math.isfinite(value):
+                self.invalid_by_channel[channel] += 1
         if self._base_ns is None:
             self._base_ns = int(stamp_ns)
         stamp = int(stamp_ns) - self._base_ns
@@ -278,6 +289,10 @@ class StampRegridder:
             self._origin, self._origin_bursty = offset, bursty
         shift = (offset - self._origin) / self.period_ns
         step = 1.0 / ratio if exact and ratio > 1 else 1.0
+        if bursty and self._anchor is not None:
+            # publication times of one loop: its messages published together belong together
+            matched = self._matched_shift(stamps, relative / ratio)
+            shift = matched if math.isfinite(matched) else shift
         nearest_shift = round(shift / step) * step
         # publication times place a source within half a period only: the nearest instant
         tolerance = 0.5 if bursty or self._origin_bursty else SNAP
@@ -289,6 +304,31 @@ class StampRegridder:
         stats.stamp_spread = float(spread[1] - spread[0]) / self.period_ns
         source.number0 = int(numbers[0])
         source.placed = True
+        if bursty and self._anchor is None:
+            self._anchor = (stamps, stats.shift + relative / ratio)
+
+    def _matched_shift(self, stamps: np.ndarray, positions: np.ndarray) -> float:
+        """
+        Return a bursty source's shift from the bursts it shares with the anchor.
+
+        Two sources stamped by publication, in bursts of one loop: the last message of a burst
+        is, on each topic, the newest sample due when the loop woke, the same sample (to
+        within the faster source's period). The median of the shifts implied by the bursts'
+        last messages, each paired with the anchor's burst that ended nearest in time, is
+        returned (nan without shared bursts). ``positions`` are the source's positions
+        without shift [grid periods].
+        """
+        assert self._anchor is not None
+        anchor_stamps, anchor_positions = self._anchor
+        anchor_ends, ends = _burst_ends(anchor_stamps), _burst_ends(stamps)
+        if anchor_ends.size < 2 or ends.size < 2:
+            return float('nan')
+        end_stamps = anchor_stamps[anchor_ends]
+        after = np.clip(np.searchsorted(end_stamps, stamps[ends]), 1, end_stamps.size - 1)
+        before = after - 1
+        nearest = np.where(stamps[ends] - end_stamps[before] <= end_stamps[after] -
+                           stamps[ends], before, after)
+        return float(np.median(anchor_positions[anchor_ends[nearest]] - positions[ends]))
 
     def _emit(self, source: _Source, sink: BlockSink) -> None:
         """Turn the source's placed messages into grid values; keep the last as the tail."""
@@ -327,10 +367,12 @@ class StampRegridder:
                           np.where(span > 0, span, 1.0))
         for column, channel in enumerate(source.channels):
             low = values[at, column]
-            if channel in self.hold_channels:
-                sink.put_block(channel, grid, low)
-            else:
-                sink.put_block(channel, grid, low + weight * (values[following, column] - low))
+            if channel not in self.hold_channels:
+                with np.errstate(invalid='ignore'):
+                    low = np.where(weight > 0, low + weight * (values[following, column] - low),
+                                   low)
+            finite = np.isfinite(low)  # counted when put
+            sink.put_block(channel, grid[finite], low[finite])
 
     def summary(self) -> list[str]:
         """Say per source what was placed, resampled, lost and dropped (empty before any)."""
@@ -367,6 +409,14 @@ class StampRegridder:
                 text = f'{value:.6g}' if isinstance(value, float) else str(value)
                 pairs.append((f'regrid.{name}.{key}', text))
         return pairs
+
+
+def _burst_ends(stamps: np.ndarray) -> np.ndarray:
+    """Return the indices of the last messages of the bursts (followed by a long step)."""
+    steps = np.diff(stamps)
+    if steps.size == 0:
+        return np.empty(0, dtype=np.int64)
+    return np.flatnonzero(steps > 10.0 * max(float(np.median(steps)), 1.0))
 
 
 def _burst_offset(stamps: np.ndarray, residual: np.ndarray, period: float,

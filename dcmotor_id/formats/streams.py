@@ -405,6 +405,13 @@ class SampleInbox:
                                         info['received_timestamp'])
         self.put(channel, index, value)
 
+    def seen(self, channels: Sequence[str]) -> None:
+        """Note that values of ``channels`` arrived now (held elsewhere before they come)."""
+        now = time.monotonic()
+        with self._lock:
+            for channel in channels:
+                self.last_seen[channel] = now
+
     def put(self, channel: str, index: int, value: float) -> None:
         """Put one value of ``channel`` for sample ``index``."""
         with self._lock:
