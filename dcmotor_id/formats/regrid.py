@@ -14,12 +14,14 @@ carrying current and speed, ``voltage``, ...) numbers its messages: by the DDS p
 sequence number when there is one (a gap is a lost message, counted), else by arrival. The
 stamps are used only to find, once per source, *where* its numbering lies on the grid:
 
-* the source's rate: the least-squares slope of stamp against number over the first
-  ``settle_s`` seconds, taken as a whole ratio of the grid rate (1, 2, ... 10 times faster or
-  slower) when it is within 3 % of one (else the measured rate);
+* the source's rate: the slope of the lower envelope of stamp against number over the first
+  ``settle_s`` seconds (publication delays, bursts and stalls lie above it), taken as a whole
+  ratio of the grid rate (1, 2, ... 10 times faster or slower) when it is within 3 % of one
+  (else the measured rate);
 * its offset: the median stamp residual, or, when the stamps come in bursts (over 10 % of the
-  steps shorter than half a period), the smallest one (the last message of a burst is
-  published when it is due; the others are older);
+  steps shorter than half a period), from the last messages of the bursts (the newest
+  sample due, published within a period of its instant); two sources both stamped in bursts
+  are paired by their bursts' last messages (one loop publishes both);
 * a source whose instants lie within a quarter grid period (:data:`SNAP`) of the grid's (or of
   every other grid instant's, for a faster source) is placed exactly on them: the common case
   of one control loop publishing every topic; other sources are *resampled* onto the grid
@@ -156,7 +158,7 @@ class StampRegridder:
     """
 
     def __init__(self, sample_period_s: float, hold_channels: Sequence[str] = ('voltage',),
-                 settle_s: float = 0.5) -> None:
+                 settle_s: float = 1.0) -> None:
         if not sample_period_s > 0:
             raise ValueError('sample_period_s must be positive')
         self.period_ns = float(sample_period_s) * 1e9
@@ -229,18 +231,23 @@ class StampRegridder:
         source.last_number = source.last_stamp = None
         source.numbers, source.stamps, source.values = [], [], []
 
-    def drain_into(self, sink: BlockSink) -> None:
-        """Place what was put so far and put the grid values into ``sink``."""
+    def drain_into(self, sink: BlockSink, force: bool = False) -> None:
+        """
+        Place what was put so far and put the grid values into ``sink``.
+
+        ``force``: place the sources with less than ``settle_s`` of stamps too (a stream that
+        stopped; at least 8 messages are needed).
+        """
         # the sources at the grid rate or slower first: one of them sets the grid's origin
         ordered = sorted(self._sources.values(), key=lambda source: not self._slow(source))
         for source in ordered:
             if not source.numbers:
                 continue
             if not source.placed:
-                if source.stamps[-1] - source.stamps[0] < self.settle_ns or \
-                        len(source.numbers) < 8:
+                if len(source.numbers) < 8 or (
+                        not force and source.stamps[-1] - source.stamps[0] < self.settle_ns):
                     continue
-                if self._origin is None and not self._slow(source) and any(
+                if self._origin is None and not force and not self._slow(source) and any(
                         self._slow(other) and other.stats.received
                         for other in self._sources.values()):
                     continue  # a faster source waits for the grid-rate one to set the origin
@@ -258,12 +265,12 @@ class StampRegridder:
         """
         Return the source's rate over the grid's, and whether it is a whole ratio.
 
-        The least-squares slope of stamp against number (bursts average out), taken as the
-        nearest of :data:`RATIOS` when within :data:`RATIO_TOLERANCE` of it.
+        The slope of the stamps' lower envelope against the number (:func:`envelope_slope`:
+        publication delays, bursts and stalls lie above it), taken as the nearest of
+        :data:`RATIOS` when within :data:`RATIO_TOLERANCE` of it.
         """
         relative = numbers - numbers[0]
-        slope = float(np.polyfit(relative, stamps, 1)[0]) if np.ptp(relative) > 0 else \
-            self.period_ns
+        slope = envelope_slope(relative, stamps) if np.ptp(relative) > 0 else self.period_ns
         ratio = self.period_ns / slope if slope > 0 else 1.0
         nearest = min(RATIOS, key=lambda candidate: abs(candidate / ratio - 1.0))
         exact = abs(nearest / ratio - 1.0) < RATIO_TOLERANCE
@@ -411,6 +418,35 @@ class StampRegridder:
         return pairs
 
 
+def envelope_slope(x: np.ndarray, y: np.ndarray) -> float:
+    """
+    Return the slope of the line below every point ``(x, y)`` closest to them on average.
+
+    The edge of the lower convex hull above the mean ``x`` (``x`` increasing): stamps that
+    are late by any delay (a burst, a stalled publisher) leave it alone, as long as some
+    messages went out on time. Falls back to the least-squares slope with fewer than three
+    distinct points.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if np.unique(x).size < 3:
+        return float(np.polyfit(x, y, 1)[0])
+    hull: list[int] = []
+    for index in range(x.size):  # Andrew's monotone chain, the lower half
+        while len(hull) >= 2:
+            first, middle = hull[-2], hull[-1]
+            cross = (x[middle] - x[first]) * (y[index] - y[first]) - \
+                (y[middle] - y[first]) * (x[index] - x[first])
+            if cross > 0:
+                break
+            hull.pop()
+        hull.append(index)
+    points = np.asarray(hull)
+    edge = int(np.clip(np.searchsorted(x[points], x.mean()), 1, points.size - 1))
+    low, high = points[edge - 1], points[edge]
+    return float((y[high] - y[low]) / (x[high] - x[low]))
+
+
 def _burst_ends(stamps: np.ndarray) -> np.ndarray:
     """Return the indices of the last messages of the bursts (followed by a long step)."""
     steps = np.diff(stamps)
@@ -424,23 +460,32 @@ def _burst_offset(stamps: np.ndarray, residual: np.ndarray, period: float,
     """
     Return the offset of a source whose stamps are publication times of bursts [ns].
 
-    The last message of a burst is the newest sample due: published at the earliest when
-    due, at the latest a period later. Its residuals ``r`` bound the offset to
-    ``(max r - T, min r]``; the middle of that interval is returned (the newest sample's
-    instant when the loop wakes at every phase, half a period before its stamp when it always
-    wakes at the same phase). ``T`` is the longer of the source's and the grid's period, so
-    that a source faster than the grid, published by the same loop as one at the grid rate,
-    lands on one of that one's instants, not between two.
+    The last message of a burst is the newest sample due when the loop woke, at most a
+    period old then; the burst's first message is published on waking (the others wait for
+    the messages before them). The stamp of the first message less the last one's place on
+    the line, ``r``, bounds the offset to ``(max r - T, min r]``; the middle of that interval
+    is returned (the newest sample's instant when the loop wakes at every phase, half a
+    period before the wake-up when it always wakes at the same phase). ``T`` is the longer
+    of the source's and the grid's period, so that a source faster than the grid, published
+    by the same loop as one at the grid rate, lands on one of that one's instants, not
+    between two.
     """
     last = np.flatnonzero(np.diff(stamps) >= 0.5 * period)
-    ends = residual[last] if last.size else residual
-    return float(ends.min() + ends.max() - max(period, grid_period)) / 2.0
+    if last.size >= 2:
+        first = last[:-1] + 1   # the burst after each end, from its first to its last message
+        ends = residual[last[1:]] - (stamps[last[1:]] - stamps[first])
+    else:
+        ends = residual
+    span = max(period, grid_period)
+    # a stalled burst or two (published late) do not widen the interval
+    top = min(float(np.percentile(ends, 90)), float(ends.min()) + span)
+    return (float(ends.min()) + top - span) / 2.0
 
 
 def regrid_columns(period_s: float, messages: Mapping[str, tuple[Any, Any, Any]],
                    channels: Mapping[str, Sequence[str]],
                    hold_channels: Sequence[str] = ('voltage',),
-                   settle_s: float = 0.5) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]],
+                   settle_s: float = 1.0) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]],
                                                    StampRegridder]:
     """
     Regrid whole recordings at once: ``{source: (stamps_ns, numbers, rows)}``.

@@ -101,15 +101,24 @@ class DrivePlayer:
             self._thread.join(timeout=5.0)
 
     def _play(self, messages: list) -> None:
-        """Publish each message when due (everything overdue at once, as a late loop does)."""
+        """
+        Publish each message when due, as a drive's loop does.
+
+        On waking (late or not) the loop publishes every sample whose instant has passed,
+        not only those it planned to: what a timer-driven loop that wakes late does.
+        """
         try:
-            for message in messages:
-                wait_s = (message.publish_ns - time.time_ns()) * 1e-9
+            position = 0
+            while position < len(messages) and not self._stop.is_set():
+                wait_s = (messages[position].publish_ns - time.time_ns()) * 1e-9
                 if wait_s > 0:
                     time.sleep(wait_s)
-                if self._stop.is_set():
-                    return
-                self._publish(message)
+                now = time.time_ns()
+                self._publish(messages[position])
+                position += 1
+                while position < len(messages) and messages[position].sample_ns <= now:
+                    self._publish(messages[position])
+                    position += 1
         finally:
             self.done.set()
 
@@ -170,7 +179,8 @@ def identify_published(executor: Any, namespace: str, rate_hz: float, duration_s
 
     Returns ``published`` (messages per topic), ``samples`` (published at ``rate_hz``),
     ``response`` (the Trigger response), ``result`` (the identifier's last result or None),
-    ``stats`` (the aligner's counters) and ``regrid`` (the placement's counters).
+    ``stats`` (the aligner's counters), ``health`` (the key-values of the ``streams`` status
+    on ``/diagnostics``) and ``regrid`` (the placement's counters).
     """
     import rclpy
     from rclpy.parameter import Parameter
@@ -201,7 +211,7 @@ def identify_published(executor: Any, namespace: str, rate_hz: float, duration_s
         _wait(future.done, timeout_s)
         return {'published': dict(player.published), 'samples': samples,
                 'response': future.result(), 'result': ident.last_result,
-                'stats': ident.aligner.stats.as_dict(),
+                'stats': ident.aligner.stats.as_dict(), 'health': ident.health.key_values(),
                 'regrid': {name: stats.as_dict() for name, stats in
                            (ident.regridder.stats.items() if ident.regridder else ())}}
     finally:

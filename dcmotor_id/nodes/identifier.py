@@ -242,6 +242,12 @@ class Identifier(Node):
         self.inbox.drain_into(self.aligner)
         self._consume()
 
+    def _place_all(self):
+        """Place the stamped topics with less than a second of stamps too (they stopped)."""
+        if self.regridder is not None:
+            self.regridder.drain_into(self.inbox, force=True)
+            self.inbox.drain_into(self.aligner)
+
     def _consume(self):
         for run_ in self.cutter.add(*self.aligner.pop_ready()):
             if self.online is not None and self.online.feed(run_, not self.mechanical):
@@ -404,6 +410,7 @@ class Identifier(Node):
             self.get_logger().warning(f'topic(s) {", ".join(newly)} stopped (nothing '
                                       f'for {timeout_s:g} s); the current window '
                                       'is closed and kept')
+            self._place_all()
             self.aligner.flush()
             self._consume()
             self._close_window()
@@ -418,6 +425,7 @@ class Identifier(Node):
         """Flush: align what arrived, write the current window, stop the writer."""
         try:
             self.process()
+            self._place_all()
             self.aligner.flush()
             self._consume()
             self._close_window()

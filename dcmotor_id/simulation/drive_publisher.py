@@ -35,6 +35,7 @@ class DriveMessage(NamedTuple):
     stamp_ns: int             #: its header stamp, or its publication time without a header
     sequence: int             #: its DDS publication sequence number (from 1, per topic)
     values: tuple             #: (current, speed) or (voltage,)
+    sample_ns: int = 0        #: the instant of its sample [ns]
 
 
 def _publish_times(true_ns: np.ndarray, burst_s: float, period_ns: float,
@@ -99,7 +100,9 @@ def drive_messages(voltage: np.ndarray, current: np.ndarray, speed: np.ndarray,
         else:
             stamped = (times_ns + rng.uniform(-jitter, jitter, times_ns.size) *
                        period_ns).astype(np.int64)
-        messages += [DriveMessage(int(p), topic, int(s), k + 1, tuple(map(float, row)))
-                     for k, (p, s, row) in enumerate(zip(published, stamped, rows))]
+        for number, (publish_ns, stamp_ns, row, sample_ns) in enumerate(
+                zip(published, stamped, rows, times_ns)):
+            messages.append(DriveMessage(int(publish_ns), topic, int(stamp_ns), number + 1,
+                                         tuple(map(float, row)), int(sample_ns)))
     messages.sort(key=lambda message: message.publish_ns)
     return messages

@@ -104,7 +104,7 @@ def test_float64_topics_by_timestamp_are_paired_exactly(mode):
 
 
 def test_a_repeated_value_is_a_sample_and_a_repeated_sequence_number_a_duplicate():
-    regridder = StampRegridder(1e-3)
+    regridder = StampRegridder(1e-3, settle_s=0.5)
     regridder.add_source('voltage', ('voltage',))
     inbox = SampleInbox(('voltage',), 1e-3)
     for number in range(1, 1001):
@@ -121,7 +121,7 @@ def test_a_repeated_value_is_a_sample_and_a_repeated_sequence_number_a_duplicate
 
 
 def test_without_sequence_numbers_a_repeated_stamp_is_the_duplicate():
-    regridder = StampRegridder(1e-3)
+    regridder = StampRegridder(1e-3, settle_s=0.5)
     regridder.add_source('voltage', ('voltage',))
     for number in range(1, 601):
         regridder.put('voltage', number * 10 ** 6, None, (1.0,))
@@ -148,7 +148,7 @@ def test_lost_messages_are_counted_and_leave_a_gap_not_a_shifted_pairing():
 
 def test_a_source_between_the_grid_instants_is_resampled():
     """Speed measured half a period after the current: interpolated onto the grid."""
-    regridder = StampRegridder(1e-3, hold_channels=('voltage',))
+    regridder = StampRegridder(1e-3, hold_channels=('voltage',), settle_s=0.5)
     regridder.add_source('current', ('current',))
     regridder.add_source('speed', ('speed',))
     inbox = SampleInbox(('current', 'speed'), 1e-3)
@@ -169,7 +169,7 @@ def test_a_source_between_the_grid_instants_is_resampled():
 
 def test_a_held_voltage_at_a_lower_rate_is_a_zero_order_hold():
     """A command at 250 Hz onto a 1 kHz grid: held, never interpolated."""
-    regridder = StampRegridder(1e-3)
+    regridder = StampRegridder(1e-3, settle_s=0.5)
     regridder.add_source('current', ('current',))
     regridder.add_source('voltage', ('voltage',))
     inbox = SampleInbox(('voltage', 'current'), 1e-3)
@@ -223,3 +223,34 @@ def test_batches_with_jittered_times_keep_every_sample():
     indices, values = aligner.pop_ready()
     assert_exact(indices, values, truth, minimum_used=1.0)
     assert aligner.stats.duplicates == 0
+
+
+def test_a_stream_shorter_than_the_settling_time_is_placed_when_it_stops():
+    regridder = StampRegridder(1e-3)
+    regridder.add_source('voltage', ('voltage',))
+    inbox = SampleInbox(('voltage',), 1e-3)
+    for number in range(1, 301):
+        regridder.put('voltage', number * 10 ** 6, number, (1.0,))
+    regridder.drain_into(inbox)
+    assert regridder.stats['voltage'].on_grid == 0  # waits for a second of stamps
+    assert 'not placed yet' in regridder.summary()[0]
+    regridder.drain_into(inbox, force=True)
+    assert regridder.stats['voltage'].on_grid == 300
+
+
+def test_a_stalled_publisher_does_not_bend_the_rate_or_the_offset():
+    """A voltage publisher that stalls 150 ms once at the start, then catches up at once."""
+    rate_hz = 1000.0
+    truth = record(3000)
+    messages = drive_messages(*truth, rate_hz, stamps='grid', jitter=0.1, burst_s=0.01,
+                              voltage_stamp='publish', seed=4)
+    resume = next(message.publish_ns for message in messages
+                  if message.topic == 'voltage' and message.sequence == 350)
+    messages = [message._replace(publish_ns=resume - (350 - message.sequence) * 1000,
+                                 stamp_ns=resume - (350 - message.sequence) * 1000)
+                if message.topic == 'voltage' and 200 <= message.sequence < 350 else message
+                for message in messages]
+    messages.sort(key=lambda message: message.publish_ns)
+    indices, values, regridder, _ = align(messages, rate_hz)
+    assert_exact(indices, values, truth)
+    assert regridder.stats['voltage'].ratio == 1.0
