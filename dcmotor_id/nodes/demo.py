@@ -1,16 +1,20 @@
 """
 The ROS demo (``make demo``): sim_motor and identifier as processes, then ``~/identify``.
 
-Starts the two executables with the package's parameter files, lets the identifier record
-for ``--record-s`` seconds (printing the online estimate as it converges), calls
-``/identifier/identify`` and prints the identified parameters against the simulated motor's,
-the paper method's for comparison, the online estimate and where the window bags are.
+Starts the two executables with the package's parameter files (the identifier's
+``window_s`` set to ``--record-s``), waits until the identifier holds ``--record-s`` seconds
+of aligned samples (printing the online estimate as it converges; it gives up, saying so,
+when they do not come within a minute more), calls ``/identifier/identify`` and prints the
+identified parameters against the simulated motor's, the paper method's for comparison, the
+online estimate and where the window bags are, with the samples and windows fitted. A fit of
+less data than announced is refused (exit code 1), never printed as a result.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -28,6 +32,8 @@ from dcmotor_id.nodes.common import spin_until, stop_processes
 from dcmotor_id.nodes.identifier import LATCHED
 
 KEYS = PARAMETER_NAMES + DERIVED_NAMES
+#: How long past ``--record-s`` the demo waits for the samples it announced [s].
+WAIT_EXTRA_S = 60.0
 
 
 def _config(name):
@@ -70,7 +76,7 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
     record_dir = record_dir or os.path.join(tempfile.gettempdir(), 'dcmotor_id_demo',
                                             time.strftime('%Y%m%d-%H%M%S'))
     truth = PAPER_MOTORS['paper2'].as_dict()
-    processes, logs = _start_nodes(record_dir)
+    processes, logs = _start_nodes(record_dir, record_s)
     rclpy.init()
     node = rclpy.create_node('dcmotor_id_demo')
     executor = SingleThreadedExecutor()
@@ -88,7 +94,12 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
         if not client.wait_for_service(timeout_sec=60.0):
             print(f'the identifier did not come up; see {logs.name}')
             return 1
-        _record(executor, online, record_s)
+        rate_hz = _sample_rate(node, executor)
+        if not _record(executor, online, diagnostics, record_s, rate_hz):
+            print(f'the identifier did not receive {record_s:g} s of samples within '
+                  f'{record_s + WAIT_EXTRA_S:g} s (a loaded machine, or a node that failed); '
+                  f'see {logs.name}')
+            return 1
         print('calling /identifier/identify ...', flush=True)
         future = client.call_async(Trigger.Request())
         if not spin_until(executor, future.done, 300.0):
@@ -97,6 +108,8 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
         response = future.result()
         if not response.success:
             print(f'identification failed: {response.message}')
+            return 1
+        if not _enough(response.message, record_s, rate_hz):
             return 1
         spin_until(executor, lambda: latched, 10.0)
         paper = {}
@@ -122,7 +135,39 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
         close_demo(processes, executor, node, logs)
 
 
-def _start_nodes(record_dir: str) -> tuple[list[subprocess.Popen], IO[str]]:
+def _enough(message: str, record_s: float, rate_hz: float) -> bool:
+    """Say how much data the fit used; refuse (False) less than announced."""
+    found = re.search(r'(\d+) samples in (\d+) window', message)
+    if found is None:
+        print(f'the answer does not say how much data was fitted: {message}')
+        return False
+    samples, windows = int(found.group(1)), int(found.group(2))
+    print(f'fitted {samples} samples ({samples / rate_hz:.3f} s at {rate_hz:g} Hz) in '
+          f'{windows} window(s); announced {record_s:g} s', flush=True)
+    if samples < round(record_s * rate_hz) - 1:
+        print(f'refused: the fit used {samples / rate_hz:.3f} s of data, less than the '
+              f'{record_s:g} s announced (samples lost on a loaded machine?); run again')
+        return False
+    return True
+
+
+def _sample_rate(node: Node, executor: Executor) -> float:
+    """Return the identifier's ``sample_rate_hz`` (1000.0 when it cannot be read)."""
+    from rcl_interfaces.srv import GetParameters
+
+    client = node.create_client(GetParameters, '/identifier/get_parameters')
+    try:
+        if not client.wait_for_service(timeout_sec=10.0):
+            return 1000.0
+        future = client.call_async(GetParameters.Request(names=['sample_rate_hz']))
+        if not spin_until(executor, future.done, 10.0) or not future.result().values:
+            return 1000.0
+        return float(future.result().values[0].double_value) or 1000.0
+    finally:
+        node.destroy_client(client)
+
+
+def _start_nodes(record_dir: str, record_s: float) -> tuple[list[subprocess.Popen], IO[str]]:
     """Start sim_motor and the identifier; return the processes and their log."""
     print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}; starting sim_motor (motor 2 of the '
           "paper's Table 1, 1 kHz, Float64 topics) and identifier (windows to "
@@ -132,23 +177,45 @@ def _start_nodes(record_dir: str) -> tuple[list[subprocess.Popen], IO[str]]:
         subprocess.Popen([_executable('sim_motor'), '--ros-args', *_config('sim_motor')],
                          stdout=logs, stderr=subprocess.STDOUT),
         subprocess.Popen([_executable('identifier'), '--ros-args', *_config('identifier'),
-                          '-p', f'record_dir:={record_dir}'],
+                          '-p', f'record_dir:={record_dir}',
+                          '-p', f'window_s:={float(record_s)!r}'],
                          stdout=logs, stderr=subprocess.STDOUT)]
     return processes, logs
 
 
-def _record(executor: Executor, online: list[DiagnosticStatus], record_s: float) -> None:
-    """Spin for ``record_s`` seconds, printing the online estimate as it converges."""
-    print(f'recording {record_s:g} s ...', flush=True)
+def _record(executor: Executor, online: list[DiagnosticStatus],
+            diagnostics: list[DiagnosticArray], record_s: float, rate_hz: float) -> bool:
+    """
+    Spin until the identifier holds ``record_s`` of aligned samples; print the online estimate.
+
+    Returns False when they have not come within ``record_s + WAIT_EXTRA_S`` seconds.
+    """
+    need = int(round(record_s * rate_hz))
+    print(f'recording {record_s:g} s ({need} samples at {rate_hz:g} Hz) ...', flush=True)
     start = time.monotonic()
-    while time.monotonic() - start < record_s:
+    while True:
         spin_until(executor, lambda: False, 2.0)
+        emitted = _emitted(diagnostics)
+        elapsed = time.monotonic() - start
         if online:
             values = status_values(online[-1])
-            print(f'  {time.monotonic() - start:4.0f} s  online: Ra={float(values["Ra"]):.4g}'
-                  f' La={float(values["La"]):.4g} CPhi={float(values["CPhi"]):.4g} '
-                  f'J={float(values["J"]):.4g}  converged={values["converged"]}',
-                  flush=True)
+            print(f'  {elapsed:4.0f} s  {emitted:6d} samples  online: '
+                  f'Ra={float(values["Ra"]):.4g} La={float(values["La"]):.4g} '
+                  f'CPhi={float(values["CPhi"]):.4g} J={float(values["J"]):.4g}  '
+                  f'converged={values["converged"]}', flush=True)
+        if emitted >= need:
+            return True
+        if elapsed > record_s + WAIT_EXTRA_S:
+            return False
+
+
+def _emitted(diagnostics: list[DiagnosticArray]) -> int:
+    """Return the aligned samples of the identifier's latest ``streams`` status (0: none)."""
+    for array in reversed(diagnostics):
+        for status in array.status:
+            if status.name.endswith('streams'):
+                return int(status_values(status).get('emitted', '0'))
+    return 0
 
 
 def _print_table(truth: dict[str, float], *sources: dict[str, str]) -> None:
