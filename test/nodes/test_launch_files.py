@@ -75,7 +75,8 @@ def configuration(value):
 
 @pytest.mark.parametrize('name, executable, remapped', [
     ('identifier.launch.py', 'identifier', {'joint_states', 'voltage', 'dynamic_joint_states'}),
-    ('exciter.launch.py', 'exciter', {'voltage_command', 'current', 'speed', 'samples'})])
+    ('exciter.launch.py', 'exciter', {'voltage_command', 'current', 'speed', 'samples',
+                                      'joint_states'})])
 def test_a_robot_launch_file_takes_namespace_params_input_sim_time_and_remaps(
         name, executable, remapped, monkeypatch):
     arguments, nodes = describe(name, monkeypatch)
@@ -122,3 +123,10 @@ def test_the_robot_params_file_reaches_an_identifier_in_a_namespace(ros_env):
             node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def test_the_exciter_launch_takes_the_forward_command_controller_settings(monkeypatch):
+    arguments, (node,) = describe('exciter.launch.py', monkeypatch)
+    _, overrides = node.kwargs['parameters']
+    for name in ('command_type', 'command_topic', 'joint_index', 'joint_count', 'joint_name'):
+        assert name in arguments and configuration(overrides[name]) == name
