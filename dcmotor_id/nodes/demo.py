@@ -2,12 +2,13 @@
 The ROS demo (``make demo``): sim_motor and identifier as processes, then ``~/identify``.
 
 Starts the two executables with the package's parameter files (the identifier's
-``window_s`` set to ``--record-s``), waits until the identifier holds ``--record-s`` seconds
-of aligned samples (printing the online estimate as it converges; it gives up, saying so,
-when they do not come within a minute more), calls ``/identifier/identify`` and prints the
-identified parameters against the simulated motor's, the paper method's for comparison, the
-online estimate and where the window bags are, with the samples and windows fitted. A fit of
-less data than announced is refused (exit code 1), never printed as a result.
+``window_s`` and ``min_window_s`` set to ``--record-s``), waits until the identifier holds a
+whole window of ``--record-s`` seconds of aligned samples (printing the online estimate as
+it converges; it gives up, saying so, when none comes within a minute more), calls
+``/identifier/identify`` and prints the identified parameters against the simulated motor's,
+the paper method's for comparison, the online estimate and where the window bags are, with
+the samples and windows fitted. A fit of less data than announced is refused (exit code 1),
+never printed as a result.
 """
 
 from __future__ import annotations
@@ -144,7 +145,7 @@ def _enough(message: str, record_s: float, rate_hz: float) -> bool:
     samples, windows = int(found.group(1)), int(found.group(2))
     print(f'fitted {samples} samples ({samples / rate_hz:.3f} s at {rate_hz:g} Hz) in '
           f'{windows} window(s); announced {record_s:g} s', flush=True)
-    if samples < round(record_s * rate_hz) - 1:
+    if samples < round(record_s * rate_hz) - 1:  # a window is closed at its last sample
         print(f'refused: the fit used {samples / rate_hz:.3f} s of data, less than the '
               f'{record_s:g} s announced (samples lost on a loaded machine?); run again')
         return False
@@ -178,7 +179,8 @@ def _start_nodes(record_dir: str, record_s: float) -> tuple[list[subprocess.Pope
                          stdout=logs, stderr=subprocess.STDOUT),
         subprocess.Popen([_executable('identifier'), '--ros-args', *_config('identifier'),
                           '-p', f'record_dir:={record_dir}',
-                          '-p', f'window_s:={float(record_s)!r}'],
+                          '-p', f'window_s:={float(record_s)!r}',
+                          '-p', f'min_window_s:={float(record_s)!r}'],
                          stdout=logs, stderr=subprocess.STDOUT)]
     return processes, logs
 
@@ -186,16 +188,19 @@ def _start_nodes(record_dir: str, record_s: float) -> tuple[list[subprocess.Pope
 def _record(executor: Executor, online: list[DiagnosticStatus],
             diagnostics: list[DiagnosticArray], record_s: float, rate_hz: float) -> bool:
     """
-    Spin until the identifier holds ``record_s`` of aligned samples; print the online estimate.
+    Spin until the identifier holds a full window of ``record_s``; print the online estimate.
 
-    Returns False when they have not come within ``record_s + WAIT_EXTRA_S`` seconds.
+    The identifier runs with ``window_s`` and ``min_window_s`` both ``record_s``: it keeps
+    only whole windows of that length (a run cut short by a lost sample is dropped), and
+    ``~/identify`` fits the newest one, the same length every time. Returns False when none
+    is complete within ``record_s + WAIT_EXTRA_S`` seconds.
     """
     need = int(round(record_s * rate_hz))
     print(f'recording {record_s:g} s ({need} samples at {rate_hz:g} Hz) ...', flush=True)
     start = time.monotonic()
     while True:
         spin_until(executor, lambda: False, 2.0)
-        emitted = _emitted(diagnostics)
+        emitted, windows = _streams(diagnostics)
         elapsed = time.monotonic() - start
         if online:
             values = status_values(online[-1])
@@ -203,19 +208,21 @@ def _record(executor: Executor, online: list[DiagnosticStatus],
                   f'Ra={float(values["Ra"]):.4g} La={float(values["La"]):.4g} '
                   f'CPhi={float(values["CPhi"]):.4g} J={float(values["J"]):.4g}  '
                   f'converged={values["converged"]}', flush=True)
-        if emitted >= need:
+        if windows >= 1:
             return True
         if elapsed > record_s + WAIT_EXTRA_S:
             return False
 
 
-def _emitted(diagnostics: list[DiagnosticArray]) -> int:
-    """Return the aligned samples of the identifier's latest ``streams`` status (0: none)."""
+def _streams(diagnostics: list[DiagnosticArray]) -> tuple[int, int]:
+    """Return the aligned samples and whole windows of the latest ``streams`` status."""
     for array in reversed(diagnostics):
         for status in array.status:
             if status.name.endswith('streams'):
-                return int(status_values(status).get('emitted', '0'))
-    return 0
+                values = status_values(status)
+                return (int(values.get('emitted', '0')),
+                        int(values.get('windows_in_memory', '0')))
+    return 0, 0
 
 
 def _print_table(truth: dict[str, float], *sources: dict[str, str]) -> None:

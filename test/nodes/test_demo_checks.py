@@ -2,7 +2,7 @@
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from dcmotor_id.nodes.demo import _emitted, _enough
+from dcmotor_id.nodes.demo import _enough, _streams
 
 
 def test_the_demo_prints_the_data_fitted_and_refuses_less_than_announced(capsys):
@@ -17,10 +17,11 @@ def test_the_demo_prints_the_data_fitted_and_refuses_less_than_announced(capsys)
     assert not _enough('refined: Ra=1.6 Ohm', 12.0, 1000.0)
 
 
-def test_the_demo_reads_the_aligned_samples_from_the_streams_status():
-    def array(name, emitted):
-        return DiagnosticArray(status=[DiagnosticStatus(
-            name=name, values=[KeyValue(key='emitted', value=str(emitted))])])
-    assert _emitted([]) == 0
-    assert _emitted([array('identifier: streams', 500), array('identifier: identify', 9),
-                     array('identifier: streams', 800)]) == 800
+def test_the_demo_reads_samples_and_whole_windows_from_the_streams_status():
+    def array(name, emitted, windows):
+        return DiagnosticArray(status=[DiagnosticStatus(name=name, values=[
+            KeyValue(key='emitted', value=str(emitted)),
+            KeyValue(key='windows_in_memory', value=str(windows))])])
+    assert _streams([]) == (0, 0)
+    assert _streams([array('identifier: streams', 500, 0), array('identifier: identify', 9, 7),
+                     array('identifier: streams', 12100, 1)]) == (12100, 1)
