@@ -5,7 +5,7 @@ For each publisher mode, at 500 Hz and 1 kHz, the paper's motor 2 under the pape
 excitation (6 s, 1 % noise on current and speed) is published in real time by
 :class:`dcmotor_id.nodes.drive_emulator.DrivePlayer` (header stamps from ``now()`` or on the
 grid with jitter, 50 ms bursts, a voltage without header, the voltage at twice the rate,
-Float64 topics by timestamp) to an ``identifier`` node in the same process; ``~/identify``
+Float64 topics by timestamp, batches) to an ``identifier`` node in the same process; ``~/identify``
 is called once the drive has published everything. The table gives the share of the
 published samples (at the identification rate) that the fit used, how each topic was placed
 on the grid, and the relative errors of Ra, CPhi, J and b against the emulator's truth.
@@ -39,6 +39,8 @@ MODES = {
         'float64', {}, {'stamps': 'now', 'burst_s': 0.05}),
     'Float64 topics by timestamp, published when due': (
         'float64', {}, {'stamps': 'now'}),
+    'batches of 50 ms bursts, sample times with 20 % jitter': (
+        'batch', {}, {'stamps': 'grid', 'jitter': 0.2, 'burst_s': 0.05}),
     'mechanical only (torque_constant), now() bursts': (
         'joint_state', {'torque_constant': 0.7}, {'stamps': 'now', 'burst_s': 0.05}),
 }
@@ -52,7 +54,7 @@ def placement(regrid):
         how = 'on grid' if stats['snapped'] else 'resampled'
         kind = 'bursts' if stats['bursty'] else 'stamps'
         words.append(f"{name}: {how} ({kind}, x{stats['ratio']:g})")
-    return '; '.join(words)
+    return '; '.join(words) or 'by the times in the batches'
 
 
 def main():

@@ -113,27 +113,34 @@ def run_demo(record_s: float = 12.0, record_dir: Optional[str] = None) -> int:
         if not _enough(response.message, record_s, rate_hz):
             return 1
         spin_until(executor, lambda: latched, 10.0)
-        paper = {}
-        for array in diagnostics:
-            for status in array.status:
-                if status.name.endswith('paper method') and status.values:
-                    paper = status_values(status)
-        estimate = status_values(online[-1]) if online else {}
-        _print_table(truth, status_values(latched[-1]), paper, estimate)
-        if estimate:
-            print(f'online estimate: converged={estimate["converged"]}, innovation RMS '
-                  f'current {float(estimate["innovation_rms_current_A"]):.3g} A, speed '
-                  f'{float(estimate["innovation_rms_speed_rad_s"]):.3g} rad/s, '
-                  f'{estimate["n_updates"]} sample pairs')
-        bags = response.message.split('; bags: ')[-1].split('; ')[0].split(', ') \
-            if '; bags: ' in response.message else []
-        print('window bags identified (rosbag2, MCAP; dcmotor-id identify BAG reads them):')
-        for bag in bags:
-            print(f'  {bag}')
+        _print_results(truth, latched, diagnostics, online, response.message)
         print(f'all windows: {record_dir}   node logs: {logs.name}')
         return 0
     finally:
         close_demo(processes, executor, node, logs)
+
+
+def _print_results(truth: dict[str, float], latched: list[DiagnosticStatus],
+                   diagnostics: list[DiagnosticArray], online: list[DiagnosticStatus],
+                   answer: str) -> None:
+    """Print the table, the online estimate's state and the bags identified."""
+    paper = {}
+    for array in diagnostics:
+        for status in array.status:
+            if status.name.endswith('paper method') and status.values:
+                paper = status_values(status)
+    estimate = status_values(online[-1]) if online else {}
+    _print_table(truth, status_values(latched[-1]), paper, estimate)
+    if estimate:
+        print(f'online estimate: converged={estimate["converged"]}, innovation RMS '
+              f'current {float(estimate["innovation_rms_current_A"]):.3g} A, speed '
+              f'{float(estimate["innovation_rms_speed_rad_s"]):.3g} rad/s, '
+              f'{estimate["n_updates"]} sample pairs')
+    bags = answer.split('; bags: ')[-1].split('; ')[0].split(', ') \
+        if '; bags: ' in answer else []
+    print('window bags identified (rosbag2, MCAP; dcmotor-id identify BAG reads them):')
+    for bag in bags:
+        print(f'  {bag}')
 
 
 def _enough(message: str, record_s: float, rate_hz: float) -> bool:

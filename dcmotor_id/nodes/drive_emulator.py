@@ -12,7 +12,10 @@ due, from a thread of its own, with a publisher of the given node:
   voltage as ``std_msgs/Float64`` on ``voltage`` (no header: the receiver sees its DDS
   source time, the real publication time);
 * ``transport='float64'``: ``voltage``, ``current`` and ``speed`` as ``std_msgs/Float64``
-  (publication times only).
+  (publication times only);
+* ``transport='batch'``: the samples of each burst (or each sample) in one
+  ``std_msgs/Float64MultiArray`` on ``samples`` (:mod:`dcmotor_id.formats.batch`), the time of
+  each sample its joint-state stamp (with its jitter) from the first sample.
 
 It is the drive of the node tests of the robot topics and of
 ``bench/bench_robot_topics.py``; the identifier takes its messages as it would a robot's.
@@ -27,13 +30,14 @@ from typing import Any, Optional
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Float64MultiArray
 
+from dcmotor_id.nodes.sim_motor import batch_message
 from dcmotor_id.simulation.drive_publisher import drive_messages
 
 __all__ = ['DrivePlayer', 'TRANSPORTS']
 
-TRANSPORTS = ('joint_state', 'float64')
+TRANSPORTS = ('joint_state', 'float64', 'batch')
 
 
 class DrivePlayer:
@@ -70,11 +74,12 @@ class DrivePlayer:
         self.samples = (np.asarray(voltage), np.asarray(current), np.asarray(speed))
         self.transport = transport
         self.options = publish
-        topics = ('voltage', 'joint_states') if transport == 'joint_state' else \
-            ('voltage', 'current', 'speed')
-        self.publishers = {topic: node.create_publisher(
-            JointState if topic == 'joint_states' else Float64, topic, qos_depth)
-            for topic in topics}
+        topics = {'joint_state': ('voltage', 'joint_states'),
+                  'float64': ('voltage', 'current', 'speed'), 'batch': ('samples',)}[transport]
+        kinds = {'joint_states': JointState, 'samples': Float64MultiArray}
+        self.publishers = {topic: node.create_publisher(kinds.get(topic, Float64), topic,
+                                                        qos_depth)
+                           for topic in topics}
         self.published = dict.fromkeys(topics, 0)
         self.done = threading.Event()
         self._stop = threading.Event()
@@ -90,6 +95,8 @@ class DrivePlayer:
         start_ns = time.time_ns() + int(lead_s * 1e9)
         messages = drive_messages(*self.samples, self.rate_hz, start_ns=start_ns,
                                   **self.options)
+        if self.transport == 'batch':
+            messages = _batches(messages, start_ns)
         self._thread = threading.Thread(target=self._play, args=(messages,), daemon=True,
                                         name='drive')
         self._thread.start()
@@ -124,7 +131,10 @@ class DrivePlayer:
 
     def _publish(self, message: Any) -> None:
         """Publish one message of :func:`drive_messages` on its topic(s)."""
-        if message.topic == 'voltage':
+        if message.topic == 'samples':
+            self.publishers['samples'].publish(batch_message(*message.values))
+            self.published['samples'] += len(message.values[0])
+        elif message.topic == 'voltage':
             self.publishers['voltage'].publish(Float64(data=message.values[0]))
             self.published['voltage'] += 1
         elif self.transport == 'float64':
@@ -142,6 +152,33 @@ class DrivePlayer:
                 stamp_ns, 1_000_000_000)
             self.publishers['joint_states'].publish(joint_state)
             self.published['joint_states'] += 1
+
+
+def _batches(messages: list, start_ns: int) -> list:
+    """
+    Return the joint states' messages grouped by publication (one burst, one batch).
+
+    Each group is one ``samples`` message whose values are the batch's columns: times [s]
+    (the joint-state stamps from ``start_ns``), voltages (of the same samples), currents and
+    speeds.
+    """
+    voltage = {message.sequence: message.values[0] for message in messages
+               if message.topic == 'voltage'}
+    joint = [message for message in messages if message.topic == 'joint_states']
+    groups: list[list] = []
+    for message in joint:
+        if groups and message.publish_ns - groups[-1][-1].publish_ns < 100_000:
+            groups[-1].append(message)
+        else:
+            groups.append([message])
+    batches = []
+    for group in groups:
+        columns = (np.array([(message.stamp_ns - start_ns) * 1e-9 for message in group]),
+                   np.array([voltage[message.sequence] for message in group]),
+                   np.array([message.values[0] for message in group]),
+                   np.array([message.values[1] for message in group]))
+        batches.append(group[-1]._replace(topic='samples', values=columns))
+    return batches
 
 
 def noisy_record(rate_hz: float, duration_s: float, noise: float = 0.01,

@@ -22,6 +22,8 @@ CASES = {
         1000.0, 'float64', {}, {'stamps': 'now'}),
     'float64 topics by timestamp, 50 ms bursts': (
         500.0, 'float64', {}, {'stamps': 'now', 'burst_s': 0.05}),
+    'batches of 50 ms bursts, sample times with 20 % jitter': (
+        1000.0, 'batch', {}, {'stamps': 'grid', 'jitter': 0.2, 'burst_s': 0.05}),
 }
 
 
@@ -45,6 +47,9 @@ def test_robot_topics_are_used_whole_and_identify_the_motor(ros, case):
     errors = relative_errors_pct(result['parameters'], TRUTH)
     for key in ('Ra', 'CPhi', 'J', 'b'):
         assert abs(errors[key]) < 1.0, (key, errors, out['regrid'])
+    if transport == 'batch':  # the times are in the messages: nothing to place
+        assert out['stats']['duplicates'] == out['stats']['lost'] == 0
+        return
     # what was placed and how is said in the answer and on /diagnostics
     assert 'placed on the grid' in response.message
     keys = dict(out['health'])
