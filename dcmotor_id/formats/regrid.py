@@ -57,6 +57,8 @@ RATIOS = tuple(float(k) for k in range(1, 11)) + tuple(1.0 / k for k in range(2,
 RATIO_TOLERANCE = 0.03
 #: Positions closer than this to a grid instant are on it [grid periods].
 EPS = 1e-6
+#: A source placed this far [s] from where the others are now is on another clock.
+MAX_CLOCK_GAP_S = 2.0
 
 
 class BlockSink(Protocol):
@@ -102,6 +104,9 @@ class SourceStats:
     stamp_spread : float
         Spread (95th minus 5th percentile) of the stamps about their fitted line when placed
         [grid periods]: the jitter, or the length of a burst.
+    other_clock : int
+        Messages dropped because their stamps were :data:`MAX_CLOCK_GAP_S` or more from the
+        other sources' (another clock); ``clock_gap_s`` says how far [s].
 
     """
 
@@ -118,6 +123,8 @@ class SourceStats:
     snapped: bool = False
     bursty: bool = False
     stamp_spread: float = float('nan')
+    other_clock: int = 0
+    clock_gap_s: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """Return the counters as a plain dict."""
@@ -247,11 +254,13 @@ class StampRegridder:
                 if len(source.numbers) < 8 or (
                         not force and source.stamps[-1] - source.stamps[0] < self.settle_ns):
                     continue
-                if self._origin is None and not force and not self._slow(source) and any(
-                        self._slow(other) and other.stats.received
-                        for other in self._sources.values()):
-                    continue  # a faster source waits for the grid-rate one to set the origin
-                self._place(source)
+                if self._origin is None and not force and not self._slow(source) and \
+                        source.stamps[-1] - source.stamps[0] < 5 * self.settle_ns and any(
+                            self._slow(other) and other.stats.received
+                            for other in self._sources.values()):
+                    continue  # a faster source waits (a while) for the grid-rate one
+                if not self._place(source):
+                    continue
             self._emit(source, sink)
 
     def _slow(self, source: _Source) -> bool:
@@ -281,8 +290,15 @@ class StampRegridder:
         base = self._base_ns or 0
         return base + int(round((self._origin or 0.0) + index * self.period_ns))
 
-    def _place(self, source: _Source) -> None:
-        """Find the source's rate, offset and shift from its stamps so far."""
+    def _place(self, source: _Source) -> bool:
+        """
+        Find the source's rate, offset and shift from its stamps so far; return whether placed.
+
+        A source whose newest message would land more than :data:`MAX_CLOCK_GAP_S` from where
+        the sources placed before it are now is on another clock (a voltage stamped by DDS
+        beside replayed joint states, say): its messages are dropped, counted in
+        ``other_clock``, and it is tried again with the next ones.
+        """
         numbers = np.asarray(source.numbers, dtype=float)
         stamps = np.asarray(source.stamps, dtype=float)
         relative = numbers - numbers[0]
@@ -305,14 +321,32 @@ class StampRegridder:
         tolerance = 0.5 if bursty or self._origin_bursty else SNAP
         snapped = exact and abs(shift - nearest_shift) <= tolerance + EPS
         stats = source.stats
+        shift = nearest_shift if snapped else shift
+        if self._other_clock(source, shift + relative[-1] / ratio, numbers.size):
+            return False
         stats.ratio, stats.bursty, stats.snapped = ratio, bursty, snapped
-        stats.shift = nearest_shift if snapped else shift
+        stats.shift = shift
         spread = np.percentile(residual, [5, 95]) if residual.size else [0.0, 0.0]
         stats.stamp_spread = float(spread[1] - spread[0]) / self.period_ns
         source.number0 = int(numbers[0])
         source.placed = True
         if bursty and self._anchor is None:
             self._anchor = (stamps, stats.shift + relative / ratio)
+        return True
+
+    def _other_clock(self, source: _Source, newest: float, count: int) -> bool:
+        """Drop and count a source's messages when ``newest`` is far from the others' now."""
+        tails = [other.tail[0] for other in self._sources.values()
+                 if other is not source and other.placed and other.tail is not None]
+        if not tails:
+            return False
+        gap_s = (newest - max(tails)) * self.period_ns * 1e-9
+        if abs(gap_s) <= MAX_CLOCK_GAP_S:
+            return False
+        source.stats.other_clock += count
+        source.stats.clock_gap_s = gap_s
+        source.numbers, source.stamps, source.values = [], [], []
+        return True
 
     def _matched_shift(self, stamps: np.ndarray, positions: np.ndarray) -> float:
         """
@@ -387,6 +421,13 @@ class StampRegridder:
         for name, source in self._sources.items():
             stats = source.stats
             if not stats.received:
+                continue
+            if not source.placed and stats.other_clock:
+                phrases.append(f'{name}: {stats.other_clock} messages not paired: their stamps '
+                               f'are {stats.clock_gap_s:+.3g} s from those of the other topics '
+                               '(another clock? a voltage stamped on arrival beside replayed '
+                               'joint states: replay both, or record the voltage with a '
+                               'header)')
                 continue
             if not source.placed and stats.ratio == 0:
                 phrases.append(f'{name}: {stats.received} messages, not placed yet (needs '

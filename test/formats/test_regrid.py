@@ -254,3 +254,20 @@ def test_a_stalled_publisher_does_not_bend_the_rate_or_the_offset():
     indices, values, regridder, _ = align(messages, rate_hz)
     assert_exact(indices, values, truth)
     assert regridder.stats['voltage'].ratio == 1.0
+
+
+def test_a_source_on_another_clock_is_not_paired_and_is_said():
+    """A voltage stamped by DDS (now) beside joint states replayed with old header stamps."""
+    regridder = StampRegridder(1e-3, settle_s=0.5)
+    regridder.add_source('joint_states', ('current', 'speed'))
+    regridder.add_source('voltage', ('voltage',))
+    inbox = SampleInbox(CHANNELS, 1e-3)
+    for number in range(1, 601):
+        regridder.put('joint_states', 10 ** 12 + number * 10 ** 6, number, (1.0, 2.0))
+    regridder.drain_into(inbox)
+    for number in range(1, 601):
+        regridder.put('voltage', 10 ** 15 + number * 10 ** 6, number, (3.0,))
+    regridder.drain_into(inbox)
+    stats = regridder.stats['voltage']
+    assert stats.on_grid == 0 and stats.other_clock == 600 and stats.clock_gap_s > 900
+    assert any('another clock' in phrase for phrase in regridder.summary())
