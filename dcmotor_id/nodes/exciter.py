@@ -1,14 +1,19 @@
 """
 ``exciter``: the node that drives a real (or simulated) motor with an excitation routine, safely.
 
-Publishes ``voltage_command`` (``std_msgs/msg/Float64``, relative name) at ``rate_hz`` while
-a routine runs (:mod:`dcmotor_id.design.routines`: quasistatic, dynamic, prbs, multisine, chirp,
+Publishes ``voltage_command`` (``std_msgs/msg/Float64``, relative name; ``command_topic``) at
+``rate_hz`` while a routine runs, or, with ``command_type: forward_command_controller``, a
+``std_msgs/msg/Float64MultiArray`` on ``command_topic`` for a ros2_control forward command
+controller (the voltage at ``joint_index`` of ``joint_count`` values, the others 0), the same
+on every stop (:mod:`dcmotor_id.design.routines`: quasistatic, dynamic, prbs, multisine, chirp,
 forward or backward; or the routine of a plan file written by ``dcmotor-id plan --json``).
 Services ``~/start`` and ``~/stop`` (``std_srvs/srv/Trigger``); the state (idle, ramping-in,
 running, stopped, stopped-by-limit, stale, done), the routine and its progress go to
 ``/diagnostics``.  It reads the measurements the drive publishes, ``current`` and ``speed``
-(``std_msgs/msg/Float64``, ``input: float64``) or the batches on ``samples`` (``input:
-batch``, :mod:`dcmotor_id.formats.batch`, which carry the voltage too), and commands 0 V and
+(``std_msgs/msg/Float64``, ``input: float64``), the batches on ``samples`` (``input:
+batch``, :mod:`dcmotor_id.formats.batch`, which carry the voltage too) or the velocity of
+``joint_name`` in ``joint_states`` (``sensor_msgs/msg/JointState``, ``input: joint_state``,
+as a ros2_control robot publishes it), and commands 0 V and
 stops at once when one exceeds its limit or is NaN/inf, when one of them (each channel on
 its own) had no finite sample for ``stale_timeout_s`` (at the next command tick; the state
 ``stale`` and the log name the channel), on ``~/stop``, at the end of the routine, and when
@@ -36,6 +41,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
@@ -55,7 +61,11 @@ LEVELS = {'idle': DiagnosticStatus.OK, 'ramping-in': DiagnosticStatus.OK,
 #: Zero commands sent after a stop (one a tick), in case the first one is lost.
 ZERO_REPEATS = 5
 #: Channels watched (each must stay fresh and finite) by ``input``.
-WATCHED = {'float64': ('current', 'speed'), 'batch': ('current', 'speed', 'voltage')}
+WATCHED = {'float64': ('current', 'speed'), 'batch': ('current', 'speed', 'voltage'),
+           'joint_state': ('speed',)}
+#: How the routine is commanded: a Float64 voltage, or a ros2_control forward command
+#: controller's Float64MultiArray (one value per joint it commands).
+COMMAND_TYPES = ('float64', 'forward_command_controller')
 
 
 def load_plan(path: str) -> Routine:
@@ -89,7 +99,10 @@ class Exciter(Node):
         stale = declare(self, 'stale_timeout_s', 0.5, 'stop when no measurement arrived for '
                         'this long [s]', low=1e-3)
         source = declare(self, 'input', 'float64', 'float64: current and speed topics; '
-                         'batch: samples', choices=('float64', 'batch'))
+                         'batch: samples; joint_state: the velocity of joint_name in '
+                         'joint_states', choices=tuple(WATCHED))
+        self.joint_name = declare(self, 'joint_name', '', 'joint_state input: the joint '
+                                  'watched ("" = the first)')
         depth = declare(self, 'qos_depth', 5000, 'history depth of the measurement topics',
                         low=1)
         reliability = declare(self, 'qos_reliability', 'reliable', 'reliable or best_effort',
@@ -101,8 +114,7 @@ class Exciter(Node):
         self._lock = threading.RLock()
         self._zeros_due = 0
         self._last_state = self.session.state
-        self.command_publisher = self.create_publisher(Float64, 'voltage_command',
-                                                       COMMAND_QOS)
+        self._declare_command()
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._subscribe(source, sample_qos(depth, reliability))
         # ~/stop and ~/start each in a group of their own: a stop is never queued behind a
@@ -115,6 +127,25 @@ class Exciter(Node):
         self.create_timer(0.5, self._report)
         self.get_logger().info(f'exciter ready: {source} input, limits {limits}, '
                                f'commands at {rate:g} Hz; call ~/start')
+
+    def _declare_command(self) -> None:
+        """Declare how the routine is commanded and create its publisher."""
+        self.command_type = declare(
+            self, 'command_type', 'float64', 'float64: std_msgs/Float64 on command_topic; '
+            'forward_command_controller: std_msgs/Float64MultiArray on command_topic (e.g. '
+            '/<controller>/commands), the voltage at joint_index of joint_count values, the '
+            'others 0', choices=COMMAND_TYPES)
+        topic = declare(self, 'command_topic', 'voltage_command', 'topic of the commands')
+        self.joint_count = declare(self, 'joint_count', 1, 'forward_command_controller: '
+                                   'joints the controller commands', low=1)
+        self.joint_index = declare(self, 'joint_index', 0, 'forward_command_controller: '
+                                   'the place of the motor among them', low=0)
+        if self.joint_index >= self.joint_count:
+            raise ValueError(f'joint_index {self.joint_index} is not below joint_count '
+                             f'{self.joint_count}: give the place of the motor among the '
+                             'joints of the controller')
+        message_type = Float64 if self.command_type == 'float64' else Float64MultiArray
+        self.command_publisher = self.create_publisher(message_type, topic, COMMAND_QOS)
 
     def _declare_routine(self) -> dict[str, Any]:
         """Declare the routine's parameters; return them by name (``plan_file`` included)."""
@@ -156,8 +187,25 @@ class Exciter(Node):
                             lambda message, _: self._observe(current=[message.data]))
             self.inputs.add(Float64, 'speed', qos,
                             lambda message, _: self._observe(speed=[message.data]))
-        else:
+        elif source == 'batch':
             self.inputs.add(Float64MultiArray, 'samples', qos, self._on_batch)
+        else:
+            self.inputs.add(JointState, 'joint_states', qos, self._on_joint_state)
+
+    def _on_joint_state(self, message: JointState, _: Any) -> None:
+        """Watch the joint's velocity; a message without it is not a measurement."""
+        names = list(message.name)
+        if self.joint_name and self.joint_name not in names:
+            self.get_logger().warning(f'joint_states: no joint {self.joint_name!r} (has '
+                                      f'{names}); not counted as a measurement',
+                                      throttle_duration_sec=5.0)
+            return
+        position = names.index(self.joint_name) if self.joint_name else 0
+        if len(message.velocity) <= position:
+            self.get_logger().warning(f'joint_states: no velocity for joint {position}; not '
+                                      'counted as a measurement', throttle_duration_sec=5.0)
+            return
+        self._observe(speed=[message.velocity[position]])
 
     @staticmethod
     def now_s() -> float:
@@ -220,8 +268,13 @@ class Exciter(Node):
         self._report()
 
     def publish_command(self, value: float) -> None:
-        """Publish one voltage command [V]."""
-        self.command_publisher.publish(Float64(data=float(value)))
+        """Publish one voltage command [V] (in its place of the joints' array)."""
+        if self.command_type == 'float64':
+            self.command_publisher.publish(Float64(data=float(value)))
+            return
+        values = [0.0] * self.joint_count
+        values[self.joint_index] = float(value)
+        self.command_publisher.publish(Float64MultiArray(data=values))
 
     def _tick(self) -> None:
         try:

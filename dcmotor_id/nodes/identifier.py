@@ -64,6 +64,7 @@ from std_srvs.srv import Trigger
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.records import MIN_SAMPLES
 from dcmotor_id.formats.batch import decode_batch
+from dcmotor_id.formats.regrid import StampRegridder
 from dcmotor_id.formats.streams import SampleInbox, StreamAligner
 from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters, run,
                                      sample_qos, SERVICE_QOS)
@@ -104,7 +105,9 @@ class Identifier(Node):
                                    settings.min_window_s, min_samples=MIN_SAMPLES,
                                    clock_ns=lambda: self.get_clock().now().nanoseconds,
                                    restart_samples=self.aligner.restart_samples)
-        self.health = InputHealth(self.channels, self.inbox, self.aligner, self.cutter)
+        self.regridder = self._make_regridder(settings)
+        self.health = InputHealth(self.channels, self.inbox, self.aligner, self.cutter,
+                                  self.regridder)
         # online estimate and change alarms (ROS-free: dcmotor_id.streaming.monitoring, .online)
         self.online = monitor_from_settings(settings, rate) if settings.online else None
         self.estimator = self.online.estimator if self.online is not None else None
@@ -143,6 +146,27 @@ class Identifier(Node):
             batch_samples=0 if fmt == 'float64' else max(1, int(round(0.1 * rate))),
             min_free_bytes=int(settings.min_free_mb * 2 ** 20))
 
+    def _make_regridder(self, settings: IdentifierSettings) -> Optional[StampRegridder]:
+        """
+        Return what places stamped messages on the grid (None: placed by sequence number).
+
+        Joint states, and Float64 topics with ``align_by: timestamp``: each topic is a source
+        numbered by its DDS sequence numbers and placed on the grid by its stamps
+        (:mod:`dcmotor_id.formats.regrid`).
+        """
+        if settings.input == 'batch' or (settings.input == 'float64' and
+                                         settings.align_by == 'sequence'):
+            return None
+        regridder = StampRegridder(1.0 / settings.sample_rate_hz, hold_channels=('voltage',))
+        if settings.input == 'float64':
+            for channel in self.channels:
+                regridder.add_source(channel, (channel,))
+        else:
+            regridder.add_source('joint_states', ('current', 'speed'))
+            if not self.mechanical:
+                regridder.add_source('voltage', ('voltage',))
+        return regridder
+
     def _subscribe(self, settings: IdentifierSettings) -> None:
         """Subscribe to the samples of the configured input (Float64, batch, joint states)."""
         qos = sample_qos(settings.qos_depth, settings.qos_reliability)
@@ -154,11 +178,9 @@ class Identifier(Node):
             inputs.add(Float64MultiArray, 'samples', qos, lambda message, _: self._on_batch(
                 message))
         else:
-            inputs.add(JointState, 'joint_states', qos, lambda message, _:
-                       self._on_joint_state(message))
+            inputs.add(JointState, 'joint_states', qos, self._on_joint_state)
             if not self.mechanical:
-                inputs.add(Float64, 'voltage', qos,
-                           partial(self._on_float64, 'voltage', by_timestamp=True))
+                inputs.add(Float64, 'voltage', qos, partial(self._on_float64, 'voltage'))
 
     # ------------------------------------------------------------------ input
     def _log(self, level, text):
@@ -168,8 +190,14 @@ class Identifier(Node):
         else:
             getattr(self.get_logger(), level)(text)
 
-    def _on_float64(self, channel, message, info, by_timestamp=False):
-        self.inbox.put_message(channel, message.data, info, by_timestamp)
+    def _on_float64(self, channel, message, info):
+        if self.regridder is None:
+            self.inbox.put_message(channel, message.data, info)
+            return
+        stamp = info.get('source_timestamp') or info['received_timestamp']
+        self.regridder.put(channel, stamp, info.get('publication_sequence_number'),
+                           (message.data,))
+        self.inbox.seen((channel,))
 
     def _on_batch(self, message):
         try:
@@ -182,7 +210,7 @@ class Identifier(Node):
             return
         self.inbox.put_times(block[0], dict(zip(('voltage', 'current', 'speed'), block[1:])))
 
-    def _on_joint_state(self, message):
+    def _on_joint_state(self, message, info):
         names, joint = list(message.name), self.settings.joint_name
         if joint and joint not in names:
             self._refuse_joint_state(f'no joint {joint!r} (has {names})')
@@ -193,9 +221,12 @@ class Identifier(Node):
                                      f'{len(message.effort)} efforts for joint {position}')
             return
         stamp = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
-        index = self.inbox.index_of_stamp(stamp)
-        self.inbox.put('current', index, self.settings.effort_scale * message.effort[position])
-        self.inbox.put('speed', index, message.velocity[position])
+        assert self.regridder is not None
+        self.regridder.put('joint_states', stamp or info.get('source_timestamp') or
+                           info['received_timestamp'], info.get('publication_sequence_number'),
+                           (self.settings.effort_scale * message.effort[position],
+                            message.velocity[position]))
+        self.inbox.seen(('current', 'speed'))
 
     def _refuse_joint_state(self, why):
         self.health.refuse_joint_state(why)
@@ -206,8 +237,16 @@ class Identifier(Node):
     def process(self) -> None:
         """Align what has arrived, cut it into windows and feed the online estimate."""
         self.input_node.take()
+        if self.regridder is not None:
+            self.regridder.drain_into(self.inbox)
         self.inbox.drain_into(self.aligner)
         self._consume()
+
+    def _place_all(self):
+        """Place the stamped topics with less than a second of stamps too (they stopped)."""
+        if self.regridder is not None:
+            self.regridder.drain_into(self.inbox, force=True)
+            self.inbox.drain_into(self.aligner)
 
     def _consume(self):
         for run_ in self.cutter.add(*self.aligner.pop_ready()):
@@ -371,6 +410,7 @@ class Identifier(Node):
             self.get_logger().warning(f'topic(s) {", ".join(newly)} stopped (nothing '
                                       f'for {timeout_s:g} s); the current window '
                                       'is closed and kept')
+            self._place_all()
             self.aligner.flush()
             self._consume()
             self._close_window()
@@ -385,6 +425,7 @@ class Identifier(Node):
         """Flush: align what arrived, write the current window, stop the writer."""
         try:
             self.process()
+            self._place_all()
             self.aligner.flush()
             self._consume()
             self._close_window()

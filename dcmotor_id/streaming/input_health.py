@@ -18,6 +18,7 @@ from collections import Counter
 import time
 from typing import Optional, Sequence
 
+from dcmotor_id.formats.regrid import StampRegridder
 from dcmotor_id.formats.streams import SampleInbox, StreamAligner
 from dcmotor_id.streaming.windowing import WindowCutter
 
@@ -50,6 +51,9 @@ class InputHealth:
         The channels the node needs (``voltage``, ``current``, ``speed`` or a subset).
     inbox, aligner, cutter
         The node's input stages; their counters are read, never changed.
+    regridder : StampRegridder, optional
+        Where stamped messages are placed on the grid (joint states, Float64 topics by
+        timestamp); its counters are said too.
 
     Attributes
     ----------
@@ -63,8 +67,9 @@ class InputHealth:
     """
 
     def __init__(self, channels: Sequence[str], inbox: SampleInbox, aligner: StreamAligner,
-                 cutter: WindowCutter) -> None:
+                 cutter: WindowCutter, regridder: Optional[StampRegridder] = None) -> None:
         self.channels = tuple(channels)
+        self.regridder = regridder
         self.inbox = inbox
         self.aligner = aligner
         self.cutter = cutter
@@ -109,10 +114,12 @@ class InputHealth:
             problems.append(f'nothing received on {", ".join(missing)}')
         elif missing and not seen:
             problems.append('nothing received yet')
-        if stats.invalid:
+        invalid = self.invalid_by_channel()
+        if any(invalid.values()):
             per_channel = ', '.join(f'{channel} {count}' for channel, count in
-                                    self.aligner.invalid_by_channel.items() if count)
-            problems.append(f'{stats.invalid} invalid values (NaN/inf) refused: {per_channel}')
+                                    invalid.items() if count)
+            problems.append(f'{sum(invalid.values())} invalid values (NaN/inf) refused: '
+                            f'{per_channel}')
         if self.malformed:
             reasons = ', '.join(f'{reason} {count}' for reason, count in
                                 sorted(self.malformed.items()))
@@ -134,18 +141,39 @@ class InputHealth:
                 problems.append(f'{count} {what}')
         return problems
 
+    def invalid_by_channel(self) -> dict[str, int]:
+        """Return the values refused as NaN/inf per channel (aligner and regridder)."""
+        counts = dict(self.aligner.invalid_by_channel)
+        if self.regridder is not None:
+            for channel, count in self.regridder.invalid_by_channel.items():
+                counts[channel] = counts.get(channel, 0) + count
+        return counts
+
+    def placement(self) -> list[str]:
+        """Say per stamped topic how its messages were placed on the grid (or nothing)."""
+        return self.regridder.summary() if self.regridder is not None else []
+
     def with_problems(self, summary: str) -> str:
-        """Append the input's problems to the summary of a success (never a silent one)."""
+        """
+        Append the input's problems to the summary of a success (never a silent one).
+
+        With stamped topics, how their messages were placed, resampled, lost and dropped is
+        said too.
+        """
         problems = self.problems()
-        return summary + (f'; input so far: {"; ".join(problems)}' if problems else '')
+        placement = self.placement()
+        return (summary + (f'; input so far: {"; ".join(problems)}' if problems else '') +
+                (f'; placed on the grid: {"; ".join(placement)}' if placement else ''))
 
     def not_enough_data(self) -> str:
         """Return the answer of ``~/identify`` when no window is long enough."""
         problems = self.problems()
+        placement = self.placement()
         return (f'not enough data: {self.cutter.held_samples} aligned samples so far, a run '
                 f'of at least {self.cutter.min_samples} samples without loss is needed; check '
                 f'that the drive publishes {", ".join(self.channels)}, then call again' +
-                (f'. Input so far: {"; ".join(problems)}' if problems else ''))
+                (f'. Input so far: {"; ".join(problems)}' if problems else '') +
+                (f'. Placed on the grid: {"; ".join(placement)}' if placement else ''))
 
     def stopped(self, timeout_s: float, now: Optional[float] = None
                 ) -> tuple[list[str], list[str]]:
@@ -194,7 +222,9 @@ class InputHealth:
         ``first_sample``, ``next_sample``, ``windows_in_memory``, ``discarded_samples``,
         ``missing_channels``, ``malformed_batches``, ``malformed_reason``, ``invalid_times``,
         ``window_restarts``, ``fit_restarts`` (restarts of the fit process), ``problems``,
-        ``invalid.<channel>`` and, when recording, ``record_dir``.
+        ``invalid.<channel>``, with stamped topics ``regrid.<topic>.<counter>``
+        (:class:`~dcmotor_id.formats.regrid.SourceStats`) and, when recording,
+        ``record_dir``.
         """
         pairs = [(key, str(value)) for key, value in self.aligner.stats.as_dict().items()]
         pairs += [('first_sample', str(self.aligner.first_index)),
@@ -209,7 +239,9 @@ class InputHealth:
                   ('fit_restarts', str(fit_restarts)),
                   ('problems', '; '.join(self.problems()))]
         pairs += [(f'invalid.{channel}', str(count))
-                  for channel, count in self.aligner.invalid_by_channel.items()]
+                  for channel, count in self.invalid_by_channel().items()]
+        if self.regridder is not None:
+            pairs += self.regridder.key_values()
         if record_dir is not None:
             pairs.append(('record_dir', record_dir))
         return pairs

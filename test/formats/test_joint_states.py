@@ -197,3 +197,33 @@ def test_cli_says_what_to_do_when_the_current_is_missing(tmp_path, capsys):
     error = capsys.readouterr().err
     assert 'no current' in error and '--interface current=effort' in error
     assert '/joint_states [sensor_msgs/msg/JointState]' in error
+
+
+def test_jittered_joint_states_at_2_ms_with_a_voltage_topic_are_placed_on_the_grid(tmp_path):
+    """Issue 32: two joints, header stamps with 0.1 ms of jitter at 2 ms, a voltage topic."""
+    period_ns = 2_000_000
+    stamps, channels = motor_samples(10.0, period_ns * 1e-9, seed=4)
+    rng = np.random.default_rng(5)
+    jittered = stamps + rng.integers(-100_000, 100_001, stamps.size)
+    bag = tmp_path / 'robot'
+    write_joint_state_bag(bag, jittered, {
+        'left': {'velocity': channels['speed'], 'effort': channels['current']},
+        'right': {'velocity': -channels['speed'], 'effort': channels['current']}},
+        floats={'/voltage': channels['voltage']})
+    record = read_record(str(bag), options=ReadOptions(joint='left', interfaces={
+        'current': 'effort'}))
+    assert len(record) == stamps.size == 5000
+    assert np.median(np.diff(record.time_s)) == pytest.approx(2e-3, rel=1e-5)
+    np.testing.assert_array_equal(record.voltage, channels['voltage'])
+    np.testing.assert_array_equal(record.speed, channels['speed'])
+
+
+def test_stamps_beyond_the_jitter_placed_on_the_grid_are_refused_naming_sample_period():
+    from dcmotor_id.formats.streams import align_timestamps
+
+    rng = np.random.default_rng(6)
+    stamps = np.arange(2000) * 2_000_000 + rng.integers(-800_000, 800_001, 2000)
+    with pytest.raises(InputDataError, match='--sample-period'):
+        align_timestamps({'current': stamps, 'voltage': np.arange(2000) * 2_000_000},
+                         {'current': np.zeros(2000), 'voltage': np.zeros(2000)},
+                         source='robot.mcap')

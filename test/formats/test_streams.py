@@ -220,3 +220,25 @@ def test_inbox_takes_blocks_by_time_and_drops_nan_times():
     assert set(inbox.last_seen) == {'current', 'speed'}
     inbox.drain_into(aligner)  # nothing new
     assert drain(aligner)[0].size == 0
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+@pytest.mark.parametrize('jitter_ns', [100_000, 400_000])
+def test_jittered_stamps_keep_their_period_over_thousands_of_samples(seed, jitter_ns):
+    """
+    Up to 20 % of jitter at 2 ms: the median step is a little off.
+
+    Over 10 000 samples that drifts by periods; the period is refined over doubling spans
+    and every sample placed. Joint states share their stamps; the voltage has its own.
+    """
+    rng = np.random.default_rng(seed)
+    count, period_ns = 10_000, 2_000_000
+    true = 10 ** 18 + np.arange(count, dtype=np.int64) * period_ns
+    joint = true + rng.integers(-jitter_ns, jitter_ns + 1, count)
+    stamps = {'voltage': true + rng.integers(-jitter_ns, jitter_ns + 1, count),
+              'current': joint, 'speed': joint}
+    values = {name: np.arange(count, dtype=float) for name in stamps}
+    grid, aligned = align_timestamps(stamps, values, source='robot.mcap')
+    assert grid.size == count
+    assert np.median(np.diff(grid)) == pytest.approx(period_ns, abs=1)
+    assert np.array_equal(aligned['voltage'], aligned['current'])
