@@ -336,7 +336,8 @@ def _add_fleet_commands(commands):
     fleet = commands.add_parser('fleet', help='identify many recordings on a Dask cluster into '
                                 'a per-motor Parquet history')
     fleet.add_argument('paths', nargs='+', metavar='BAG_OR_DIR',
-                       help='bags, .mcap/.db3/CSV files, or directories searched recursively')
+                       help='bags, .mcap/.db3, CSV, .mat or .parquet files, or directories '
+                            'searched recursively')
     fleet.add_argument('--history', required=True, metavar='HISTORY_DIR',
                        help='Parquet dataset the rows are appended to (one per window)')
     fleet.add_argument('--scheduler', metavar='ADDRESS',
