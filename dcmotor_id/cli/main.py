@@ -14,15 +14,17 @@ import warnings
 
 import numpy as np
 
-from dcmotor_id.core.command_line import non_negative, positive, run_reporting
+from dcmotor_id.cli.terminal import terminal_progress
+from dcmotor_id.console.command_line import (add_memory_budget, non_negative, positive,
+                                             run_reporting)
+from dcmotor_id.console.plan import add_plan_arguments, run_plan
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
-from dcmotor_id.core.progress import terminal_progress, TimeBudgetExceeded
+from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.core.records import Record
-from dcmotor_id.design.plan import add_plan_arguments, run_plan
 from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
-from dcmotor_id.formats.budget import add_memory_budget, set_memory_budget
+from dcmotor_id.formats.budget import set_memory_budget
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.json_file import write_json
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
@@ -309,7 +311,7 @@ def _cmd_demo(args):
 
 def _cmd_fleet(args):
     from dcmotor_id.fleet import FleetOptions, run_fleet
-    from dcmotor_id.fleet.progress import Progress
+    from dcmotor_id.cli.terminal import FleetProgressBar
     for path in args.paths:
         check_input_path(path, 'fleet input ', directory=True)
     check_output_path(args.history, '--history', directory=True)
@@ -318,7 +320,7 @@ def _cmd_fleet(args):
     summary = run_fleet(args.paths, args.history, options, scheduler=args.scheduler,
                         workers=args.workers, force=args.force,
                         retry_errors=not args.no_retry_errors,
-                        progress=None if args.quiet else Progress())
+                        progress=None if args.quiet else FleetProgressBar())
     print(summary.text())
     return 0
 
