@@ -279,20 +279,21 @@ def _cmd_simulate(args):
 def _cmd_design(args):
     from dcmotor_id.design import control as control_design
     from dcmotor_id.design.export import write_exports
+    from dcmotor_id.design.plant import DesignOptions, load_result, motor_from_result
     check_input_path(args.result, 'RESULT.json ')
     if args.json:
         check_output_path(args.json, '--json', inputs=[args.result])
     for option, place in (('--report', args.report), ('--export', args.export)):
         if place:
             check_output_path(place, option, directory=True)
-    result = control_design.load_result(args.result)
-    motor = control_design.motor_from_result(result, args.gear_ratio, args.output_shaft)
-    options = control_design.DesignOptions(args.current_bandwidth, args.speed_bandwidth,
-                                           args.phase_margin, args.sample_period)
+    result = load_result(args.result)
+    motor = motor_from_result(result, args.gear_ratio, args.output_shaft)
+    options = DesignOptions(args.current_bandwidth, args.speed_bandwidth, args.phase_margin,
+                            args.sample_period)
     design, gains = control_design.design(motor, options)
     design['source'] = args.result
     if args.export:
-        motor_shaft = control_design.motor_from_result(result, args.gear_ratio).values
+        motor_shaft = motor_from_result(result, args.gear_ratio).values
         design['export'] = write_exports(args.export, motor, motor_shaft)
         print(f'exported: {args.export}')
     if args.report:
