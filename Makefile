@@ -79,13 +79,14 @@ docs: $(STAMP)
 	$(PY) -m sphinx -b html -W --keep-going docs docs/_build/html
 	@echo "the manual: docs/_build/html/index.html"
 
-# Every benchmark of bench/README.md, each table written to $(BENCH_OUT) (long: about an hour).
+# The simulated benchmarks of bench/README.md, each table written to $(BENCH_OUT) under its
+# committed name (long: about an hour).
 bench: $(STAMP)
 	mkdir -p $(BENCH_OUT)
-	$(PY) bench/bench_replication.py > $(BENCH_OUT)/replication.md
-	$(PY) bench/bench_sampling_period.py > $(BENCH_OUT)/sampling_period.md
-	$(PY) bench/bench_noise.py > $(BENCH_OUT)/noise.md
-	$(PY) bench/bench_speed.py > $(BENCH_OUT)/speed.md
+	$(PY) bench/bench_replication.py > $(BENCH_OUT)/replication_results.md
+	$(PY) bench/bench_sampling_period.py > $(BENCH_OUT)/sampling_period_results.md
+	$(PY) bench/bench_noise.py > $(BENCH_OUT)/noise_results.md
+	$(PY) bench/bench_speed.py > $(BENCH_OUT)/speed_results.md
 	$(PY) bench/bench_online.py > $(BENCH_OUT)/online_results.md
 	$(PY) bench/bench_discovery.py --out $(BENCH_OUT)/discovery_results.md
 	$(PY) bench/bench_throughput.py --out $(BENCH_OUT)/throughput_results.md

@@ -19,8 +19,8 @@ from common import command_line, environment, fit_refined, make_records, markdow
 import numpy as np
 
 from dcmotor_id.core.model import PAPER_MOTORS, PARAMETER_NAMES
-from dcmotor_id.design.control import (design, DesignOptions, measured_bandwidth_hz,
-                                       motor_from_result)
+from dcmotor_id.design.control import design, measured_bandwidth_hz
+from dcmotor_id.design.plant import DesignOptions, motor_from_result
 
 #: (sample period [s], current bandwidth [Hz], speed bandwidth [Hz], phase margin [deg]).
 CASES = ((1e-4, 200.0, 20.0, 60.0), (5e-4, 100.0, 10.0, 50.0), (1e-3, 50.0, 8.0, 45.0))

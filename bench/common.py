@@ -1,8 +1,9 @@
 """
 Helpers shared by the benchmark scripts: the paper's data sets, the two methods, tables.
 
-Every benchmark prints a markdown report to stdout (the tables committed in bench/README.md);
-run them from the repository root, e.g. ``.venv/bin/python bench/bench_replication.py``.
+Every benchmark prints a markdown report to stdout (the tables committed in bench/, indexed by
+bench/README.md); run them from the repository root, e.g.
+``.venv/bin/python bench/bench_replication.py``.
 """
 
 import datetime

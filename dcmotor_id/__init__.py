@@ -38,7 +38,9 @@ floor and the floors below (:data:`LAYERS`, bottom first; ``test/test_layers.py`
    monitoring, summaries.
 7. :mod:`~dcmotor_id.fleet`: many motors' recordings on Dask, their history and trends.
 8. :mod:`~dcmotor_id.reports`: the HTML reports.
-9. :mod:`~dcmotor_id.cli.main`: the ``dcmotor-id`` command line.
+9. :mod:`~dcmotor_id.cli.main`: the ``dcmotor-id`` command line, and beside it
+   :mod:`~dcmotor_id.console`: what every program's command line shares (argument types, exit
+   codes, the plan as a command; ``exciter --plan`` uses it too).
 10. :mod:`~dcmotor_id.nodes`: the ROS 2 nodes (the only part that imports rclpy).
 """
 
@@ -51,7 +53,7 @@ from dcmotor_id.core.lazy import LazyNames
 #: The layers, bottom first: a subpackage imports only from its own layer and those below.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ('core',), ('signals', 'simulation'), ('formats',), ('identification',), ('design',),
-    ('streaming',), ('fleet',), ('reports',), ('cli',), ('nodes',))
+    ('streaming',), ('fleet',), ('reports',), ('cli', 'console'), ('nodes',))
 
 #: Public name -> the module that defines it (imported on first use, PEP 562, so that the
 #: command line does not pay for what it does not run).

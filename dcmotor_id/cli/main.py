@@ -15,15 +15,17 @@ import warnings
 import numpy as np
 
 from dcmotor_id.cli.output import emit_json, json_on_stdout, package_version, STDOUT
-from dcmotor_id.core.command_line import non_negative, positive, run_reporting
+from dcmotor_id.cli.terminal import terminal_progress
+from dcmotor_id.console.command_line import (add_memory_budget, non_negative, positive,
+                                             run_reporting)
+from dcmotor_id.console.plan import add_plan_arguments, run_plan
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
-from dcmotor_id.core.progress import terminal_progress, TimeBudgetExceeded
+from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.core.records import Record
-from dcmotor_id.design.plan import add_plan_arguments, run_plan
 from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
-from dcmotor_id.formats.budget import add_memory_budget, set_memory_budget
+from dcmotor_id.formats.budget import set_memory_budget
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.json_file import with_schema_version, write_json
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
@@ -286,20 +288,21 @@ def _cmd_simulate(args):
 def _cmd_design(args):
     from dcmotor_id.design import control as control_design
     from dcmotor_id.design.export import write_exports
+    from dcmotor_id.design.plant import DesignOptions, load_result, motor_from_result
     check_input_path(args.result, 'RESULT.json ')
     if args.json and args.json != STDOUT:
         check_output_path(args.json, '--json', inputs=[args.result])
     for option, place in (('--report', args.report), ('--export', args.export)):
         if place:
             check_output_path(place, option, directory=True)
-    result = control_design.load_result(args.result)
-    motor = control_design.motor_from_result(result, args.gear_ratio, args.output_shaft)
-    options = control_design.DesignOptions(args.current_bandwidth, args.speed_bandwidth,
-                                           args.phase_margin, args.sample_period)
+    result = load_result(args.result)
+    motor = motor_from_result(result, args.gear_ratio, args.output_shaft)
+    options = DesignOptions(args.current_bandwidth, args.speed_bandwidth, args.phase_margin,
+                            args.sample_period)
     design, gains = control_design.design(motor, options)
     design['source'] = args.result
     if args.export:
-        motor_shaft = control_design.motor_from_result(result, args.gear_ratio).values
+        motor_shaft = motor_from_result(result, args.gear_ratio).values
         design['export'] = write_exports(args.export, motor, motor_shaft)
         print(f'exported: {args.export}')
     if args.report:
@@ -318,7 +321,7 @@ def _cmd_demo(args):
 
 def _cmd_fleet(args):
     from dcmotor_id.fleet import FleetOptions, run_fleet
-    from dcmotor_id.fleet.progress import Progress
+    from dcmotor_id.cli.terminal import FleetProgressBar
     for path in args.paths:
         check_input_path(path, 'fleet input ', directory=True)
     check_output_path(args.history, '--history', directory=True)
@@ -327,7 +330,7 @@ def _cmd_fleet(args):
     summary = run_fleet(args.paths, args.history, options, scheduler=args.scheduler,
                         workers=args.workers, force=args.force,
                         retry_errors=not args.no_retry_errors,
-                        progress=None if args.quiet else Progress())
+                        progress=None if args.quiet else FleetProgressBar())
     print(summary.text())
     return 0
 
@@ -345,7 +348,8 @@ def _add_fleet_commands(commands):
     fleet = commands.add_parser('fleet', help='identify many recordings on a Dask cluster into '
                                 'a per-motor Parquet history')
     fleet.add_argument('paths', nargs='+', metavar='BAG_OR_DIR',
-                       help='bags, .mcap/.db3/CSV files, or directories searched recursively')
+                       help='bags, .mcap/.db3, CSV, .mat or .parquet files, or directories '
+                            'searched recursively')
     fleet.add_argument('--history', required=True, metavar='HISTORY_DIR',
                        help='Parquet dataset the rows are appended to (one per window)')
     fleet.add_argument('--scheduler', metavar='ADDRESS',

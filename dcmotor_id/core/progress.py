@@ -1,16 +1,13 @@
 """
-Progress and time budget of long work: a throttled status line and a deadline.
-
-:class:`StatusLine` is the one writer of a status line on stderr (redrawn in place on a
-terminal, plain lines in a log), used by the identification's :class:`Progress` and by the
-fleet job's progress (:mod:`dcmotor_id.fleet.progress`).
+Progress and time budget of long work: what runs now, and a deadline.
 
 The estimators and the discovery loop call a :class:`Progress` with what they are doing
 (stage, record, iteration, cost); it rewrites one line on a terminal (stderr by default) at
 most a few times a second and only once the work has run for ``delay_s`` (short runs print
 nothing), and it raises :class:`TimeBudgetExceeded` once the deadline has passed, which the
 callers turn into "the best result so far, with a warning".  The node passes its own
-callback or none; :data:`SILENT` writes nothing and has no deadline.
+callback or none; :data:`SILENT` writes nothing and has no deadline; the command line's
+progress and its other status lines are in :mod:`dcmotor_id.cli.terminal`.
 
 The budget is counted in CPU seconds of the process (:func:`budget_clock`), not on the wall
 clock: on a machine shared with other work a wall-clock budget ran out at a third of the
@@ -20,62 +17,8 @@ depended on the load.  The status line and :meth:`Progress.elapsed` show the wal
 
 from __future__ import annotations
 
-import sys
 import time
 from typing import Callable, TextIO
-
-
-class StatusLine:
-    """
-    Write a status line at most every ``interval_s``.
-
-    On a terminal the line is redrawn in place; elsewhere (a pipe, a CI log) each update is a
-    plain line, identical texts not repeated.
-
-    Parameters
-    ----------
-    stream : file-like
-        Where the line goes.
-    interval_s : float
-        Least time between two writes [s] (``final`` and ``force`` writes ignore it).
-    redraw : bool or None
-        Redraw in place; None: when ``stream`` is a terminal.
-
-    """
-
-    def __init__(self, stream: TextIO, interval_s: float, redraw: bool | None = None) -> None:
-        self.stream = stream
-        if redraw is None:
-            redraw = bool(getattr(stream, 'isatty', lambda: False)())
-        self.tty = redraw
-        self.interval_s = interval_s
-        self._last = -float('inf')
-        self._shown = ''
-
-    def due(self, now: float | None = None) -> bool:
-        """Whether ``interval_s`` has passed since the last write."""
-        return (time.monotonic() if now is None else now) - self._last >= self.interval_s
-
-    def show(self, text: str, final: bool = False, force: bool = False) -> None:
-        """Write ``text`` if due (always when ``final`` or ``force``); end the line if final."""
-        now = time.monotonic()
-        if not (final or force or self.due(now)):
-            return
-        self._last = now
-        if self.tty:
-            padding = ' ' * max(0, len(self._shown) - len(text))
-            self.stream.write('\r' + text + padding + ('\n' if final else ''))
-        elif final or text != self._shown:
-            self.stream.write(text + '\n')
-        self._shown = '' if final else text
-        self.stream.flush()
-
-    def clear(self) -> None:
-        """Blank a line drawn on a terminal, so the next output starts clean."""
-        if self.tty and self._shown:
-            self.stream.write('\r' + ' ' * len(self._shown) + '\r')
-            self.stream.flush()
-        self._shown = ''
 
 
 def budget_clock() -> float:
@@ -90,6 +33,37 @@ def budget_clock() -> float:
 
 class TimeBudgetExceeded(Exception):
     """The time budget (``--max-time``) ran out; the caller keeps its best result so far."""
+
+
+class _LineInPlace:
+    """
+    The progress line (:class:`Progress` throttles it).
+
+    On a terminal it is redrawn in place; elsewhere (a pipe, a CI log) each text is a plain line.
+    """
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.tty = bool(getattr(stream, 'isatty', lambda: False)())
+        self._shown = ''
+
+    def show(self, text: str) -> None:
+        """Draw ``text`` over the line shown before (a new line when not a terminal)."""
+        if not self.tty:
+            self.stream.write(text + '\n')
+            self.stream.flush()
+            return
+        padding = ' ' * max(0, len(self._shown) - len(text))
+        self.stream.write('\r' + text + padding)
+        self._shown = text
+        self.stream.flush()
+
+    def clear(self) -> None:
+        """Blank the line, so the next output starts clean."""
+        if self._shown:
+            self.stream.write('\r' + ' ' * len(self._shown) + '\r')
+            self.stream.flush()
+        self._shown = ''
 
 
 class Progress:
@@ -134,7 +108,7 @@ class Progress:
         self._last = 0.0
         # (its own throttle below: interval_s and delay_s; a forced write ignores them)
         # Redrawn in place on a terminal; plain lines elsewhere (a pipe, a CI log).
-        self.line = (StatusLine(stream, 0.0) if self.enabled and stream is not None else None)
+        self.line = _LineInPlace(stream) if self.enabled and stream is not None else None
         self.evaluations = 0
 
     @staticmethod
@@ -216,7 +190,7 @@ class Progress:
         if self.callback is not None:
             self.callback(text)
         if self.line is not None:
-            self.line.show(text, force=True)
+            self.line.show(text)
 
     def __call__(self, iteration: int | None = None, cost: float | None = None) -> None:
         """Report one step (same as :meth:`update`)."""
@@ -230,24 +204,3 @@ class Progress:
 
 #: No output, no deadline.
 SILENT = Progress()
-
-
-#: Least time between two progress lines when stderr is not a terminal (a pipe, a CI log) [s].
-LOG_INTERVAL_S = 5.0
-
-
-def terminal_progress(max_time_s: float | None, quiet: bool = False,
-                      stream: TextIO | None = None) -> Progress:
-    """
-    Return the CLI's progress on ``stream`` (default stderr); nothing when ``quiet``.
-
-    On a terminal a line redrawn in place a few times a second; elsewhere (a pipe, a CI log,
-    where a run was silent for up to its time budget) a plain line every
-    :data:`LOG_INTERVAL_S` seconds.
-    """
-    stream = sys.stderr if stream is None else stream
-    if quiet:
-        return Progress(max_time_s, stream=None)
-    tty = bool(getattr(stream, 'isatty', lambda: False)())
-    return Progress(max_time_s, stream=stream, enabled=True,
-                    interval_s=0.25 if tty else LOG_INTERVAL_S)

@@ -4,7 +4,7 @@ Model export of a design: a pickle-free StateSpace JSON, a sim_motor YAML and UR
 Files written by :func:`write_exports` (``dcmotor-id design RESULT.json --export DIR``):
 
 * ``model_statespace.json``: the linear motor on the controlled shaft as python-control
-  builds it (:func:`dcmotor_id.design.control.motor_model`): ``A, B, C, D``, ``dt`` (0:
+  builds it (:func:`dcmotor_id.design.loops.motor_model`): ``A, B, C, D``, ``dt`` (0:
   continuous),
   ``states``, ``inputs``, ``outputs``, and the parameters with their units and standard errors;
   :func:`load_statespace` rebuilds it with ``control.ss``. Coulomb friction is not linear: it
@@ -24,7 +24,8 @@ from typing import Any
 import control
 import numpy as np
 
-from dcmotor_id.design.control import Motor, motor_model
+from dcmotor_id.design.loops import motor_model
+from dcmotor_id.design.plant import Motor
 
 #: Format tag of the StateSpace JSON.
 STATESPACE_FORMAT = 'dcmotor_id.statespace/1'

@@ -122,7 +122,8 @@ def run_fleet(paths: Iterable[str], history_dir: str, options: Optional[FleetOpt
     Parameters
     ----------
     paths : iterable of str
-        Bags, CSV files, or directories searched recursively for them.
+        Bags, files of the other formats (CSV, .mat, .parquet), or directories searched
+        recursively for them.
     history_dir : str
         The Parquet dataset (created if needed).
     options : FleetOptions, optional

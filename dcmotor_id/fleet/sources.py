@@ -2,7 +2,9 @@
 Finding the recordings of a fleet and telling which motor each stream belongs to.
 
 :func:`find_sources` walks the given paths for rosbag2 bags (directories with
-``metadata.yaml``, MCAP or sqlite3 storage), bare ``.mcap`` / ``.db3`` files and CSV files.
+``metadata.yaml``, MCAP or sqlite3 storage) and the files of every registered format
+(:func:`dcmotor_id.formats.file_suffixes`: bare ``.mcap`` / ``.db3`` bags, CSV, MATLAB
+``.mat``, Parquet ``.parquet`` / ``.pq``).
 :func:`motor_streams` groups the topics of one bag by motor: by default the topics' namespace
 (``/robot7/left/voltage`` -> ``robot7/left``), else the bag's place in the directory tree or
 a regular expression on its path.
@@ -16,7 +18,7 @@ import re
 from typing import Iterable, Mapping, Optional
 
 from dcmotor_id.core.errors import InputDataError
-from dcmotor_id.formats import BAG_SUFFIXES, detect_format
+from dcmotor_id.formats import detect_format, file_suffixes
 from dcmotor_id.formats.bag import FLOAT64_TYPE, PARTIAL_PREFIX
 from dcmotor_id.formats.batch import BATCH_TYPE
 from dcmotor_id.formats.paths import check_input_path
@@ -25,8 +27,6 @@ from dcmotor_id.formats.paths import check_input_path
 CHANNEL_TOPICS = ('voltage', 'current', 'speed')
 #: Last name component of the batched samples topic.
 SAMPLES_TOPIC = 'samples'
-#: File endings found when walking a directory (bags and CSV files).
-FILE_SUFFIXES = BAG_SUFFIXES + ('.csv',)
 #: The ways ``--motor-from`` names a motor besides a pattern.
 MOTOR_FROM = ('namespace', 'path')
 
@@ -44,7 +44,8 @@ class Source:
     root : str
         The argument it was found under (a directory), or its parent directory.
     kind : str
-        ``bag`` or ``csv``.
+        Its format (:func:`dcmotor_id.formats.detect_format`): ``bag``, ``csv``, ``mat``,
+        ``parquet``, ...
 
     """
 
@@ -68,10 +69,11 @@ def find_sources(paths: Iterable[str]) -> list[Source]:
     """
     Find every recording under ``paths``, recursively, in a stable (sorted) order.
 
-    A directory with ``metadata.yaml`` is a bag (not descended into); elsewhere ``.mcap``,
-    ``.db3`` and ``.csv`` files are recordings. Hidden directories and the staging
-    directories of bags being written are skipped. A file given by name is taken whatever
-    its ending.
+    A directory with ``metadata.yaml`` is a bag (not descended into); elsewhere a file whose
+    ending a format claims (:func:`dcmotor_id.formats.file_suffixes`, any case: ``.mcap``,
+    ``.db3``, ``.csv``, ``.mat``, ``.parquet``, ...) is a recording. Hidden directories and the
+    staging directories of bags being written are skipped. A file given by name is taken
+    whatever its ending.
 
     Raises
     ------
@@ -80,11 +82,13 @@ def find_sources(paths: Iterable[str]) -> list[Source]:
 
     """
     found: dict[str, Source] = {}
+    suffixes = file_suffixes()
     for given in paths:
         path = os.path.abspath(given)
         if not os.path.lexists(path):
             raise InputDataError(f'{given}: no such file or directory; give bag directories, '
-                                 '.mcap files, CSV files or directories holding them')
+                                 '.mcap, CSV, .mat or .parquet files, or directories '
+                                 'holding them')
         check_input_path(given, directory=True)
         if os.path.isfile(path) or _is_bag_dir(path):
             found.setdefault(path, Source(path, os.path.dirname(path), detect_format(path)))
@@ -98,7 +102,7 @@ def find_sources(paths: Iterable[str]) -> list[Source]:
             subdirs[:] = [name for name in subdirs
                           if name not in bags and not name.startswith(PARTIAL_PREFIX)]
             for name in sorted(files):
-                if name.endswith(FILE_SUFFIXES) and not name.startswith('.'):
+                if name.lower().endswith(suffixes) and not name.startswith('.'):
                     file_path = os.path.join(directory, name)
                     found.setdefault(file_path, Source(file_path, path,
                                                        detect_format(file_path)))
@@ -212,8 +216,8 @@ def motor_streams(source: Source, topics: Mapping[str, str],
     return named
 
 
-def csv_motor_id(source: Source, motor_from: str = 'namespace') -> str:
-    """Name the motor of a CSV file (it has no topics: by path, or by the pattern)."""
+def file_motor_id(source: Source, motor_from: str = 'namespace') -> str:
+    """Name the motor of a recording without topics, not a bag (by path, or by the pattern)."""
     if motor_from in MOTOR_FROM:
         return path_motor_id(source)
     return pattern_motor_id(source, motor_from)

@@ -17,7 +17,7 @@ from typing import Any, Optional
 import warnings
 
 from dcmotor_id.core.errors import DcMotorIdError
-from dcmotor_id.fleet.sources import csv_motor_id, describe_topics, motor_streams, Source
+from dcmotor_id.fleet.sources import describe_topics, file_motor_id, motor_streams, Source
 from dcmotor_id.fleet.windows import cut_windows, FleetWindow
 
 #: Exceptions that are the machine's, not the data's: raised so that Dask retries the task.
@@ -129,8 +129,9 @@ def read_windows(source: Source, options: FleetOptions) -> BagWindows:
     """
     Read one recording, group its streams by motor and cut every motor's record into windows.
 
-    A CSV file is one motor whose windows start at its first time stamp (seconds from 0 if
-    the file's time starts there). Errors of the data are returned in :attr:`BagWindows.errors`.
+    A file that is not a bag (CSV, MATLAB, Parquet, ...) is one motor whose windows start at
+    its first time stamp (seconds from 0 if the file's time starts there). Errors of the data
+    are returned in :attr:`BagWindows.errors`.
     """
     from dcmotor_id.formats import read_record
     from dcmotor_id.formats.bag import DamagedBagWarning, open_bag, read_bag, TruncatedBagWarning
@@ -139,8 +140,8 @@ def read_windows(source: Source, options: FleetOptions) -> BagWindows:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always')
         try:
-            if source.kind == 'csv':
-                motor = csv_motor_id(source, options.motor_from)
+            if source.kind != 'bag':
+                motor = file_motor_id(source, options.motor_from)
                 record = read_record(source.path,
                                      mechanical_only=options.torque_constant is not None)
                 start_ns = int(round(float(record.time_s[0]) * 1e9)) if len(record) else 0

@@ -2,19 +2,21 @@
 The file formats of records behind one reader: :func:`read_record` picks the format of a path.
 
 A directory, a ``.mcap`` or a ``.db3`` file is a rosbag2 bag (:mod:`.bag`); a ``.mat`` file
-is MATLAB (:mod:`.mat`), a ``.parquet`` file a Parquet table (:mod:`.parquet`); any other
-file is CSV (:mod:`.csv`). :data:`READERS` maps each
-format to its reader, so a new format is one module plus one entry. Every reader takes the
-:class:`~dcmotor_id.formats.mapping.ReadOptions` (column mapping, units, duty, gear), and
-every record read passes :func:`~dcmotor_id.formats.quality.check_channels` (channels that
-cannot identify the motor are refused, naming the channel).
+is MATLAB (:mod:`.mat`), a ``.parquet`` or ``.pq`` file a Parquet table (:mod:`.parquet`), a
+``.wpilog`` file a WPILib DataLog (:mod:`.wpilog`); any other file is CSV (:mod:`.csv`). Each format is registered below, one line each, in the
+registry of :mod:`.registry` (file name ending -> reader of one protocol), which
+:func:`detect_format`, :func:`read_record` and the fleet's file discovery all use: a new
+format is one module plus one :func:`~dcmotor_id.formats.registry.register` line. Every reader
+takes the :class:`~dcmotor_id.formats.mapping.ReadOptions` (column mapping, units, duty,
+gear), and every record read passes :func:`~dcmotor_id.formats.quality.check_channels`
+(channels that cannot identify the motor are refused, naming the channel).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 import os
-from typing import Callable, Optional
+from typing import Optional
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
@@ -22,33 +24,22 @@ from dcmotor_id.formats import bag, csv, mat, parquet, wpilog
 from dcmotor_id.formats.mapping import DEFAULT_OPTIONS, ReadOptions
 from dcmotor_id.formats.paths import check_input_path, same_file
 from dcmotor_id.formats.quality import check_channels
+from dcmotor_id.formats.registry import (file_suffixes, FileFormat, format_of, FORMATS, register,
+                                         table_reader)
 
-#: Format name -> reader ``(path, topics=..., sample_period_s=..., options=...) -> Record``.
-READERS: dict[str, Callable[..., Record]] = {
-    'bag': bag.read_bag,
-    'csv': lambda path, options=DEFAULT_OPTIONS, **_: csv.read_csv(path, options),
-    'mat': lambda path, options=DEFAULT_OPTIONS, **_: mat.read_mat(path, options),
-    'parquet': lambda path, options=DEFAULT_OPTIONS, **_: parquet.read_parquet(path, options),
-    'wpilog': wpilog.read_wpilog,
-}
-#: File name endings of the single-file bag formats (a directory is always a bag).
-BAG_SUFFIXES = ('.mcap', '.db3')
-#: File name endings of MATLAB files.
-MAT_SUFFIXES = ('.mat',)
+register(FileFormat('bag', ('.mcap', '.db3'), bag.read_bag, directories=True))
+register(FileFormat('mat', ('.mat',), table_reader(mat.read_mat)))
+register(FileFormat('parquet', parquet.PARQUET_SUFFIXES, table_reader(parquet.read_parquet)))
+register(FileFormat('wpilog', wpilog.WPILOG_SUFFIXES, wpilog.read_wpilog))
+register(FileFormat('csv', ('.csv',), table_reader(csv.read_csv), fallback=True))
 
-__all__ = ['detect_format', 'read_record', 'read_records', 'ReadOptions', 'READERS']
+__all__ = ['detect_format', 'file_suffixes', 'FileFormat', 'FORMATS', 'read_record',
+           'read_records', 'ReadOptions', 'register']
 
 
 def detect_format(path: PathLike) -> str:
-    """Return the format of ``path``: bag (a directory, .mcap, .db3), mat, parquet or csv."""
-    text = str(path)
-    if os.path.isdir(text) or text.endswith(BAG_SUFFIXES):
-        return 'bag'
-    if text.lower().endswith(MAT_SUFFIXES):
-        return 'mat'
-    if text.lower().endswith(wpilog.WPILOG_SUFFIXES):
-        return 'wpilog'
-    return 'parquet' if text.lower().endswith(parquet.PARQUET_SUFFIXES) else 'csv'
+    """Return the format of ``path``: bag (a directory, .mcap, .db3), mat, parquet, wpilog or csv."""
+    return format_of(path).name
 
 
 def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
@@ -86,8 +77,8 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
                 check_input_path(os.path.join(path, entry))
     if sample_period_s is None:
         sample_period_s = options.sample_period_s
-    record = READERS[detect_format(path)](path, topics=topics, sample_period_s=sample_period_s,
-                                          options=options)
+    record = format_of(path).read(path, topics=topics, sample_period_s=sample_period_s,
+                                  options=options)
     return check_channels(record, mechanical_only)
 
 

@@ -11,9 +11,6 @@ budget (``--memory-budget GB``, default :data:`DEFAULT_BUDGET_BYTES`).
 
 from __future__ import annotations
 
-from typing import Any
-
-from dcmotor_id.core.command_line import positive
 from dcmotor_id.core.errors import InputDataError
 
 #: Default budget of one allocation of a reader [bytes]: 1 GB, 125 million float64 values
@@ -22,8 +19,7 @@ DEFAULT_BUDGET_BYTES = 1e9
 
 _budget = [DEFAULT_BUDGET_BYTES]
 
-__all__ = ['add_memory_budget', 'check_budget', 'DEFAULT_BUDGET_BYTES', 'memory_budget',
-           'set_memory_budget']
+__all__ = ['check_budget', 'DEFAULT_BUDGET_BYTES', 'memory_budget', 'set_memory_budget']
 
 
 def set_memory_budget(budget_bytes: float) -> None:
@@ -66,10 +62,3 @@ def check_budget(estimate_bytes: float, path: object, what: str,
         f'{path}: {what} would need about {estimate_bytes / 1e9:.3g} GB of memory, beyond the '
         f'memory budget of {_budget[0] / 1e9:.3g} GB; if that is right, raise it with '
         f'--memory-budget GB (this machine must have that much free), {fix}')
-
-
-def add_memory_budget(group: Any) -> None:
-    """Add the ``--memory-budget GB`` option to an ``argparse`` parser or group."""
-    group.add_argument('--memory-budget', type=positive, default=DEFAULT_BUDGET_BYTES / 1e9,
-                       metavar='GB', help='largest allocation a file may ask for, estimated '
-                       'before reading (default %(default)g GB); larger files are refused')

@@ -21,7 +21,7 @@ the node is shut down or receives SIGINT or SIGTERM.  ``~/stop`` has a callback 
 own and the command tick another: neither waits behind ``~/start`` (which reads
 ``plan_file``), and a burst of calls is queued (:data:`~dcmotor_id.nodes.common.SERVICE_QOS`),
 so that every call is answered.  ``exciter --plan [plan options]`` prints an experiment plan
-without starting ROS (the same as ``dcmotor-id plan``, :mod:`dcmotor_id.design.plan`).
+without starting ROS (the same as ``dcmotor-id plan``: :mod:`dcmotor_id.console.plan`).
 """
 
 from __future__ import annotations
@@ -345,8 +345,8 @@ def main(args: Optional[list[str]] = None) -> int:
     argv = list(sys.argv[1:] if args is None else args)
     own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
     if '--plan' in own:
-        from dcmotor_id.core.command_line import run_reporting
-        from dcmotor_id.design.plan import plan_parser, run_plan
+        from dcmotor_id.console.command_line import run_reporting
+        from dcmotor_id.console.plan import plan_parser, run_plan
         return run_reporting(run_plan, plan_parser().parse_args(
             [item for item in own if item != '--plan']))
     # Own handlers: rclpy's would shut the context down before the 0 V could be published.

@@ -24,7 +24,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 import numpy as np
 
-from dcmotor_id.design.control import Gains, interval_motors, loops, Motor
+from dcmotor_id.design.control import Gains, interval_motors, loops
+from dcmotor_id.design.plant import Motor
 
 _NOMINAL = '#1f77b4'
 _ENDS = '0.65'

@@ -19,7 +19,7 @@ from support import children
 from test_bad_input import good_table, HEADER, write
 
 from dcmotor_id.cli import main as cli
-from dcmotor_id.core.command_line import os_error_message
+from dcmotor_id.console.command_line import os_error_message
 from dcmotor_id.core.errors import FitError, InputDataError
 from dcmotor_id.core.records import Record
 from dcmotor_id.formats.batch import decode_batch, encode_batch

@@ -12,9 +12,10 @@ import yaml
 
 from dcmotor_id.cli.main import main
 from dcmotor_id.core.model import PAPER_MOTORS
-from dcmotor_id.design.control import (design, DesignError, DesignOptions, measured_bandwidth_hz,
-                                       motor_from_result, motor_model, Z95)
+from dcmotor_id.design.control import design, measured_bandwidth_hz
 from dcmotor_id.design.export import load_statespace, write_exports
+from dcmotor_id.design.loops import motor_model
+from dcmotor_id.design.plant import DesignError, DesignOptions, motor_from_result, Z95
 
 DT = 1e-4
 

@@ -66,15 +66,20 @@ def test_find_sources(tmp_path):
     bare.parent.mkdir()
     shutil.copy(os.path.join(bags[0], os.path.basename(bags[0]) + '.mcap'), bare)
     (tmp_path / 'fleet' / 'loose' / 'run.csv').write_text('t,voltage,current,speed\n')
+    # every format the readers know is found (the fleet once looked for bags and CSV only)
+    (tmp_path / 'fleet' / 'loose' / 'run.mat').write_bytes(b'')
+    (tmp_path / 'fleet' / 'loose' / 'run.parquet').write_bytes(b'')
+    (tmp_path / 'fleet' / 'loose' / 'RUN2.PQ').write_bytes(b'')
     (tmp_path / 'fleet' / '.hidden').mkdir()
     (tmp_path / 'fleet' / '.hidden' / 'x.csv').write_text('t\n')
     (tmp_path / 'fleet' / '.partial_m000').mkdir()
     (tmp_path / 'fleet' / 'notes.txt').write_text('not a recording')
     found = find_sources([str(tmp_path / 'fleet')])
     assert [(os.path.relpath(s.path, tmp_path), s.kind) for s in found] == [
-        ('fleet/loose/copy.mcap', 'bag'), ('fleet/loose/run.csv', 'csv'),
-        ('fleet/m000/rec_00', 'bag')]
-    assert found[2].relative_dir == 'm000'
+        ('fleet/loose/RUN2.PQ', 'parquet'), ('fleet/loose/copy.mcap', 'bag'),
+        ('fleet/loose/run.csv', 'csv'), ('fleet/loose/run.mat', 'mat'),
+        ('fleet/loose/run.parquet', 'parquet'), ('fleet/m000/rec_00', 'bag')]
+    assert found[-1].relative_dir == 'm000'
 
 
 @pytest.fixture(scope='module')

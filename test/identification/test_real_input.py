@@ -172,7 +172,7 @@ def test_mat_struct_field_names_are_listed(tmp_path, step_record, capsys):
 
 
 def test_transient_panels_centre_on_input_steps_not_noise_spikes():
-    from dcmotor_id.reports.identification import _transients
+    from dcmotor_id.reports.identification_plots import _transients
 
     scenario = lab_scenarios.servo_torque_steps()
     current = np.array(scenario.records[0].current)

@@ -81,7 +81,7 @@ def test_cli_rejects_a_bad_effect(tmp_path, capsys):
 
 
 def test_transients_are_the_largest_input_changes_where_they_happen():
-    from dcmotor_id.reports.identification import _transients
+    from dcmotor_id.reports.identification_plots import _transients
 
     rng = np.random.default_rng(0)
     values = rng.normal(0, 0.01, 5000)
@@ -100,13 +100,13 @@ def test_transients_are_the_largest_input_changes_where_they_happen():
 
 
 def test_report_of_several_records_without_discovery_draws_one_model(tmp_path):
-    from dcmotor_id.reports.identification import _input, _series, plot_residuals
+    from dcmotor_id.reports.identification_plots import fit_series, input_series, plot_residuals
 
     records = [loaded_record(duration, [make_effect('load_torque', torque_Nm=0.2)])
                .replace(source=f'r{number}.csv')
                for number, duration in enumerate((0.6, 1.0))]
     result = identify(records, discover=False).as_dict()
-    series, outputs = _series(None, records, result)
+    series, outputs = fit_series(None, records, result)
     assert [len(item['time']) for item in series] == [len(record) for record in records]
     assert all(item['before'] is item['after'] for item in series)  # no base/final pair
     page = write_report(str(tmp_path), result, None, records)
@@ -115,7 +115,7 @@ def test_report_of_several_records_without_discovery_draws_one_model(tmp_path):
         assert f'src="{name}"' in text
         check_png(os.path.join(tmp_path, name))
     # every record its own residual panels (never joined): one record, half the height
-    name, inputs = _input(series, records, None, result)
+    name, inputs = input_series(series, records, None, result)
     plot_residuals(series[:1], outputs, str(tmp_path), name, inputs[:1], name='one.png',
                    sides=(('after', 'model'),))
     assert imread(os.path.join(tmp_path, 'residuals.png')).shape[0] > \

@@ -6,7 +6,7 @@ and the output checked before the work, the memory the simulation asks for check
 the budget, the D-optimal plan of :func:`dcmotor_id.design.experiment.design_experiment`
 printed and, with ``--json``, written for the exciter's ``plan_file``.  Failures raise
 :class:`~dcmotor_id.core.errors.InputDataError` (the caller's
-:func:`~dcmotor_id.core.command_line.run_reporting` makes them a message and exit code 2).
+:func:`~dcmotor_id.console.command_line.run_reporting` makes them a message, exit code 2).
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ import argparse
 import os
 from typing import TYPE_CHECKING
 
-from dcmotor_id.core.command_line import non_negative, positive
+from dcmotor_id.console.command_line import add_memory_budget, non_negative, positive
 from dcmotor_id.core.errors import InputDataError
-from dcmotor_id.formats.budget import add_memory_budget, check_budget, set_memory_budget
+from dcmotor_id.formats.budget import check_budget, set_memory_budget
 from dcmotor_id.formats.json_file import STDOUT, write_result_json
 from dcmotor_id.formats.paths import check_input_path, check_output_path
 

@@ -2,7 +2,8 @@
 What every command-line entry point shares: argument types, and failures as exit codes.
 
 The ``dcmotor-id`` command (:mod:`dcmotor_id.cli.main`) and a node's command-line mode
-(``exciter --plan``) parse numbers with :func:`positive` and :func:`non_negative` and run their
+(``exciter --plan``) parse numbers with :func:`positive` and :func:`non_negative` (and the
+memory budget with :func:`add_memory_budget`) and run their
 work through :func:`run_reporting`: every failure ends as one message on stderr, never as a
 traceback; 2 for bad input, data that cannot identify the motor and what the machine refuses
 (a path, memory), with what to do; 1 for anything else, with a short report (a bug); 130 when
@@ -22,8 +23,10 @@ from typing import Any, Callable
 import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError
+from dcmotor_id.formats.budget import DEFAULT_BUDGET_BYTES
 
-__all__ = ['non_negative', 'os_error_message', 'positive', 'run_reporting']
+__all__ = ['add_memory_budget', 'non_negative', 'os_error_message', 'positive',
+           'run_reporting']
 
 
 def positive(text: str) -> float:
@@ -40,6 +43,13 @@ def non_negative(text: str) -> float:
     if not (np.isfinite(value) and value >= 0):
         raise argparse.ArgumentTypeError(f'must be zero or a positive number, got {text}')
     return value
+
+
+def add_memory_budget(group: Any) -> None:
+    """Add the ``--memory-budget GB`` option to an ``argparse`` parser or group."""
+    group.add_argument('--memory-budget', type=positive, default=DEFAULT_BUDGET_BYTES / 1e9,
+                       metavar='GB', help='largest allocation a file may ask for, estimated '
+                       'before reading (default %(default)g GB); larger files are refused')
 
 
 #: Unexpected exceptions that come from the data or the machine, not from a bug: exit 2.

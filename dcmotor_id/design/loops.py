@@ -1,0 +1,321 @@
+"""
+The loops of the cascade with python-control: the plant, PIs, sampling, bandwidth, margins.
+
+The motor's state-space model (:func:`motor_model`), the current PI by pole-zero
+cancellation (:func:`current_pi`, :func:`sampled_current_pi` for a sampled loop), the
+feedforward, the closed current loop (:func:`inner_loop`), bandwidths and stability margins,
+and the speed PI placed for a phase margin at the crossover that gives the requested bandwidth
+(:func:`design_speed`). See :mod:`dcmotor_id.design.control` for the method.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import control
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import brentq
+from scipy.signal import BadCoefficients
+
+from dcmotor_id.design.plant import DesignError, Motor
+
+
+class _NoPI(DesignError):
+    """No PI gives the phase margin at this crossover."""
+
+    def __init__(self, too_little_lag: bool, message: str):
+        super().__init__(message)
+        self.too_little_lag = too_little_lag
+
+
+# ----------------------------------------------------------------------------- models
+
+
+def motor_model(motor: Motor) -> control.StateSpace:
+    """
+    Return the linear motor as a python-control StateSpace (continuous time).
+
+    Full mode: states ``i, w``, inputs ``u`` [V] and ``torque`` [N m] (any further torque on
+    the shaft; Coulomb friction is ``-Mc sgn(w)`` on it), outputs ``i, w``. Mechanical mode:
+    state and output ``w``, input ``torque``.
+    """
+    p = motor.values
+    if motor.mode == 'mechanical':
+        return control.ss([[-p['b'] / p['J']]], [[1.0 / p['J']]], [[1.0]], [[0.0]],
+                          inputs=['torque'], outputs=['w'], states=['w'], name='motor')
+    a = [[-p['Ra'] / p['La'], -p['CPhi'] / p['La']], [p['CPhi'] / p['J'], -p['b'] / p['J']]]
+    b = [[1.0 / p['La'], 0.0], [0.0, 1.0 / p['J']]]
+    return control.ss(a, b, np.eye(2), np.zeros((2, 2)), inputs=['u', 'torque'],
+                      outputs=['i', 'w'], states=['i', 'w'], name='motor')
+
+
+def current_pi(motor: Motor, bandwidth_hz: float) -> tuple[float, float]:
+    """Return ``(Kp [V/A], Ki [V/(A s)])`` cancelling the armature pole for ``bandwidth_hz``."""
+    omega = 2.0 * math.pi * bandwidth_hz
+    return omega * motor.values['La'], omega * motor.values['Ra']
+
+
+def sampled_current_pi(motor: Motor, bandwidth_hz_: float,
+                       dt: float | None) -> tuple[tuple[float, float], float]:
+    """
+    Return the current PI for a sampled loop and its correction factor.
+
+    The closed form keeps ``Ti = La/Ra`` but ``Kp = 2 pi f_c La`` gives a sampled loop a
+    wider bandwidth than ``f_c`` (the zero-order hold's half-sample delay makes it peak:
+    +7 % at ``f_c = f_s/50``, +22 % at ``f_s/20``). With ``dt`` the design frequency is
+    scaled by the factor (found by brentq) that makes the sampled closed loop's -3 dB
+    bandwidth ``f_c``; without ``dt`` it is the closed form (factor 1).
+
+    Returns
+    -------
+    gains : tuple
+        ``(Kp [V/A], Ki [V/(A s)])``.
+    correction : float
+        The factor on ``f_c`` in the closed form.
+
+    """
+    if dt is None:
+        return current_pi(motor, bandwidth_hz_), 1.0
+
+    def mismatch(factor):
+        gains = current_pi(motor, factor * bandwidth_hz_)
+        inner = inner_loop(motor, gains, None, dt)
+        achieved = bandwidth_hz(inner[inner.output_labels.index('i'), 0])
+        return math.log(achieved / bandwidth_hz_) if np.isfinite(achieved) else 1.0
+
+    try:
+        factor = brentq(mismatch, 0.2, 1.2, xtol=1e-10)
+    except ValueError:
+        raise DesignError(
+            f'no current PI reaches {bandwidth_hz_:g} Hz at --sample-period {dt:g} s: lower '
+            '--current-bandwidth (a twentieth of the sampling rate or less) or sample '
+            'faster.') from None
+    return current_pi(motor, factor * bandwidth_hz_), factor
+
+
+def feedforward(motor: Motor) -> dict:
+    """
+    Return the feedforward gains (WPILib ``SimpleMotorFeedforward``), in shaft units.
+
+    Full mode: ``kS = Ra Mc / CPhi`` [V], ``kV = CPhi + Ra b / CPhi`` [V s/rad],
+    ``kA = Ra J / CPhi`` [V s^2/rad] (``La`` neglected). Mechanical mode: the torque
+    feedforward ``Mc`` [N m], ``b`` [N m s/rad], ``J`` [N m s^2/rad] (and divided by the
+    torque constant, in amperes, when it is known).
+    """
+    p = motor.values
+    if motor.mode == 'full':
+        return {'kS': p['Ra'] * p['Mc'] / p['CPhi'],
+                'kV': p['CPhi'] + p['Ra'] * p['b'] / p['CPhi'],
+                'kA': p['Ra'] * p['J'] / p['CPhi'],
+                'units': {'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'},
+                'convention': 'u = kS sgn(w) + kV w + kA dw/dt (WPILib SimpleMotorFeedforward)'}
+    gains = {'kS': p['Mc'], 'kV': p['b'], 'kA': p['J'],
+             'units': {'kS': 'N m', 'kV': 'N m s/rad', 'kA': 'N m s^2/rad'},
+             'convention': 'torque = kS sgn(w) + kV w + kA dw/dt (no voltage: mechanical mode)'}
+    if motor.torque_constant:
+        k = motor.torque_constant
+        gains['current'] = {'kS': p['Mc'] / k, 'kV': p['b'] / k, 'kA': p['J'] / k,
+                            'units': {'kS': 'A', 'kV': 'A s/rad', 'kA': 'A s^2/rad'}}
+    return gains
+
+
+def pi_controller(kp: float, ki: float, dt: float | None, inputs: str,
+                  outputs: str) -> control.TransferFunction:
+    """Return the PI ``kp + ki/s`` (Tustin-discretised when ``dt`` is given)."""
+    pi = control.tf([kp, ki], [1.0, 0.0], inputs=inputs, outputs=outputs)
+    if dt is not None:
+        pi = control.c2d(pi, dt, method='tustin')
+    pi.name = f'pi_{outputs}'
+    return pi
+
+
+def difference_equation(pi: control.TransferFunction) -> dict:
+    """Coefficients of ``y[k] = y[k-1] + q0 e[k] + q1 e[k-1]`` of a Tustin PI."""
+    num = np.atleast_1d(np.squeeze(pi.num[0][0])) / pi.den[0][0][0]
+    return {'q0': float(num[0]), 'q1': float(num[1]) if len(num) > 1 else 0.0,
+            'form': 'y[k] = y[k-1] + q0 e[k] + q1 e[k-1] (Tustin)'}
+
+
+def sampled_system(system: control.LTI, dt: float | None) -> control.LTI:
+    return system if dt is None else control.c2d(system, dt, method='zoh')
+
+
+def inner_loop(motor: Motor, current_gains: tuple[float, float] | None,
+               current_bandwidth_hz: float | None, dt: float | None) -> control.StateSpace:
+    """
+    Return the plant the speed loop sees: reference of the inner loop -> ``w`` (and ``i``).
+
+    Full mode: the current PI closed around the exact motor (back-EMF included), input
+    ``i_ref`` [A], outputs ``w, i, u``. Mechanical mode: the torque source, ideal or a first
+    order lag of ``current_bandwidth_hz``, input ``torque_ref`` [N m], outputs ``w``.
+    """
+    plant = sampled_system(motor_model(motor), dt)
+    if motor.mode == 'mechanical':
+        if current_bandwidth_hz is None:
+            actuator = control.ss([], [], [], [[1.0]], dt=0 if dt is None else dt,
+                                  inputs='torque_ref', outputs='torque')
+        else:
+            omega = 2.0 * math.pi * current_bandwidth_hz
+            actuator = sampled_system(control.tf([omega], [1.0, omega], inputs='torque_ref',
+                                                 outputs='torque'), dt)
+        actuator.name = 'torque_loop'
+        return control.interconnect([plant, actuator], inplist=['torque_ref'],
+                                    outlist=['w'], inputs=['torque_ref'], outputs=['w'],
+                                    name='inner')
+    if current_gains is None:
+        raise TypeError('inner_loop: a full-mode motor needs the current PI gains')
+    kp, ki = current_gains
+    pi = pi_controller(kp, ki, dt, 'e_i', 'u')
+    junction = control.summing_junction(['i_ref', '-i'], 'e_i', dt=dt, name='sum_i')
+    return control.interconnect([plant, pi, junction], inplist=['i_ref'],
+                                outlist=['w', 'i', 'u'], inputs=['i_ref'],
+                                outputs=['w', 'i', 'u'], ignore_inputs=['torque'],
+                                name='inner')
+
+
+def _response(system: control.LTI, omega: ArrayLike) -> np.ndarray:
+    """Complex frequency response (handles sampled systems, unlike ``system(1j w)``)."""
+    response = system.frequency_response(np.atleast_1d(omega))
+    return np.atleast_1d(np.squeeze(response.complex))
+
+
+def bandwidth_hz(system: control.LTI) -> float:
+    """
+    Return the -3 dB bandwidth [Hz]: the first frequency where the gain is 3 dB below DC.
+
+    ``control.bandwidth`` evaluates ``system(1j w)``, which is wrong for sampled systems (it
+    needs ``z = exp(1j w dt)``); this scans ``frequency_response`` and bisects with brentq.
+    """
+    dc = abs(_response(system, [1e-9])[0])
+    level = dc * 10 ** (-3.0 / 20.0)
+    top = math.pi / system.dt if system.isdtime(strict=True) else 1e7
+    omega = np.logspace(-2, math.log10(top), 240)
+    if system.isdtime(strict=True):
+        omega = omega[omega < top * 0.999]
+    gain = np.abs(_response(system, omega))
+    below = np.nonzero(gain < level)[0]
+    if below.size == 0 or below[0] == 0:
+        return float('nan')
+    k = below[0]
+    root = brentq(lambda w: abs(_response(system, [w])[0]) - level, omega[k - 1], omega[k],
+                  xtol=1e-10, rtol=1e-12)
+    return root / (2.0 * math.pi)
+
+
+def margins(loop: control.LTI) -> dict:
+    """
+    Return the stability margins of an open loop: phase [deg], gain [dB], crossovers [Hz].
+
+    Phase crossings at zero frequency (an artefact of the integrator of a sampled loop) are
+    ignored; the gain margin is the smallest upward one (``inf`` when there is none).
+    """
+    with warnings.catch_warnings():
+        # python-control notes when it switches to its frequency-response method.
+        warnings.simplefilter('ignore', UserWarning)
+        gm, pm, _, wpc, wgc, _ = control.stability_margins(loop, returnall=True)
+    gm, pm, wpc, wgc = (np.atleast_1d(x).astype(float) for x in (gm, pm, wpc, wgc))
+    if loop.isdtime(strict=True):
+        # stability_margins misses a phase crossing at the Nyquist frequency itself, where a
+        # sampled loop is real: L(-1) < 0 is a -180 deg crossing.
+        nyquist = complex(np.squeeze(loop(-1.0)))
+        if nyquist.real < 0 and abs(nyquist.real) > 0:
+            gm = np.append(gm, 1.0 / abs(nyquist.real))
+            wpc = np.append(wpc, math.pi / loop.dt)
+    # Gain margins above 200 dB are phase crossings where the gain is numerically zero.
+    keep = (wpc > 1e-6) & (gm > 1.0) & (gm < 1e10)
+    gain_margin = float(np.min(gm[keep])) if keep.any() else float('inf')
+    phase_crossover = float(wpc[keep][np.argmin(gm[keep])]) if keep.any() else float('nan')
+    if pm.size:
+        # The distance of the phase from -180 deg at every gain crossover, the smallest one
+        # (a lightly damped electromechanical mode can make the loop cross unity gain twice).
+        distance = np.abs((pm + 180.0) % 360.0 - 180.0)
+        first = int(np.argmin(distance))
+        phase_margin, crossover = float(distance[first]), float(wgc[first])
+    else:
+        phase_margin, crossover = float('inf'), float('nan')
+    closed = control.feedback(loop, 1)
+    stable = bool(np.all(np.abs(closed.poles()) < 1.0) if loop.isdtime(strict=True)
+                  else np.all(closed.poles().real < 0))
+    return {'phase_margin_deg': phase_margin,
+            'gain_margin_db': 20 * math.log10(gain_margin) if np.isfinite(gain_margin)
+            else float('inf'),
+            'crossover_hz': crossover / (2 * math.pi),
+            'phase_crossover_hz': phase_crossover / (2 * math.pi), 'stable': stable}
+
+
+def _speed_pi_at(inner_w: control.LTI, crossover: float, phase_margin_deg: float,
+                 dt: float | None) -> tuple[float, float]:
+    """PI ``(Kp, Ki)`` giving ``phase_margin_deg`` at the crossover ``crossover`` [rad/s]."""
+    grid = np.logspace(math.log10(crossover) - 4, math.log10(crossover), 80)
+    response = _response(inner_w, grid)
+    phase = np.unwrap(np.angle(response))[-1]
+    pi_phase = -math.pi + math.radians(phase_margin_deg) - phase
+    if not -math.pi / 2 < pi_phase < 0:
+        raise _NoPI(
+            pi_phase <= -math.pi / 2,
+            f'a PI cannot give {phase_margin_deg:g} deg phase margin at '
+            f'{crossover / (2 * math.pi):.4g} Hz (the plant has {math.degrees(phase):.1f} deg '
+            'there): lower --phase-margin or --speed-bandwidth, or raise --current-bandwidth.')
+    # Tustin maps s = (2/T)(z-1)/(z+1); at z = exp(j w T) this is s = j (2/T) tan(w T/2), so
+    # the sampled PI has the phase of the continuous one at that warped frequency.
+    warped = crossover if dt is None else 2.0 / dt * math.tan(crossover * dt / 2.0)
+    ti = 1.0 / (warped * math.tan(-pi_phase))
+    kp = 1.0 / (abs(response[-1]) * abs(1.0 - 1j / (warped * ti)))
+    return kp, kp / ti
+
+
+def speed_loops(inner: control.LTI, kp: float, ki: float, dt: float | None,
+                reference: str) -> tuple[control.LTI, control.LTI]:
+    """Return the speed loop's open loop ``L`` and closed loop ``w_ref -> [w, i_ref, ...]``."""
+    pi = pi_controller(kp, ki, dt, 'e_w', reference)
+    junction = control.summing_junction(['w_ref', '-w'], 'e_w', dt=dt, name='sum_w')
+    outputs = ['w', reference] + [name for name in ('i', 'u') if name in inner.output_labels]
+    closed = control.interconnect([inner, pi, junction], inplist=['w_ref'], outlist=outputs,
+                                  inputs=['w_ref'], outputs=outputs, name='speed_loop')
+    with warnings.catch_warnings():
+        # Near-zero numerator coefficients of the sampled product are harmless here.
+        warnings.simplefilter('ignore', BadCoefficients)
+        open_loop = pi * inner[inner.output_labels.index('w'), 0]
+    return open_loop, closed
+
+
+def design_speed(inner: control.LTI, bandwidth_hz_: float, phase_margin_deg: float,
+                 dt: float | None, reference: str) -> tuple[float, float, float]:
+    """
+    Return ``(Kp, Ki, crossover [Hz])`` of the speed PI meeting the bandwidth and margin.
+
+    The crossover is found by brentq so that the closed loop's -3 dB bandwidth equals
+    ``bandwidth_hz_``, the PI placing ``phase_margin_deg`` at each trial crossover.
+    """
+    target = 2 * math.pi * bandwidth_hz_
+    inner_w = inner[inner.output_labels.index('w'), 0]
+
+    def mismatch(log_crossover):
+        try:
+            kp, ki = _speed_pi_at(inner_w, math.exp(log_crossover), phase_margin_deg, dt)
+        except _NoPI as error:
+            # Too little plant lag (low crossover) or too much (high): steer brentq away.
+            return -1.0 if error.too_little_lag else 1.0
+        _, closed = speed_loops(inner, kp, ki, dt, reference)
+        achieved = bandwidth_hz(closed[0, 0]) * 2 * math.pi
+        if not np.isfinite(achieved):
+            return 1.0
+        return math.log(achieved / target)
+
+    low, high = math.log(target / 8), math.log(target * 1.2)
+    f_low, f_high = mismatch(low), mismatch(high)
+    while f_high < 0 and high < math.log(target * 10):
+        low, f_low, high = high, f_high, high + math.log(1.5)
+        f_high = mismatch(high)
+    if f_low > 0 or f_high < 0:
+        raise DesignError(f'no PI crossover gives a speed bandwidth of {bandwidth_hz_:g} Hz '
+                          f'with {phase_margin_deg:g} deg phase margin: lower '
+                          '--speed-bandwidth or --phase-margin.')
+    log_crossover = brentq(mismatch, low, high, xtol=1e-9)
+    try:
+        kp, ki = _speed_pi_at(inner_w, math.exp(log_crossover), phase_margin_deg, dt)
+    except _NoPI as error:
+        raise DesignError(str(error)) from None
+    return kp, ki, math.exp(log_crossover) / (2 * math.pi)

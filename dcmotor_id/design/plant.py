@@ -1,0 +1,262 @@
+"""
+The plant a controller is designed for, and the options of the design.
+
+:class:`Motor` is the motor as the design sees it (values and 95 % intervals read from an
+``identify --json`` result by :func:`motor_from_result`, on the motor or the output shaft);
+:class:`DesignOptions` are the bandwidths, phase margin and sample period asked for, completed
+from the motor by :func:`resolve_options`. The loops themselves are in
+:mod:`dcmotor_id.design.loops`, the design in :mod:`dcmotor_id.design.control`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import json
+from typing import Any
+
+import numpy as np
+
+from dcmotor_id.core.errors import DcMotorIdError, InputDataError
+
+#: z of the two-sided 95 % interval.
+Z95 = 1.959964
+#: Default closed current-loop bandwidth [Hz] (lowered to a twentieth of the sampling rate).
+DEFAULT_CURRENT_BANDWIDTH_HZ = 200.0
+#: Default speed bandwidth as a fraction of the current bandwidth.
+DEFAULT_SPEED_RATIO = 0.1
+#: Default phase margin of the speed loop [deg].
+DEFAULT_PHASE_MARGIN_DEG = 60.0
+#: Parameters of the linear loops (Mc only shifts the operating point).
+LINEAR_FULL = ('Ra', 'La', 'CPhi', 'J', 'b')
+LINEAR_MECHANICAL = ('J', 'b')
+
+
+class DesignError(DcMotorIdError):
+    """The requested design cannot be met (bandwidths, phase margin, sample period)."""
+
+
+@dataclass(frozen=True)
+class Motor:
+    """
+    The identified motor seen from the controlled shaft (SI units).
+
+    Attributes
+    ----------
+    values : dict
+        ``Ra, La, CPhi, J, b, Mc`` (full mode) or ``J, b, Mc`` (mechanical mode).
+    stderr : dict
+        Standard error of each value (``nan`` when unknown), same units.
+    mode : str
+        ``'full'`` or ``'mechanical'`` (``dcmotor-id identify --torque-constant``).
+    torque_constant : float or None
+        ``K`` [N m/A] of the mechanical mode (torque = K * current), on the controlled shaft.
+    gear_ratio : float
+        ``N``, motor speed / output speed.
+    shaft : str
+        ``'motor'`` or ``'output'``: where speeds, torques and gains are expressed.
+
+    """
+
+    values: dict
+    stderr: dict
+    mode: str = 'full'
+    torque_constant: float | None = None
+    gear_ratio: float = 1.0
+    shaft: str = 'motor'
+
+    @property
+    def linear_names(self) -> tuple:
+        """Names of the parameters that shape the linear loops."""
+        return LINEAR_FULL if self.mode == 'full' else LINEAR_MECHANICAL
+
+    def with_values(self, **changes: float) -> Motor:
+        """Return a copy with some parameter values changed."""
+        return replace(self, values={**self.values, **changes})
+
+
+@dataclass(frozen=True)
+class DesignOptions:
+    """
+    What the design asks for.
+
+    Attributes
+    ----------
+    current_bandwidth_hz : float or None
+        Closed current-loop bandwidth [Hz]; ``None``: 200 Hz or a twentieth of the sampling
+        rate, whichever is lower (mechanical mode: ``None`` = an ideal torque source).
+    speed_bandwidth_hz : float or None
+        Closed speed-loop -3 dB bandwidth [Hz]; ``None``: a tenth of the current bandwidth
+        (of its default when the torque source is ideal).
+    phase_margin_deg : float
+        Phase margin of the speed loop [deg].
+    sample_period_s : float or None
+        Sample period of the digital controller [s]; ``None``: continuous design.
+
+    """
+
+    current_bandwidth_hz: float | None = None
+    speed_bandwidth_hz: float | None = None
+    phase_margin_deg: float = DEFAULT_PHASE_MARGIN_DEG
+    sample_period_s: float | None = None
+
+
+# ----------------------------------------------------------------------------- input
+
+
+def load_result(path: str) -> dict:
+    """
+    Read the JSON written by ``dcmotor-id identify --json``.
+
+    Raises
+    ------
+    InputDataError
+        When the file is missing, not JSON, or has no ``parameters`` mapping.
+
+    """
+    try:
+        with open(path, encoding='utf-8') as stream:
+            result = json.load(stream)
+    except FileNotFoundError:
+        raise InputDataError(f'{path}: no such file; give the JSON written by '
+                             '`dcmotor-id identify FILE --json OUT`') from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise InputDataError(f'{path}: not a readable JSON file ({error}); give the JSON '
+                             'written by `dcmotor-id identify FILE --json OUT`') from None
+    if not isinstance(result, dict) or not isinstance(result.get('parameters'), dict):
+        raise InputDataError(f'{path}: no "parameters" mapping; give the JSON written by '
+                             '`dcmotor-id identify FILE --json OUT`')
+    return result
+
+
+def _number(value: Any) -> float:
+    """Return a JSON number as a float; anything else (``true``, ``"1.6"``, null) is NaN."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return float('nan')
+    return float(value)
+
+
+def motor_from_result(result: dict, gear_ratio: float = 1.0,
+                      output_shaft: bool = False) -> Motor:
+    """
+    Check an identification result and return the motor on the controlled shaft.
+
+    Parameters
+    ----------
+    result : dict
+        The identify JSON (``parameters``, ``stderr``, ``mode``, ``torque_constant``); its
+        values are taken as those of the motor shaft.
+    gear_ratio : float
+        ``N`` = motor speed / output speed (> 0).
+    output_shaft : bool
+        Express everything on the output shaft (the equivalent motor ``CPhi N``, ``J N^2``,
+        ``b N^2``, ``Mc N``, ``K N``).
+
+    Raises
+    ------
+    InputDataError
+        Missing, non-finite or non-physical parameters (``Ra, La, CPhi, J`` must be > 0,
+        ``b, Mc`` >= 0), or a bad gear ratio.
+
+    """
+    if not (np.isfinite(gear_ratio) and gear_ratio > 0):
+        raise InputDataError(f'--gear-ratio must be a positive number, got {gear_ratio}')
+    given = result['parameters']
+    # Mechanical only when the result says so (or, an older result without a mode, has no
+    # electrical parameter at all): NaN electrical values of a full result are refused, not
+    # silently designed around.
+    mode = result.get('mode')
+    if mode not in (None, 'full', 'mechanical'):
+        raise InputDataError(f'the result has mode {mode!r}; it must be "full" or '
+                             '"mechanical" (as `dcmotor-id identify --json` writes it)')
+    mechanical = mode == 'mechanical' or (mode is None and all(
+        given.get(name) is None for name in ('Ra', 'La', 'CPhi')))
+    names = ('J', 'b', 'Mc') if mechanical else ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
+    values, stderr = _checked_values(result, names)
+    torque_constant = None
+    if mechanical:
+        torque_constant = _number(result.get('torque_constant'))
+        if not (np.isfinite(torque_constant) and torque_constant > 0):
+            torque_constant = None
+    if output_shaft:
+        scale = {'CPhi': gear_ratio, 'J': gear_ratio ** 2, 'b': gear_ratio ** 2,
+                 'Mc': gear_ratio}
+        values = {name: value * scale.get(name, 1.0) for name, value in values.items()}
+        stderr = {name: value * scale.get(name, 1.0) for name, value in stderr.items()}
+        if torque_constant is not None:
+            torque_constant *= gear_ratio
+    return Motor(values, stderr, 'mechanical' if mechanical else 'full', torque_constant,
+                 float(gear_ratio), 'output' if output_shaft else 'motor')
+
+
+def _checked_values(result: dict, names: tuple[str, ...]) -> tuple[dict, dict]:
+    """
+    Return the values and standard errors of ``names`` in an identify JSON.
+
+    Raises
+    ------
+    InputDataError
+        Naming every missing, non-finite or non-physical value.
+
+    """
+    given = result['parameters']
+    values, stderr, bad = {}, {}, []
+    for name in names:
+        value = _number(given.get(name))
+        positive = name in ('Ra', 'La', 'CPhi', 'J')
+        if not np.isfinite(value) or value < 0 or (positive and value == 0):
+            raw = given.get(name)
+            typed = raw is None or (isinstance(raw, (int, float)) and not isinstance(raw, bool))
+            bad.append(f'{name} = {json.dumps(raw)}' + (
+                '' if typed else f' (a {type(raw).__name__}, not a number)'))
+        values[name] = value
+        error = _number((result.get('stderr') or {}).get(name))
+        stderr[name] = abs(error) if np.isfinite(error) else float('nan')
+    if bad:
+        raise InputDataError(
+            f'the result holds unusable parameters ({", ".join(bad)}): Ra, La, CPhi, J must be '
+            'finite and positive, b and Mc finite and >= 0. Identify the motor again (more '
+            'excitation, `dcmotor-id identify ... --json OUT`) before designing a controller.')
+    return values, stderr
+
+
+def resolve_options(motor: Motor, options: DesignOptions) -> DesignOptions:
+    """
+    Fill the defaults in and check that the request makes sense.
+
+    Raises
+    ------
+    DesignError
+        A bandwidth at or above the Nyquist frequency of the sample period, a speed bandwidth
+        not below the current bandwidth, or a phase margin outside (0, 90) degrees.
+
+    """
+    dt = options.sample_period_s
+    if dt is not None and not (np.isfinite(dt) and dt > 0):
+        raise DesignError(f'--sample-period must be a positive number of seconds, got {dt}')
+    current = options.current_bandwidth_hz
+    if current is None and motor.mode == 'full':
+        current = DEFAULT_CURRENT_BANDWIDTH_HZ
+        if dt is not None:
+            current = min(current, 1.0 / (20.0 * dt))
+    speed = options.speed_bandwidth_hz
+    if speed is None:
+        reference = current if current is not None else DEFAULT_CURRENT_BANDWIDTH_HZ
+        if current is None and dt is not None:
+            reference = min(reference, 1.0 / (20.0 * dt))
+        speed = DEFAULT_SPEED_RATIO * reference
+    for label, value in (('--current-bandwidth', current), ('--speed-bandwidth', speed)):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise DesignError(f'{label} must be a positive number of Hz, got {value}')
+        if value is not None and dt is not None and value >= 0.5 / dt:
+            raise DesignError(
+                f'{label} {value:g} Hz is at or above the Nyquist frequency {0.5 / dt:g} Hz of '
+                f'--sample-period {dt:g} s: lower the bandwidth (a tenth of the sampling rate '
+                'or less works well) or sample faster.')
+    if current is not None and speed >= current:
+        raise DesignError(
+            f'--speed-bandwidth {speed:g} Hz must be below --current-bandwidth {current:g} Hz '
+            '(the speed loop acts through the current loop); a factor 5-10 below is usual.')
+    if not 0 < options.phase_margin_deg < 90:
+        raise DesignError(f'--phase-margin must lie between 0 and 90 degrees, got '
+                          f'{options.phase_margin_deg:g}')
+    return replace(options, current_bandwidth_hz=current, speed_bandwidth_hz=speed)
