@@ -3,8 +3,9 @@ The file formats of records behind one reader: :func:`read_record` picks the for
 
 A directory, a ``.mcap`` or a ``.db3`` file is a rosbag2 bag (:mod:`.bag`); a ``.mat`` file
 is MATLAB (:mod:`.mat`), a ``.parquet`` or ``.pq`` file a Parquet table (:mod:`.parquet`), a
-``.wpilog`` file a WPILib DataLog (:mod:`.wpilog`); any other file is CSV (:mod:`.csv`). Each format is registered below, one line each, in the
-registry of :mod:`.registry` (file name ending -> reader of one protocol), which
+``.wpilog`` file a WPILib DataLog (:mod:`.wpilog`); any other file is CSV (:mod:`.csv`).
+Each format is registered below, one line each, in the registry of :mod:`.registry` (file
+name ending -> reader of one protocol), which
 :func:`detect_format`, :func:`read_record` and the fleet's file discovery all use: a new
 format is one module plus one :func:`~dcmotor_id.formats.registry.register` line. Every reader
 takes the :class:`~dcmotor_id.formats.mapping.ReadOptions` (column mapping, units, duty,
@@ -38,7 +39,7 @@ __all__ = ['detect_format', 'file_suffixes', 'FileFormat', 'FORMATS', 'read_reco
 
 
 def detect_format(path: PathLike) -> str:
-    """Return the format of ``path``: bag (a directory, .mcap, .db3), mat, parquet, wpilog or csv."""
+    """Return the format of ``path``: bag (directory, .mcap, .db3), mat, parquet, wpilog or csv."""
     return format_of(path).name
 
 

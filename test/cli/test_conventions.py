@@ -19,6 +19,7 @@ import pytest
 from schema_check import errors, load_schema, validate
 
 from dcmotor_id.cli.main import main
+from dcmotor_id.cli.terminal import terminal_progress
 from dcmotor_id.core import progress as progress_module
 from dcmotor_id.formats.json_file import SCHEMA_VERSION
 
@@ -117,7 +118,7 @@ class _Clock:
 def _lines_over(monkeypatch, seconds, stream, quiet=False):
     clock = _Clock()
     monkeypatch.setattr(progress_module.time, 'monotonic', clock)
-    progress = progress_module.terminal_progress(None, quiet=quiet, stream=stream)
+    progress = terminal_progress(None, quiet=quiet, stream=stream)
     progress.set_stage('base fit')
     while clock.now < seconds:
         clock.now += 0.1
@@ -151,7 +152,7 @@ def test_progress_in_a_log_new_stages_wait_for_the_interval(monkeypatch):
     clock = _Clock()
     monkeypatch.setattr(progress_module.time, 'monotonic', clock)
     stream = io.StringIO()
-    progress = progress_module.terminal_progress(None, stream=stream)
+    progress = terminal_progress(None, stream=stream)
     while clock.now < 30.0:
         clock.now += 0.1
         progress.set_stage(f'candidate {int(clock.now * 10)}')

@@ -41,14 +41,15 @@ def _toy_file(path, seconds=2.0, dt=1e-3):
 
 
 def test_the_built_in_formats_are_registered():
-    assert list(FORMATS) == ['bag', 'mat', 'parquet', 'csv']
+    assert list(FORMATS) == ['bag', 'mat', 'parquet', 'wpilog', 'csv']
     assert [detect_format(name) for name in ('x.mcap', 'x.db3', 'x.mat', 'x.parquet', 'x.pq',
-                                             'x.csv', 'x.txt', 'x')] \
-        == ['bag', 'bag', 'mat', 'parquet', 'parquet', 'csv', 'csv', 'csv']
+                                             'x.wpilog', 'x.csv', 'x.txt', 'x')] \
+        == ['bag', 'bag', 'mat', 'parquet', 'parquet', 'wpilog', 'csv', 'csv', 'csv']
     # an ending in capitals is the same format (a bare bag was read as CSV before)
     assert [detect_format(name) for name in ('X.MCAP', 'X.DB3', 'X.MAT', 'X.PARQUET')] \
         == ['bag', 'bag', 'mat', 'parquet']
-    assert set(file_suffixes()) == {'.mcap', '.db3', '.mat', '.parquet', '.pq', '.csv'}
+    assert set(file_suffixes()) == {'.mcap', '.db3', '.mat', '.parquet', '.pq', '.wpilog',
+                                    '.csv'}
 
 
 def test_a_directory_is_a_bag(tmp_path):
