@@ -12,7 +12,8 @@ criterion: ``both`` finds the same effects on simulated records with a measured 
 exact angle, but the residual analysis reads the position's drift as structure left over,
 and it costs about three times the time, so it is only used when asked for).
 
-The position error's model (:func:`position_error_model`): ``white`` weights the position
+The position error's model (:data:`POSITION_ERROR_MODELS`, an argument of the refined
+estimator and of :func:`position_ar`): ``white`` weights the position
 sample by sample by its sensor noise, which is what an open-loop validation scores.
 ``adaptive`` (the estimators' default) models a position residual far above the position's
 noise (:data:`POSITION_MISFIT_FACTOR`) as AR(1) (:func:`position_ar`, :func:`whiten`): such a
@@ -24,10 +25,8 @@ against model-free evidence (:mod:`~dcmotor_id.identification.position_error`).
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-from contextvars import ContextVar
 from dataclasses import replace
-from typing import Any, Iterator, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -101,17 +100,13 @@ POSITION_MISFIT_FACTOR = 3.0
 MAX_POSITION_AR = 1.0 - 1e-9
 #: Refits beyond the usual passes while the AR(1) coefficient of the position error moves.
 AR_PASSES = 4
-#: Models of the position error (:func:`position_error_model`).
+#: Models of the position error (:func:`check_position_error_model`).
 POSITION_ERROR_MODELS = ('adaptive', 'white')
-# The model in force for the fits of this thread (a context variable, not a parameter: every
-# estimator of a run, the discovery loop's and the second start's included, follows it).
-_POSITION_ERROR: ContextVar[str] = ContextVar('position_error', default='adaptive')
 
 
-@contextmanager
-def position_error_model(model: str) -> Iterator[None]:
+def check_position_error_model(model: str) -> str:
     """
-    Fit with the position error modelled as ``white`` or ``adaptive`` within the block.
+    Return ``model`` when it names a model of the position error, else raise ``ValueError``.
 
     ``adaptive`` (the default): AR(1) when the residual misfits (:func:`position_ar`);
     ``white``: the sensor's noise only, whatever the residual.
@@ -119,11 +114,7 @@ def position_error_model(model: str) -> Iterator[None]:
     if model not in POSITION_ERROR_MODELS:
         raise ValueError(f'position error model must be one of {POSITION_ERROR_MODELS}, '
                          f'not {model!r}')
-    token = _POSITION_ERROR.set(model)
-    try:
-        yield
-    finally:
-        _POSITION_ERROR.reset(token)
+    return model
 
 
 def whiten(error: np.ndarray, rho: float) -> np.ndarray:
@@ -142,7 +133,7 @@ def whiten(error: np.ndarray, rho: float) -> np.ndarray:
     return out
 
 
-def position_ar(error: np.ndarray, sensor_noise: float) -> float:
+def position_ar(error: np.ndarray, sensor_noise: float, model: str = 'adaptive') -> float:
     """
     Return the AR(1) coefficient of a position residual that misfits, else 0.
 
@@ -153,10 +144,11 @@ def position_ar(error: np.ndarray, sensor_noise: float) -> float:
     white makes the fit bend the physical parameters to cancel an offset that a local misfit
     left for the rest of the record; its AR(1) model (coefficient near 1 for a drift) weights
     the error's increments instead, as the maximum-likelihood fit under that error does.
-    Always 0 under the ``white`` :func:`position_error_model`.
+    Always 0 under the ``white`` model of the position error (``model``,
+    :func:`check_position_error_model`).
     """
     error = np.asarray(error, dtype=float)
-    if _POSITION_ERROR.get() == 'white':
+    if check_position_error_model(model) == 'white':
         return 0.0
     if error.shape[0] < 3 or np.sqrt(np.mean(error ** 2)) <= POSITION_MISFIT_FACTOR * max(
             sensor_noise, 0.0):

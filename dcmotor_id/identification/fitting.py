@@ -67,12 +67,14 @@ def supports_discovery(estimator: Any) -> bool:
 def run_discovery(records: Sequence[Record], torque_constant: float | None, estimator: Any,
                   vocabulary: Sequence[type[Effect]], progress: Progress, initial_state: str,
                   quasi_static: bool = False, estimate: Estimate | None = None,
-                  criterion: str = 'speed', structure: Structure | None = None
+                  criterion: str = 'speed', structure: Structure | None = None,
+                  position_error: str = 'adaptive'
                   ) -> tuple[DiscoveryResult | None, dict[str, Any]]:
     """
     Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``.
 
-    ``structure``: effects the loop's base holds from the start (``DiscoveryLoop.run``).
+    ``structure``: effects the loop's base holds from the start (``DiscoveryLoop.run``);
+    ``position_error``: the model of the position error of its fits.
     """
     if not supports_discovery(estimator):
         return None, {'skipped': f'effect discovery needs the refined method (the '
@@ -81,8 +83,8 @@ def run_discovery(records: Sequence[Record], torque_constant: float | None, esti
     try:
         found = DiscoveryLoop(records, torque_constant, vocabulary=vocabulary,
                               progress=progress, initial_state=initial_state,
-                              quasi_static=quasi_static, criterion=criterion
-                              ).run(estimate, structure)
+                              quasi_static=quasi_static, criterion=criterion,
+                              position_error=position_error).run(estimate, structure)
         check_physical(found.estimate)
     except TimeBudgetExceeded:
         return None, {'skipped': f'the time budget ({progress.max_time_s:g} s) ran out '

@@ -43,7 +43,7 @@ from typing import Any, Sequence, TYPE_CHECKING
 import numpy as np
 
 from dcmotor_id.core.blas import single_threaded
-from dcmotor_id.core.errors import FitError, InputDataError, NotIdentifiableError
+from dcmotor_id.core.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
 from dcmotor_id.core.model import (DERIVED_NAMES, MECHANICAL_NAMES, PARAMETER_NAMES,
                                    POSITIVE_NAMES, UNITS)
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
@@ -70,7 +70,11 @@ from dcmotor_id.identification.fitting import (check_physical, record_names, run
                                                simulation_errors, supports_discovery)
 from dcmotor_id.identification.heldout import HELDOUT_CHOICE, heldout_warnings, record_errors
 from dcmotor_id.identification.multistart import ambiguity_warning, several_starts, with_starts
-from dcmotor_id.identification.position_error import check_base, with_chosen_error_model
+from dcmotor_id.identification.position_error import (adaptive_after_white_failed,
+                                                      adaptive_agreeing, ADAPTIVE_RUN,
+                                                      after_a_far_white, after_a_far_white_base,
+                                                      white_base_far, white_if_agreeing,
+                                                      WHITE_RUN_RESUMED)
 from dcmotor_id.identification.prepare import (check_excitation, common_period, one_level_reason,
                                                PERIOD_RTOL, prepare_records, SETTLE_SAMPLES,
                                                single_current_level)
@@ -189,18 +193,88 @@ def _identify_on(criterion, arguments):
     Run the pipeline on the resolved criterion; ``auto`` falls back to the speed.
 
     On the position, the position error's model is chosen against model-free evidence
-    (:mod:`~dcmotor_id.identification.position_error`).
+    (:func:`_on_the_position`).
     """
     records, method, estimator = arguments[0], arguments[1], arguments[4]
     resolved = _criterion_of(records, criterion, method, estimator)
     try:
         if resolved == 'speed' or method != 'refined' or estimator is not None:
             return _identify(*arguments, resolved)
-        return with_chosen_error_model(lambda: _identify(*arguments, resolved), arguments[6])
+        return _on_the_position(arguments, resolved)
     except (FitError, NotIdentifiableError) as error:
         if criterion != 'auto' or resolved == 'speed' or 'time budget' in str(error):
             raise
         return _on_the_speed(arguments, error)
+
+
+def _on_the_position(arguments, criterion):
+    """
+    Identify on the position with the white error model, else the adaptive one (AR(1)).
+
+    The white run is left after its start check when its base contradicts the regression
+    (:func:`~dcmotor_id.identification.position_error.white_base_far`): the adaptive run
+    comes first, and the white run is finished from its state only when that one disagrees
+    too.  A white result that disagrees (or fails) runs the adaptive model; the result closer
+    to the evidence is kept (:mod:`~dcmotor_id.identification.position_error`).  The runs
+    share the further starts of the base (the first run's account, ``earlier``); the status
+    line names each run after the first.
+    """
+    progress = arguments[6]
+    try:
+        begun = _attempt(_begin, *arguments, criterion, 'white', None)
+        earlier = begun.starts if isinstance(begun, _Run) else None
+        if isinstance(begun, _Run):
+            left = white_base_far(begun.estimate.parameters, begun.records,
+                                  begun.torque_constant, begun.evidence)
+            if left is not None:
+                return _adaptive_first(arguments, criterion, begun, left)
+        white = _attempt(_finish, begun) if isinstance(begun, _Run) else begun
+        if isinstance(white, DcMotorIdError):
+            progress.set_run(ADAPTIVE_RUN)
+            return adaptive_after_white_failed(_identify(*arguments, criterion, 'adaptive',
+                                                         earlier), white)
+        kept = white_if_agreeing(white)
+        if kept is not None:
+            return kept
+        progress.set_run(ADAPTIVE_RUN)
+        adaptive = _attempt(_identify, *arguments, criterion, 'adaptive', earlier,
+                            also=TimeBudgetExceeded)
+        return after_a_far_white(white, adaptive)
+    finally:
+        progress.set_run('')  # a later identification on the same Progress starts unnamed
+
+
+def _adaptive_first(arguments, criterion, white: _Run, left):
+    """Run the adaptive model after a white base that disagrees; finish the white if needed."""
+    progress = arguments[6]
+    progress.set_run(ADAPTIVE_RUN)
+    adaptive = _attempt(_identify, *arguments, criterion, 'adaptive', white.starts,
+                        also=TimeBudgetExceeded)
+    adaptive = adaptive if isinstance(adaptive, IdentificationResult) else None
+    agreeing = adaptive_agreeing(adaptive, left)
+    if agreeing is not None:
+        return agreeing
+    progress.set_run(WHITE_RUN_RESUMED)
+    return after_a_far_white_base(adaptive, _attempt(_finish, white))
+
+
+def _attempt(stage, *arguments, also=()):
+    """
+    Return what ``stage(*arguments)`` returns, or the refusal it raised.
+
+    A refusal for lack of time is raised (the budget is spent for every run), unless
+    ``also`` names it.
+    """
+    try:
+        return stage(*arguments)
+    except TimeBudgetExceeded as error:
+        if also:
+            return error
+        raise
+    except (FitError, NotIdentifiableError) as error:
+        if 'time budget' in str(error) and not also:
+            raise
+        return error
 
 
 def _check_choices(method: str, initial_state: str) -> None:
@@ -240,15 +314,31 @@ def _on_the_speed(arguments, error):
 
 
 def _identify(records, method, torque_constant, discover, estimator, vocabulary, progress,
-              initial_state, criterion):
+              initial_state, criterion, position_error='adaptive', earlier=None):
     """
     Identify with a resolved criterion (:func:`identify`'s body): the stages in order.
 
     Each stage reads and sets the fields of one :class:`_Run`; a stage may refuse the data
     (raise), and a drive at an amplifier's current limit takes its own path.
     """
+    begun = _begin(records, method, torque_constant, discover, estimator, vocabulary, progress,
+                   initial_state, criterion, position_error, earlier)
+    return begun if isinstance(begun, IdentificationResult) else _finish(begun)
+
+
+def _begin(records, method, torque_constant, discover, estimator, vocabulary, progress,
+           initial_state, criterion, position_error, earlier) -> _Run | IdentificationResult:
+    """
+    Stages 1-4 of :func:`_identify`: the run up to its base's start check.
+
+    A drive at an amplifier's current limit takes its own path to a result.
+    ``position_error``: the model of the position error of every fit; ``earlier``: the
+    further starts' account of an earlier run of this identification
+    (:func:`~dcmotor_id.identification.multistart.several_starts`).
+    """
     run = _prepare(records, method, torque_constant, discover, estimator, vocabulary,
                    progress, initial_state, criterion)
+    run.position_error, run.earlier = position_error, earlier
     limited = _current_limit(run)
     if limited is not None:
         return replace(_identify_current_limited(run.records, limited, discover, run.vocabulary,
@@ -256,13 +346,10 @@ def _identify(records, method, torque_constant, discover, estimator, vocabulary,
     _base_fit(run)
     _armature(run)
     _check_base_start(run)
-    if run.criterion != 'speed':
-        check_base(run.estimate.parameters, run.records, run.torque_constant,
-                   resume=lambda: _after_the_start_check(run), evidence=run.evidence)
-    return _after_the_start_check(run)
+    return run
 
 
-def _after_the_start_check(run: _Run) -> IdentificationResult:
+def _finish(run: _Run) -> IdentificationResult:
     """Stages 5-12 of :func:`_identify` (a white run left after its base resumes here)."""
     _discovery(run)
     _check_final_start(run)
@@ -318,6 +405,8 @@ class _Run:
     combined: dict[str, Any] = field(default_factory=dict)
     bound: dict[str, str] = field(default_factory=dict)
     errors_detail: dict[str, Any] = field(default_factory=dict)
+    position_error: str = 'adaptive'  # the model of the position error of every fit
+    earlier: dict[str, Any] | None = None  # an earlier run's further starts (the same data)
 
     @property
     def mechanical_only(self) -> bool:
@@ -378,7 +467,8 @@ def _base_fit(run: _Run) -> None:
         run.vocabulary = [cls for cls in run.vocabulary
                           if cls.name not in ONE_DIRECTION_CONFOUNDED]
     run.estimator = run.estimator or _make_estimator(run.method, run.initial_state,
-                                                     run.progress, run.criterion)
+                                                     run.progress, run.criterion,
+                                                     run.position_error)
     run.progress.set_stage('base fit', record_names(run.records))
     try:
         estimate = run.estimator.fit(run.records, torque_constant=run.torque_constant)
@@ -396,11 +486,12 @@ def _base_fit(run: _Run) -> None:
     run.errors = simulation_errors(estimate, run.records, run.torque_constant)
 
 
-def _make_estimator(method, initial_state, progress, criterion='speed'):
+def _make_estimator(method, initial_state, progress, criterion='speed',
+                    position_error='adaptive'):
     """Return the estimator named by ``method`` (the refined one with its options)."""
     if method == 'refined':
         return RefinedEstimator(initial_state=initial_state, progress=progress,
-                                criterion=criterion)
+                                criterion=criterion, position_error=position_error)
     return METHODS[method]()
 
 
@@ -439,7 +530,7 @@ def _armature(run: _Run) -> None:
     if not la_unresolved(*run.full_la, dt):
         return
     refit = quasi_static_refit(run.estimate, run.records, run.errors, run.initial_state,
-                               run.progress, run.criterion)
+                               run.progress, run.criterion, run.position_error)
     if refit is None:
         run.not_identifiable['La'] = la_reason(*run.full_la, dt, None)
     else:
@@ -462,13 +553,14 @@ def _check_base_start(run: _Run) -> None:
         return
     run.estimate, run.starts = several_starts(run.records, run.torque_constant, run.quasi,
                                               run.progress, run.estimate, run.criterion,
-                                              run.evidence)
+                                              run.evidence, run.earlier, run.position_error)
     if run.starts is not None and run.starts['chosen'] != 'default':
         run.errors = simulation_errors(run.estimate, run.records, run.torque_constant,
                                        quasi_static=run.quasi)
     run.found, run.estimate, run.discovery_info, check = check_start(
         run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
-        run.progress, run.estimate, None, None, run.criterion, run.evidence)
+        run.progress, run.estimate, None, None, run.criterion, run.evidence,
+        run.position_error)
     if check['chosen'] == 'first start':
         run.start_check = None if not check['doubts'] else check
     else:
@@ -503,7 +595,8 @@ def _discovery(run: _Run) -> None:
         try:
             run.found, run.discovery_info = run_discovery(
                 run.records, run.torque_constant, run.estimator, run.vocabulary, progress,
-                run.initial_state, run.quasi, run.estimate, run.criterion)
+                run.initial_state, run.quasi, run.estimate, run.criterion,
+                position_error=run.position_error)
         finally:
             progress.deadline = deadline
         run.warnings += _discovery_time_warnings(run.found, run.discovery_info, progress)
@@ -530,7 +623,7 @@ def _check_final_start(run: _Run) -> None:
         run.found, run.estimate, run.discovery_info, run.start_check = check_start(
             run.records, run.torque_constant, run.quasi, run.discover, run.vocabulary,
             run.progress, run.estimate, run.found, run.discovery_info, run.criterion,
-            run.evidence)
+            run.evidence, run.position_error)
         if run.found is not found:  # the second start's own loop
             run.warnings += _discovery_time_warnings(run.found, run.discovery_info,
                                                      run.progress)

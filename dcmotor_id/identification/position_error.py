@@ -2,7 +2,7 @@
 The position error's model of a fit on the position, chosen against model-free evidence.
 
 A fit that compares the position weights it first as the sensor's white noise
-(:func:`~dcmotor_id.identification.criterion.position_error_model` ``white``): the position
+(:func:`~dcmotor_id.identification.criterion.position_ar` with the ``white`` model): the position
 sample by sample, which is what an open-loop validation of the model scores.  When the model
 lacks a force (a friction that varies along a ball screw's travel), that fit can bend the
 physical parameters to cancel the position's drift: a Coulomb friction pressed to zero, an
@@ -12,25 +12,27 @@ model.  When the white fit's J, b or Mc lie more than :data:`AGREEMENT_FACTOR` f
 identification runs again with the ``adaptive`` error model (an AR(1) drift when the residual
 misfits, :func:`~dcmotor_id.identification.criterion.position_ar`), and the result closer to
 the evidence is kept.  JSON ``position_error`` says which and why.
+
+This module holds the decisions (functions of the runs' results); the pipeline runs the
+identification's stages under each model and follows them
+(:mod:`~dcmotor_id.identification.identify`).  The white run is left after its base fit
+when that already contradicts the regression (:func:`white_base_far`): the adaptive run comes
+first, and the white run is finished from its state only when the adaptive one disagrees too.
 """
 
 from __future__ import annotations
 
-from contextvars import ContextVar
-from dataclasses import replace
-from typing import Any, Callable, Sequence, TYPE_CHECKING
+from dataclasses import dataclass, replace
+from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from dcmotor_id.core.errors import DcMotorIdError, FitError, NotIdentifiableError
-from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
+from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.identification.checks.start import FROM_RECORDS, known_evidence
-from dcmotor_id.identification.criterion import position_error_model
-from dcmotor_id.identification.multistart import once_per_identification
+from dcmotor_id.identification.result import IdentificationResult
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
-    from dcmotor_id.identification.result import IdentificationResult
 
 #: Largest ratio between a white fit's J, b or Mc and the model-free regression's before the
 #: fit is taken to have bent them to a drift (the regression's own bias on a derived speed is
@@ -62,167 +64,109 @@ def disagreement(parameters: dict[str, float], evidence: dict[str, float] | None
     return float(worst)
 
 
-class WhiteBaseDisagrees(Exception):
+@dataclass(frozen=True)
+class WhiteBaseFar:
     """
-    A white run left after its base fit: the base contradicts the regression.
+    A white run's base fit (after the start check) that contradicts the regression.
 
-    ``resume`` (when the run gave one) finishes the white run from where it was left, so
-    that a white run needed after all does not fit its base and second start again.
+    ``distance``: :func:`disagreement` (log of the factor); ``parameters``: its J, b and Mc.
+    The pipeline then runs the adaptive model first, and finishes the white run from its
+    state only when the adaptive one disagrees too (:func:`adaptive_agreeing`,
+    :func:`after_a_far_white_base`).
     """
 
-    def __init__(self, distance: float, parameters: dict[str, float],
-                 resume: Callable[[], IdentificationResult] | None = None) -> None:
-        super().__init__('the base fit on the white position error disagrees with the '
-                         'model-free regression')
-        self.distance = distance
-        self.parameters = parameters
-        self.resume = resume
+    distance: float
+    parameters: dict[str, float]
+
+    def note(self) -> str:
+        """Return what the JSON says of the white run left after its base fit."""
+        if not np.isfinite(self.distance):
+            return 'left after its base fit (a parameter at zero)'
+        return ('left after its base fit (' + ', '.join(
+            f'{name} {value:.4g}' for name, value in self.parameters.items())
+            + f': {np.exp(self.distance):.3g}x from the regression)')
 
 
-# Whether the white run in progress is left as soon as its base fit disagrees (a context
-# variable: the pipeline calls :func:`check_base` without knowing who runs it).
-_CHECK_BASE: ContextVar[bool] = ContextVar('check_base', default=False)
-
-
-def check_base(parameters: dict[str, float], records: Sequence[Record],
-               torque_constant: float | None,
-               resume: Callable[[], IdentificationResult] | None = None,
-               evidence: dict[str, float] | None | str = FROM_RECORDS) -> None:
+def white_base_far(parameters: dict[str, float], records: Sequence[Record],
+                   torque_constant: float | None,
+                   evidence: dict[str, float] | None | str = FROM_RECORDS) -> WhiteBaseFar | None:
     """
-    Leave a white run whose base fit (after the start check) contradicts the regression.
+    Return how far a white run's base fit lies from the regression when beyond agreement.
 
-    Raises :class:`WhiteBaseDisagrees` inside :func:`with_chosen_error_model`'s first run
-    only; elsewhere it does nothing.  The AR(1) run is then tried first, and the white run
-    is finished only when that one disagrees too: by ``resume`` (the rest of the run from
-    this point, its state kept) when given, else by running it again from the start.
-    ``evidence``: the regression on ``records`` when the run has it
+    None when within :data:`AGREEMENT_FACTOR` (the white run goes on).  ``evidence``: the
+    regression on ``records`` when the run has it
     (:func:`~dcmotor_id.identification.checks.start.known_evidence`).
     """
-    if not _CHECK_BASE.get():
-        return
     distance = disagreement(parameters, known_evidence(records, torque_constant, evidence))
-    if distance > np.log(AGREEMENT_FACTOR):
-        raise WhiteBaseDisagrees(distance, {name: float(parameters[name]) for name in COMPARED
-                                            if name in parameters}, resume)
+    if distance <= np.log(AGREEMENT_FACTOR):
+        return None
+    return WhiteBaseFar(distance, {name: float(parameters[name]) for name in COMPARED
+                                   if name in parameters})
 
 
-def with_chosen_error_model(run: Callable[[], IdentificationResult],
-                            progress: Progress | None = None) -> IdentificationResult:
-    """
-    Run an identification on the position with the white error model, else the adaptive one.
-
-    ``run`` runs the whole identification (under the error model in force).  The white run
-    is left early when its base contradicts the regression (:func:`check_base`); the
-    adaptive one runs when the white result disagrees with the regression by more than
-    :data:`AGREEMENT_FACTOR`, or failed (a second run that fails or runs out of time leaves
-    the white result).  Returns the result closer to the evidence, its ``position_error``
-    filled in (and a warning when both disagree).  ``progress`` (the runs') names each run
-    after the first on its status line (:meth:`~dcmotor_id.core.progress.Progress.set_run`).
-    The runs fit the further starts of the base once
-    (:func:`~dcmotor_id.identification.multistart.once_per_identification`).
-    """
-    runs = _Runs(run, progress)
-    try:
-        with once_per_identification():
-            return _chosen(runs)
-    finally:
-        runs.name('')  # a later identification on the same Progress starts unnamed
-
-
-def _chosen(runs: _Runs) -> IdentificationResult:
-    """:func:`with_chosen_error_model`'s body."""
-    white, left = _white_run(runs.run)
-    if left is not None:
-        return _adaptive_first(runs, left)
-    if isinstance(white, DcMotorIdError):
-        return replace(runs.adaptive(), position_error={'model': 'adaptive',
-                                                        'white': f'failed: {white}'})
+def white_if_agreeing(white: IdentificationResult) -> IdentificationResult | None:
+    """Return the white result with its account when it agrees with the regression, else None."""
     evidence = _evidence(white)
     distance = disagreement(white.parameters, evidence)
-    if distance <= np.log(AGREEMENT_FACTOR):
-        return replace(white, position_error={
-            'model': 'white', 'evidence': _compared(evidence),
-            'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors({'white': distance})})
-    try:
-        adaptive = runs.adaptive()
-    except (FitError, NotIdentifiableError, TimeBudgetExceeded) as error:
-        return replace(white, position_error={
-            'model': 'white', 'evidence': _compared(evidence),
-            'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors({'white': distance}),
-            'adaptive': f'failed: {error}'})
-    return _closer(white, adaptive, evidence)
+    if distance > np.log(AGREEMENT_FACTOR):
+        return None
+    return replace(white, position_error={
+        'model': 'white', 'evidence': _compared(evidence),
+        'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors({'white': distance})})
 
 
-def _evidence(result: IdentificationResult) -> dict[str, float] | None:
-    """Return the regression on a run's records: the run's own (``result.evidence``) if any."""
-    return known_evidence(result.input_records, result.torque_constant,
-                          FROM_RECORDS if result.evidence is None else result.evidence)
+def adaptive_after_white_failed(adaptive: IdentificationResult,
+                                failed: DcMotorIdError) -> IdentificationResult:
+    """Return the adaptive result after the white run failed (``failed``), accounted for."""
+    return replace(adaptive, position_error={'model': 'adaptive', 'white': f'failed: {failed}'})
 
 
-class _Runs:
-    """The identification's runs after the first, each named on the status line."""
+def after_a_far_white(white: IdentificationResult,
+                      adaptive: IdentificationResult | DcMotorIdError) -> IdentificationResult:
+    """
+    Return the result closer to the regression after a white result that disagrees.
 
-    def __init__(self, run: Callable[[], IdentificationResult],
-                 progress: Progress | None) -> None:
-        self.run, self.progress = run, progress
-
-    def adaptive(self) -> IdentificationResult:
-        """Run the identification again, the position error modelled as a drift (AR(1))."""
-        self.name(ADAPTIVE_RUN)
-        return self.run()
-
-    def white(self, left: WhiteBaseDisagrees) -> tuple[
-            IdentificationResult | DcMotorIdError, WhiteBaseDisagrees | None]:
-        """Finish the white run that was left after its base (from there when it can)."""
-        if left.resume is None:
-            self.name(WHITE_RUN_AGAIN)
-            return _white_run(self.run, check=False)
-        self.name(WHITE_RUN_RESUMED)
-        return _white_run(left.resume, check=False)
-
-    def name(self, label: str) -> None:
-        """Name the run that starts on the status line (empty: none)."""
-        if self.progress is not None:
-            self.progress.set_run(label)
+    ``adaptive``: the adaptive run's result, or how it failed (the white result is kept).
+    """
+    evidence = _evidence(white)
+    if isinstance(adaptive, IdentificationResult):
+        return _closer(white, adaptive, evidence)
+    return replace(white, position_error={
+        'model': 'white', 'evidence': _compared(evidence),
+        'agreement_factor': AGREEMENT_FACTOR,
+        'disagreement': _factors({'white': disagreement(white.parameters, evidence)}),
+        'adaptive': f'failed: {adaptive}'})
 
 
-def _white_run(run: Callable[[], IdentificationResult], check: bool = True) -> tuple[
-        IdentificationResult | DcMotorIdError, WhiteBaseDisagrees | None]:
-    """Run the white model, left early when its base disagrees; ``(result or error, left)``."""
-    token = _CHECK_BASE.set(check)
-    try:
-        with position_error_model('white'):
-            return run(), None
-    except WhiteBaseDisagrees as left:
-        return FitError('left after its base fit'), left
-    except (FitError, NotIdentifiableError) as error:
-        if 'time budget' in str(error):
-            raise
-        return error, None
-    finally:
-        _CHECK_BASE.reset(token)
+def adaptive_agreeing(adaptive: IdentificationResult | None,
+                      left: WhiteBaseFar) -> IdentificationResult | None:
+    """
+    Return the adaptive result, accounted for, when it agrees with the regression, else None.
+
+    ``adaptive``: the adaptive run that came first after the white base ``left`` (None: it
+    failed).
+    """
+    if adaptive is None:
+        return None
+    evidence = _evidence(adaptive)
+    distance = disagreement(adaptive.parameters, evidence)
+    if distance > np.log(AGREEMENT_FACTOR):
+        return None
+    return replace(adaptive, position_error={
+        'model': 'adaptive', 'evidence': _compared(evidence),
+        'agreement_factor': AGREEMENT_FACTOR,
+        'disagreement': _factors({'adaptive': distance}), 'white': left.note()})
 
 
-def _adaptive_first(runs: _Runs, left: WhiteBaseDisagrees) -> IdentificationResult:
-    """Run the adaptive model after a white base that disagrees; the full white run if needed."""
-    left_note = ('left after its base fit (' + ', '.join(
-        f'{name} {value:.4g}' for name, value in left.parameters.items())
-        + f': {np.exp(left.distance):.3g}x from the regression)'
-        if np.isfinite(left.distance) else 'left after its base fit (a parameter at zero)')
-    try:
-        adaptive = runs.adaptive()
-    except (FitError, NotIdentifiableError, TimeBudgetExceeded):
-        adaptive = None
-    evidence = None
-    if adaptive is not None:
-        evidence = _evidence(adaptive)
-        distance = disagreement(adaptive.parameters, evidence)
-        if distance <= np.log(AGREEMENT_FACTOR):
-            return replace(adaptive, position_error={
-                'model': 'adaptive', 'evidence': _compared(evidence),
-                'agreement_factor': AGREEMENT_FACTOR,
-                'disagreement': _factors({'adaptive': distance}), 'white': left_note})
-    white, _ = runs.white(left)
+def after_a_far_white_base(adaptive: IdentificationResult | None,
+                           white: IdentificationResult | DcMotorIdError) -> IdentificationResult:
+    """
+    Return the result closer to the regression once the white run was finished after all.
+
+    ``adaptive``: the adaptive run's result (None: it failed); ``white``: the white run's,
+    finished from its start check, or how it failed (raised when both failed).
+    """
+    evidence = None if adaptive is None else _evidence(adaptive)
     if isinstance(white, DcMotorIdError):
         if adaptive is None:
             raise white
@@ -230,6 +174,12 @@ def _adaptive_first(runs: _Runs, left: WhiteBaseDisagrees) -> IdentificationResu
     if adaptive is None:
         return replace(white, position_error={'model': 'white', 'adaptive': 'failed'})
     return _closer(white, adaptive, evidence)
+
+
+def _evidence(result: IdentificationResult) -> dict[str, float] | None:
+    """Return the regression on a run's records: the run's own (``result.evidence``) if any."""
+    return known_evidence(result.input_records, result.torque_constant,
+                          FROM_RECORDS if result.evidence is None else result.evidence)
 
 
 def _closer(white: IdentificationResult | None, adaptive: IdentificationResult,

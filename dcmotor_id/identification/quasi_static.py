@@ -35,19 +35,22 @@ def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
 
 def quasi_static_refit(estimate: Estimate, records: Sequence[Record], errors: ChannelErrors,
                        initial_state: str, progress: Progress,
-                       criterion: str = 'speed') -> Estimate | None:
+                       criterion: str = 'speed',
+                       position_error: str = 'adaptive') -> Estimate | None:
     """
     Refit with the quasi-static armature (La -> 0); return the estimate or None.
 
     The refit is kept when its current simulation error is at most 25 % (and 0.5 points)
     worse than the full model's: the full model's La then adds nothing the data resolve.
+    ``position_error``: the model of the position error of the refit.
     """
     values = estimate.parameters
     start = {name: values[name] for name in parameter_names(False) if name != 'La'}
     progress.set_stage('quasi-static armature refit')
     try:
         quasi = RefinedEstimator(initial=start, quasi_static=True, initial_state=initial_state,
-                                 progress=progress, criterion=criterion).fit(records)
+                                 progress=progress, criterion=criterion,
+                                 position_error=position_error).fit(records)
         quasi_errors = simulation_errors(quasi, records, None, quasi_static=True)
     except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
         return None

@@ -55,7 +55,7 @@ def make_estimator(loop: LoopState, **options: Any) -> RefinedEstimator:
     """Return the loop's output-error estimator (initial states, armature, criterion)."""
     return RefinedEstimator(initial_state=loop.initial_state, progress=loop.progress,
                             quasi_static=loop.quasi_static, criterion=loop.criterion,
-                            **options)
+                            position_error=loop.position_error, **options)
 
 
 def fit_structure(loop: LoopState, structure: Structure, start: dict | None = None,
@@ -285,7 +285,7 @@ def refit_all(loop: LoopState, fitted: Fit) -> tuple[list[Record], tuple, Estima
                           initial_states=fitted.estimate.initial_states,
                           initial_state=loop.initial_state,
                           quasi_static=loop.quasi_static, criterion=loop.criterion,
-                          position_ar=loop.position_ar)
+                          position_ar=loop.position_ar, position_error=loop.position_error)
 
 
 def open_loop_outputs(structure: Structure, estimate: Estimate, records: Sequence[Record],

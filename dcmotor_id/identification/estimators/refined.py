@@ -32,7 +32,8 @@ import numpy as np
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (derived_stderr, derived_values, make_admissible,
                                    MotorParameters, parameter_names, POSITIVE_NAMES, state_matrix)
-from dcmotor_id.identification.criterion import (AR_PASSES, ar_settled, fitted_outputs,
+from dcmotor_id.identification.criterion import (AR_PASSES, ar_settled,
+                                                 check_position_error_model, fitted_outputs,
                                                  integrate_speed, position_ar, whiten)
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.identification.estimators.jacobian import record_sparse_jacobian
@@ -597,6 +598,9 @@ class RefinedEstimator:
     position_ar : sequence of float, optional
         Start of every record's AR(1) coefficient of the position error (a warm start, e.g.
         from an earlier fit of the same records; :func:`_update_position_ar`); default white.
+    position_error : str
+        The position error's model, ``adaptive`` (default) or ``white``
+        (:func:`~dcmotor_id.identification.criterion.check_position_error_model`).
     retry : bool
         A fit on the position that does not converge is tried once more with
         :data:`POSITION_NFEV_FACTOR` times ``max_nfev`` (default).  False: the fit keeps its
@@ -615,7 +619,8 @@ class RefinedEstimator:
                  progress: Callable[..., None] | None = None,
                  initial_states: Sequence[Sequence[float]] | None = None,
                  criterion: str = 'speed',
-                 position_ar: Sequence[float] | None = None, retry: bool = True) -> None:
+                 position_ar: Sequence[float] | None = None, retry: bool = True,
+                 position_error: str = 'adaptive') -> None:
         if initial_state not in ('estimate', 'measured'):
             raise ValueError(f'initial_state must be estimate or measured, not {initial_state}')
         self.max_nfev = max_nfev
@@ -628,6 +633,7 @@ class RefinedEstimator:
         self.criterion = criterion
         self.position_ar = position_ar
         self.retry = retry
+        self.position_error = check_position_error_model(position_error)
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
@@ -713,7 +719,7 @@ class RefinedEstimator:
                 raise FitError('the output-error fit diverged (non-finite parameters): ' + _MISFIT)
             noise = problem.residual_noise(current)
             white = not any(model.position_ar)
-            if _update_position_ar(model, *problem.unpack(z)[:2]):
+            if _update_position_ar(model, *problem.unpack(z)[:2], self.position_error):
                 # The position's error model moved: the next pass simulates again, and runs
                 # (up to AR_PASSES more) until it settles.  Leaving the white error model, a
                 # base parameter the white fit ran below COLLAPSED of its start restarts there:
@@ -779,7 +785,7 @@ class RefinedEstimator:
 
 
 def _update_position_ar(model: OutputErrorModel, values: Mapping[str, float],
-                        states: np.ndarray) -> bool:
+                        states: np.ndarray, position_error: str = 'adaptive') -> bool:
     """
     Re-estimate every record's AR(1) coefficient of the position error at ``values``.
 
@@ -798,7 +804,7 @@ def _update_position_ar(model: OutputErrorModel, values: Mapping[str, float],
         if not np.all(np.isfinite(error)):
             continue
         model.position_rms[index] = float(np.sqrt(np.mean(error ** 2)))
-        rho = position_ar(error, noise_level(rec.position))
+        rho = position_ar(error, noise_level(rec.position), position_error)
         moved = moved or not ar_settled(model.position_ar[index], rho)
         model.position_ar[index] = rho
     return moved
