@@ -13,3 +13,19 @@ says which runs when), the residual analysis
 (:mod:`~dcmotor_id.identification.effects`, one module per effect).
 :mod:`~dcmotor_id.identification.validate` simulates a model on records it was not fitted on.
 """
+
+#: The layers inside, bottom first: a module imports only from its own layer and those below
+#: (``test/test_layers.py``).  The error model (the criterion, the sensor noise, residuals and
+#: their analysis); the estimators; the effect vocabulary; the checks of the data and of the
+#: answer, the preparation of records and the validation; the discovery loop; the stages of
+#: the pipeline; :func:`~dcmotor_id.identification.identify.identify`, which runs them.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ('criterion', 'residuals'),
+    ('estimators',),
+    ('effects',),
+    ('checks', 'prepare', 'validate'),
+    ('discovery',),
+    ('fitting', 'quasi_static', 'multistart', 'second_start', 'heldout', 'result',
+     'current_limited', 'position_error', 'structure_uncertainty'),
+    ('identify',),
+)

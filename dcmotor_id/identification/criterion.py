@@ -31,6 +31,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.signals.filters import noise_std
 
 #: Choices of ``--criterion``.
 CRITERIA = ('auto', 'speed', 'position', 'both')
@@ -159,6 +160,23 @@ def position_ar(error: np.ndarray, sensor_noise: float, model: str = 'adaptive')
     return float(np.clip(float(error[1:] @ error[:-1]) / lagged, 0.0, MAX_POSITION_AR))
 
 
+def noise_level(values: np.ndarray) -> float:
+    """
+    Noise level of a channel, at least the rounding noise of a quantised signal.
+
+    :func:`~dcmotor_id.signals.filters.noise_std` reads zero on a quantised signal (its second
+    differences are mostly zero); the quantisation step ``q`` (the small end of the nonzero
+    differences between samples) gives the floor ``q / sqrt(12)``.
+    """
+    values = np.asarray(values, dtype=float)
+    level = noise_std(values)
+    steps = np.abs(np.diff(values))
+    steps = steps[steps > 0]
+    if steps.shape[0]:
+        level = max(level, float(np.percentile(steps, 5)) / np.sqrt(12.0))
+    return level
+
+
 def ar_settled(old: float, new: float) -> bool:
     """Whether an AR(1) coefficient has settled: ``1 - rho`` moved by under 25 %."""
     if old == new:
@@ -175,8 +193,6 @@ def with_position_states(estimate: Any, records: Sequence[Any]) -> Any:
     The base model fitted on the speed, to be judged on the position (the initial position
     is the first sample, the position's noise its sensor's); ``info['base_from']`` says so.
     """
-    from dcmotor_id.identification.checks.identifiability import noise_level
-
     states = [tuple(state) + (float(rec.position[0]),)
               for state, rec in zip(estimate.initial_states, records)]
     noise = float(np.sqrt(np.mean([noise_level(rec.position) ** 2 for rec in records])))

@@ -83,6 +83,7 @@ from dcmotor_id.identification.quasi_static import (la_reason, la_unresolved, qu
 from dcmotor_id.identification.residuals import output_channels, simulate_records
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.identification.second_start import check_start, start_warning
+from dcmotor_id.identification.structure_uncertainty import bootstrapped
 from dcmotor_id.identification.validate import operating_range
 
 if TYPE_CHECKING:
@@ -166,7 +167,6 @@ def identify(records: Sequence[Record], method: str = 'refined',
     """
     _check_choices(method, initial_state)
     if structure_bootstrap:
-        from dcmotor_id.identification.structure_uncertainty import bootstrapped
         return bootstrapped(identify, records, structure_bootstrap, method=method,
                             torque_constant=torque_constant, discover=discover,
                             estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,

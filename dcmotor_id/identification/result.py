@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, TYPE_CHECKING
 
+from dcmotor_id.identification.validate import model_block
+
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import DiscoveryResult
@@ -172,7 +174,6 @@ class IdentificationResult:
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""
-        from dcmotor_id.identification.validate import model_block
         out = {
             'parameters': self.parameters,
             'stderr': self.stderr,

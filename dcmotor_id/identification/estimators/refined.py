@@ -34,7 +34,8 @@ from dcmotor_id.core.model import (derived_stderr, derived_values, make_admissib
                                    MotorParameters, parameter_names, POSITIVE_NAMES, state_matrix)
 from dcmotor_id.identification.criterion import (AR_PASSES, ar_settled,
                                                  check_position_error_model, fitted_outputs,
-                                                 integrate_speed, position_ar, whiten)
+                                                 integrate_speed, noise_level, position_ar,
+                                                 whiten)
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.identification.estimators.jacobian import record_sparse_jacobian
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
@@ -795,8 +796,6 @@ def _update_position_ar(model: OutputErrorModel, values: Mapping[str, float],
     """
     if 'position' not in model.outputs:
         return False
-    from dcmotor_id.identification.checks.identifiability import noise_level
-
     moved = False
     for index, rec in enumerate(model.records):
         with np.errstate(all='ignore'):
