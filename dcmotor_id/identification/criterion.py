@@ -20,7 +20,7 @@ noise (:data:`POSITION_MISFIT_FACTOR`) as AR(1) (:func:`position_ar`, :func:`whi
 residual is the integral of a force the model lacks, it drifts, and weighted as white it can
 make the fit bend the physical parameters to cancel an offset a local misfit left; the AR(1)
 model weights the error's increments for a drift.  ``identify`` chooses between the two
-against model-free evidence (:mod:`~dcmotor_id.identification.position_error`).
+against model-free evidence (:mod:`~dcmotor_id.identification.pipeline.position_error`).
 """
 
 from __future__ import annotations

@@ -9,13 +9,13 @@ state (``_Run``), top to bottom; the details of each live in a module of their o
 1. prepare: held samples restored, coarse channels named, data that do not move refused
    (:mod:`~dcmotor_id.identification.prepare`, which also makes records ready:
    :func:`~dcmotor_id.identification.prepare.prepare_records`); a drive at an amplifier's
-   current limit takes its own path (:mod:`~dcmotor_id.identification.current_limited`);
+   current limit takes its own path (:mod:`~dcmotor_id.identification.pipeline.current_limited`);
 2. base fit: the estimator named by ``--method`` on all data, non-physical values refused
-   (:mod:`~dcmotor_id.identification.fitting`);
+   (:mod:`~dcmotor_id.identification.pipeline.fit_outcome`);
 3. armature: La below what the data resolve makes the quasi-static armature the model
-   (:mod:`~dcmotor_id.identification.quasi_static`);
+   (:mod:`~dcmotor_id.identification.pipeline.armature`);
 4. start check: the base against model-free evidence, a second start when doubted
-   (:mod:`~dcmotor_id.identification.second_start`);
+   (:mod:`~dcmotor_id.identification.pipeline.second_start`);
 5. discovery: the effect discovery loop (:mod:`~dcmotor_id.identification.discovery`);
 6. final start check: where discovery led, checked the same way;
 7. final fit: refused when it does not reproduce the data;
@@ -25,7 +25,8 @@ state (``_Run``), top to bottom; the details of each live in a module of their o
    (:mod:`~dcmotor_id.identification.checks.identifiability`: one direction only, bounds, loose
    parameters), plausibility and units;
 10. warnings: correlations, initial states, misfit, how far the effects moved the base;
-11. held-out errors: per record, whole and held out (:mod:`~dcmotor_id.identification.heldout`);
+11. held-out errors: per record, whole and held out
+   (:mod:`~dcmotor_id.identification.pipeline.heldout`);
 12. result: an :class:`~dcmotor_id.identification.result.IdentificationResult`, whose
     :meth:`~dcmotor_id.identification.result.IdentificationResult.as_dict` is the JSON layout
     of the CLI contract.
@@ -59,30 +60,35 @@ from dcmotor_id.identification.checks.plausibility import check_plausibility
 from dcmotor_id.identification.checks.start import regression_evidence
 from dcmotor_id.identification.checks.units import sign_problem, unit_warnings
 from dcmotor_id.identification.criterion import resolve_criterion, with_position_states
-from dcmotor_id.identification.current_limited import (electrical_part, JACKKNIFE_GROUPS,
-                                                       with_electrical_part)
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.estimators.uncertainty import (between_record_warnings,
                                                               with_robust_stderr)
-from dcmotor_id.identification.fitting import (check_physical, record_names, run_discovery,
-                                               simulation_errors, supports_discovery)
-from dcmotor_id.identification.heldout import HELDOUT_CHOICE, heldout_warnings, record_errors
-from dcmotor_id.identification.multistart import ambiguity_warning, several_starts, with_starts
-from dcmotor_id.identification.position_error import (adaptive_after_white_failed,
-                                                      adaptive_agreeing, ADAPTIVE_RUN,
-                                                      after_a_far_white, after_a_far_white_base,
-                                                      white_base_far, white_if_agreeing,
-                                                      WHITE_RUN_RESUMED)
+from dcmotor_id.identification.pipeline.armature import (la_reason, la_unresolved,
+                                                         quasi_static_refit, with_la_bound)
+from dcmotor_id.identification.pipeline.current_limited import (electrical_part,
+                                                                JACKKNIFE_GROUPS,
+                                                                with_electrical_part)
+from dcmotor_id.identification.pipeline.fit_outcome import (check_physical, record_names,
+                                                            run_discovery, simulation_errors,
+                                                            supports_discovery)
+from dcmotor_id.identification.pipeline.further_starts import (ambiguity_warning,
+                                                               several_starts, with_starts)
+from dcmotor_id.identification.pipeline.heldout import (HELDOUT_CHOICE, heldout_warnings,
+                                                        record_errors)
+from dcmotor_id.identification.pipeline.position_error import (adaptive_after_white_failed,
+                                                               adaptive_agreeing, ADAPTIVE_RUN,
+                                                               after_a_far_white,
+                                                               after_a_far_white_base,
+                                                               white_base_far, white_if_agreeing,
+                                                               WHITE_RUN_RESUMED)
+from dcmotor_id.identification.pipeline.second_start import check_start, start_warning
 from dcmotor_id.identification.prepare import (check_excitation, common_period, one_level_reason,
                                                PERIOD_RTOL, prepare_records, SETTLE_SAMPLES,
                                                single_current_level)
-from dcmotor_id.identification.quasi_static import (la_reason, la_unresolved, quasi_static_refit,
-                                                    with_la_bound)
 from dcmotor_id.identification.residuals import output_channels, simulate_records
 from dcmotor_id.identification.result import IdentificationResult
-from dcmotor_id.identification.second_start import check_start, start_warning
 from dcmotor_id.identification.structure_uncertainty import bootstrapped
 from dcmotor_id.identification.validate import operating_range
 
@@ -212,10 +218,10 @@ def _on_the_position(arguments, criterion):
     Identify on the position with the white error model, else the adaptive one (AR(1)).
 
     The white run is left after its start check when its base contradicts the regression
-    (:func:`~dcmotor_id.identification.position_error.white_base_far`): the adaptive run
+    (:func:`~dcmotor_id.identification.pipeline.position_error.white_base_far`): the adaptive run
     comes first, and the white run is finished from its state only when that one disagrees
     too.  A white result that disagrees (or fails) runs the adaptive model; the result closer
-    to the evidence is kept (:mod:`~dcmotor_id.identification.position_error`).  The runs
+    to the evidence is kept (:mod:`~dcmotor_id.identification.pipeline.position_error`).  The runs
     share the further starts of the base (the first run's account, ``earlier``); the status
     line names each run after the first.
     """
@@ -334,7 +340,7 @@ def _begin(records, method, torque_constant, discover, estimator, vocabulary, pr
     A drive at an amplifier's current limit takes its own path to a result.
     ``position_error``: the model of the position error of every fit; ``earlier``: the
     further starts' account of an earlier run of this identification
-    (:func:`~dcmotor_id.identification.multistart.several_starts`).
+    (:func:`~dcmotor_id.identification.pipeline.further_starts.several_starts`).
     """
     run = _prepare(records, method, torque_constant, discover, estimator, vocabulary,
                    progress, initial_state, criterion)
@@ -449,10 +455,11 @@ def _identify_current_limited(records, limited, discover, vocabulary, progress, 
     Identify a drive whose amplifier limits the current (the model has no limit).
 
     The electrical part off the limit
-    (:func:`~dcmotor_id.identification.current_limited.electrical_part`), then the mechanical
+    (:func:`~dcmotor_id.identification.pipeline.current_limited.electrical_part`), then the
+    mechanical
     part as in the mechanical-only mode with the measured current and that CPhi as the torque
     constant, completed by
-    :func:`~dcmotor_id.identification.current_limited.with_electrical_part`.
+    :func:`~dcmotor_id.identification.pipeline.current_limited.with_electrical_part`.
     """
     values, robust = electrical_part(records, limited)
     mechanical = identify(records, torque_constant=values['CPhi'], discover=discover,
@@ -517,7 +524,7 @@ def _speed_base(run: _Run, error: FitError) -> Estimate:
 
 def _armature(run: _Run) -> None:
     """
-    Stage 3: La first (:mod:`~dcmotor_id.identification.quasi_static`).
+    Stage 3: La first (:mod:`~dcmotor_id.identification.pipeline.armature`).
 
     When the data cannot resolve La, the quasi-static armature is the model of everything
     that follows (discovery included).
@@ -544,10 +551,10 @@ def _check_base_start(run: _Run) -> None:
 
     A base fit that misfits far above the noise or lies far from the evidence is fitted again
     from further starts, the best kept
-    (:func:`~dcmotor_id.identification.multistart.several_starts`).  A base in a wrong
+    (:func:`~dcmotor_id.identification.pipeline.further_starts.several_starts`).  A base in a wrong
     basin misleads the effect screen; when the second start explains the data better it is
     the base, and it ran its own discovery
-    (:func:`~dcmotor_id.identification.second_start.check_start`).
+    (:func:`~dcmotor_id.identification.pipeline.second_start.check_start`).
     """
     if not run.checkable:
         return
@@ -766,7 +773,7 @@ def _heldout(run: _Run) -> None:
     """
     Stage 11: the per-record errors, on the whole records and held out, and their warnings.
 
-    Both come from :mod:`~dcmotor_id.identification.heldout`.
+    Both come from :mod:`~dcmotor_id.identification.pipeline.heldout`.
     """
     run.errors_detail = record_errors(run.records, run.estimate, run.final, run.found,
                                       run.torque_constant, run.terms, run.quasi)

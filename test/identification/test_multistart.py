@@ -6,14 +6,16 @@ import numpy as np
 import pytest
 
 from dcmotor_id.core.progress import Progress
-from dcmotor_id.identification import multistart
 from dcmotor_id.identification.checks import start as start_check
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.identify import identify, prepare_records
-from dcmotor_id.identification.multistart import (ambiguity_warning, ambiguous_starts,
-                                                  different_basins, further_starts, MAX_STARTS,
-                                                  NOT_CHOSEN_EARLIER, several_starts,
-                                                  SIMILAR_BIC, with_starts)
+from dcmotor_id.identification.pipeline import further_starts as multistart
+from dcmotor_id.identification.pipeline.further_starts import (ambiguity_warning,
+                                                               ambiguous_starts,
+                                                               different_basins, further_starts,
+                                                               MAX_STARTS, NOT_CHOSEN_EARLIER,
+                                                               several_starts, SIMILAR_BIC,
+                                                               with_starts)
 from dcmotor_id.simulation.lab_scenarios import (servo_collapsed_start, servo_opposite_steps,
                                                  servo_torque_steps)
 

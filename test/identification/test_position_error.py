@@ -10,9 +10,9 @@ from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.criterion import position_ar
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.identify import identify, prepare_records
-from dcmotor_id.identification.position_error import AGREEMENT_FACTOR, disagreement
+from dcmotor_id.identification.pipeline.position_error import AGREEMENT_FACTOR, disagreement
+from dcmotor_id.identification.pipeline.second_start import check_start
 from dcmotor_id.identification.result import IdentificationResult
-from dcmotor_id.identification.second_start import check_start
 from dcmotor_id.simulation.lab_scenarios import ball_screw_sine
 
 EVIDENCE = {'J': 1.0, 'b': 2.0, 'Mc': 0.5, 'offset': 0.0}
@@ -284,7 +284,7 @@ def test_a_white_run_left_after_its_start_check_is_finished_from_there(monkeypat
     the first.
     """
     from dcmotor_id.identification import identify as pipeline
-    from dcmotor_id.identification import position_error
+    from dcmotor_id.identification.pipeline import position_error
 
     scenario = ball_screw_sine()
     records = prepare_records(scenario.records, scenario.torque_constant)
@@ -327,7 +327,7 @@ def test_the_ball_screw_s_two_runs_fit_the_further_starts_and_the_regression_onc
     further starts, the start checks and the chooser.
     """
     from dcmotor_id.identification import identify as pipeline
-    from dcmotor_id.identification import multistart
+    from dcmotor_id.identification.pipeline import further_starts as multistart
     from dcmotor_id.identification.checks import start as checks_start
 
     scenario = ball_screw_sine()

@@ -21,7 +21,8 @@ score alike (within :data:`SIMILAR_BIC`) in different basins make the answer amb
 loops), at most :data:`MAX_STARTS`, and take at most :data:`BUDGET_SHARE` of the time left.
 
 They are fitted once per identification.  A fit on the position may run the identification
-twice (:mod:`~dcmotor_id.identification.position_error`: the position error as white noise,
+twice (:mod:`~dcmotor_id.identification.pipeline.position_error`: the position error as white
+noise,
 then as a drift), with the same records and the same regression, hence the same further
 starts.  The first run that needs them fits them all; a later run, given the first one's
 account (``earlier``), fits again only the start the first one chose (none when that was its
@@ -41,7 +42,7 @@ from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, known_evidence,
                                                     regression_start, start_doubts)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.identification.fitting import check_physical, record_names
+from dcmotor_id.identification.pipeline.fit_outcome import check_physical, record_names
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record

@@ -20,7 +20,7 @@ from dcmotor_id.core.model import derived_values, parameter_names
 from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.checks.identifiability import IDENTIFIABLE_REL_STDERR
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
-from dcmotor_id.identification.fitting import simulation_errors
+from dcmotor_id.identification.pipeline.fit_outcome import simulation_errors
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
