@@ -23,7 +23,8 @@ from pathlib import Path
 import subprocess
 import sys
 
-#: Wall-clock fields, removed before comparing (they differ from run to run).
+#: Wall-clock and CPU-time fields, removed before comparing (they differ from run to run);
+#: so are the keys that end in one of them (``starts_cpu_s``).
 TIMING_KEYS = ('elapsed_s', 'elapsed', 'wall_s', 'cpu_s', 'time_used_s')
 #: Seconds a case may take before it is stopped (then recorded as a timeout).
 CASE_TIMEOUT_S = 300
@@ -114,7 +115,7 @@ def _without_timing(value):
     """Return ``value`` with the wall-clock fields removed, recursively."""
     if isinstance(value, dict):
         return {key: _without_timing(item) for key, item in value.items()
-                if key not in TIMING_KEYS}
+                if not key.endswith(TIMING_KEYS)}
     if isinstance(value, list):
         return [_without_timing(item) for item in value]
     return value
@@ -165,7 +166,11 @@ def run_all(data: Path, out: Path, jobs: int, only: list[str]) -> None:
 
 
 def compare(first: Path, second: Path) -> int:
-    """Print the cases whose outputs differ or are missing; return their count."""
+    """
+    Print the cases whose outputs differ or are missing; return their count.
+
+    The output directories' own paths (in the design's ``source``) are not a difference.
+    """
     names = sorted({path.name for path in first.glob('*.json')}
                    | {path.name for path in second.glob('*.json')})
     differing = 0
@@ -174,11 +179,17 @@ def compare(first: Path, second: Path) -> int:
         if not a.exists() or not b.exists():
             print(f'{name}: only in {first if a.exists() else second}')
             differing += 1
-        elif a.read_text() != b.read_text():
+        elif _normalised(a, first) != _normalised(b, second):
             print(f'{name}: differs')
             differing += 1
     print(f'{len(names)} cases, {differing} differ')
     return differing
+
+
+def _normalised(path: Path, out: Path) -> str:
+    """Return a case's JSON without timing fields, its output directory's path replaced."""
+    entry = _without_timing(json.loads(path.read_text()))
+    return json.dumps(entry, indent=1, sort_keys=True).replace(str(out), '<out>')
 
 
 def main(argv: list[str] | None = None) -> int:

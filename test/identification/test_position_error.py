@@ -82,7 +82,8 @@ def _choose(monkeypatch, outcomes, white_base=None, reference=None):
     """
     from types import SimpleNamespace
 
-    from dcmotor_id.identification import identify as pipeline
+    from dcmotor_id.identification.pipeline import run as pipeline
+    from dcmotor_id.identification.pipeline.state import Fit, Inputs, Request, RunOn
 
     reference = reference or next(value for value in outcomes.values()
                                   if isinstance(value, IdentificationResult))
@@ -95,24 +96,23 @@ def _choose(monkeypatch, outcomes, white_base=None, reference=None):
             raise found
         return found
 
-    def begin(*arguments):
-        model = arguments[-2]
-        runs.append(model)
-        if model == 'white' and white_base is not None:
-            run = pipeline._Run(records, 'refined', constant, True, None, [], Progress(None),
-                                'estimate', 'position', [])
-            run.estimate = SimpleNamespace(parameters=white_base)
-            return run
-        return outcome(model)
+    def begin(request, on):
+        runs.append(on.position_error)
+        if on.position_error == 'white' and white_base is not None:
+            inputs = Inputs(records, 'refined', constant, True, None, [], Progress(None),
+                            'estimate', on, None)
+            return pipeline.Begun(inputs, Fit(SimpleNamespace(parameters=white_base), {}))
+        return outcome(on.position_error)
 
-    def finish(run):
+    def finish(begun):
         runs.append('white finished')
         return outcome('white')
 
-    monkeypatch.setattr(pipeline, '_begin', begin)
-    monkeypatch.setattr(pipeline, '_finish', finish)
-    arguments = (records, 'refined', constant, True, None, None, Progress(None), 'estimate')
-    return pipeline._on_the_position(arguments, 'position'), runs
+    monkeypatch.setattr(pipeline, 'begin', begin)
+    monkeypatch.setattr(pipeline, 'finish', finish)
+    request = Request(records, 'refined', constant, True, None, None, Progress(None), 'estimate')
+    assert RunOn('position').position_error == 'adaptive'
+    return pipeline.on_the_position(request, 'position'), runs
 
 
 def test_a_white_fit_that_agrees_runs_once(agreeing, monkeypatch):
@@ -283,24 +283,26 @@ def test_a_white_run_left_after_its_start_check_is_finished_from_there(monkeypat
     result is that of a white run from the start, and the status line names each run after
     the first.
     """
-    from dcmotor_id.identification import identify as pipeline
-    from dcmotor_id.identification.pipeline import position_error
+    from dcmotor_id.identification.pipeline import position_error, run as pipeline
+    from dcmotor_id.identification.pipeline.state import Request, RunOn
 
     scenario = ball_screw_sine()
     records = prepare_records(scenario.records, scenario.torque_constant)
     # Every result is "far" (any disagreement at all): white left, adaptive far, white finished.
     monkeypatch.setattr(position_error, 'AGREEMENT_FACTOR', 1.0 + 1e-12)
     base_fits, chosen = [], []
-    base_fit, closer = pipeline._base_fit, position_error._closer
-    monkeypatch.setattr(pipeline, '_base_fit', lambda run: base_fits.append(1) or base_fit(run))
+    base_fit, closer = pipeline.base_fit, position_error._closer
+    monkeypatch.setattr(pipeline, 'base_fit',
+                        lambda inputs: base_fits.append(1) or base_fit(inputs))
     monkeypatch.setattr(position_error, '_closer',
                         lambda white, *rest: chosen.append(white) or closer(white, *rest))
     lines = []
     progress = Progress(None, callback=lines.append, delay_s=0.0)
     identify(records, torque_constant=scenario.torque_constant, progress=progress)
     assert len(base_fits) == 2
-    direct = pipeline._identify(records, 'refined', scenario.torque_constant, True, None,
-                                None, Progress(None), 'estimate', 'position', 'white')
+    direct = pipeline.identify_with(Request(records, 'refined', scenario.torque_constant, True,
+                                            None, None, Progress(None), 'estimate'),
+                                    RunOn('position', 'white'))
     assert chosen[0].parameters == direct.parameters
     assert chosen[0].effects == direct.effects
     runs = [position_error.ADAPTIVE_RUN, position_error.WHITE_RUN_RESUMED]
@@ -326,9 +328,9 @@ def test_the_ball_screw_s_two_runs_fit_the_further_starts_and_the_regression_onc
     was kept).  The model-free regression is computed once per run and passed on to the
     further starts, the start checks and the chooser.
     """
-    from dcmotor_id.identification import identify as pipeline
-    from dcmotor_id.identification.pipeline import further_starts as multistart
     from dcmotor_id.identification.checks import start as checks_start
+    from dcmotor_id.identification.pipeline import further_starts as multistart
+    from dcmotor_id.identification.pipeline import state as pipeline
 
     scenario = ball_screw_sine()
     records = prepare_records(scenario.records, scenario.torque_constant)

@@ -25,7 +25,7 @@ Why this design (bench/README.md has the numbers):
 
 from __future__ import annotations
 
-from typing import Any, Callable, cast, Mapping, Sequence
+from typing import Any, Callable, cast, ClassVar, Mapping, Sequence
 
 import numpy as np
 
@@ -610,9 +610,9 @@ class RefinedEstimator:
 
     """
 
-    name = 'refined'
+    name: ClassVar[str] = 'refined'
     #: Effect terms are supported (the discovery loop uses this estimator).
-    supports_terms = True
+    supports_terms: ClassVar[bool] = True
 
     def __init__(self, max_nfev: int = 100, reweight_passes: int = 2,
                  initial: Mapping[str, float] | None = None, quasi_static: bool = False,

@@ -26,8 +26,8 @@ from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, kn
                                                     start_doubts)
 from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.identification.pipeline.fit_outcome import (check_physical, record_names,
-                                                            run_discovery)
+from dcmotor_id.identification.pipeline.discovery import run_discovery
+from dcmotor_id.identification.pipeline.fit_outcome import check_physical, record_names
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
