@@ -28,10 +28,18 @@ import sys
 TIMING_KEYS = ('elapsed_s', 'elapsed', 'wall_s', 'cpu_s', 'time_used_s')
 #: Seconds a case may take before it is stopped (then recorded as a timeout).
 CASE_TIMEOUT_S = 300
-#: The effects of the vocabulary, each simulated alone (the simulator's defaults).
+#: The effects of the vocabulary, each simulated alone with the simulator's defaults (no
+#: magnitude: the base model's data under the effect's name) ...
 EFFECTS = ('load_torque', 'coulomb_asymmetry', 'stribeck', 'quadratic_drag', 'brush_drop',
            'current_offset', 'sensor_delay', 'resistance_drift', 'cogging',
            'viscous_asymmetry')
+#: ... and with a magnitude the paper2 motor's data show (``strong_NAME``).
+STRONG = {'load_torque': 'torque_Nm=0.5', 'coulomb_asymmetry': 'delta_Nm=0.3',
+          'stribeck': 'excess_Nm=0.5,velocity_rad_s=2',
+          'quadratic_drag': 'coefficient_Nm_s2=0.001', 'brush_drop': 'drop_V=1.5',
+          'current_offset': 'offset_A=0.3',
+          'sensor_delay': 'channel=current,samples=2', 'resistance_drift': 'rate_ohm_per_s=0.1',
+          'cogging': 'amplitude_Nm=0.3,cycles_per_rev=4', 'viscous_asymmetry': 'delta_Nm_s=0.05'}
 #: Laboratory scenarios of :mod:`dcmotor_id.simulation.lab_scenarios` written as CSV.
 LAB = ('servo_torque_steps', 'small_motor_pwm_steps', 'hobby_motor_encoder',
        'directions_with_load', 'voltage_step_from_rest', 'coarse_speed_steps',
@@ -50,6 +58,8 @@ def _simulations() -> dict[str, list[str]]:
     """Return the simulated records by file stem: the arguments of ``dcmotor-id simulate``."""
     short = ['--duration', '2', '--sample-period', '1e-3', '--noise', '0.01']
     runs = {f'effect_{name}': short + ['--effect', name] for name in EFFECTS}
+    runs.update({f'strong_{name}': short + ['--effect', f'{name}:{values}']
+                 for name, values in STRONG.items()})
     runs['effect_load_cogging'] = short + ['--effect', 'load_torque', '--effect', 'cogging']
     runs['effect_delay_drop'] = short + ['--effect', 'sensor_delay:channel=speed,samples=3',
                                          '--effect', 'brush_drop']
@@ -64,7 +74,7 @@ def _simulations() -> dict[str, list[str]]:
 def _cases(data: Path) -> dict[str, list[str]]:
     """Return the cases by name: the arguments of ``dcmotor-id identify`` (no ``--json``)."""
     cases = {name: [str(data / f'{name}.csv')] for name in _simulations()}
-    for name in ('base_prbs', 'effect_load_torque', 'effect_cogging'):
+    for name in ('base_prbs', 'effect_load_torque', 'effect_cogging', 'strong_load_torque'):
         csv = str(data / f'{name}.csv')
         cases[f'{name}__paper'] = [csv, '--method', 'paper']
         cases[f'{name}__no_discover'] = [csv, '--no-discover']
@@ -92,9 +102,11 @@ def write_data(data: Path) -> None:
     """Write the corpus's records: simulated CSVs, position-only copies, lab scenarios."""
     data.mkdir(parents=True, exist_ok=True)
     for name, arguments in _simulations().items():
+        if (data / f'{name}.csv').exists():
+            continue
         subprocess.run(_cli('simulate', *arguments, '--out', str(data / f'{name}.csv')),
                        check=True, capture_output=True)
-    for name in ('base_prbs', 'effect_load_torque', 'effect_cogging'):
+    for name in ('base_prbs', 'effect_load_torque', 'effect_cogging', 'strong_load_torque'):
         lines = (data / f'{name}.csv').read_text().splitlines()
         header = lines[0].split(',')
         if 'position' not in header:  # the simulator adds the angle with an effect only
