@@ -1,5 +1,9 @@
 """
-A fit checked against model-free evidence, and a second start when it landed in a wrong basin.
+The start check's evidence and judgement: model-free regression, the doubts, the BIC.
+
+What the pipeline's start check (:mod:`~dcmotor_id.identification.pipeline.start_check`, which
+fits the further starts and the second start) asks of the data and of a fit, without fitting
+the motor model.
 
 An output-error fit whose model lacks a decisive effect (a constant torque offset on records
 that turn both ways) can settle where the initial states absorb the misfit: a huge J that

@@ -1,5 +1,8 @@
 """
-The fit checked against model-free evidence, and a second start when the evidence disagrees.
+The second start: a fit in a wrong basin fitted again from the regression's values.
+
+One step of the start check (:mod:`~dcmotor_id.identification.pipeline.start_check`); the
+evidence and the doubts it uses are :mod:`~dcmotor_id.identification.checks.start`'s.
 
 A fit from the default start can settle in a wrong basin (e.g. the initial speeds moved by a
 misfit); the regression on the data (:mod:`~dcmotor_id.identification.checks.start`) sees that
