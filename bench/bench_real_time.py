@@ -21,7 +21,7 @@ are identical.
 The MECH 467 ball-screw lab (``--mech467``) and EMPS (``--emps``) take the scorecard's
 fits and reading options too (every record, all of Part C, its halves, all parts; EMPS each
 record and both): their fits are on the position, where the identification may run twice
-(:mod:`dcmotor_id.identification.position_error`).  Their table gives J, b and Mc of both
+(:mod:`dcmotor_id.identification.pipeline.position_error`).  Their table gives J, b and Mc of both
 trees and the largest relative difference of the parameters when not identical.
 
 Set-up: the data as for ``bench_real.py`` (a work tree or a bare clone of

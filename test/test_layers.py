@@ -4,6 +4,7 @@ import ast
 import pathlib
 
 import dcmotor_id
+import dcmotor_id.identification
 
 PACKAGE = pathlib.Path(dcmotor_id.__file__).parent
 
@@ -106,3 +107,49 @@ def test_the_nodes_do_not_run_the_command_line():
              for path in sorted((PACKAGE / 'nodes').rglob('*.py'))
              for line, module in imports(path) if module.startswith('dcmotor_id.cli')]
     assert not found, 'nodes that import the command line:\n' + '\n'.join(found)
+
+
+IDENTIFICATION = PACKAGE / 'identification'
+
+
+def inner_floor(name: str) -> int:
+    """Return the floor of a module or subpackage of dcmotor_id.identification."""
+    for floor, names in enumerate(dcmotor_id.identification.LAYERS):
+        if name in names:
+            return floor
+    raise AssertionError(f'dcmotor_id.identification.{name} is on no floor of '
+                         'dcmotor_id.identification.LAYERS')
+
+
+def test_everything_inside_identification_has_a_floor():
+    inside = {path.stem if path.is_file() else path.name for path in IDENTIFICATION.iterdir()
+              if (path.suffix == '.py' and path.name != '__init__.py')
+              or (path.is_dir() and (path / '__init__.py').exists())}
+    assert inside == {name for names in dcmotor_id.identification.LAYERS for name in names}
+
+
+def test_imports_inside_identification_run_only_downward():
+    """Lazy imports and those under TYPE_CHECKING count too: none may run up a floor."""
+    upward = []
+    for path in sorted(IDENTIFICATION.rglob('*.py')):
+        relative = path.relative_to(IDENTIFICATION).parts
+        if relative == ('__init__.py',):
+            continue
+        mine = inner_floor(relative[0].removesuffix('.py'))
+        for line, module in imports(path):
+            parts = module.split('.')
+            if parts[:2] != ['dcmotor_id', 'identification'] or len(parts) < 3:
+                continue
+            if inner_floor(parts[2]) > mine:
+                upward.append(f'{path.relative_to(PACKAGE.parent)}:{line} imports {module}')
+    assert not upward, 'imports inside identification that run up a floor:\n' + \
+        '\n'.join(upward)
+
+
+def test_the_inner_layer_check_catches_an_upward_import(tmp_path):
+    """The check itself: an estimator importing a check is found, on a higher floor."""
+    fake = tmp_path / 'refined.py'
+    fake.write_text('def f():\n    from dcmotor_id.identification.checks.start import bic\n')
+    found = [module for _, module in imports(fake)]
+    assert found == ['dcmotor_id.identification.checks.start']
+    assert inner_floor('checks') > inner_floor('estimators')

@@ -143,7 +143,8 @@ class Progress:
         An empty ``run`` ends the naming (nothing is written).
 
         E.g. the identification on the position run again with another error model
-        (:mod:`dcmotor_id.identification.position_error`): without it the line would go back
+        (:mod:`dcmotor_id.identification.pipeline.position_error`): without it the line would
+        go back
         to ``base fit`` without saying why.
         """
         self.run = run

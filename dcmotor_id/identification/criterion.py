@@ -12,26 +12,26 @@ criterion: ``both`` finds the same effects on simulated records with a measured 
 exact angle, but the residual analysis reads the position's drift as structure left over,
 and it costs about three times the time, so it is only used when asked for).
 
-The position error's model (:func:`position_error_model`): ``white`` weights the position
+The position error's model (:data:`POSITION_ERROR_MODELS`, an argument of the refined
+estimator and of :func:`position_ar`): ``white`` weights the position
 sample by sample by its sensor noise, which is what an open-loop validation scores.
 ``adaptive`` (the estimators' default) models a position residual far above the position's
 noise (:data:`POSITION_MISFIT_FACTOR`) as AR(1) (:func:`position_ar`, :func:`whiten`): such a
 residual is the integral of a force the model lacks, it drifts, and weighted as white it can
 make the fit bend the physical parameters to cancel an offset a local misfit left; the AR(1)
 model weights the error's increments for a drift.  ``identify`` chooses between the two
-against model-free evidence (:mod:`~dcmotor_id.identification.position_error`).
+against model-free evidence (:mod:`~dcmotor_id.identification.pipeline.position_error`).
 """
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-from contextvars import ContextVar
 from dataclasses import replace
-from typing import Any, Iterator, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
+from dcmotor_id.signals.filters import noise_std
 
 #: Choices of ``--criterion``.
 CRITERIA = ('auto', 'speed', 'position', 'both')
@@ -101,17 +101,13 @@ POSITION_MISFIT_FACTOR = 3.0
 MAX_POSITION_AR = 1.0 - 1e-9
 #: Refits beyond the usual passes while the AR(1) coefficient of the position error moves.
 AR_PASSES = 4
-#: Models of the position error (:func:`position_error_model`).
+#: Models of the position error (:func:`check_position_error_model`).
 POSITION_ERROR_MODELS = ('adaptive', 'white')
-# The model in force for the fits of this thread (a context variable, not a parameter: every
-# estimator of a run, the discovery loop's and the second start's included, follows it).
-_POSITION_ERROR: ContextVar[str] = ContextVar('position_error', default='adaptive')
 
 
-@contextmanager
-def position_error_model(model: str) -> Iterator[None]:
+def check_position_error_model(model: str) -> str:
     """
-    Fit with the position error modelled as ``white`` or ``adaptive`` within the block.
+    Return ``model`` when it names a model of the position error, else raise ``ValueError``.
 
     ``adaptive`` (the default): AR(1) when the residual misfits (:func:`position_ar`);
     ``white``: the sensor's noise only, whatever the residual.
@@ -119,11 +115,7 @@ def position_error_model(model: str) -> Iterator[None]:
     if model not in POSITION_ERROR_MODELS:
         raise ValueError(f'position error model must be one of {POSITION_ERROR_MODELS}, '
                          f'not {model!r}')
-    token = _POSITION_ERROR.set(model)
-    try:
-        yield
-    finally:
-        _POSITION_ERROR.reset(token)
+    return model
 
 
 def whiten(error: np.ndarray, rho: float) -> np.ndarray:
@@ -142,7 +134,7 @@ def whiten(error: np.ndarray, rho: float) -> np.ndarray:
     return out
 
 
-def position_ar(error: np.ndarray, sensor_noise: float) -> float:
+def position_ar(error: np.ndarray, sensor_noise: float, model: str = 'adaptive') -> float:
     """
     Return the AR(1) coefficient of a position residual that misfits, else 0.
 
@@ -153,10 +145,11 @@ def position_ar(error: np.ndarray, sensor_noise: float) -> float:
     white makes the fit bend the physical parameters to cancel an offset that a local misfit
     left for the rest of the record; its AR(1) model (coefficient near 1 for a drift) weights
     the error's increments instead, as the maximum-likelihood fit under that error does.
-    Always 0 under the ``white`` :func:`position_error_model`.
+    Always 0 under the ``white`` model of the position error (``model``,
+    :func:`check_position_error_model`).
     """
     error = np.asarray(error, dtype=float)
-    if _POSITION_ERROR.get() == 'white':
+    if check_position_error_model(model) == 'white':
         return 0.0
     if error.shape[0] < 3 or np.sqrt(np.mean(error ** 2)) <= POSITION_MISFIT_FACTOR * max(
             sensor_noise, 0.0):
@@ -165,6 +158,23 @@ def position_ar(error: np.ndarray, sensor_noise: float) -> float:
     if lagged <= 0.0:
         return 0.0
     return float(np.clip(float(error[1:] @ error[:-1]) / lagged, 0.0, MAX_POSITION_AR))
+
+
+def noise_level(values: np.ndarray) -> float:
+    """
+    Noise level of a channel, at least the rounding noise of a quantised signal.
+
+    :func:`~dcmotor_id.signals.filters.noise_std` reads zero on a quantised signal (its second
+    differences are mostly zero); the quantisation step ``q`` (the small end of the nonzero
+    differences between samples) gives the floor ``q / sqrt(12)``.
+    """
+    values = np.asarray(values, dtype=float)
+    level = noise_std(values)
+    steps = np.abs(np.diff(values))
+    steps = steps[steps > 0]
+    if steps.shape[0]:
+        level = max(level, float(np.percentile(steps, 5)) / np.sqrt(12.0))
+    return level
 
 
 def ar_settled(old: float, new: float) -> bool:
@@ -183,8 +193,6 @@ def with_position_states(estimate: Any, records: Sequence[Any]) -> Any:
     The base model fitted on the speed, to be judged on the position (the initial position
     is the first sample, the position's noise its sensor's); ``info['base_from']`` says so.
     """
-    from dcmotor_id.identification.checks.identifiability import noise_level
-
     states = [tuple(state) + (float(rec.position[0]),)
               for state, rec in zip(estimate.initial_states, records)]
     noise = float(np.sqrt(np.mean([noise_level(rec.position) ** 2 for rec in records])))

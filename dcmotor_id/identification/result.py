@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, TYPE_CHECKING
 
+from dcmotor_id.identification.validate import model_block
+
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import DiscoveryResult
@@ -76,7 +78,8 @@ class IdentificationResult:
     warnings : list of str
         What the user must know to trust the numbers.
     errors : dict
-        Per-record simulation errors (:func:`~dcmotor_id.identification.heldout.record_errors`).
+        Per-record simulation errors
+        (:func:`~dcmotor_id.identification.pipeline.heldout.record_errors`).
     combined : dict
         Combinations reported instead of their parts, e.g. ``friction_torque_Nm``
         (``{"value", "stderr", "direction", "of"}``) on one-direction data.
@@ -112,7 +115,7 @@ class IdentificationResult:
         ``{"skipped": reason}``, or None when not asked for.
     position_error : dict or None
         The position error's model of a fit on the position
-        (:mod:`~dcmotor_id.identification.position_error`): ``model`` (``white`` or
+        (:mod:`~dcmotor_id.identification.pipeline.position_error`): ``model`` (``white`` or
         ``adaptive``), ``evidence`` (the regression's J, b, Mc), ``agreement_factor``,
         ``disagreement`` (each model's largest factor from the evidence; None: a parameter
         at zero), ``alternative`` (the other model's J, b, Mc when both ran); None when the
@@ -172,7 +175,6 @@ class IdentificationResult:
 
     def as_dict(self) -> dict[str, Any]:
         """Return the JSON layout of the CLI and node contract (a new dict)."""
-        from dcmotor_id.identification.validate import model_block
         out = {
             'parameters': self.parameters,
             'stderr': self.stderr,

@@ -293,22 +293,22 @@ def test_node_line_carries_bounds_not_identifiable_and_warnings():
 
 
 def test_a_structure_that_moves_the_parameters_is_said():
-    from dcmotor_id.identification.identify import _structure_shift
+    from dcmotor_id.identification.pipeline.fit_warnings import structure_shift
 
     base = SimpleNamespace(parameters={'J': 1.0, 'b': 2.0, 'Mc': 3.0})
-    text = _structure_shift(base, {'J': 1.01, 'b': 2.0, 'Mc': 3.0},
-                            {'J': 0.001, 'b': 0.01, 'Mc': 0.01})
+    text = structure_shift(base, {'J': 1.01, 'b': 2.0, 'Mc': 3.0},
+                           {'J': 0.001, 'b': 0.01, 'Mc': 0.01})
     assert 'J +1 % (10 stderr)' in text and '--no-discover' in text
-    assert _structure_shift(base, {'J': 1.001, 'b': 2.0, 'Mc': 3.0},
-                            {'J': 0.001, 'b': 0.01, 'Mc': 0.01}) is None
+    assert structure_shift(base, {'J': 1.001, 'b': 2.0, 'Mc': 3.0},
+                           {'J': 0.001, 'b': 0.01, 'Mc': 0.01}) is None
 
 
 def test_a_structure_shift_from_a_zero_base_value_is_said_without_dividing_by_it():
-    from dcmotor_id.identification.identify import _structure_shift
+    from dcmotor_id.identification.pipeline.fit_warnings import structure_shift
 
     base = SimpleNamespace(parameters={'J': 1.0, 'b': 2.0, 'Mc': 0.0})
-    text = _structure_shift(base, {'J': 1.0, 'b': 2.0, 'Mc': 0.5},
-                            {'J': 0.001, 'b': 0.01, 'Mc': 0.01})
+    text = structure_shift(base, {'J': 1.0, 'b': 2.0, 'Mc': 0.5},
+                           {'J': 0.001, 'b': 0.01, 'Mc': 0.01})
     assert 'Mc 0 -> 0.5 (50 stderr)' in text
 
 

@@ -6,14 +6,16 @@ import numpy as np
 import pytest
 
 from dcmotor_id.core.progress import Progress
-from dcmotor_id.identification import multistart
 from dcmotor_id.identification.checks import start as start_check
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.identify import identify, prepare_records
-from dcmotor_id.identification.multistart import (ambiguity_warning, ambiguous_starts,
-                                                  different_basins, further_starts, MAX_STARTS,
-                                                  NOT_CHOSEN_EARLIER, once_per_identification,
-                                                  several_starts, SIMILAR_BIC, with_starts)
+from dcmotor_id.identification.pipeline import further_starts as multistart
+from dcmotor_id.identification.pipeline.further_starts import (ambiguity_warning,
+                                                               ambiguous_starts,
+                                                               different_basins, further_starts,
+                                                               MAX_STARTS, NOT_CHOSEN_EARLIER,
+                                                               several_starts, SIMILAR_BIC,
+                                                               with_starts)
 from dcmotor_id.simulation.lab_scenarios import (servo_collapsed_start, servo_opposite_steps,
                                                  servo_torque_steps)
 
@@ -148,18 +150,18 @@ def test_a_later_run_of_one_identification_fits_only_the_start_the_first_chose(
     """
     The runs of one identification share the further starts (the position's two runs).
 
-    The first run fits them all; a later one, with the same records and regression, fits
-    only the start the first chose and reaches the same base; outside the scope every run
-    fits them all again.
+    The first run fits them all; a later one, given the first's account (the same records
+    and regression), fits only the start the first chose and reaches the same base; without
+    it every run fits them all again.
     """
     scenario, records, base = collapsed
     fitted = _counting_fits(monkeypatch)
-    with once_per_identification():
-        first_best, first = several_starts(records, scenario.torque_constant, False,
-                                           Progress(), base)
-        assert len(fitted) >= 2 and first['chosen'] != 'default', first
-        fitted.clear()
-        best, later = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    first_best, first = several_starts(records, scenario.torque_constant, False,
+                                       Progress(), base)
+    assert len(fitted) >= 2 and first['chosen'] != 'default', first
+    fitted.clear()
+    best, later = several_starts(records, scenario.torque_constant, False, Progress(), base,
+                                 earlier=first)
     assert fitted == [first['chosen']]
     assert later['chosen'] == first['chosen']
     assert best.parameters == first_best.parameters
@@ -178,10 +180,10 @@ def test_a_later_run_whose_first_kept_its_default_fits_no_further_start(monkeypa
     records = prepare_records(scenario.records, torque_constant=scenario.torque_constant)
     base = RefinedEstimator().fit(records, torque_constant=scenario.torque_constant)
     fitted = _counting_fits(monkeypatch)
-    with once_per_identification():
-        several_starts(records, scenario.torque_constant, False, Progress(), base)
-        assert fitted == ['regression']
-        best, later = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    _, first = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    assert fitted == ['regression']
+    best, later = several_starts(records, scenario.torque_constant, False, Progress(), base,
+                                 earlier=first)
     assert fitted == ['regression'] and best is base
     assert later['chosen'] == 'default' and later['reasons'], later
     assert later['starts'][1] == {'name': 'regression', 'start': later['starts'][1]['start'],

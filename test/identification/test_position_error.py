@@ -7,13 +7,12 @@ import pytest
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.progress import Progress
-from dcmotor_id.identification.criterion import position_ar, position_error_model
+from dcmotor_id.identification.criterion import position_ar
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.identify import identify, prepare_records
-from dcmotor_id.identification.position_error import (AGREEMENT_FACTOR, disagreement,
-                                                      with_chosen_error_model)
+from dcmotor_id.identification.pipeline.position_error import AGREEMENT_FACTOR, disagreement
+from dcmotor_id.identification.pipeline.second_start import check_start
 from dcmotor_id.identification.result import IdentificationResult
-from dcmotor_id.identification.second_start import check_start
 from dcmotor_id.simulation.lab_scenarios import ball_screw_sine
 
 EVIDENCE = {'J': 1.0, 'b': 2.0, 'Mc': 0.5, 'offset': 0.0}
@@ -30,15 +29,25 @@ def test_disagreement_is_the_largest_factor_from_the_regression():
 
 
 def test_the_white_error_model_never_takes_an_ar1_coefficient():
-    """Inside ``position_error_model('white')`` a drifting residual is still white."""
+    """Under the ``white`` model (an argument, no scope) a drifting residual is still white."""
     drift = np.cumsum(np.random.default_rng(0).standard_normal(5_000))
     assert position_ar(drift, 0.01) > 0.9
-    with position_error_model('white'):
-        assert position_ar(drift, 0.01) == 0.0
-    assert position_ar(drift, 0.01) > 0.9
+    assert position_ar(drift, 0.01, 'white') == 0.0
+    assert position_ar(drift, 0.01, 'adaptive') > 0.9
     with pytest.raises(ValueError, match='white'):
-        with position_error_model('red'):
-            pass
+        position_ar(drift, 0.01, 'red')
+    with pytest.raises(ValueError, match='white'):
+        RefinedEstimator(position_error='red')
+
+
+def test_the_estimator_s_position_error_model_decides_its_weights():
+    """The refined estimator's ``position_error`` alone decides the AR(1) model of its fit."""
+    scenario = ball_screw_sine()
+    records = prepare_records(scenario.records, scenario.torque_constant)
+    fits = {model: RefinedEstimator(criterion='position', position_error=model).fit(
+        records, torque_constant=scenario.torque_constant) for model in ('white', 'adaptive')}
+    assert not any(fits['white'].info['position_ar'])
+    assert any(fits['adaptive'].info['position_ar'])
 
 
 def _result(parameters, warnings=()):
@@ -61,26 +70,65 @@ def agreeing():
     return _result({'J': truth.J, 'b': truth.b, 'Mc': truth.Mc})
 
 
-def test_a_white_fit_that_agrees_runs_once(agreeing):
+def _choose(monkeypatch, outcomes, white_base=None, reference=None):
+    """
+    Run the pipeline's choice of the position error's model over scripted runs.
+
+    ``outcomes`` by model (``white``, ``adaptive``): the result of a whole run, or the
+    refusal it raises.  ``white_base``: the white run's base parameters after its start
+    check (then the white run stops there first and is finished from that state).
+    ``reference``: a result whose records the runs share (default: the first of
+    ``outcomes``).  Returns the result and the runs, in order (``white finished``: resumed).
+    """
+    from types import SimpleNamespace
+
+    from dcmotor_id.identification.pipeline import run as pipeline
+    from dcmotor_id.identification.pipeline.state import Fit, Inputs, Request, RunOn
+
+    reference = reference or next(value for value in outcomes.values()
+                                  if isinstance(value, IdentificationResult))
+    records, constant = reference.input_records, reference.torque_constant
+    runs = []
+
+    def outcome(model):
+        found = outcomes[model]
+        if isinstance(found, Exception):
+            raise found
+        return found
+
+    def begin(request, on):
+        runs.append(on.position_error)
+        if on.position_error == 'white' and white_base is not None:
+            inputs = Inputs(records, 'refined', constant, True, None, [], Progress(None),
+                            'estimate', on, None)
+            return pipeline.Begun(inputs, Fit(SimpleNamespace(parameters=white_base), {}))
+        return outcome(on.position_error)
+
+    def finish(begun):
+        runs.append('white finished')
+        return outcome('white')
+
+    monkeypatch.setattr(pipeline, 'begin', begin)
+    monkeypatch.setattr(pipeline, 'finish', finish)
+    request = Request(records, 'refined', constant, True, None, None, Progress(None), 'estimate')
+    assert RunOn('position').position_error == 'adaptive'
+    return pipeline.on_the_position(request, 'position'), runs
+
+
+def test_a_white_fit_that_agrees_runs_once(agreeing, monkeypatch):
     """The white result agrees with the regression: kept, the identification runs once."""
-    models = []
-
-    def run():
-        models.append(position_ar(np.cumsum(np.ones(100)), 0.0))  # 0.0 under white
-        return agreeing
-
-    result = with_chosen_error_model(run)
-    assert models == [0.0]
+    result, runs = _choose(monkeypatch, {'white': agreeing})
+    assert runs == ['white']
     assert result.position_error['model'] == 'white'
     assert result.position_error['disagreement']['white'] < AGREEMENT_FACTOR
     assert result.as_dict()['position_error']['evidence']['Mc'] > 0
 
 
-def test_a_white_fit_that_bends_the_friction_runs_again_adaptive(agreeing):
+def test_a_white_fit_that_bends_the_friction_runs_again_adaptive(agreeing, monkeypatch):
     """The white result's Coulomb friction at zero: the adaptive run, closer, is kept."""
     bent = replace(agreeing, parameters={**agreeing.parameters, 'Mc': 0.0})
-    results = iter([bent, agreeing])
-    result = with_chosen_error_model(lambda: next(results))
+    result, runs = _choose(monkeypatch, {'white': bent, 'adaptive': agreeing})
+    assert runs == ['white', 'adaptive']
     assert result.position_error['model'] == 'adaptive'
     assert result.position_error['alternative']['Mc'] == 0.0
     assert result.position_error['disagreement']['white'] is None
@@ -88,23 +136,20 @@ def test_a_white_fit_that_bends_the_friction_runs_again_adaptive(agreeing):
     # Both far from the evidence: the closer one, with a warning that says so.
     worse = replace(agreeing, parameters={**agreeing.parameters,
                                           'J': 5 * agreeing.parameters['J']})
-    results = iter([bent, worse])
-    result = with_chosen_error_model(lambda: next(results))
+    result, _ = _choose(monkeypatch, {'white': bent, 'adaptive': worse})
     assert result.position_error['model'] == 'adaptive'
     assert any('disagrees with the model-free regression' in text for text in result.warnings)
+    # The adaptive run fails: the white result stays, accounted for.
+    result, _ = _choose(monkeypatch, {'white': bent, 'adaptive': FitError('diverged')})
+    assert result.position_error['model'] == 'white'
+    assert result.position_error['adaptive'] == 'failed: diverged'
 
 
-def test_a_white_fit_that_fails_falls_back_to_the_adaptive_model(agreeing):
+def test_a_white_fit_that_fails_falls_back_to_the_adaptive_model(agreeing, monkeypatch):
     """A white fit that diverges is not the end: the adaptive run's result, accounted for."""
-    calls = []
-
-    def run():
-        calls.append(1)
-        if len(calls) == 1:
-            raise FitError('the output-error fit diverged')
-        return agreeing
-
-    result = with_chosen_error_model(run)
+    result, runs = _choose(monkeypatch, {'white': FitError('the output-error fit diverged'),
+                                         'adaptive': agreeing})
+    assert runs == ['white', 'adaptive']
     assert result.position_error['model'] == 'adaptive'
     assert 'diverged' in result.position_error['white']
 
@@ -169,9 +214,8 @@ def test_an_axis_driven_both_ways_with_an_offset_finds_its_effects():
     scenario = axis_both_ways()
     constant = scenario.torque_constant
     records = prepare_records(scenario.records, constant)
-    with position_error_model('white'):
-        found = DiscoveryLoop(records, constant, vocabulary=EXTENDED_VOCABULARY,
-                              criterion='position').run()
+    found = DiscoveryLoop(records, constant, vocabulary=EXTENDED_VOCABULARY,
+                          criterion='position', position_error='white').run()
     assert 'base_from' in found.base.estimate.info
     assert set(found.final.structure.names()) == {'load_torque', 'viscous_asymmetry'}
     result = identify(records, torque_constant=constant, vocabulary=EXTENDED_VOCABULARY)
@@ -187,7 +231,8 @@ def test_an_axis_driven_both_ways_with_an_offset_finds_its_effects():
     assert scores['position_rmse'] < 1e-3
 
 
-def test_a_white_base_that_bends_the_friction_leaves_the_white_run_early(agreeing):
+def test_a_white_base_that_bends_the_friction_leaves_the_white_run_early(agreeing,
+                                                                         monkeypatch):
     """
     The white run stops after its base fit when that contradicts the regression.
 
@@ -195,54 +240,39 @@ def test_a_white_base_that_bends_the_friction_leaves_the_white_run_early(agreein
     a whole identification saved).  When the adaptive run disagrees too, the white run is
     finished and the closer result kept.
     """
-    from dcmotor_id.identification.position_error import check_base
-
     bent = {**agreeing.parameters, 'Mc': 0.0}
-    calls = []
-
-    def run_with(adaptive_result):
-        def run():
-            calls.append(position_ar(np.cumsum(np.ones(100)), 0.0) == 0.0)  # True: white
-            check_base(bent if calls[-1] else agreeing.parameters, agreeing.input_records,
-                       agreeing.torque_constant)
-            return adaptive_result if not calls[-1] else replace(agreeing, parameters=bent)
-        return run
-
-    result = with_chosen_error_model(run_with(agreeing))
-    assert calls == [True, False]
+    result, runs = _choose(monkeypatch, {'white': replace(agreeing, parameters=bent),
+                                         'adaptive': agreeing}, white_base=bent)
+    assert runs == ['white', 'adaptive']
     assert result.position_error['model'] == 'adaptive'
     assert 'left after its base fit' in result.position_error['white']
-    # Outside the chooser the check does nothing.
-    check_base(bent, agreeing.input_records, agreeing.torque_constant)
-    calls.clear()
     far = replace(agreeing, parameters={**agreeing.parameters, 'J': 9 * agreeing.parameters['J']})
-    result = with_chosen_error_model(run_with(far))
-    assert calls == [True, False, True]
+    result, runs = _choose(monkeypatch, {'white': replace(agreeing, parameters=bent),
+                                         'adaptive': far}, white_base=bent)
+    assert runs == ['white', 'adaptive', 'white finished']
     assert result.position_error['model'] == 'adaptive'  # J 9x is closer than Mc at zero
     assert result.position_error['alternative']['Mc'] == 0.0
+    # A white base within the agreement: the white run goes on to its end, alone.
+    result, runs = _choose(monkeypatch, {'white': agreeing}, white_base=agreeing.parameters)
+    assert runs == ['white', 'white finished']
+    assert result.position_error['model'] == 'white'
 
 
-def test_a_white_run_that_fails_after_a_far_adaptive_one_keeps_the_adaptive(agreeing):
+def test_a_white_run_that_fails_after_a_far_adaptive_one_keeps_the_adaptive(agreeing,
+                                                                            monkeypatch):
     """White base far, adaptive far, the finished white run fails: the adaptive, warned."""
-    from dcmotor_id.identification.position_error import check_base
-
     bent = {**agreeing.parameters, 'Mc': 0.0}
     far = replace(agreeing, parameters={**agreeing.parameters, 'J': 9 * agreeing.parameters['J']})
-    calls = []
-
-    def run():
-        white = position_ar(np.cumsum(np.ones(100)), 0.0) == 0.0
-        calls.append(white)
-        if white:
-            check_base(bent, agreeing.input_records, agreeing.torque_constant)
-            raise FitError('the output-error fit diverged')
-        return far
-
-    result = with_chosen_error_model(run)
-    assert calls == [True, False, True]
+    result, runs = _choose(monkeypatch, {'white': FitError('the output-error fit diverged'),
+                                         'adaptive': far}, white_base=bent)
+    assert runs == ['white', 'adaptive', 'white finished']
     assert result.position_error['model'] == 'adaptive'
     assert result.position_error['white'].startswith('failed')
     assert any('disagrees with the model-free regression' in text for text in result.warnings)
+    # Both fail: the white run's refusal.
+    with pytest.raises(FitError, match='diverged'):
+        _choose(monkeypatch, {'white': FitError('the output-error fit diverged'),
+                              'adaptive': FitError('no')}, white_base=bent, reference=agreeing)
 
 
 def test_a_white_run_left_after_its_start_check_is_finished_from_there(monkeypatch):
@@ -253,25 +283,26 @@ def test_a_white_run_left_after_its_start_check_is_finished_from_there(monkeypat
     result is that of a white run from the start, and the status line names each run after
     the first.
     """
-    from dcmotor_id.identification import identify as pipeline
-    from dcmotor_id.identification import position_error
+    from dcmotor_id.identification.pipeline import position_error, run as pipeline
+    from dcmotor_id.identification.pipeline.state import Request, RunOn
 
     scenario = ball_screw_sine()
     records = prepare_records(scenario.records, scenario.torque_constant)
     # Every result is "far" (any disagreement at all): white left, adaptive far, white finished.
     monkeypatch.setattr(position_error, 'AGREEMENT_FACTOR', 1.0 + 1e-12)
     base_fits, chosen = [], []
-    base_fit, closer = pipeline._base_fit, position_error._closer
-    monkeypatch.setattr(pipeline, '_base_fit', lambda run: base_fits.append(1) or base_fit(run))
+    base_fit, closer = pipeline.base_fit, position_error._closer
+    monkeypatch.setattr(pipeline, 'base_fit',
+                        lambda inputs: base_fits.append(1) or base_fit(inputs))
     monkeypatch.setattr(position_error, '_closer',
                         lambda white, *rest: chosen.append(white) or closer(white, *rest))
     lines = []
     progress = Progress(None, callback=lines.append, delay_s=0.0)
     identify(records, torque_constant=scenario.torque_constant, progress=progress)
     assert len(base_fits) == 2
-    with position_error_model('white'):
-        direct = pipeline._identify(records, 'refined', scenario.torque_constant, True, None,
-                                    None, Progress(None), 'estimate', 'position')
+    direct = pipeline.identify_with(Request(records, 'refined', scenario.torque_constant, True,
+                                            None, None, Progress(None), 'estimate'),
+                                    RunOn('position', 'white'))
     assert chosen[0].parameters == direct.parameters
     assert chosen[0].effects == direct.effects
     runs = [position_error.ADAPTIVE_RUN, position_error.WHITE_RUN_RESUMED]
@@ -280,11 +311,12 @@ def test_a_white_run_left_after_its_start_check_is_finished_from_there(monkeypat
     assert progress.run == ''
 
 
-def test_the_elapsed_time_of_two_runs_is_the_later_one_s(agreeing):
+def test_the_elapsed_time_of_two_runs_is_the_later_one_s(agreeing, monkeypatch):
     """The runs share one Progress: the later result's elapsed time already counts both."""
     bent = replace(agreeing, parameters={**agreeing.parameters, 'Mc': 0.0}, elapsed_s=2.0)
-    results = iter([bent, replace(agreeing, elapsed_s=5.0)])
-    assert with_chosen_error_model(lambda: next(results)).elapsed_s == 5.0
+    result, _ = _choose(monkeypatch, {'white': bent,
+                                      'adaptive': replace(agreeing, elapsed_s=5.0)})
+    assert result.elapsed_s == 5.0
 
 
 def test_the_ball_screw_s_two_runs_fit_the_further_starts_and_the_regression_once(monkeypatch):
@@ -296,9 +328,9 @@ def test_the_ball_screw_s_two_runs_fit_the_further_starts_and_the_regression_onc
     was kept).  The model-free regression is computed once per run and passed on to the
     further starts, the start checks and the chooser.
     """
-    from dcmotor_id.identification import identify as pipeline
-    from dcmotor_id.identification import multistart
     from dcmotor_id.identification.checks import start as checks_start
+    from dcmotor_id.identification.pipeline import further_starts as multistart
+    from dcmotor_id.identification.pipeline import state as pipeline
 
     scenario = ball_screw_sine()
     records = prepare_records(scenario.records, scenario.torque_constant)

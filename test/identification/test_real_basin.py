@@ -13,7 +13,7 @@ from dcmotor_id.identification.discovery import DiscoveryLoop, excited_stop, Str
 from dcmotor_id.identification.discovery.judging import unearned
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.identify import identify, prepare_records
-from dcmotor_id.identification.second_start import _choose
+from dcmotor_id.identification.pipeline.second_start import _choose
 from dcmotor_id.identification.validate import (model_from_dict, operating_range, range_warnings,
                                                 validate)
 from dcmotor_id.simulation.lab_scenarios import servo_opposite_steps, servo_torque_steps

@@ -186,12 +186,12 @@ def test_transient_panels_centre_on_input_steps_not_noise_spikes():
 
 
 def test_diverged_fit_names_what_happened():
-    from dcmotor_id.identification.estimators.refined import _diverged, _MISFIT
+    from dcmotor_id.identification.estimators.least_squares import diverged, MISFIT
 
-    text = _diverged(ZeroDivisionError())
+    text = diverged(ZeroDivisionError())
     assert text and 'ZeroDivisionError' in text
-    assert _diverged(ValueError('x went to inf')) == 'x went to inf'
-    assert 'two levels' in _MISFIT
+    assert diverged(ValueError('x went to inf')) == 'x went to inf'
+    assert 'two levels' in MISFIT
 
 
 def test_coarse_speed_gives_what_it_can(tmp_path, capsys):

@@ -19,6 +19,7 @@ import numpy as np
 
 from dcmotor_id.core.model import UNITS
 from dcmotor_id.identification.checks.input_noise import input_noise_warning
+from dcmotor_id.identification.criterion import noise_level
 from dcmotor_id.identification.effects.base import torque_spread
 from dcmotor_id.signals.filters import low_pass, noise_std
 
@@ -228,23 +229,6 @@ def correlated_pairs(estimate: Any, skip: Sequence[str] = ()) -> list[str]:
                            'combination of them better than each; their standard errors say '
                            'how far each can move along it')
     return out
-
-
-def noise_level(values: np.ndarray) -> float:
-    """
-    Noise level of a channel, at least the rounding noise of a quantised signal.
-
-    :func:`~dcmotor_id.signals.filters.noise_std` reads zero on a quantised signal (its second
-    differences are mostly zero); the quantisation step ``q`` (the small end of the nonzero
-    differences between samples) gives the floor ``q / sqrt(12)``.
-    """
-    values = np.asarray(values, dtype=float)
-    level = noise_std(values)
-    steps = np.abs(np.diff(values))
-    steps = steps[steps > 0]
-    if steps.shape[0]:
-        level = max(level, float(np.percentile(steps, 5)) / np.sqrt(12.0))
-    return level
 
 
 def initial_state_warnings(estimate: Any, records: Sequence[Any],

@@ -1,5 +1,9 @@
 """
-A fit checked against model-free evidence, and a second start when it landed in a wrong basin.
+The start check's evidence and judgement: model-free regression, the doubts, the BIC.
+
+What the pipeline's start check (:mod:`~dcmotor_id.identification.pipeline.start_check`, which
+fits the further starts and the second start) asks of the data and of a fit, without fitting
+the motor model.
 
 An output-error fit whose model lacks a decisive effect (a constant torque offset on records
 that turn both ways) can settle where the initial states absorb the misfit: a huge J that
@@ -13,7 +17,7 @@ result looks like that, judged against evidence that needs no model fit:
 * the records' first samples (initial states moved far beyond the noise);
 * the misfit far above the sensor noise.
 
-Then a second start is tried (:mod:`~dcmotor_id.identification.second_start`): the
+Then a second start is tried (:mod:`~dcmotor_id.identification.pipeline.second_start`): the
 regression's values with every initial state pinned to the record's first samples (and the
 offset the regression sees, :func:`offset_supported`, as an effect from the start),
 discovery run from that sound base, and the final structure refitted with the initial states
@@ -172,8 +176,9 @@ class StartDoubts:
     Why a fit may sit in a wrong basin, per remedy (:func:`start_doubts`; empty: no doubt).
 
     ``further_starts``: reasons to fit the base model again from further starts
-    (:mod:`~dcmotor_id.identification.multistart`); ``second_start``: reasons for a second
-    start with the initial states pinned (:mod:`~dcmotor_id.identification.second_start`).
+    (:mod:`~dcmotor_id.identification.pipeline.further_starts`); ``second_start``: reasons for
+    a second
+    start with the initial states pinned (:mod:`~dcmotor_id.identification.pipeline.second_start`).
     """
 
     further_starts: list[str]

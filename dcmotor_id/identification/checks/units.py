@@ -18,6 +18,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from dcmotor_id.identification.checks.start import regression_evidence
+
 #: Longest electrical time constant La/Ra of a DC motor armature [s] (large motors: 0.1 s).
 MAX_ELECTRICAL_S = 1.0
 #: Longest sample period of a drive recording [s].
@@ -85,8 +87,6 @@ def sign_problem(records: Sequence[Any], torque_constant: float | None = None) -
     named only when the regression with it negated gives them all positive (a current that is
     zero, or columns of noise, give signs that no flip mends).
     """
-    from dcmotor_id.identification.checks.start import regression_evidence
-
     evidence = regression_evidence(records, torque_constant)
     if evidence is None:
         return None
@@ -112,8 +112,6 @@ def sign_problem(records: Sequence[Any], torque_constant: float | None = None) -
 def _consistent_when_negated(records: Sequence[Any], torque_constant: float | None,
                              channel: str) -> bool:
     """Whether the regression on the records with ``channel`` negated has Ra, CPhi, J > 0."""
-    from dcmotor_id.identification.checks.start import regression_evidence
-
     flipped = [rec.replace(**{channel: -np.asarray(getattr(rec, channel), dtype=float)})
                for rec in records]
     evidence = regression_evidence(flipped, torque_constant)

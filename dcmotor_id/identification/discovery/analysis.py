@@ -6,6 +6,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from dcmotor_id.identification.criterion import noise_level
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Fit, join_part
 from dcmotor_id.identification.residuals import (analyse_channel, correlation_summary,
@@ -117,8 +118,6 @@ def one_step_errors(loop: LoopState, fitted: Fit,
 
 def misfit(loop: LoopState, fitted: Fit) -> bool:
     """Whether the held-out residual is far above the sensor noise on some channel."""
-    from dcmotor_id.identification.checks.identifiability import noise_level
-
     for channel in loop.outputs:
         residual = fitted.channel_residual(channel, 'heldout')
         noise = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2

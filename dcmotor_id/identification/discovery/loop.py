@@ -55,7 +55,7 @@ class DiscoveryLoop(LoopState):
         ``estimate``, the base model already fitted on all of the records (same model: mode,
         quasi-static armature), warm-starts the base fit on the training parts and is reused
         when no effect is added.  ``structure``: effects the base holds from the start (the
-        model-free evidence's, :mod:`~dcmotor_id.identification.second_start`), their
+        model-free evidence's, :mod:`~dcmotor_id.identification.pipeline.second_start`), their
         coefficients started from ``estimate``'s values.
         """
         base = self._base_fit(estimate, structure or Structure())

@@ -6,6 +6,8 @@ from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.identification.criterion import noise_level
+
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
 
@@ -33,8 +35,6 @@ def excited_stop(record: Record, holdout_fraction: float = HOLDOUT_FRACTION,
     within :data:`TRAIN_SHARE_BOUNDS` of the moving extent; without measurable excitation,
     at ``1 - holdout_fraction`` of the extent.
     """
-    from dcmotor_id.identification.checks.identifiability import noise_level
-
     first, last = moving_extent(np.asarray(record.speed, dtype=float))
     size = last - first
     fallback = first + size * (1.0 - holdout_fraction)

@@ -28,6 +28,7 @@ from dcmotor_id.identification.discovery.structure import (Candidate, Fit, slice
 from dcmotor_id.identification.effects import SensorDelay, torque_spread
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.residuals import simulate_records
+from dcmotor_id.identification.validate import Model, simulate
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -55,7 +56,7 @@ def make_estimator(loop: LoopState, **options: Any) -> RefinedEstimator:
     """Return the loop's output-error estimator (initial states, armature, criterion)."""
     return RefinedEstimator(initial_state=loop.initial_state, progress=loop.progress,
                             quasi_static=loop.quasi_static, criterion=loop.criterion,
-                            **options)
+                            position_error=loop.position_error, **options)
 
 
 def fit_structure(loop: LoopState, structure: Structure, start: dict | None = None,
@@ -285,7 +286,7 @@ def refit_all(loop: LoopState, fitted: Fit) -> tuple[list[Record], tuple, Estima
                           initial_states=fitted.estimate.initial_states,
                           initial_state=loop.initial_state,
                           quasi_static=loop.quasi_static, criterion=loop.criterion,
-                          position_ar=loop.position_ar)
+                          position_ar=loop.position_ar, position_error=loop.position_error)
 
 
 def open_loop_outputs(structure: Structure, estimate: Estimate, records: Sequence[Record],
@@ -299,8 +300,6 @@ def open_loop_outputs(structure: Structure, estimate: Estimate, records: Sequenc
     (:func:`dcmotor_id.identification.validate.simulate`), so that a candidate is judged as
     the model will be used.  The position starts at the fitted initial position.
     """
-    from dcmotor_id.identification.validate import Model, simulate
-
     values = estimate.parameters
     effects = [{'name': effect.name, 'parameters': dict(effect.parameters)}
                for effect in structure.effects(values) if not type(effect).TRANSFORM]

@@ -57,6 +57,9 @@ class LoopState:
         ``speed`` (default), ``position`` or ``both``: the channels fitted and judged
         (:mod:`dcmotor_id.identification.criterion`); the held-out errors also report the
         speed (and the current) when they are not compared.
+    position_error : str
+        The position error's model of every fit of the loop, ``adaptive`` (default) or
+        ``white`` (:func:`~dcmotor_id.identification.criterion.check_position_error_model`).
 
     """
 
@@ -66,11 +69,12 @@ class LoopState:
                  max_effects: int = MAX_EFFECTS, max_lag: int = DEFAULT_LAGS,
                  alpha: float = ALPHA, progress: Progress | None = None,
                  initial_state: str = 'estimate', quasi_static: bool = False,
-                 criterion: str = 'speed') -> None:
+                 criterion: str = 'speed', position_error: str = 'adaptive') -> None:
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None
         self.criterion = criterion
+        self.position_error = position_error
         self.outputs = fitted_outputs(self.mechanical_only, criterion)
         self.error_channels = output_channels(self.mechanical_only) + tuple(
             channel for channel in self.outputs if channel == 'position')

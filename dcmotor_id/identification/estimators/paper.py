@@ -22,7 +22,7 @@ the scatter, not these biases).
 
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, ClassVar, Sequence
 
 import numpy as np
 
@@ -77,9 +77,9 @@ class PaperEstimator:
 
     """
 
-    name = 'paper'
+    name: ClassVar[str] = 'paper'
     #: No effect terms (so no effect discovery): the neurons are the paper's model only.
-    supports_terms = False
+    supports_terms: ClassVar[bool] = False
 
     def __init__(self, n1_records: Sequence[int] | None = None,
                  n2_records: Sequence[int] | None = None) -> None:

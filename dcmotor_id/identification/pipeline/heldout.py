@@ -1,20 +1,22 @@
 """
-Simulation errors per record, on the whole record and on its held-out part (the JSON ``errors``).
+Stage 11: simulation errors per record, whole and on its held-out part (the JSON ``errors``).
 
 :func:`record_errors` measures the base and the final model on each record: over the whole
 record (in-sample), and, when the discovery loop ran, on the held-out end of every record
 that the training-part fits never saw, against a constant predictor (the record's mean);
 :func:`heldout_warnings` says when a held-out part does not move or the model predicts it
-worse than that constant.
+worse than that constant.  :func:`heldout` is the stage.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
+from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
 from dcmotor_id.identification.residuals import output_channels, simulation_error_pct
 from dcmotor_id.signals.filters import noise_std
 
@@ -28,6 +30,14 @@ if TYPE_CHECKING:
 HELDOUT_CHOICE = ('the end of each record carrying the last 30 % of its excitation (the change '
                   'of the outputs beyond their noise; standstill and steady-speed tails add '
                   'none), at most 40 % and at least 15 % of its motion')
+
+
+def heldout(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
+    """Return the answer with the per-record errors, whole and held out, and their warnings."""
+    errors = record_errors(inputs.records, fit.estimate, answer.final, fit.found,
+                           inputs.torque_constant, answer.terms, fit.quasi)
+    return replace(answer, errors_detail=errors,
+                   warnings=answer.warnings + tuple(heldout_warnings(errors)))
 
 
 def _part_metrics(simulated, measured, outputs, spread=None):

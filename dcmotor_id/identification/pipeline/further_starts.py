@@ -21,20 +21,19 @@ score alike (within :data:`SIMILAR_BIC`) in different basins make the answer amb
 loops), at most :data:`MAX_STARTS`, and take at most :data:`BUDGET_SHARE` of the time left.
 
 They are fitted once per identification.  A fit on the position may run the identification
-twice (:mod:`~dcmotor_id.identification.position_error`: the position error as white noise,
+twice (:mod:`~dcmotor_id.identification.pipeline.position_error`: the position error as white
+noise,
 then as a drift), with the same records and the same regression, hence the same further
-starts.  Within :func:`once_per_identification` the first run that needs them fits them all;
-a later run fits again only the start the first one chose (none when that was its default:
-the further starts led nowhere better) and those it found ambiguous, under its own error
-model, and keeps the best of them and its own default fit.  The others are accounted as
+starts.  The first run that needs them fits them all; a later run, given the first one's
+account (``earlier``), fits again only the start the first one chose (none when that was its
+default: the further starts led nowhere better) and those it found ambiguous, under its own
+error model, and keeps the best of them and its own default fit.  The others are accounted as
 ``skipped`` (:data:`NOT_CHOSEN_EARLIER`).
 """
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-from contextvars import ContextVar
-from typing import Any, Iterator, Sequence, TYPE_CHECKING
+from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -43,7 +42,7 @@ from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, known_evidence,
                                                     regression_start, start_doubts)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.identification.fitting import check_physical, record_names
+from dcmotor_id.identification.pipeline.fit_outcome import check_physical, record_names
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -88,24 +87,11 @@ def further_starts(evidence: dict[str, float] | None, fitted: dict[str, float],
 #: What a later run of one identification says of a further start it does not fit again.
 NOT_CHOSEN_EARLIER = 'not chosen in an earlier run of this identification (fitted there)'
 
-# The further starts' account of the identification in progress, shared by its runs
-# (:func:`once_per_identification`); None outside such a scope.
-_EARLIER: ContextVar[dict[str, Any] | None] = ContextVar('further_starts', default=None)
-
-
-@contextmanager
-def once_per_identification() -> Iterator[None]:
-    """Within this scope, the runs of one identification fit the further starts once."""
-    token = _EARLIER.set({})
-    try:
-        yield
-    finally:
-        _EARLIER.reset(token)
-
 
 def several_starts(records: Sequence[Record], torque_constant: float | None, quasi: bool,
                    progress: Progress, estimate: Estimate, criterion: str = 'speed',
-                   evidence: dict[str, float] | None | str = FROM_RECORDS
+                   evidence: dict[str, float] | None | str = FROM_RECORDS,
+                   earlier: dict[str, Any] | None = None, position_error: str = 'adaptive'
                    ) -> tuple[Estimate, dict[str, Any] | None]:
     """
     Fit the base model from further starts when the default's fit is doubted; keep the best.
@@ -116,16 +102,16 @@ def several_starts(records: Sequence[Record], torque_constant: float | None, qua
     entry has the ``effective_samples``), ``chosen`` (the name), ``ambiguous``
     (:func:`ambiguous_starts`) and ``cpu_s`` (the cost of the further starts on the budget's
     clock).  ``evidence``: the model-free regression on the records when the caller has it
-    (:func:`~dcmotor_id.identification.checks.start.known_evidence`).  Within
-    :func:`once_per_identification`, a later run fits only the start an earlier one chose.
+    (:func:`~dcmotor_id.identification.checks.start.known_evidence`).  ``earlier``: the
+    account of an earlier run of the same identification (the records and the regression
+    the same), whose chosen start alone is fitted again.  ``position_error``: the model of
+    the position error of the fits.
     """
     model = OutputErrorModel(records, torque_constant, (), quasi, criterion)
     evidence = known_evidence(records, torque_constant, evidence)
     reasons = start_doubts(estimate, records, model, evidence).further_starts
     if not reasons:
         return estimate, None
-    shared = _EARLIER.get()
-    earlier = None if shared is None else shared.get('account')
     began = progress.now()
     entries: list[dict[str, Any]] = [{'name': 'default',
                                       'start': dict(estimate.info.get('start', {}))}]
@@ -134,7 +120,7 @@ def several_starts(records: Sequence[Record], torque_constant: float | None, qua
     share = None if deadline is None else began + BUDGET_SHARE * max(deadline - began, 0.0)
     try:
         progress.deadline = share
-        _fit_starts(records, torque_constant, quasi, progress, criterion,
+        _fit_starts(records, torque_constant, quasi, progress, (criterion, position_error),
                     _starts_of(evidence, estimate, model, earlier), entries, fits)
     finally:
         progress.deadline = deadline
@@ -142,8 +128,6 @@ def several_starts(records: Sequence[Record], torque_constant: float | None, qua
     account = {'reasons': reasons, 'starts': entries, 'chosen': entries[best]['name'],
                'ambiguous': ambiguous_starts(fits, entries, best),
                'cpu_s': float(progress.now() - began)}
-    if shared is not None and earlier is None:
-        shared['account'] = account
     return fits[best] or estimate, account
 
 
@@ -164,7 +148,7 @@ def _starts_of(evidence: dict[str, float] | None, estimate: Estimate, model: Out
             for entry in earlier['starts'][1:]]
 
 
-def _fit_starts(records, torque_constant, quasi, progress, criterion, starts, entries, fits):
+def _fit_starts(records, torque_constant, quasi, progress, fit_on, starts, entries, fits):
     """Fit the base model from each start in turn (appending to ``entries`` and ``fits``)."""
     estimate = fits[0]
     for name, start, fitted in starts:
@@ -177,7 +161,7 @@ def _fit_starts(records, torque_constant, quasi, progress, criterion, starts, en
             entries[-1]['skipped'] = 'the default start (not fitted again)'
             fits.append(None)
             continue
-        fits.append(_fit_from(records, torque_constant, quasi, progress, start, criterion,
+        fits.append(_fit_from(records, torque_constant, quasi, progress, start, fit_on,
                               entries[-1]))
         if fits[-1] is None and entries[-1].get('failed', '').startswith('time budget'):
             break
@@ -199,13 +183,19 @@ def _same_point(one: Estimate, other: Estimate) -> bool:
                for name, value in one.parameters.items() if name in START_NAMES)
 
 
-def _fit_from(records, torque_constant, quasi, progress, start, criterion, entry):
-    """Fit the base model from ``start``; None (and ``entry['failed']``) when it fails."""
+def _fit_from(records, torque_constant, quasi, progress, start, fit_on, entry):
+    """
+    Fit the base model from ``start``; None (and ``entry['failed']``) when it fails.
+
+    ``fit_on``: the criterion and the model of the position error.
+    """
+    criterion, position_error = fit_on
     try:
         progress.set_stage(f'base fit from a further start ({entry["name"]})',
                            record_names(records))
         fit = RefinedEstimator(initial=start, quasi_static=quasi, progress=progress,
-                               criterion=criterion).fit(records, torque_constant=torque_constant)
+                               criterion=criterion, position_error=position_error).fit(
+            records, torque_constant=torque_constant)
         check_physical(fit)
     except TimeBudgetExceeded:
         entry['failed'] = 'time budget: the further starts may take ' \

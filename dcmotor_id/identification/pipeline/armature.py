@@ -1,11 +1,11 @@
 """
-La below what the data resolve: the quasi-static armature (La -> 0) and La as an upper bound.
+Stage 3, the armature: La below what the data resolve makes the quasi-static armature the model.
 
 When the electrical time constant La/Ra is below the sample period, or La is undetermined
 (:func:`la_unresolved`), the model is refitted with the quasi-static armature
 (:func:`quasi_static_refit`); kept, it is the model of everything that follows, and the final
 estimate gives La by its upper bound (:func:`with_la_bound`) with the reason
-(:func:`la_reason`).
+(:func:`la_reason`).  :func:`armature` is the stage.
 """
 
 from __future__ import annotations
@@ -20,12 +20,38 @@ from dcmotor_id.core.model import derived_values, parameter_names
 from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.checks.identifiability import IDENTIFIABLE_REL_STDERR
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
-from dcmotor_id.identification.fitting import simulation_errors
+from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
+from dcmotor_id.identification.pipeline.fit_outcome import simulation_errors
+from dcmotor_id.identification.pipeline.state import Fit, Inputs
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.estimators.base import Estimate
     from dcmotor_id.identification.residuals import ChannelErrors
+
+
+def armature(inputs: Inputs, fit: Fit) -> Fit:
+    """
+    Return the fit with La first: the quasi-static armature when the data cannot resolve La.
+
+    Kept, the quasi-static armature is the model of everything that follows (discovery
+    included); refused, La is said not identifiable.
+    """
+    if inputs.mechanical_only or not isinstance(inputs.estimator, RefinedEstimator):
+        return fit
+    dt = inputs.records[0].sample_period_s
+    robust = with_robust_stderr(fit.estimate)
+    full_la = (robust.parameters['La'], robust.stderr['La'], robust.parameters['Ra'])
+    fit = replace(fit, full_la=full_la)
+    if not la_unresolved(*full_la, dt):
+        return fit
+    refit = quasi_static_refit(fit.estimate, inputs.records, fit.errors, inputs.initial_state,
+                               inputs.progress, inputs.criterion, inputs.on.position_error)
+    if refit is None:
+        return replace(fit, not_identifiable={**fit.not_identifiable,
+                                              'La': la_reason(*full_la, dt, None)})
+    return replace(fit, estimate=refit, quasi=True,
+                   errors=simulation_errors(refit, inputs.records, None, quasi_static=True))
 
 
 def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
@@ -35,19 +61,22 @@ def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
 
 def quasi_static_refit(estimate: Estimate, records: Sequence[Record], errors: ChannelErrors,
                        initial_state: str, progress: Progress,
-                       criterion: str = 'speed') -> Estimate | None:
+                       criterion: str = 'speed',
+                       position_error: str = 'adaptive') -> Estimate | None:
     """
     Refit with the quasi-static armature (La -> 0); return the estimate or None.
 
     The refit is kept when its current simulation error is at most 25 % (and 0.5 points)
     worse than the full model's: the full model's La then adds nothing the data resolve.
+    ``position_error``: the model of the position error of the refit.
     """
     values = estimate.parameters
     start = {name: values[name] for name in parameter_names(False) if name != 'La'}
     progress.set_stage('quasi-static armature refit')
     try:
         quasi = RefinedEstimator(initial=start, quasi_static=True, initial_state=initial_state,
-                                 progress=progress, criterion=criterion).fit(records)
+                                 progress=progress, criterion=criterion,
+                                 position_error=position_error).fit(records)
         quasi_errors = simulation_errors(quasi, records, None, quasi_static=True)
     except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
         return None

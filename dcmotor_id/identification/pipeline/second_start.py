@@ -1,5 +1,8 @@
 """
-The fit checked against model-free evidence, and a second start when the evidence disagrees.
+The second start: a fit in a wrong basin fitted again from the regression's values.
+
+One step of the start check (:mod:`~dcmotor_id.identification.pipeline.start_check`); the
+evidence and the doubts it uses are :mod:`~dcmotor_id.identification.checks.start`'s.
 
 A fit from the default start can settle in a wrong basin (e.g. the initial speeds moved by a
 misfit); the regression on the data (:mod:`~dcmotor_id.identification.checks.start`) sees that
@@ -26,7 +29,8 @@ from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, kn
                                                     start_doubts)
 from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.identification.fitting import check_physical, record_names, run_discovery
+from dcmotor_id.identification.pipeline.discovery import run_discovery
+from dcmotor_id.identification.pipeline.fit_outcome import check_physical, record_names
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -39,7 +43,8 @@ def check_start(
         records: Sequence[Record], torque_constant: float | None, quasi: bool, discover: bool,
         vocabulary: Sequence[type[Effect]], progress: Progress, estimate: Estimate,
         found: DiscoveryResult | None, discovery_info: dict[str, Any] | None,
-        criterion: str = 'speed', evidence: dict[str, float] | None | str = FROM_RECORDS
+        criterion: str = 'speed', evidence: dict[str, float] | None | str = FROM_RECORDS,
+        position_error: str = 'adaptive'
 ) -> tuple[DiscoveryResult | None, Estimate, dict[str, Any] | None, dict[str, Any]]:
     """
     Check the fit against model-free evidence; when doubted, try a second start, keep the best.
@@ -50,7 +55,8 @@ def check_start(
     Every fit and score of the check is on the run's ``criterion`` (the channels compared).
     ``evidence``: the model-free regression on ``records``
     (:func:`~dcmotor_id.identification.checks.start.regression_evidence`) when the caller
-    has it (computed once per run); computed here by default.
+    has it (computed once per run); computed here by default.  ``position_error``: the
+    model of the position error of every fit of the check.
     """
     evidence = known_evidence(records, torque_constant, evidence)
     first = found.estimate if found is not None else estimate
@@ -63,11 +69,11 @@ def check_start(
         return found, estimate, discovery_info, check
     seed = evidence_structure(evidence, vocabulary) if discover else Structure()
     pinned, seed = _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence,
-                               check, seed, criterion)
+                               check, seed, (criterion, position_error))
     if pinned is None:
         return found, estimate, discovery_info, check
     second = _second_start(records, torque_constant, quasi, discover, vocabulary, progress,
-                           pinned, check, seed, criterion)
+                           pinned, check, seed, (criterion, position_error))
     if second.found is None and len(second.structure):
         # The loop did not finish from the seeded base: its effects have no result to go in.
         check['second_start'] = f'failed: {(second.info or {}).get("skipped", "no result")}'
@@ -114,14 +120,15 @@ def evidence_structure(evidence: dict[str, float] | None,
 
 
 def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check, seed,
-                criterion):
+                fit_on):
     """
     Fit from the regression's values with the initial states pinned; return it and its structure.
 
     The effects of ``seed`` (:func:`evidence_structure`) are in the fit, their coefficients
     started from the regression (the offset); when that fit fails, the base model is tried.
-    The fit is None when it fails.
+    The fit is None when it fails.  ``fit_on``: the criterion and the position error's model.
     """
+    criterion, position_error = fit_on
     names = [name for name in parameter_names(torque_constant is not None)
              if not (quasi and name == 'La')]
     start = regression_start(evidence, estimate.parameters, names)
@@ -132,7 +139,8 @@ def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, c
         try:
             pinned = refit_all_data(seed, records, torque_constant, values, start,
                                     initial_state='measured', quasi_static=quasi,
-                                    progress=progress, criterion=criterion)[2]
+                                    progress=progress, criterion=criterion,
+                                    position_error=position_error)[2]
             check_physical(pinned)
             check['seeded'] = seed.names()
             return pinned, seed
@@ -140,7 +148,8 @@ def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, c
             check['seeded'] = f'failed: {error}'  # the base model is tried instead
     try:
         pinned = RefinedEstimator(initial=start, initial_state='measured', quasi_static=quasi,
-                                  progress=progress, criterion=criterion).fit(
+                                  progress=progress, criterion=criterion,
+                                  position_error=position_error).fit(
             records, torque_constant=torque_constant)
         check_physical(pinned)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
@@ -150,14 +159,16 @@ def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, c
 
 
 def _second_start(records, torque_constant, quasi, discover, vocabulary, progress, pinned,
-                  check, seed, criterion):
+                  check, seed, fit_on):
     """Search the effects from the pinned fit (its structure ``seed``), then free the states."""
+    criterion, position_error = fit_on
     found, info, structure = None, None, seed
     values, states = pinned.parameters, pinned.initial_states
     if discover:
         found, info = run_discovery(
             records, torque_constant, RefinedEstimator(criterion=criterion), vocabulary,
-            progress, 'measured', quasi, pinned, criterion, structure=structure)
+            progress, 'measured', quasi, pinned, criterion, structure=structure,
+            position_error=position_error)
         if found is not None:
             structure = found.final.structure
             values, states = found.estimate.parameters, found.estimate.initial_states
@@ -171,7 +182,8 @@ def _second_start(records, torque_constant, quasi, discover, vocabulary, progres
         freed = refit_all_data(structure, records, torque_constant, values,
                                refit_start(values, records, torque_constant), progress=progress,
                                initial_states=states, initial_state='estimate',
-                               quasi_static=quasi, criterion=criterion)[2]
+                               quasi_static=quasi, criterion=criterion,
+                               position_error=position_error)[2]
         check_physical(freed)
     except (DcMotorIdError, np.linalg.LinAlgError, TimeBudgetExceeded) as error:
         check['freed'] = f'failed: {error}'  # the pinned fit is still a candidate

@@ -1,0 +1,59 @@
+"""
+Stages 7 and 8: the final fit, refused when it does not reproduce the data; its uncertainty.
+
+The final fit is the loop's, else the base.  Its standard errors are data-based
+(:func:`~dcmotor_id.identification.estimators.uncertainty.with_robust_stderr`); under the
+quasi-static armature La is given by its upper bound
+(:func:`~dcmotor_id.identification.pipeline.armature.with_la_bound`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from dcmotor_id.core.errors import FitError
+from dcmotor_id.core.model import DERIVED_NAMES, MECHANICAL_NAMES, PARAMETER_NAMES
+from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
+from dcmotor_id.identification.pipeline.armature import la_reason, with_la_bound
+from dcmotor_id.identification.pipeline.fit_outcome import NO_FIT_NRMSE_PCT, simulation_errors
+from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
+
+
+def final_fit(inputs: Inputs, fit: Fit) -> Answer:
+    """Return the final fit (the loop's, else the base); refuse it when it does not fit."""
+    final, terms, fitted_records = fit.estimate, (), list(inputs.records)
+    if fit.found is not None:
+        final, terms, fitted_records = fit.found.estimate, fit.found.terms, fit.found.records
+    in_sample = simulation_errors(final, fitted_records, inputs.torque_constant, terms,
+                                  fit.quasi)
+    worst = max(value for value in in_sample.values() if value is not None) \
+        if any(value is not None for value in in_sample.values()) else float('inf')
+    if not np.isfinite(worst) or worst > NO_FIT_NRMSE_PCT:
+        raise FitError(
+            f'the identified model does not reproduce the data (simulation error {worst:.3g} % '
+            'of the signal spread). Check that the columns are what their names say (units, '
+            'signs) and that the data come from a DC motor drive.')
+    return Answer(final, terms, fitted_records, fit.warnings, dict(fit.not_identifiable))
+
+
+def uncertainty(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
+    """Return the answer with data-based standard errors; La by its upper bound if quasi-static."""
+    final = with_robust_stderr(answer.final)
+    stderr_model = dict(final.info.get('stderr_model', final.stderr))
+    upper_bounds, not_identifiable = dict(answer.upper_bounds), dict(answer.not_identifiable)
+    if fit.quasi and fit.full_la is not None:
+        dt = inputs.records[0].sample_period_s
+        final, upper_bounds = with_la_bound(final, *fit.full_la, dt)
+        stderr_model = dict(final.info['stderr_model'])
+        not_identifiable['La'] = la_reason(*fit.full_la, dt, upper_bounds['La'])
+    names = MECHANICAL_NAMES if inputs.mechanical_only else PARAMETER_NAMES + DERIVED_NAMES
+    stderr = {name: float(final.stderr.get(name, np.nan)) for name in names}
+    of_model = {name: float(stderr_model.get(name, np.nan)) for name in names}
+    for name in upper_bounds:
+        stderr[name] = of_model[name] = float('nan')
+    return replace(answer, final=final, names=tuple(names),
+                   parameters={name: float(final.parameters[name]) for name in names},
+                   stderr=stderr, stderr_model=of_model, upper_bounds=upper_bounds,
+                   not_identifiable=not_identifiable)

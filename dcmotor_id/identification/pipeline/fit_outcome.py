@@ -1,0 +1,59 @@
+"""
+What a fit gives, as every stage measures it: its simulation errors, refused when non-physical.
+
+:func:`simulation_errors` of an estimate over the records, :data:`NO_FIT_NRMSE_PCT` (the
+error beyond which a model does not fit at all), :func:`check_physical` refusing non-physical
+values, and :func:`record_names` naming the records for the progress line.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence, TYPE_CHECKING
+
+
+from dcmotor_id.core.errors import FitError
+from dcmotor_id.core.model import inadmissible, UNITS
+from dcmotor_id.identification.estimators.refined import OutputErrorModel
+from dcmotor_id.identification.residuals import ChannelErrors, model_errors
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.estimators.base import Estimate
+
+#: Simulation error (percent of std) above which the model is said not to fit at all.
+NO_FIT_NRMSE_PCT = 60.0
+
+
+def simulation_errors(estimate: Estimate, records: Sequence[Record],
+                      torque_constant: float | None = None, terms: Sequence = (),
+                      quasi_static: bool = False) -> ChannelErrors:
+    """
+    Return the simulation error of an estimate over the records (from its initial states).
+
+    The result is ``{current_nrmse_pct, speed_nrmse_pct}``
+    (:func:`dcmotor_id.identification.residuals.model_errors`); the current error is ``None`` in
+    mechanical-only mode (current is the input there).
+    """
+    model = OutputErrorModel(records, torque_constant, terms, quasi_static)
+    return model_errors(model, dict(estimate.parameters), estimate.initial_states)
+
+
+def check_physical(estimate: Estimate) -> None:
+    """Refuse non-physical results instead of reporting made-up numbers."""
+    bad = inadmissible(estimate.parameters)
+    if bad:
+        listing = ', '.join(f'{name} = {value:.4g} {UNITS[name]}' for name, value in bad.items())
+        hint = (' Check the signs and units of the columns (current and speed must be positive '
+                'for a positive voltage).')
+        if estimate.method == 'paper':
+            hint += ' The paper method is also not robust to sensor noise: use --method refined.'
+        raise FitError(f'the {estimate.method} method gave non-physical values: {listing}.'
+                       + hint)
+
+
+def record_names(records: Sequence[Record]) -> str | None:
+    """Name the records for the progress line: the one source, or how many records."""
+    names = [rec.source for rec in records if rec.source]
+    if not names:
+        return None
+    return names[0] if len(names) == 1 else f'{len(records)} records'

@@ -1,0 +1,137 @@
+"""
+What one run of the pipeline hands from stage to stage: frozen, a stage returns a new one.
+
+:class:`Request`: what the caller asks (``identify``'s arguments).  :class:`RunOn`: the
+choices one run makes for its fits (criterion, the position error's model, an earlier run's
+further starts).  :class:`Inputs`: both, with the records as the first stage leaves them and
+the estimator the base fit settles on.  :class:`Fit`: the base fit and what the armature, the
+start check and the discovery loop made of it.  :class:`Answer`: the reported fit, its values
+and standard errors, what the data do not determine and the per-record errors.  ``warnings``
+travel in :class:`Fit`, then :class:`Answer`, in the order the stages give them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any, Sequence, TYPE_CHECKING
+
+from dcmotor_id.core.progress import Progress
+from dcmotor_id.identification.checks.identifiability import Excitation
+from dcmotor_id.identification.checks.start import regression_evidence
+from dcmotor_id.identification.estimators.base import Estimator
+from dcmotor_id.identification.estimators.refined import RefinedEstimator
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.discovery import DiscoveryResult
+    from dcmotor_id.identification.effects import Effect
+    from dcmotor_id.identification.estimators.base import Estimate
+    from dcmotor_id.identification.residuals import ChannelErrors
+
+
+@dataclass(frozen=True)
+class Request:
+    """What the caller asks: the records and ``identify``'s choices (checked)."""
+
+    records: Sequence[Record]
+    method: str
+    torque_constant: float | None
+    discover: bool
+    estimator: Estimator | None
+    vocabulary: Sequence[type[Effect]] | None
+    progress: Progress
+    initial_state: str
+
+
+@dataclass(frozen=True)
+class RunOn:
+    """
+    How one run fits: the criterion, the position error's model, an earlier run's starts.
+
+    ``position_error``: ``adaptive`` or ``white``
+    (:func:`~dcmotor_id.identification.criterion.check_position_error_model`); ``earlier``:
+    the further starts' account of an earlier run of the same identification
+    (:func:`~dcmotor_id.identification.pipeline.further_starts.several_starts`).
+    """
+
+    criterion: str
+    position_error: str = 'adaptive'
+    earlier: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """What every stage reads: the request as the first stages settle it, and how it fits."""
+
+    records: list[Record]
+    method: str
+    torque_constant: float | None
+    discover: bool
+    estimator: Estimator | None
+    vocabulary: list[type[Effect]]
+    progress: Progress
+    initial_state: str
+    on: RunOn
+    excitation: Excitation
+    warnings: tuple[str, ...] = ()  # the first stage's
+
+    @property
+    def criterion(self) -> str:
+        """Return the channels the fits compare (``speed``, ``position`` or ``both``)."""
+        return self.on.criterion
+
+    @property
+    def mechanical_only(self) -> bool:
+        """Whether the torque constant is given (J, b and Mc only)."""
+        return self.torque_constant is not None
+
+    @cached_property
+    def evidence(self) -> dict[str, float] | None:
+        """Return the model-free regression on the records (computed once, for every check)."""
+        return regression_evidence(self.records, self.torque_constant)
+
+    @property
+    def checkable(self) -> bool:
+        """Whether the fit is checked against model-free evidence (free initial states)."""
+        return self.initial_state == 'estimate' and isinstance(self.estimator, RefinedEstimator)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """
+    The base fit on all data and what the stages up to discovery made of it.
+
+    ``estimate``: the base fit (replaced by the quasi-static refit, a further start or the
+    second start); ``found``: the discovery loop's result, if it ran.
+    """
+
+    estimate: Estimate
+    errors: ChannelErrors
+    warnings: tuple[str, ...] = ()
+    not_identifiable: dict[str, str] = field(default_factory=dict)
+    quasi: bool = False  # the quasi-static armature (La -> 0) is the model
+    full_la: tuple[float, float, float] | None = None  # La, its stderr, Ra of the full fit
+    starts: dict[str, Any] | None = None  # the further starts of the base fit
+    start_check: dict[str, Any] | None = None
+    found: DiscoveryResult | None = None
+    discovery_info: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True)
+class Answer:
+    """The reported fit and what is said of it, stage by stage."""
+
+    final: Estimate
+    terms: Sequence
+    fitted_records: list[Record]
+    warnings: tuple[str, ...]
+    not_identifiable: dict[str, str]
+    names: tuple[str, ...] = ()
+    parameters: dict[str, float] = field(default_factory=dict)
+    stderr: dict[str, float] = field(default_factory=dict)
+    stderr_model: dict[str, float] = field(default_factory=dict)
+    upper_bounds: dict[str, float] = field(default_factory=dict)
+    combined: dict[str, Any] = field(default_factory=dict)
+    bound: dict[str, str] = field(default_factory=dict)
+    errors_detail: dict[str, Any] = field(default_factory=dict)
