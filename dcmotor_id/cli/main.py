@@ -28,7 +28,7 @@ from dcmotor_id.formats.json_file import write_json
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
                                         POSITION_UNITS, ReadingNote, ReadOptions,
                                         SIGNED_CHANNELS, SPEED_UNITS)
-from dcmotor_id.formats.paths import check_input_path, check_output_path
+from dcmotor_id.formats.paths import check_input_path, check_output_path, is_bag_dir
 from dcmotor_id.identification.checks.dropouts import repair_all
 from dcmotor_id.identification.criterion import CRITERIA
 from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
@@ -38,6 +38,11 @@ from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 from dcmotor_id.simulation.excitation import (add_sensor_noise, EXCITATION_KINDS, make_excitation,
                                               quantise)
 from dcmotor_id.streaming.summary import format_table
+
+#: What a report writes into its directory (shell patterns): never over an input.
+REPORT_FILES = ('*.html', '*.png')
+#: What ``design --export`` writes into its directory (:func:`write_exports`).
+EXPORT_FILES = ('model_statespace.json', 'sim_motor.yaml', 'urdf_dynamics.xml')
 
 
 def load_records(paths: Sequence[str], topics: Mapping[str, str] | None = None,
@@ -94,7 +99,8 @@ def _cmd_identify(args):
     if args.json:
         check_output_path(args.json, '--json', inputs=args.files)
     if args.report:
-        check_output_path(args.report, '--report', directory=True)
+        check_output_path(args.report, '--report', directory=True, inputs=args.files,
+                          writes=REPORT_FILES)
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
     options = reading_options(args)
@@ -223,7 +229,8 @@ def _cmd_validate(args):
     if args.json:
         check_output_path(args.json, '--json', inputs=[args.model, *args.files])
     if args.report:
-        check_output_path(args.report, '--report', directory=True)
+        check_output_path(args.report, '--report', directory=True,
+                          inputs=[args.model, *args.files], writes=REPORT_FILES)
     model = load_model(args.model)
     options = reading_options(args)
     records = []
@@ -280,9 +287,11 @@ def _cmd_design(args):
     check_input_path(args.result, 'RESULT.json ')
     if args.json:
         check_output_path(args.json, '--json', inputs=[args.result])
-    for option, place in (('--report', args.report), ('--export', args.export)):
+    for option, place, writes in (('--report', args.report, REPORT_FILES),
+                                  ('--export', args.export, EXPORT_FILES)):
         if place:
-            check_output_path(place, option, directory=True)
+            check_output_path(place, option, directory=True, inputs=[args.result],
+                              writes=writes)
     result = control_design.load_result(args.result)
     motor = control_design.motor_from_result(result, args.gear_ratio, args.output_shaft)
     options = control_design.DesignOptions(args.current_bandwidth, args.speed_bandwidth,
@@ -312,7 +321,8 @@ def _cmd_fleet(args):
     from dcmotor_id.fleet.progress import Progress
     for path in args.paths:
         check_input_path(path, 'fleet input ', directory=True)
-    check_output_path(args.history, '--history', directory=True)
+    check_output_path(args.history, '--history', directory=True,
+                      inputs=[path for path in args.paths if is_bag_dir(path)])
     options = FleetOptions(args.motor_from, args.torque_constant, not args.no_discover,
                            args.window_s, args.min_window_s)
     summary = run_fleet(args.paths, args.history, options, scheduler=args.scheduler,
@@ -326,7 +336,8 @@ def _cmd_fleet(args):
 def _cmd_fleet_report(args):
     from dcmotor_id.reports.fleet import write_fleet_report
     check_input_path(args.history, 'HISTORY_DIR ', directory=True)
-    check_output_path(args.out, '--out', directory=True)
+    check_output_path(args.out, '--out', directory=True, inputs=[args.history],
+                      writes=REPORT_FILES)
     print(f'report: {write_fleet_report(args.history, args.out)}')
     return 0
 

@@ -11,6 +11,7 @@ result.  Every refusal names the option or file, what it is, and what to do.
 from __future__ import annotations
 
 import errno
+import fnmatch
 import os
 import stat
 import tempfile
@@ -19,8 +20,12 @@ from typing import Iterable, Optional, Sequence
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike
 
-__all__ = ['check_input_path', 'check_output_path', 'check_replaceable', 'kind_of',
-           'same_file']
+__all__ = ['check_input_path', 'check_not_over_inputs', 'check_output_path',
+           'check_replaceable', 'is_bag_dir', 'kind_of', 'same_file']
+
+#: The files that mark a directory as a rosbag2 bag (a bag is read as a whole directory).
+_BAG_MARKS = ('metadata.yaml',)
+_BAG_SUFFIXES = ('.mcap', '.db3')
 
 
 def kind_of(mode: int) -> str:
@@ -110,7 +115,7 @@ def _nearest_existing(path: str) -> str:
 
 
 def check_output_path(path: str, option: str, directory: bool = False,
-                      inputs: Sequence[str] = ()) -> None:
+                      inputs: Sequence[PathLike] = (), writes: Sequence[str] = ('*',)) -> None:
     """
     Refuse an output path that cannot be written, before any work is done.
 
@@ -118,7 +123,8 @@ def check_output_path(path: str, option: str, directory: bool = False,
     that is not one of the ``inputs`` (never a symlink, a device, a FIFO nor a recording);
     for both kinds, the nearest existing ancestor must be a directory in which a file can be
     created (tried with a temporary file, which also catches read-only file systems and
-    running as root).
+    running as root).  No output lies inside an input bag directory, and a directory output
+    never holds an input under a name it ``writes`` (:func:`check_not_over_inputs`).
 
     Raises
     ------
@@ -127,6 +133,7 @@ def check_output_path(path: str, option: str, directory: bool = False,
 
     """
     target = os.path.abspath(path)
+    check_not_over_inputs(path, option, inputs, directory, writes)
     if not directory:
         check_replaceable(path, option, inputs)
     if not directory and (os.path.isdir(target) or path.endswith(os.sep)):
@@ -168,3 +175,80 @@ def check_replaceable(path: str, option: str, inputs: Sequence[str] = ()) -> Non
     if twin is not None:
         raise InputDataError(f'{option} {path}: is the input {twin}; writing there would '
                              'destroy the recording: give another file name')
+
+
+def _real(path: PathLike) -> str:
+    """Return the real path of ``path``, which may not exist yet (its ancestors resolved)."""
+    return os.path.realpath(os.path.abspath(path))
+
+
+def is_bag_dir(directory: PathLike) -> bool:
+    """Whether ``directory`` looks like a rosbag2 bag (metadata or a storage file in it)."""
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return False
+    return any(name in _BAG_MARKS or name.endswith(_BAG_SUFFIXES) for name in names)
+
+
+def _input_areas(inputs: Iterable[PathLike]) -> tuple[list[str], list[str]]:
+    """Return the directories an input reads as a whole (bags) and the input files."""
+    directories, files = [], []
+    for item in inputs:
+        if item is None or not os.path.exists(item):
+            continue
+        real = _real(item)
+        if os.path.isdir(real):
+            directories.append(real)
+        else:
+            files.append(real)
+            parent = os.path.dirname(real)
+            if any(os.path.exists(os.path.join(parent, mark)) for mark in _BAG_MARKS):
+                directories.append(parent)
+    return directories, files
+
+
+def _inside(path: str, directory: str) -> bool:
+    """Whether the real ``path`` is ``directory`` or below it."""
+    return path == directory or path.startswith(directory.rstrip(os.sep) + os.sep)
+
+
+def check_not_over_inputs(path: PathLike, option: str, inputs: Sequence[PathLike],
+                          directory: bool = False, writes: Sequence[str] = ('*',)) -> None:
+    """
+    Refuse an output inside an input bag directory, or one that would replace an input.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file (or directory, when ``directory``).
+    option : str
+        The option named in the message (``--json``, ``--export``).
+    inputs : sequence of paths
+        Every file and directory the command reads.
+    directory : bool
+        Whether ``path`` is a directory into which files are written.
+    writes : sequence of str
+        Shell patterns of the names written into a directory output (default: any name).
+
+    Raises
+    ------
+    InputDataError
+        Naming the option, the path and the input it would damage.
+
+    """
+    target = _real(path)
+    directories, files = _input_areas(inputs)
+    for area in directories:
+        if _inside(target, area):
+            raise InputDataError(
+                f'{option} {path}: is inside the input bag directory {area}; writing there '
+                'could replace or damage the recording: give a place outside it')
+    if not directory:
+        return
+    for name in files:
+        if os.path.dirname(name) == target and any(
+                fnmatch.fnmatch(os.path.basename(name), pattern) for pattern in writes):
+            raise InputDataError(
+                f'{option} {path}: would overwrite the input {name} (it writes '
+                f"{', '.join(writes)} there); give another directory")

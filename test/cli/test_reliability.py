@@ -807,3 +807,76 @@ def test_the_milliampere_flag_on_ampere_data_is_named(table, tmp_path, capsys):
     assert code == 0, err
     warnings = json.loads(out.read_text())['warnings']
     assert any('the current column looks already in amperes' in text for text in warnings)
+
+
+# ---------------------------------------------------------------- round 4 (issue 30)
+@pytest.fixture
+def small_bag(tmp_path):
+    """Return a rosbag2 directory of 2 s of motor 2 on /voltage /current /speed."""
+    from dcmotor_id.formats.bag import write_bag
+    from support import motor_samples
+    stamps, channels = motor_samples(2.0)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    return tmp_path / 'bag'
+
+
+def _bag_bytes(bag):
+    return {path.name: path.read_bytes() for path in sorted(bag.iterdir())}
+
+
+@pytest.mark.parametrize('command, output', [
+    (['identify', 'BAG', '--json', 'BAG/bag.mcap'], 'BAG/bag.mcap'),
+    (['identify', 'BAG', '--json', 'BAG/metadata.yaml'], 'BAG/metadata.yaml'),
+    (['identify', 'BAG/bag.mcap', '--json', 'BAG/metadata.yaml'], 'BAG/metadata.yaml'),
+    (['identify', 'BAG', '--json', 'BAG/new.json'], 'BAG/new.json'),
+    (['identify', 'BAG', '--report', 'BAG'], 'BAG'),
+    (['validate', 'MODEL', 'BAG', '--json', 'BAG/bag.mcap'], 'BAG/bag.mcap'),
+    (['validate', 'MODEL', 'BAG', '--report', 'BAG/report'], 'BAG/report'),
+    (['fleet', 'BAG', '--history', 'BAG/history'], 'BAG/history'),
+])
+def test_no_output_is_written_inside_an_input_bag(small_bag, tmp_path, capsys, monkeypatch,
+                                                  command, output):
+    """Issue 30, item 1: ``--json bag/<name>.mcap`` replaced the recording."""
+    monkeypatch.setattr(cli, 'identify', lambda *a, **k: pytest.fail('the fit ran'))
+    model = tmp_path / 'model.json'
+    model.write_text(json.dumps({'parameters': {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7,
+                                                'J': 0.0315, 'b': 0.3, 'Mc': 1.0}}))
+    before = _bag_bytes(small_bag)
+    args = [item.replace('BAG', str(small_bag)).replace('MODEL', str(model))
+            for item in command]
+    refused(capsys, *args, phrases=[output.replace('BAG', str(small_bag)),
+                                    'inside the input bag directory', 'outside it'])
+    assert _bag_bytes(small_bag) == before
+
+
+@pytest.mark.parametrize('option', ['--export', '--report'])
+def test_design_never_writes_its_directory_outputs_over_the_input(tmp_path, capsys, option):
+    """Issue 30, item 2: ``design X/model_statespace.json --export X`` replaced the input."""
+    folder = tmp_path / 'X'
+    folder.mkdir()
+    name = 'model_statespace.json' if option == '--export' else 'design.html'
+    source = folder / name
+    text = json.dumps({'parameters': {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7, 'J': 0.0315,
+                                      'b': 0.3, 'Mc': 1.0}, 'mode': 'full'})
+    source.write_text(text)
+    refused(capsys, 'design', source, option, folder,
+            phrases=[option, 'would overwrite the input', name])
+    assert source.read_text() == text
+    code, _, err = run_command(capsys, 'design', source, option, tmp_path / 'elsewhere')
+    assert code == 0, err
+
+
+def test_the_time_budget_covers_the_structure_bootstrap(table, tmp_path):
+    """Issue 30, item 3: 1000 resamples under ``--max-time 6`` ran for minutes."""
+    out = tmp_path / 'r.json'
+    started = time.monotonic()
+    completed = run_process('identify', write(tmp_path / 'x.csv', HEADER, table),
+                            '--structure-bootstrap', '1000', '--max-time', '6', '--json', out,
+                            '--quiet', timeout_s=90)
+    assert completed.returncode == 0, completed.stderr
+    assert time.monotonic() - started < 40
+    result = json.loads(out.read_text())
+    account = result['structure_uncertainty']
+    assert account['stopped_by_time_budget'] and account['completed'] < 1000
+    assert any(f'{account["completed"]} of 1000 resamples were done' in text
+               for text in result['warnings'])
