@@ -45,6 +45,17 @@ REPORT_FILES = ('*.html', '*.png')
 EXPORT_FILES = ('model_statespace.json', 'sim_motor.yaml', 'urdf_dynamics.xml')
 
 
+def whole_number_at_least_one(text: str) -> int:
+    """Return ``text`` as a whole number of 1 or more (an ``argparse`` type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a whole number, got {text}') from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be 1 or more, got {text}')
+    return value
+
+
 def load_records(paths: Sequence[str], topics: Mapping[str, str] | None = None,
                  options: ReadOptions | None = None,
                  mechanical_only: bool = False) -> list[Record]:
@@ -352,8 +363,9 @@ def _add_fleet_commands(commands):
                        help='Parquet dataset the rows are appended to (one per window)')
     fleet.add_argument('--scheduler', metavar='ADDRESS',
                        help='address of a running Dask scheduler (default: a local cluster)')
-    fleet.add_argument('--workers', type=int, metavar='N',
-                       help='worker processes of the local cluster (default: one per core)')
+    fleet.add_argument('--workers', type=whole_number_at_least_one, metavar='N',
+                       help='worker processes of the local cluster, 1 or more (default: one '
+                            'per core)')
     fleet.add_argument('--motor-from', default='namespace', metavar='namespace|path|PATTERN',
                        help="name motors by the topics' namespace (default), the directory "
                             'of the recording, or a regular expression on its path')

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 from typing import Any, Optional, Sequence
 
 from dcmotor_id.identification.identify import METHODS
@@ -133,3 +134,24 @@ class IdentifierSettings:
                                         0.01)
     process_rate_hz: float = parameter(50.0, 'rate at which received samples are aligned '
                                        '[Hz]', 1.0)
+
+
+def check_settings(settings: IdentifierSettings) -> None:
+    """
+    Refuse at start-up settings that each pass their own range but cannot work together.
+
+    ``min_window_s`` above ``window_s`` (no window is ever long enough), a non-finite
+    ``effort_scale``, and a ``record_dir`` that cannot be written while ``record`` is on (the
+    node would run without its recording).  ValueError naming the parameter.
+    """
+    from dcmotor_id.nodes.common import check_writable_directory
+
+    if settings.min_window_s > settings.window_s:
+        raise ValueError(f'parameter min_window_s = {settings.min_window_s:g} s is longer than '
+                         f'window_s = {settings.window_s:g} s: no window could be kept; give a '
+                         'min_window_s at most window_s')
+    if not math.isfinite(settings.effort_scale) or settings.effort_scale == 0:
+        raise ValueError(f'parameter effort_scale = {settings.effort_scale!r}: give a finite, '
+                         'non-zero factor [A per unit of effort]')
+    if settings.record:
+        check_writable_directory(settings.record_dir, 'record_dir')

@@ -880,3 +880,17 @@ def test_the_time_budget_covers_the_structure_bootstrap(table, tmp_path):
     assert account['stopped_by_time_budget'] and account['completed'] < 1000
     assert any(f'{account["completed"]} of 1000 resamples were done' in text
                for text in result['warnings'])
+
+
+@pytest.mark.parametrize('workers', ['-3', '0', '1.5'])
+def test_fleet_refuses_fewer_than_one_worker(tmp_path, capsys, workers):
+    """Issue 30, item 4: ``--workers -3`` hung at 0 % CPU; 0 was taken without a meaning."""
+    with pytest.raises(SystemExit) as caught:
+        cli.main(['fleet', str(tmp_path), '--history', str(tmp_path / 'h'), '--workers',
+                  workers])
+    assert caught.value.code == 2
+    err = capsys.readouterr().err
+    assert '--workers' in err and ('must be 1 or more' in err or 'whole number' in err)
+    from dcmotor_id.fleet.job import start_client
+    with pytest.raises(InputDataError, match='1 or more workers'):
+        start_client(workers=0)

@@ -118,7 +118,7 @@ def test_result_parameters_cannot_be_set_from_outside(identified):
     outcome, = ident.set_parameters([Parameter('identified.Ra', value=1.0)])
     assert not outcome.successful and 'result of ~/identify' in outcome.reason
     assert ident.get_parameter('identified.Ra').value == before
-    assert ident.set_parameters([Parameter('stream_timeout_s', value=2.0)])[0].successful
+    assert ident.set_parameters([Parameter('structure_bootstrap', value=0)])[0].successful
 
 
 def test_online_estimate_converges_near_the_truth(identified):
