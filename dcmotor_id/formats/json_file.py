@@ -17,7 +17,22 @@ import numpy as np
 
 from dcmotor_id.formats.paths import check_replaceable
 
-__all__ = ['write_json']
+__all__ = ['load_json', 'write_json']
+
+
+def load_json(stream: Any) -> Any:
+    """
+    Return the JSON document of a text stream, like ``json.load``.
+
+    Every failure is a ``json.JSONDecodeError`` (a ``ValueError``), also a document nested
+    beyond Python's recursion limit (100,000 ``[``), which ``json`` ends with a RecursionError.
+    """
+    text = stream.read()
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise json.JSONDecodeError('nested too deeply (more levels than any result file '
+                                   'has)', text[:100], 0) from None
 
 
 def _json_safe(value):

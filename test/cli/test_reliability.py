@@ -894,3 +894,76 @@ def test_fleet_refuses_fewer_than_one_worker(tmp_path, capsys, workers):
     from dcmotor_id.fleet.job import start_client
     with pytest.raises(InputDataError, match='1 or more workers'):
         start_client(workers=0)
+
+
+@pytest.mark.parametrize('where', ['header', 'row'])
+def test_a_csv_field_beyond_the_csv_limit_is_refused_naming_the_line(table, tmp_path, capsys,
+                                                                     where):
+    """Issue 30, item 13: "field larger than field limit" was an internal error."""
+    path = tmp_path / 'long.csv'
+    if where == 'header':
+        path.write_text('t,voltage,current,' + 's' * 200_000 + '\n0,1,1,1\n')
+        line = 'line 1'
+    else:
+        rows = ''.join(f'{k * 1e-3},1,1,1\n' for k in range(300))
+        path.write_text('t,voltage,current,speed\n' + rows + 'x' * 200_000 + ',1,1,1\n')
+        line = 'line 302'
+    refused(capsys, 'identify', path, phrases=[line, 'field larger than field limit (131072)'])
+
+
+def test_an_absurd_sample_period_is_refused(table, tmp_path, capsys):
+    """Issue 30, item 14: ``--sample-period 1e300`` ended in ZeroDivisionError."""
+    refused(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, table), '--sample-period',
+            '1e300', phrases=['samples 1e+300 s apart', 'more than 1000 s apart'])
+
+
+@pytest.fixture
+def result_file(table, tmp_path, capsys):
+    """Return the JSON of ``identify --no-discover`` on the good table (parsed)."""
+    out = tmp_path / 'model.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'base.csv', HEADER, table),
+                               '--no-discover', '--json', out)
+    assert code == 0, err
+    return json.loads(out.read_text())
+
+
+@pytest.mark.parametrize('edit, phrase', [
+    (lambda r: r['parameters'].update(J=r['parameters']['J'] * 10), 'parameters.J = '),
+    (lambda r: r['parameters'].update(J=-1.0), 'parameters.J = -1.0 but model.parameters.J'),
+    (lambda r: r['parameters'].update(Ra='1.6'), 'parameters.Ra = "1.6" but'),
+    (lambda r: r.update(effects=[{'name': 'bogus', 'parameters': {}}]),
+     '"effects" (bogus) differ from model.effects (none)'),
+])
+@pytest.mark.parametrize('command', ['validate', 'design'])
+def test_a_result_file_holds_one_model(result_file, tmp_path, capsys, edit, phrase, command):
+    """Issue 30, item 9: validate scored the ``model`` block, design the edited parameters."""
+    edit(result_file)
+    path = tmp_path / 'edited.json'
+    path.write_text(json.dumps(result_file))
+    args = [path, tmp_path / 'base.csv'] if command == 'validate' else [path]
+    refused(capsys, command, *args, phrases=[phrase, 'one model'])
+
+
+def test_parameters_that_are_not_a_mapping_are_refused(tmp_path, capsys):
+    path = tmp_path / 'list.json'
+    path.write_text('{"parameters": [1, 2, 3]}')
+    refused(capsys, 'validate', path, tmp_path / 'x.csv',
+            phrases=['"parameters" is [1, 2, 3], not a mapping'])
+
+
+@pytest.mark.parametrize('command', [['validate', 'FILE', 'x.csv'], ['design', 'FILE'],
+                                     ['plan', '--prior', 'FILE']])
+def test_a_json_nested_100000_deep_is_refused(tmp_path, capsys, command):
+    """Issue 30, item 15: RecursionError in validate, design and plan --prior."""
+    path = tmp_path / 'deep.json'
+    path.write_text('[' * 100_000 + ']' * 100_000)
+    (tmp_path / 'x.csv').write_text('t,voltage,current,speed\n')
+    args = [str(path) if item == 'FILE' else str(tmp_path / item) if item == 'x.csv'
+            else item for item in command]
+    refused(capsys, *args, phrases=['deep.json', 'nested too deeply'])
+
+
+def test_a_yaml_prior_with_a_python_tag_is_not_plain_yaml(tmp_path, capsys):
+    path = tmp_path / 'prior.yaml'
+    path.write_text('parameters: !!python/object/apply:os.system ["echo hi"]\n')
+    refused(capsys, 'plan', '--prior', path, phrases=['not plain YAML', 'without !! tags'])
