@@ -307,8 +307,13 @@ def _cmd_design(args):
     motor = control_design.motor_from_result(result, args.gear_ratio, args.output_shaft)
     options = control_design.DesignOptions(args.current_bandwidth, args.speed_bandwidth,
                                            args.phase_margin, args.sample_period)
+    notes = bandwidth_notes(result, args)
     design, gains = control_design.design(motor, options)
     design['source'] = args.result
+    if notes:
+        design['warnings'] = notes + list(design.get('warnings') or [])
+    for note in notes:
+        print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     if args.export:
         motor_shaft = control_design.motor_from_result(result, args.gear_ratio).values
         design['export'] = write_exports(args.export, motor, motor_shaft)
@@ -320,6 +325,35 @@ def _cmd_design(args):
         write_json(args.json, design)
     print(control_design.format_design(design))
     return 0
+
+
+def bandwidth_notes(result: Mapping[str, Any], args: argparse.Namespace) -> list[str]:
+    """
+    Return warnings for bandwidths beyond a twentieth of the sampling rate (the help's limit).
+
+    The rate is ``--sample-period``'s, else the one the model was identified at; a bandwidth
+    at or above its Nyquist frequency is refused (InputDataError).
+    """
+    dt = args.sample_period or result.get('sample_period_s')
+    if not isinstance(dt, (int, float)) or isinstance(dt, bool) or not 0 < dt < float('inf'):
+        return []
+    where = ('--sample-period' if args.sample_period else 'the sampling rate the model was '
+             'identified at')
+    notes = []
+    for label, value in (('--current-bandwidth', args.current_bandwidth),
+                         ('--speed-bandwidth', args.speed_bandwidth)):
+        if value is None:
+            continue
+        if value >= 0.5 / dt:
+            raise InputDataError(f'{label} {value:g} Hz is at or above the Nyquist frequency '
+                                 f'{0.5 / dt:g} Hz of {where} ({1 / dt:g} Hz): no digital loop '
+                                 'reaches it; give at most a twentieth of the sampling rate '
+                                 f'({1 / (20 * dt):g} Hz)')
+        if value > 1.0 / (20.0 * dt):
+            notes.append(f'{label} {value:g} Hz is above a twentieth of {where} '
+                         f'({1 / (20 * dt):g} Hz): a drive sampled at {1 / dt:g} Hz will not '
+                         'reach the designed response; lower it or sample faster')
+    return notes
 
 
 def _cmd_demo(args):

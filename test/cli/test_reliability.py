@@ -967,3 +967,31 @@ def test_a_yaml_prior_with_a_python_tag_is_not_plain_yaml(tmp_path, capsys):
     path = tmp_path / 'prior.yaml'
     path.write_text('parameters: !!python/object/apply:os.system ["echo hi"]\n')
     refused(capsys, 'plan', '--prior', path, phrases=['not plain YAML', 'without !! tags'])
+
+
+def test_design_bandwidths_are_checked_against_the_models_sampling_rate(result_file, tmp_path,
+                                                                        capsys):
+    """Issue 30, item 10: ``--current-bandwidth 1e6`` on a 1 kHz model was designed."""
+    path = tmp_path / 'model.json'
+    path.write_text(json.dumps(result_file))
+    rate = 1.0 / result_file['sample_period_s']
+    refused(capsys, 'design', path, '--current-bandwidth', '1e6',
+            phrases=['--current-bandwidth 1e+06 Hz is at or above the Nyquist frequency',
+                     'the sampling rate the model was identified at'])
+    out = tmp_path / 'design.json'
+    code, _, err = run_command(capsys, 'design', path, '--current-bandwidth', rate / 10,
+                               '--json', out)
+    assert code == 0, err
+    assert 'above a twentieth of the sampling rate' in err
+    assert any('above a twentieth' in text for text in json.loads(out.read_text())['warnings'])
+    code, _, err = run_command(capsys, 'design', path, '--current-bandwidth', rate / 40)
+    assert code == 0 and 'twentieth' not in err
+
+
+@pytest.mark.parametrize('value', ['nan', 'inf', '-inf'])
+def test_simulate_refuses_non_finite_effect_parameters(tmp_path, capsys, value):
+    """Issue 30, item 11: ``--effect load_torque:torque_Nm=nan`` was silently dropped."""
+    refused(capsys, 'simulate', '--duration', '0.2', '--effect',
+            f'load_torque:torque_Nm={value}', '--out', tmp_path / 'x.csv',
+            phrases=[f'torque_Nm = {value} is not a finite number'])
+    assert not (tmp_path / 'x.csv').exists()
