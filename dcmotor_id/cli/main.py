@@ -137,7 +137,7 @@ def _cmd_identify(args):
     finally:
         progress.close()
     result = identified.as_dict()
-    repairs += _unit_flag_warnings(options, result.get('parameters') or {})
+    repairs += _unit_flag_warnings(options, result.get('parameters') or {}, records)
     if loss or repairs:
         result['warnings'] = loss + repairs + list(result.get('warnings') or [])
     if loss:
@@ -167,13 +167,46 @@ def _cmd_identify(args):
     return 2 if failures else 0
 
 
-def _unit_flag_warnings(options: ReadOptions, parameters: Mapping[str, Any]) -> list[str]:
-    """Warn when ``--current-unit mA`` looks given on data already in amperes."""
-    ra = parameters.get('Ra')
+#: No-load speeds of DC motors [rad/s] (about 290 to 29,000 rpm): a unit flag that puts the
+#: answer outside while the column as given lies inside looks given on SI data.
+NO_LOAD_SPEED_RAD_S = (30.0, 3000.0)
+
+
+def _unit_flag_warnings(options: ReadOptions, parameters: Mapping[str, Any],
+                        records: Sequence[Record] = ()) -> list[str]:
+    """
+    Warn when a unit flag looks given on data already in SI units, by the answer's physics.
+
+    ``--current-unit mA`` giving an armature of kilo-ohms; ``--speed-unit`` (or
+    ``--position-unit``) giving a no-load speed ``peak voltage / CPhi`` outside what DC
+    motors turn at, where the column read as rad/s (rad) gives one inside.
+    """
+    found = []
+    ra, cphi = parameters.get('Ra'), parameters.get('CPhi')
     if options.current_unit == 'mA' and isinstance(ra, float) and ra > 100.0:
-        return [f'--current-unit mA gives Ra = {ra:.4g} Ohm, an armature of kilo-ohms: the '
-                'current column looks already in amperes; drop --current-unit mA if so']
-    return []
+        found.append(f'--current-unit mA gives Ra = {ra:.4g} Ohm, an armature of kilo-ohms: '
+                     'the current column looks already in amperes; drop --current-unit mA if '
+                     'so')
+    peaks = [float(np.max(np.abs(rec.voltage))) for rec in records if rec.voltage is not None
+             and len(rec.voltage)]
+    if not (peaks and isinstance(cphi, float) and cphi > 0):
+        return found
+    low, high = NO_LOAD_SPEED_RAD_S
+    no_load = max(peaks) / cphi
+    for option, unit, factor in (
+            ('--speed-unit', options.speed_unit, SPEED_UNITS.get(options.speed_unit, 1.0)),
+            ('--position-unit', options.position_unit,
+             POSITION_UNITS.get(options.position_unit, 1.0))):
+        as_given = no_load / factor
+        if factor != 1.0 and not low <= no_load <= high and low <= as_given <= high:
+            found.append(
+                f'{option} {unit} gives CPhi = {cphi:.4g} V s, a motor turning at '
+                f'{no_load * 30 / np.pi:.4g} rpm without load at {max(peaks):.4g} V, where DC '
+                f'motors turn at {low * 30 / np.pi:.0f} to {high * 30 / np.pi:.0f} rpm; read '
+                f'in SI units it turns at {as_given * 30 / np.pi:.4g} rpm: the column looks '
+                f'already in rad/s (rad); drop {option} {unit} if so, else CPhi, J, b and Mc '
+                'are off')
+    return found
 
 
 def reading_options(args: argparse.Namespace) -> ReadOptions:

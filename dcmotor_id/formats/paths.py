@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import errno
 import fnmatch
+import hashlib
 import os
 import stat
 import tempfile
@@ -21,7 +22,7 @@ from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike
 
 __all__ = ['check_input_path', 'check_not_over_inputs', 'check_output_path',
-           'check_replaceable', 'is_bag_dir', 'kind_of', 'same_file']
+           'check_replaceable', 'is_bag_dir', 'kind_of', 'same_content', 'same_file']
 
 #: The files that mark a directory as a rosbag2 bag (a bag is read as a whole directory).
 _BAG_MARKS = ('metadata.yaml',)
@@ -101,6 +102,49 @@ def same_file(path: PathLike, others: Iterable[PathLike]) -> Optional[str]:
             continue
         if (mine.st_dev, mine.st_ino) == (theirs.st_dev, theirs.st_ino):
             return str(other)
+    return None
+
+
+def _files_of(path: PathLike) -> list[str]:
+    """Return the regular files an input consists of (itself, or a directory's, sorted)."""
+    if os.path.isdir(path):
+        return sorted(os.path.join(root, name) for root, _, names in os.walk(path)
+                      for name in names if os.path.isfile(os.path.join(root, name)))
+    return [str(path)] if os.path.isfile(path) else []
+
+
+def _fingerprint(path: PathLike, with_hash: bool) -> tuple:
+    """Return the sizes of an input's files, and their BLAKE2 digest when ``with_hash``."""
+    files = _files_of(path)
+    sizes = tuple(os.path.getsize(name) for name in files)
+    if not with_hash:
+        return sizes
+    digest = hashlib.blake2b(digest_size=20)
+    for name in files:
+        with open(name, 'rb') as stream:
+            for block in iter(lambda: stream.read(1 << 20), b''):
+                digest.update(block)
+    return sizes, digest.hexdigest()
+
+
+def same_content(paths: Sequence[PathLike]) -> Optional[tuple[str, str]]:
+    """
+    Return two inputs whose bytes are identical (a copy under another name), else None.
+
+    Only inputs of equal sizes are read (a digest of their files): a copy fitted as a second
+    record would shrink the standard errors by the square root of two.
+    """
+    try:
+        sizes = [_fingerprint(path, False) for path in paths]
+        for index, size in enumerate(sizes):
+            twins = [other for other in range(index) if sizes[other] == size and size]
+            if twins:
+                mine = _fingerprint(paths[index], True)
+                for other in twins:
+                    if _fingerprint(paths[other], True) == mine:
+                        return str(paths[other]), str(paths[index])
+    except OSError:
+        return None  # the readers say what is wrong with the path
     return None
 
 

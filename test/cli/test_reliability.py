@@ -995,3 +995,56 @@ def test_simulate_refuses_non_finite_effect_parameters(tmp_path, capsys, value):
             f'load_torque:torque_Nm={value}', '--out', tmp_path / 'x.csv',
             phrases=[f'torque_Nm = {value} is not a finite number'])
     assert not (tmp_path / 'x.csv').exists()
+
+
+@pytest.mark.parametrize('unit, cphi', [('rpm', 6.68), ('deg/s', 40.1)])
+def test_a_speed_unit_flag_on_si_data_is_named(table, tmp_path, capsys, unit, cphi):
+    """Issue 30, item 6: ``--speed-unit rpm`` on rad/s data gave CPhi 6.68 without a word."""
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, table),
+                               '--no-discover', '--speed-unit', unit, '--json', out)
+    assert code == 0, err
+    result = json.loads(out.read_text())
+    assert result['parameters']['CPhi'] == pytest.approx(cphi, rel=0.05)
+    assert any(f'--speed-unit {unit} gives CPhi' in text and 'looks already in rad/s' in text
+               for text in result['warnings'])
+
+
+def test_a_speed_unit_flag_on_data_in_that_unit_is_not_warned(table, tmp_path, capsys):
+    rows = table.copy()
+    rows[:, 3] *= 60 / (2 * np.pi)   # the speed really in rpm
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, rows),
+                               '--no-discover', '--speed-unit', 'rpm', '--json', out)
+    assert code == 0, err
+    result = json.loads(out.read_text())
+    assert result['parameters']['CPhi'] == pytest.approx(0.7, rel=0.02)
+    assert not any('--speed-unit' in text for text in result.get('warnings') or [])
+
+
+@pytest.mark.parametrize('kind', ['csv', 'bag'])
+def test_a_byte_identical_copy_is_refused(table, tmp_path, capsys, small_bag, kind):
+    """Issue 30, item 7: two names of one record shrank the standard errors by sqrt(2)."""
+    import shutil
+    if kind == 'csv':
+        first = write(tmp_path / 'a.csv', HEADER, table)
+        second = tmp_path / 'b.csv'
+        shutil.copy(first, second)
+    else:
+        first, second = small_bag, tmp_path / 'bag_copy'
+        shutil.copytree(first, second)
+    refused(capsys, 'identify', first, second, '--no-discover',
+            phrases=[str(second), 'byte for byte the same recording as', str(first)])
+
+
+def test_a_sample_period_that_disagrees_with_the_time_column_is_said(table, tmp_path, capsys):
+    """Issue 30, item 8: ``--sample-period`` 10x off the stamps gave La and J 10x, no note."""
+    path = write(tmp_path / 'x.csv', HEADER, table)
+    code, _, err = run_command(capsys, 'identify', path, '--no-discover', '--sample-period',
+                               '1e-2')
+    assert code == 0, err
+    assert '--sample-period 0.01 s disagrees with the time column' in err
+    assert '0.001 s apart (a factor 10)' in err
+    code, _, err = run_command(capsys, 'identify', path, '--no-discover', '--sample-period',
+                               '1e-3')
+    assert code == 0 and 'disagrees' not in err
