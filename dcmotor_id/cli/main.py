@@ -22,7 +22,7 @@ from dcmotor_id.core.records import Record
 from dcmotor_id.design.plan import add_plan_arguments, run_plan
 from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
-from dcmotor_id.formats.budget import add_memory_budget, set_memory_budget
+from dcmotor_id.formats.budget import add_memory_budget, check_budget, set_memory_budget
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.json_file import write_json
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
@@ -39,6 +39,9 @@ from dcmotor_id.simulation.excitation import (add_sensor_noise, EXCITATION_KINDS
                                               quantise)
 from dcmotor_id.streaming.summary import format_table
 
+#: Peak memory of ``simulate`` per sample [bytes]: the signals, noise and CSV rows (measured
+#: about 150 B at 1e7 samples, rounded up).
+SIMULATE_BYTES_PER_SAMPLE = 200.0
 #: What a report writes into its directory (shell patterns): never over an input.
 REPORT_FILES = ('*.html', '*.png')
 #: What ``design --export`` writes into its directory (:func:`write_exports`).
@@ -299,6 +302,11 @@ def _cmd_validate(args):
 
 def _cmd_simulate(args):
     check_output_path(args.out, '--out')
+    set_memory_budget(args.memory_budget * 1e9)
+    samples = args.duration / args.sample_period
+    check_budget(SIMULATE_BYTES_PER_SAMPLE * samples, f'--duration {args.duration:g}',
+                 f'{samples:.3g} samples at --sample-period {args.sample_period:g} s',
+                 'else give a shorter --duration or a longer --sample-period')
     params = PAPER_MOTORS[args.motor]
     t, voltage = make_excitation(args.excitation, args.duration, args.sample_period,
                                  amplitude_v=args.amplitude, frequency_hz=args.frequency,
@@ -560,6 +568,7 @@ def _add_simulate_command(commands: Any) -> None:
                           'sensor_delay:channel=speed,samples=3 (repeatable; names: '
                           + ', '.join(EFFECTS) + '); adds the shaft angle as position')
     sim.add_argument('--out', required=True, metavar='FILE.csv')
+    add_memory_budget(sim)
     sim.set_defaults(handler=_cmd_simulate)
 
 

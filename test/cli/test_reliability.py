@@ -1048,3 +1048,24 @@ def test_a_sample_period_that_disagrees_with_the_time_column_is_said(table, tmp_
     code, _, err = run_command(capsys, 'identify', path, '--no-discover', '--sample-period',
                                '1e-3')
     assert code == 0 and 'disagrees' not in err
+
+
+@pytest.mark.parametrize('args, phrases', [
+    (['plan', '--rate', '1e9'], ['--rate 1e+09', '1e+10 commands', '--memory-budget']),
+    (['simulate', '--duration', '1e9', '--out', 'OUT'], ['--duration 1e+09', '1e+13 samples',
+                                                         '--memory-budget']),
+    (['simulate', '--sample-period', '1e-12', '--out', 'OUT'],
+     ['8e+12 samples at --sample-period 1e-12 s', '--memory-budget']),
+])
+def test_memory_is_estimated_from_the_arguments_before_allocating(tmp_path, capsys, args,
+                                                                  phrases):
+    """Issue 30: a raw "MemoryError: Unable to allocate 74.5 GiB"."""
+    started = time.monotonic()
+    err = refused(capsys, *[str(tmp_path / 'x.csv') if item == 'OUT' else item
+                            for item in args], phrases=phrases)
+    assert 'MemoryError' not in err and time.monotonic() - started < 5
+
+
+def test_plan_refuses_a_ramp_in_not_shorter_than_the_duration(capsys):
+    refused(capsys, 'plan', '--ramp-in', '100', '--duration', '5',
+            phrases=['--ramp-in 100 s is not shorter than --duration 5 s', 'never reach'])
