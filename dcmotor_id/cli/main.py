@@ -122,6 +122,7 @@ def _cmd_identify(args):
                                                args.torque_constant is not None)
     records, repairs = repair_all(prepare_records(loaded, args.torque_constant, args.resample,
                                                   args.speed_cutoff))
+    repairs += ignored_flags(args, records)
     for note in repairs:
         print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
@@ -168,6 +169,19 @@ def _cmd_identify(args):
     for failure in failures:
         print(f'dcmotor-id: error: {failure} (the result is printed above)', file=sys.stderr)
     return 2 if failures else 0
+
+
+def ignored_flags(args: argparse.Namespace, records: Sequence[Record]) -> list[str]:
+    """Name the options given without the partner they act through (so they did nothing)."""
+    found = []
+    if args.speed_cutoff is not None and not any(record.speed_derived for record in records):
+        found.append(f'--speed-cutoff {args.speed_cutoff:g} Hz ignored: it filters a speed '
+                     'derived from a position column, and every record has its own speed '
+                     'column')
+    if args.duty_full_scale != 1.0 and args.voltage_from_duty is None:
+        found.append(f'--duty-full-scale {args.duty_full_scale:g} ignored: it scales a duty '
+                     'column read with --voltage-from-duty BUS_V, which is not given')
+    return found
 
 
 #: No-load speeds of DC motors [rad/s] (about 290 to 29,000 rpm): a unit flag that puts the
@@ -286,6 +300,8 @@ def _cmd_validate(args):
     for record in loaded:
         mechanical = model.torque_constant if model.mechanical_only else None
         records += prepare_records([record], mechanical, args.resample, args.speed_cutoff)
+    for note in ignored_flags(args, records):
+        print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     validation = validate(model, records, args.init_samples, options.position_factor)
     result = validation.as_dict()
     if loss:

@@ -1069,3 +1069,38 @@ def test_memory_is_estimated_from_the_arguments_before_allocating(tmp_path, caps
 def test_plan_refuses_a_ramp_in_not_shorter_than_the_duration(capsys):
     refused(capsys, 'plan', '--ramp-in', '100', '--duration', '5',
             phrases=['--ramp-in 100 s is not shorter than --duration 5 s', 'never reach'])
+
+
+def test_a_mat_of_complex_values_is_refused_naming_the_variable(table, tmp_path, capsys):
+    """Issue 30: the imaginary part was dropped with only numpy's ComplexWarning."""
+    from scipy.io import savemat
+    columns = {name: table[:, k] for k, name in enumerate(HEADER)}
+    savemat(tmp_path / 'real.mat', {**columns, 'current': columns['current'] + 0j})
+    code, _, err = run_command(capsys, 'identify', tmp_path / 'real.mat', '--no-discover')
+    assert code == 0 and 'ComplexWarning' not in err, err
+    savemat(tmp_path / 'complex.mat', {**columns, 'current': columns['current'] + 0.5j})
+    refused(capsys, 'identify', tmp_path / 'complex.mat',
+            phrases=["variable 'current' (current) holds complex values",
+                     'imaginary parts up to 0.5'])
+
+
+def test_flags_without_their_partner_are_named(table, tmp_path, capsys):
+    """Issue 30: --speed-cutoff without a position, --duty-full-scale without duty: ignored."""
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, table),
+                               '--no-discover', '--speed-cutoff', '50', '--duty-full-scale',
+                               '100')
+    assert code == 0, err
+    assert '--speed-cutoff 50 Hz ignored' in err
+    assert '--duty-full-scale 100 ignored' in err
+
+
+def test_the_paper_method_refuses_a_window_without_voltage_without_numpy_warnings():
+    """Issue 30: "divide by zero" RuntimeWarnings of estimators/paper.py in the node log."""
+    import warnings
+    from dcmotor_id.identification.estimators.paper import PaperEstimator
+    t = np.arange(300) * 1e-3
+    record = Record(t, current=np.sin(50 * t), voltage=np.zeros_like(t), speed=np.cos(30 * t))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        with pytest.raises(FitError, match=r'weight w1 \(voltage\) is 0'):
+            PaperEstimator().fit([record])
