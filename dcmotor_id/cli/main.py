@@ -108,13 +108,18 @@ def load_records_reporting_loss(paths: Sequence[str], topics: Mapping[str, str] 
     return records, list(dict.fromkeys(loss))
 
 
+def _check_outputs(args: argparse.Namespace, inputs: Sequence[str]) -> None:
+    """Check ``--json`` and ``--report`` against the inputs, before any work."""
+    if args.json:
+        check_output_path(args.json, '--json', inputs=inputs)
+    if args.report:
+        check_output_path(args.report, '--report', directory=True, inputs=inputs,
+                          writes=REPORT_FILES)
+
+
 def _cmd_identify(args):
     # Every output place is checked first: a fit of minutes is never lost to a typo.
-    if args.json:
-        check_output_path(args.json, '--json', inputs=args.files)
-    if args.report:
-        check_output_path(args.report, '--report', directory=True, inputs=args.files,
-                          writes=REPORT_FILES)
+    _check_outputs(args, args.files)
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
     options = reading_options(args)
@@ -122,8 +127,7 @@ def _cmd_identify(args):
                                                args.torque_constant is not None)
     records, repairs = repair_all(prepare_records(loaded, args.torque_constant, args.resample,
                                                   args.speed_cutoff))
-    repairs += ignored_flags(args, records)
-    for note in repairs:
+    for note in repairs + ignored_flags(args, records):
         print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
     progress = terminal_progress(args.max_time, quiet=args.quiet)
@@ -141,7 +145,8 @@ def _cmd_identify(args):
     finally:
         progress.close()
     result = identified.as_dict()
-    repairs += _unit_flag_warnings(options, result.get('parameters') or {}, records)
+    repairs += ignored_flags(args, records) + _unit_flag_warnings(
+        options, result.get('parameters') or {}, records)
     if loss or repairs:
         result['warnings'] = loss + repairs + list(result.get('warnings') or [])
     if loss:
@@ -287,11 +292,7 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
 def _cmd_validate(args):
     from dcmotor_id.identification.validate import format_validation, load_model, validate
     check_input_path(args.model, 'model ')
-    if args.json:
-        check_output_path(args.json, '--json', inputs=[args.model, *args.files])
-    if args.report:
-        check_output_path(args.report, '--report', directory=True,
-                          inputs=[args.model, *args.files], writes=REPORT_FILES)
+    _check_outputs(args, [args.model, *args.files])
     model = load_model(args.model)
     options = reading_options(args)
     records = []

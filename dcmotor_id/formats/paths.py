@@ -200,7 +200,7 @@ def check_output_path(path: str, option: str, directory: bool = False,
                              f'({error.strerror or error}); choose a writable place') from None
 
 
-def check_replaceable(path: str, option: str, inputs: Sequence[str] = ()) -> None:
+def check_replaceable(path: str, option: str, inputs: Sequence[PathLike] = ()) -> None:
     """Refuse an output file that exists and is not a regular file, or is an input."""
     try:
         mode = os.lstat(path).st_mode

@@ -265,7 +265,8 @@ def check_one_model(data: Mapping[str, Any], source: str = 'model') -> None:
         {'name': effect.get('name'), 'parameters': effect.get('parameters', {})}
         for effect in given.get('effects') or [] if effect.get('name') in known]}
     for key in ('mode', 'parameters', 'effects'):
-        mine, theirs = rebuilt.get(key), given.get(key)
+        mine: Any = rebuilt.get(key)
+        theirs: Any = given.get(key)
         if key == 'mode':
             mine, theirs = mine or 'full', theirs or 'full'
         if key == 'parameters' and isinstance(theirs, Mapping):

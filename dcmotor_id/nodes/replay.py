@@ -241,22 +241,8 @@ class Replay(Node):
         for warning in warnings:
             self.get_logger().warning(warning)
         self.topics = {topic: self.topics[topic] for topic in names}
-        if not self.messages and warnings:
-            raise ValueError(f'nothing of the bag {self.bag} can be played: '
-                             + '; '.join(warnings))
-        if not self.messages:
-            raise ValueError(f'the bag {self.bag} holds no message to play (measurement '
-                             f'topics: any named {", ".join(MEASUREMENTS)}; its topics: '
-                             f'{", ".join(map(str, every)) or "none"}); name others in '
-                             'extra_topics')
-        self.due, shortened = schedule([item[0] for item in self.messages], self.rate,
-                                       self.max_gap_s)
-        for index, gap in shortened[:5]:
-            self.get_logger().warning(
-                f'a gap of {gap:.3g} s in the bag before message {index} (stamp '
-                f'{self.messages[index][0]} ns) is played as max_gap_s = {self.max_gap_s:g} s')
-        if len(shortened) > 5:
-            self.get_logger().warning(f'{len(shortened)} gaps longer than max_gap_s shortened')
+        self._refuse_nothing_to_play(warnings, every)
+        self.due = self._schedule()
         qos = QoSProfile(depth=depth)
         self._topic_publishers = {
             topic: self.create_publisher(message_class(self.topics[topic], topic), name, qos)
@@ -270,6 +256,29 @@ class Replay(Node):
         self._thread.start()
         self.get_logger().info(f'playing {len(self.messages)} messages of '
                                f'{", ".join(self.topics)} from {self.bag}')
+
+    def _refuse_nothing_to_play(self, warnings: list[str], every: list[str]) -> None:
+        """Raise ValueError saying why no message is left to play (if none is)."""
+        if not self.messages and warnings:
+            raise ValueError(f'nothing of the bag {self.bag} can be played: '
+                             + '; '.join(warnings))
+        if not self.messages:
+            raise ValueError(f'the bag {self.bag} holds no message to play (measurement '
+                             f'topics: any named {", ".join(MEASUREMENTS)}; its topics: '
+                             f'{", ".join(map(str, every)) or "none"}); name others in '
+                             'extra_topics')
+
+    def _schedule(self) -> list[float]:
+        """Return when each message is due [s]; warn about the gaps shortened to max_gap_s."""
+        due, shortened = schedule([item[0] for item in self.messages], self.rate,
+                                  self.max_gap_s)
+        for index, gap in shortened[:5]:
+            self.get_logger().warning(
+                f'a gap of {gap:.3g} s in the bag before message {index} (stamp '
+                f'{self.messages[index][0]} ns) is played as max_gap_s = {self.max_gap_s:g} s')
+        if len(shortened) > 5:
+            self.get_logger().warning(f'{len(shortened)} gaps longer than max_gap_s shortened')
+        return due
 
     def _say_what_is_left_out(self, every: list[str]) -> None:
         skipped = [topic for topic in every if topic not in self.topics]

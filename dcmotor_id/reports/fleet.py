@@ -75,8 +75,8 @@ def _flag_absurd(row: Mapping[str, Any]) -> Mapping[str, Any]:
         positive = name in ('Ra', 'La', 'CPhi', 'J')
         if not (math.isfinite(value) and abs(value) < ABSURD_MAGNITUDE) or \
                 (positive and value <= 0) or value < 0 or abs(stderr) >= ABSURD_MAGNITUDE:
-            bad.append(f'{name} {value:.3g}' + (f' +- {stderr:.3g}' if math.isfinite(stderr)
-                                                   and stderr else ''))
+            spread = f' +- {stderr:.3g}' if math.isfinite(stderr) and stderr else ''
+            bad.append(f'{name} {value:.3g}{spread}')
     if not math.isfinite(_float(row.get('window_start_ns'))):
         bad.append(f"window_start_ns {row.get('window_start_ns')}")
     if not bad:
