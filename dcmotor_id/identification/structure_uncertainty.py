@@ -207,6 +207,9 @@ def run_resamples(identify_once: Callable[[list[Record]], Any], records: Sequenc
                 break
             failures.append(str(error).split('. ')[0][:200])
             continue
+        if remaining is not None and remaining() <= 0:
+            failures.append(BUDGET_SPENT)  # its discovery may have been cut short: no draw
+            break
         draws.append((structure_key(result), dict(result.parameters)))
     return draws, failures
 

@@ -1106,3 +1106,18 @@ def test_the_paper_method_refuses_a_window_without_voltage_without_numpy_warning
         warnings.simplefilter('error')
         with pytest.raises(FitError, match=r'weight w1 \(voltage\) is 0'):
             PaperEstimator().fit([record])
+
+
+def test_resamples_stop_when_the_budget_is_spent_and_a_cut_one_is_no_draw(table):
+    """Issue 30, item 3: the resamples share the one budget; none starts once it is spent."""
+    from types import SimpleNamespace
+    from dcmotor_id.identification.structure_uncertainty import BUDGET_SPENT, run_resamples
+    record = Record(table[:, 0], table[:, 2], table[:, 1], table[:, 3])
+    clock = [10.0]   # seconds left; every resample takes 3
+
+    def identify_once(records):
+        clock[0] -= 3.0
+        return SimpleNamespace(effects=[], parameters={'Ra': 1.6})
+
+    draws, failures = run_resamples(identify_once, [record], 1000, remaining=lambda: clock[0])
+    assert len(draws) == 3 and failures == [BUDGET_SPENT]   # the 4th ended past the budget
