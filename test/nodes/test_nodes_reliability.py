@@ -350,6 +350,7 @@ def test_identifier_refuses_a_start_up_parameter_changed_at_run_time(graph, name
     ({'record': True, 'record_dir': '/proc/forbidden'},
      "record_dir = '/proc/forbidden': cannot write there"),
     ({'effort_scale': float('inf')}, 'effort_scale = inf'),
+    ({'window_s': 1e12}, 'window_s = 1e+12 s is 1e+15 samples'),
 ])
 def test_identifier_refuses_settings_that_cannot_work_at_start_up(ros, overrides, phrase):
     with pytest.raises(ValueError) as caught:
