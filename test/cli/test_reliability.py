@@ -1121,3 +1121,18 @@ def test_resamples_stop_when_the_budget_is_spent_and_a_cut_one_is_no_draw(table)
 
     draws, failures = run_resamples(identify_once, [record], 1000, remaining=lambda: clock[0])
     assert len(draws) == 3 and failures == [BUDGET_SPENT]   # the 4th ended past the budget
+
+
+def test_two_recordings_of_equal_size_are_not_taken_for_copies(table, tmp_path):
+    from dcmotor_id.formats.paths import same_content
+    first = write(tmp_path / 'a.csv', HEADER, table)
+    data = bytearray(open(first, 'rb').read())
+    middle = len(data) // 2
+    while not chr(data[middle]).isdigit():
+        middle += 1
+    data[middle] = ord('1') if data[middle] != ord('1') else ord('2')   # same size, not a copy
+    (tmp_path / 'b.csv').write_bytes(bytes(data))
+    assert same_content([first, tmp_path / 'b.csv']) is None
+    (tmp_path / 'c.csv').write_bytes(open(first, 'rb').read())
+    assert same_content([first, tmp_path / 'b.csv', tmp_path / 'c.csv']) == (
+        first, str(tmp_path / 'c.csv'))
