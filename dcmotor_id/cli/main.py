@@ -25,13 +25,13 @@ from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.core.records import Record
 from dcmotor_id.formats import read_records
 from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWarning
-from dcmotor_id.formats.budget import set_memory_budget
+from dcmotor_id.formats.budget import check_budget, set_memory_budget
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.json_file import with_schema_version, write_json
 from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
                                         POSITION_UNITS, ReadingNote, ReadOptions,
                                         SIGNED_CHANNELS, SPEED_UNITS)
-from dcmotor_id.formats.paths import check_input_path, check_output_path
+from dcmotor_id.formats.paths import check_input_path, check_output_path, is_bag_dir
 from dcmotor_id.identification.checks.dropouts import repair_all
 from dcmotor_id.identification.criterion import CRITERIA
 from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
@@ -41,6 +41,25 @@ from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 from dcmotor_id.simulation.excitation import (add_sensor_noise, EXCITATION_KINDS, make_excitation,
                                               quantise)
 from dcmotor_id.streaming.summary import format_table
+
+#: Peak memory of ``simulate`` per sample [bytes]: the signals, noise and CSV rows (measured
+#: about 150 B at 1e7 samples, rounded up).
+SIMULATE_BYTES_PER_SAMPLE = 200.0
+#: What a report writes into its directory (shell patterns): never over an input.
+REPORT_FILES = ('*.html', '*.png')
+#: What ``design --export`` writes into its directory (:func:`write_exports`).
+EXPORT_FILES = ('model_statespace.json', 'sim_motor.yaml', 'urdf_dynamics.xml')
+
+
+def whole_number_at_least_one(text: str) -> int:
+    """Return ``text`` as a whole number of 1 or more (an ``argparse`` type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a whole number, got {text}') from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be 1 or more, got {text}')
+    return value
 
 
 def load_records(paths: Sequence[str], topics: Mapping[str, str] | None = None,
@@ -100,12 +119,18 @@ def _write_result(args: argparse.Namespace, result: Mapping[str, Any]) -> None:
         write_json(args.json, with_schema_version(result))
 
 
+def _check_outputs(args: argparse.Namespace, inputs: Sequence[str]) -> None:
+    """Check ``--json`` and ``--report`` against the inputs, before any work."""
+    if args.json and args.json != STDOUT:
+        check_output_path(args.json, '--json', inputs=inputs)
+    if args.report:
+        check_output_path(args.report, '--report', directory=True, inputs=inputs,
+                          writes=REPORT_FILES)
+
+
 def _cmd_identify(args):
     # Every output place is checked first: a fit of minutes is never lost to a typo.
-    if args.json and args.json != STDOUT:
-        check_output_path(args.json, '--json', inputs=args.files)
-    if args.report:
-        check_output_path(args.report, '--report', directory=True)
+    _check_outputs(args, args.files)
     topics = {'voltage': args.voltage_topic, 'current': args.current_topic,
               'speed': args.speed_topic, 'samples': args.samples_topic}
     options = reading_options(args)
@@ -113,7 +138,7 @@ def _cmd_identify(args):
                                                args.torque_constant is not None)
     records, repairs = repair_all(prepare_records(loaded, args.torque_constant, args.resample,
                                                   args.speed_cutoff))
-    for note in repairs:
+    for note in repairs + ignored_flags(args, records):
         print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
     progress = terminal_progress(args.max_time, quiet=args.quiet)
@@ -131,7 +156,8 @@ def _cmd_identify(args):
     finally:
         progress.close()
     result = identified.as_dict()
-    repairs += _unit_flag_warnings(options, result.get('parameters') or {})
+    repairs += ignored_flags(args, records) + _unit_flag_warnings(
+        options, result.get('parameters') or {}, records)
     if loss or repairs:
         result['warnings'] = loss + repairs + list(result.get('warnings') or [])
     if loss:
@@ -161,13 +187,59 @@ def _cmd_identify(args):
     return 2 if failures else 0
 
 
-def _unit_flag_warnings(options: ReadOptions, parameters: Mapping[str, Any]) -> list[str]:
-    """Warn when ``--current-unit mA`` looks given on data already in amperes."""
-    ra = parameters.get('Ra')
+def ignored_flags(args: argparse.Namespace, records: Sequence[Record]) -> list[str]:
+    """Name the options given without the partner they act through (so they did nothing)."""
+    found = []
+    if args.speed_cutoff is not None and not any(record.speed_derived for record in records):
+        found.append(f'--speed-cutoff {args.speed_cutoff:g} Hz ignored: it filters a speed '
+                     'derived from a position column, and every record has its own speed '
+                     'column')
+    if args.duty_full_scale != 1.0 and args.voltage_from_duty is None:
+        found.append(f'--duty-full-scale {args.duty_full_scale:g} ignored: it scales a duty '
+                     'column read with --voltage-from-duty BUS_V, which is not given')
+    return found
+
+
+#: No-load speeds of DC motors [rad/s] (about 290 to 29,000 rpm): a unit flag that puts the
+#: answer outside while the column as given lies inside looks given on SI data.
+NO_LOAD_SPEED_RAD_S = (30.0, 3000.0)
+
+
+def _unit_flag_warnings(options: ReadOptions, parameters: Mapping[str, Any],
+                        records: Sequence[Record] = ()) -> list[str]:
+    """
+    Warn when a unit flag looks given on data already in SI units, by the answer's physics.
+
+    ``--current-unit mA`` giving an armature of kilo-ohms; ``--speed-unit`` (or
+    ``--position-unit``) giving a no-load speed ``peak voltage / CPhi`` outside what DC
+    motors turn at, where the column read as rad/s (rad) gives one inside.
+    """
+    found = []
+    ra, cphi = parameters.get('Ra'), parameters.get('CPhi')
     if options.current_unit == 'mA' and isinstance(ra, float) and ra > 100.0:
-        return [f'--current-unit mA gives Ra = {ra:.4g} Ohm, an armature of kilo-ohms: the '
-                'current column looks already in amperes; drop --current-unit mA if so']
-    return []
+        found.append(f'--current-unit mA gives Ra = {ra:.4g} Ohm, an armature of kilo-ohms: '
+                     'the current column looks already in amperes; drop --current-unit mA if '
+                     'so')
+    peaks = [float(np.max(np.abs(rec.voltage))) for rec in records if rec.voltage is not None
+             and len(rec.voltage)]
+    if not (peaks and isinstance(cphi, float) and cphi > 0):
+        return found
+    low, high = NO_LOAD_SPEED_RAD_S
+    no_load = max(peaks) / cphi
+    for option, unit, factor in (
+            ('--speed-unit', options.speed_unit, SPEED_UNITS.get(options.speed_unit, 1.0)),
+            ('--position-unit', options.position_unit,
+             POSITION_UNITS.get(options.position_unit, 1.0))):
+        as_given = no_load / factor
+        if factor != 1.0 and not low <= no_load <= high and low <= as_given <= high:
+            found.append(
+                f'{option} {unit} gives CPhi = {cphi:.4g} V s, a motor turning at '
+                f'{no_load * 30 / np.pi:.4g} rpm without load at {max(peaks):.4g} V, where DC '
+                f'motors turn at {low * 30 / np.pi:.0f} to {high * 30 / np.pi:.0f} rpm; read '
+                f'in SI units it turns at {as_given * 30 / np.pi:.4g} rpm: the column looks '
+                f'already in rad/s (rad); drop {option} {unit} if so, else CPhi, J, b and Mc '
+                'are off')
+    return found
 
 
 def reading_options(args: argparse.Namespace) -> ReadOptions:
@@ -231,10 +303,7 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
 def _cmd_validate(args):
     from dcmotor_id.identification.validate import format_validation, load_model, validate
     check_input_path(args.model, 'model ')
-    if args.json and args.json != STDOUT:
-        check_output_path(args.json, '--json', inputs=[args.model, *args.files])
-    if args.report:
-        check_output_path(args.report, '--report', directory=True)
+    _check_outputs(args, [args.model, *args.files])
     model = load_model(args.model)
     options = reading_options(args)
     records = []
@@ -243,6 +312,8 @@ def _cmd_validate(args):
     for record in loaded:
         mechanical = model.torque_constant if model.mechanical_only else None
         records += prepare_records([record], mechanical, args.resample, args.speed_cutoff)
+    for note in ignored_flags(args, records):
+        print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     validation = validate(model, records, args.init_samples, options.position_factor)
     result = validation.as_dict()
     if loss:
@@ -259,6 +330,11 @@ def _cmd_validate(args):
 
 def _cmd_simulate(args):
     check_output_path(args.out, '--out')
+    set_memory_budget(args.memory_budget * 1e9)
+    samples = args.duration / args.sample_period
+    check_budget(SIMULATE_BYTES_PER_SAMPLE * samples, f'--duration {args.duration:g}',
+                 f'{samples:.3g} samples at --sample-period {args.sample_period:g} s',
+                 'else give a shorter --duration or a longer --sample-period')
     params = PAPER_MOTORS[args.motor]
     t, voltage = make_excitation(args.excitation, args.duration, args.sample_period,
                                  amplitude_v=args.amplitude, frequency_hz=args.frequency,
@@ -292,15 +368,22 @@ def _cmd_design(args):
     check_input_path(args.result, 'RESULT.json ')
     if args.json and args.json != STDOUT:
         check_output_path(args.json, '--json', inputs=[args.result])
-    for option, place in (('--report', args.report), ('--export', args.export)):
+    for option, place, writes in (('--report', args.report, REPORT_FILES),
+                                  ('--export', args.export, EXPORT_FILES)):
         if place:
-            check_output_path(place, option, directory=True)
+            check_output_path(place, option, directory=True, inputs=[args.result],
+                              writes=writes)
     result = load_result(args.result)
     motor = motor_from_result(result, args.gear_ratio, args.output_shaft)
     options = DesignOptions(args.current_bandwidth, args.speed_bandwidth, args.phase_margin,
                             args.sample_period)
+    notes = bandwidth_notes(result, args)
     design, gains = control_design.design(motor, options)
     design['source'] = args.result
+    if notes:
+        design['warnings'] = notes + list(design.get('warnings') or [])
+    for note in notes:
+        print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     if args.export:
         motor_shaft = motor_from_result(result, args.gear_ratio).values
         design['export'] = write_exports(args.export, motor, motor_shaft)
@@ -314,6 +397,35 @@ def _cmd_design(args):
     return 0
 
 
+def bandwidth_notes(result: Mapping[str, Any], args: argparse.Namespace) -> list[str]:
+    """
+    Return warnings for bandwidths beyond a twentieth of the sampling rate (the help's limit).
+
+    The rate is ``--sample-period``'s, else the one the model was identified at; a bandwidth
+    at or above its Nyquist frequency is refused (InputDataError).
+    """
+    dt = args.sample_period or result.get('sample_period_s')
+    if not isinstance(dt, (int, float)) or isinstance(dt, bool) or not 0 < dt < float('inf'):
+        return []
+    where = ('--sample-period' if args.sample_period else 'the sampling rate the model was '
+             'identified at')
+    notes = []
+    for label, value in (('--current-bandwidth', args.current_bandwidth),
+                         ('--speed-bandwidth', args.speed_bandwidth)):
+        if value is None:
+            continue
+        if value >= 0.5 / dt:
+            raise InputDataError(f'{label} {value:g} Hz is at or above the Nyquist frequency '
+                                 f'{0.5 / dt:g} Hz of {where} ({1 / dt:g} Hz): no digital loop '
+                                 'reaches it; give at most a twentieth of the sampling rate '
+                                 f'({1 / (20 * dt):g} Hz)')
+        if value > 1.0 / (20.0 * dt):
+            notes.append(f'{label} {value:g} Hz is above a twentieth of {where} '
+                         f'({1 / (20 * dt):g} Hz): a drive sampled at {1 / dt:g} Hz will not '
+                         'reach the designed response; lower it or sample faster')
+    return notes
+
+
 def _cmd_demo(args):
     from dcmotor_id.cli.demo import run_demo
     return run_demo()
@@ -324,7 +436,8 @@ def _cmd_fleet(args):
     from dcmotor_id.cli.terminal import FleetProgressBar
     for path in args.paths:
         check_input_path(path, 'fleet input ', directory=True)
-    check_output_path(args.history, '--history', directory=True)
+    check_output_path(args.history, '--history', directory=True,
+                      inputs=[path for path in args.paths if is_bag_dir(path)])
     options = FleetOptions(args.motor_from, args.torque_constant, not args.no_discover,
                            args.window_s, args.min_window_s)
     summary = run_fleet(args.paths, args.history, options, scheduler=args.scheduler,
@@ -338,7 +451,8 @@ def _cmd_fleet(args):
 def _cmd_fleet_report(args):
     from dcmotor_id.reports.fleet import write_fleet_report
     check_input_path(args.history, 'HISTORY_DIR ', directory=True)
-    check_output_path(args.out, '--out', directory=True)
+    check_output_path(args.out, '--out', directory=True, inputs=[args.history],
+                      writes=REPORT_FILES)
     print(f'report: {write_fleet_report(args.history, args.out)}')
     return 0
 
@@ -354,8 +468,9 @@ def _add_fleet_commands(commands):
                        help='Parquet dataset the rows are appended to (one per window)')
     fleet.add_argument('--scheduler', metavar='ADDRESS',
                        help='address of a running Dask scheduler (default: a local cluster)')
-    fleet.add_argument('--workers', type=int, metavar='N',
-                       help='worker processes of the local cluster (default: one per core)')
+    fleet.add_argument('--workers', type=whole_number_at_least_one, metavar='N',
+                       help='worker processes of the local cluster, 1 or more (default: one '
+                            'per core)')
     fleet.add_argument('--motor-from', default='namespace', metavar='namespace|path|PATTERN',
                        help="name motors by the topics' namespace (default), the directory "
                             'of the recording, or a regular expression on its path')
@@ -486,6 +601,7 @@ def _add_simulate_command(commands: Any) -> None:
                           'sensor_delay:channel=speed,samples=3 (repeatable; names: '
                           + ', '.join(EFFECTS) + '); adds the shaft angle as position')
     sim.add_argument('--out', required=True, metavar='FILE.csv')
+    add_memory_budget(sim)
     sim.set_defaults(handler=_cmd_simulate)
 
 

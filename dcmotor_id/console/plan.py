@@ -29,6 +29,8 @@ __all__ = ['add_plan_arguments', 'make_plan', 'PLAN_BYTES_PER_SAMPLE', 'plan_par
 
 #: Peak memory of ``plan`` per simulated sample [bytes] (measured: 190 B, rounded up).
 PLAN_BYTES_PER_SAMPLE = 200.0
+#: Peak memory of ``plan`` per command of the routine [bytes] (its profile and hold index).
+PLAN_BYTES_PER_COMMAND = 64.0
 
 
 def add_plan_arguments(plan: argparse.ArgumentParser) -> None:
@@ -85,6 +87,14 @@ def make_plan(args: argparse.Namespace) -> Plan:
     check_budget(PLAN_BYTES_PER_SAMPLE * samples, f'--duration {args.duration:g}',
                  f'{samples:.3g} samples at --sample-period {args.sample_period:g} s',
                  'else give a shorter --duration or a longer --sample-period')
+    commands = args.duration * args.rate
+    check_budget(PLAN_BYTES_PER_COMMAND * commands, f'--rate {args.rate:g}',
+                 f'{commands:.3g} commands over --duration {args.duration:g} s',
+                 'else give a lower --rate (a drive takes 100 Hz to 10 kHz)')
+    if args.ramp_in >= args.duration:
+        raise InputDataError(f'--ramp-in {args.ramp_in:g} s is not shorter than --duration '
+                             f'{args.duration:g} s: the routine would never reach its '
+                             'amplitude; give a ramp-in of a tenth of the duration or less')
     prior, noise = load_prior(args.prior)
     noise = dict(noise or DEFAULT_NOISE)
     noise.update({key: value for key, value in (('current', args.noise_current),

@@ -25,6 +25,10 @@ MAGNITUDE_LIMITS = {'voltage': 1e9, 'current': 1e9, 'speed': 1e9, 'position': 1e
 #: Largest ratio of a sample's magnitude to the column's typical one (its 99th percentile of
 #: the non-zero magnitudes): a few samples this far above the rest are corrupt, not measured.
 OUTLIER_RATIO = 1e8
+#: Longest sample period of a record [s]: a DC motor's time constants are microseconds to
+#: seconds; samples further apart (a time column in another unit, a wrong --sample-period)
+#: cannot identify it, and beyond ~1e300 s they overflowed the simulation.
+MAX_SAMPLE_PERIOD_S = 1e3
 
 
 @dataclass(frozen=True)
@@ -164,13 +168,24 @@ def check_record(record: Record, need_voltage: bool = True,
         raise InputDataError(f'{name}: timestamps go backwards at sample {row} '
                              f'(t = {record.time_s[row]} after {record.time_s[row - 1]}); sort '
                              'the samples by time')
-    period = float(np.median(steps))
+    period = _checked_period(name, steps)
     deviation = np.abs(steps - period) / period
     if np.max(deviation) > SAMPLING_TOLERANCE:
         if not resample:
             raise InputDataError(irregular_sampling(name, steps, period))
         return resample_uniform(record, period)
     return record
+
+
+def _checked_period(name: str, steps: np.ndarray) -> float:
+    """Return the median time step; refuse one beyond :data:`MAX_SAMPLE_PERIOD_S`."""
+    period = float(np.median(steps))
+    if period > MAX_SAMPLE_PERIOD_S:
+        raise InputDataError(f'{name}: samples {period:.6g} s apart: no DC motor can be '
+                             f'identified from samples more than {MAX_SAMPLE_PERIOD_S:g} s apart '
+                             '(its time constants are microseconds to seconds); check the unit '
+                             'of the time column or the --sample-period')
+    return period
 
 
 def check_magnitudes(record: Record) -> None:

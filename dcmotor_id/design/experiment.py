@@ -19,7 +19,6 @@ errors of an efficient estimator (the refined method reaches them, bench/experim
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-import json
 import os
 from typing import Any, Mapping, Optional, Sequence
 
@@ -30,6 +29,7 @@ from dcmotor_id.core.model import (derived_stderr, MotorParameters, PAPER_MOTORS
                                    UNITS)
 from dcmotor_id.core.records import Record
 from dcmotor_id.design.routines import command_profile, hold, Limits, Routine
+from dcmotor_id.formats.json_file import load_json
 from dcmotor_id.identification.estimators.fisher import fisher_information
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.simulation import simulate_motor
@@ -156,15 +156,15 @@ def load_prior(source: str) -> tuple[MotorParameters, Optional[dict[str, float]]
     if not os.path.isfile(source):
         raise InputDataError(f'prior {source!r}: neither a file nor one of '
                              f'{", ".join(PAPER_MOTORS)}')
-    with open(source, encoding='utf-8') as stream:
-        text = stream.read()
+    import yaml
     try:
-        if source.endswith(('.yaml', '.yml')):
-            import yaml
-            data = yaml.safe_load(text)
-        else:
-            data = json.loads(text)
-    except ValueError as error:
+        with open(source, encoding='utf-8') as stream:
+            data = yaml.safe_load(stream) if source.endswith(('.yaml', '.yml')) else \
+                load_json(stream)
+    except yaml.constructor.ConstructorError as error:
+        raise InputDataError(f'prior {source}: not plain YAML ({error.problem}); give plain '
+                             'values, without !! tags') from None
+    except (ValueError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as error:
         raise InputDataError(f'prior {source}: cannot be read: {error}') from None
     if not isinstance(data, dict):
         raise InputDataError(f'prior {source}: expected a mapping of parameters')
@@ -425,7 +425,7 @@ def _best_band(trials: _Trials, bands: Sequence[tuple[str, float, float]],
 def read_plan(path: str) -> dict[str, Any]:
     """Read a plan JSON written by ``dcmotor-id plan --json``; check it holds a routine."""
     with open(path, encoding='utf-8') as stream:
-        data = json.load(stream)
+        data = load_json(stream)
     if not isinstance(data, dict) or not isinstance(data.get('routine'), dict):
         raise InputDataError(f'{path}: not a plan (no "routine")')
     Routine.from_dict(data['routine'])

@@ -26,6 +26,7 @@ import numpy as np
 
 from dcmotor_id.design.loops import motor_model
 from dcmotor_id.design.plant import Motor
+from dcmotor_id.formats.json_file import load_json
 
 #: Format tag of the StateSpace JSON.
 STATESPACE_FORMAT = 'dcmotor_id.statespace/1'
@@ -59,7 +60,7 @@ def _finite(values: dict) -> dict:
 def load_statespace(path: str) -> control.StateSpace:
     """Rebuild the StateSpace written by :func:`write_exports` with ``control.ss``."""
     with open(path, encoding='utf-8') as stream:
-        data = json.load(stream)
+        data = load_json(stream)
     return control.ss(np.array(data['A'], dtype=float), np.array(data['B'], dtype=float),
                       np.array(data['C'], dtype=float), np.array(data['D'], dtype=float),
                       data['dt'] or 0, states=data['states'], inputs=data['inputs'],

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError, InputDataError
+from dcmotor_id.formats.json_file import load_json
 
 #: z of the two-sided 95 % interval.
 Z95 = 1.959964
@@ -115,7 +116,7 @@ def load_result(path: str) -> dict:
     """
     try:
         with open(path, encoding='utf-8') as stream:
-            result = json.load(stream)
+            result = load_json(stream)
     except FileNotFoundError:
         raise InputDataError(f'{path}: no such file; give the JSON written by '
                              '`dcmotor-id identify FILE --json OUT`') from None
@@ -125,6 +126,8 @@ def load_result(path: str) -> dict:
     if not isinstance(result, dict) or not isinstance(result.get('parameters'), dict):
         raise InputDataError(f'{path}: no "parameters" mapping; give the JSON written by '
                              '`dcmotor-id identify FILE --json OUT`')
+    from dcmotor_id.identification.validate import check_one_model
+    check_one_model(result, path)  # validate scores the "model" block: one motor for both
     return result
 
 

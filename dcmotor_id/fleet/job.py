@@ -93,10 +93,19 @@ def start_client(scheduler: Optional[str] = None, workers: Optional[int] = None)
         Address of a running scheduler (``tcp://host:8786``); default a
         ``distributed.LocalCluster`` on this machine (127.0.0.1 only; its HTTP port is a free one).
     workers : int, optional
-        Worker processes of the local cluster (one thread each; default one per core).
+        Worker processes of the local cluster, 1 or more (one thread each; default one per
+        core).
+
+    Raises
+    ------
+    InputDataError
+        For fewer than 1 worker (a cluster without workers waits forever).
 
     """
     from distributed import Client, LocalCluster
+    if workers is not None and workers < 1:
+        raise InputDataError(f'workers = {workers}: a local cluster needs 1 or more workers '
+                             '(or none given: one per core)')
     if scheduler:
         return Client(scheduler)
     cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,

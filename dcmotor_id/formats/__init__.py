@@ -23,7 +23,7 @@ from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
 from dcmotor_id.formats import bag, csv, mat, parquet, wpilog
 from dcmotor_id.formats.mapping import DEFAULT_OPTIONS, ReadOptions
-from dcmotor_id.formats.paths import check_input_path, same_file
+from dcmotor_id.formats.paths import check_input_path, same_content, same_file
 from dcmotor_id.formats.quality import check_channels
 from dcmotor_id.formats.registry import (file_suffixes, FileFormat, format_of, FORMATS, register,
                                          table_reader)
@@ -90,8 +90,9 @@ def read_records(paths: Iterable[PathLike], *,
     """
     Read every path with :func:`read_record`, in order.
 
-    The same file given twice (by two names, or a link) is refused: it would count its
-    samples twice and shrink the standard errors by the square root of two.
+    The same file given twice (by two names, or a link), or a byte-identical copy of one,
+    is refused: it would count its samples twice and shrink the standard errors by the
+    square root of two.
     """
     paths = list(paths)
     for index, path in enumerate(paths):
@@ -99,5 +100,11 @@ def read_records(paths: Iterable[PathLike], *,
         if twin is not None:
             raise InputDataError(f'{path}: the same file as {twin}, given twice; give each '
                                  'recording once')
+    copies = same_content(paths)
+    if copies is not None:
+        raise InputDataError(f'{copies[1]}: byte for byte the same recording as {copies[0]} '
+                             '(a copy under another name): fitted twice it would count its '
+                             'samples twice and shrink the standard errors by the square root '
+                             'of two; give each recording once')
     return [read_record(path, topics=topics, options=options, mechanical_only=mechanical_only)
             for path in paths]

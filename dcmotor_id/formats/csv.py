@@ -20,7 +20,7 @@ import csv
 import io
 from itertools import islice
 import os
-from typing import Callable, IO
+from typing import Callable, IO, Iterator
 
 import numpy as np
 
@@ -170,7 +170,7 @@ def _header(path: PathLike, stream: IO[str]) -> tuple[list[str], int, str]:
         delimiter = ','
         if ',' not in line:
             delimiter = next((mark for mark in SEPARATORS if mark in line), ',')
-        cells = next(csv.reader([line], delimiter=delimiter), [])
+        cells = next(_checked(path, csv.reader([line], delimiter=delimiter), number - 1), [])
         if cells and any(cell.strip() for cell in cells):
             header = [name.strip() for name in cells]
             if len(header) == 1 and ' ' in header[0].strip():
@@ -259,7 +259,7 @@ def _parse_slowly(path: PathLike, stream: IO[str], header_line: int,
     values: dict[str, list[float]] = {channel: [] for channel in index}
     reader = csv.reader(stream, delimiter=delimiter)
     decimal_comma = delimiter != ','
-    for row_number, row in enumerate(reader, start=1):
+    for row_number, row in enumerate(_checked(path, reader), start=1):
         if row_number <= header_line or not row or not any(cell.strip() for cell in row):
             continue
         for name, column in index.items():
@@ -275,6 +275,29 @@ def _parse_slowly(path: PathLike, stream: IO[str], header_line: int,
         raise InputDataError(f'{path}: the file has a header but no samples; record or '
                              'export the data again')
     return {name: np.array(items, dtype=float) for name, items in values.items()}
+
+
+def _checked(path: PathLike, rows: Iterator[list[str]],
+             before: int = 0) -> Iterator[list[str]]:
+    """
+    Yield the rows of a ``csv.reader``, its error an InputDataError naming the line.
+
+    The csv module refuses a field beyond its limit of 131,072 characters (a 100 MB line, a
+    2 MB column name) with a bare ``csv.Error``.
+    """
+    number = before
+    while True:
+        try:
+            row = next(rows)
+        except StopIteration:
+            return
+        except csv.Error as error:
+            raise InputDataError(
+                f'{path}: line {before + getattr(rows, "line_num", number - before + 1)}: '
+                f'{error}; a CSV of samples has short cells: check that this is the right '
+                'file') from None
+        number += 1
+        yield row
 
 
 def write_csv(path: PathLike, record: Record) -> None:

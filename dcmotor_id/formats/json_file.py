@@ -18,14 +18,29 @@ import numpy as np
 
 from dcmotor_id.formats.paths import check_replaceable
 
-__all__ = ['SCHEMA_VERSION', 'STDOUT', 'dump_json', 'with_schema_version', 'write_json',
-           'write_result_json']
+__all__ = ['load_json', 'SCHEMA_VERSION', 'STDOUT', 'dump_json', 'with_schema_version',
+           'write_json', 'write_result_json']
 
 #: Version of the layout of the JSON the command line writes (``schema_version`` in each; the
 #: schemas: docs/schema/). Raised when a key changes meaning or goes away, not for a new key.
 SCHEMA_VERSION = 1
 #: The ``--json`` target that means stdout.
 STDOUT = '-'
+
+
+def load_json(stream: Any) -> Any:
+    """
+    Return the JSON document of a text stream, like ``json.load``.
+
+    Every failure is a ``json.JSONDecodeError`` (a ``ValueError``), also a document nested
+    beyond Python's recursion limit (100,000 ``[``), which ``json`` ends with a RecursionError.
+    """
+    text = stream.read()
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise json.JSONDecodeError('nested too deeply (more levels than any result file '
+                                   'has)', text[:100], 0) from None
 
 
 def _json_safe(value):

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import math
 import re
 import shlex
-from typing import Optional
+from typing import Any, Optional
 import warnings
 
 import numpy as np
@@ -199,6 +199,28 @@ class ReadingNote(UserWarning):
     """A note on how a file was read (e.g. a matrix transposed): shown to the user."""
 
 
+#: Relative difference beyond which ``--sample-period`` and the time column disagree (the
+#: jitter of a logger's stamps is far below).
+PERIOD_DISAGREEMENT = 0.05
+
+
+def _compare_periods(time_s: Any, sample_period_s: float, source: str) -> None:
+    """Say when ``--sample-period`` disagrees with the time column it replaces."""
+    if time_s is None or len(time_s) < 3:
+        return
+    with np.errstate(all='ignore'):
+        steps = np.diff(np.asarray(time_s[:100001], dtype=float))
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    if not steps.size:
+        return
+    stamped = float(np.median(steps))
+    if abs(stamped - sample_period_s) > PERIOD_DISAGREEMENT * stamped:
+        note(f'{source}: --sample-period {sample_period_s:g} s disagrees with the time column, '
+             f'whose samples are {stamped:.6g} s apart (a factor {sample_period_s / stamped:.3g}'
+             '): the time column is not used, so La, J and the other time constants '
+             'scale with --sample-period; drop it if the time column is right')
+
+
 def note(text: str) -> None:
     """Tell the user how a file was read (:class:`ReadingNote`; the CLI prints it)."""
     warnings.warn(text, ReadingNote, stacklevel=2)
@@ -252,6 +274,7 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
     others = [values for channel, values in columns.items() if channel != 't']
     if options.sample_period_s is not None and others:
         # the samples are this far apart: a time column (if any) is not used
+        _compare_periods(time_s, options.sample_period_s, source)
         time_s = np.arange(np.asarray(others[0]).shape[0]) * options.sample_period_s
     if time_s is None:
         raise InputDataError(f'{source}: no time column; map it with --column t=NAME, or give '

@@ -177,6 +177,13 @@ def _column(path: PathLike, get: Callable[[str], Any], spec: str,
     value = get(name)
     if value is None:
         return None
+    if np.iscomplexobj(value):
+        imaginary = float(np.max(np.abs(np.imag(value)), initial=0.0))
+        if imaginary > 0:
+            raise InputDataError(f'{path}: variable {name!r} ({channel}) holds complex values '
+                                 f'(imaginary parts up to {imaginary:.3g}); a measured signal '
+                                 'is real: export its real values (real() in MATLAB)')
+        value = np.real(value)
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError):

@@ -11,6 +11,8 @@ result.  Every refusal names the option or file, what it is, and what to do.
 from __future__ import annotations
 
 import errno
+import fnmatch
+import hashlib
 import os
 import stat
 import tempfile
@@ -19,8 +21,12 @@ from typing import Iterable, Optional, Sequence
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike
 
-__all__ = ['check_input_path', 'check_output_path', 'check_replaceable', 'kind_of',
-           'same_file']
+__all__ = ['check_input_path', 'check_not_over_inputs', 'check_output_path',
+           'check_replaceable', 'is_bag_dir', 'kind_of', 'same_content', 'same_file']
+
+#: The files that mark a directory as a rosbag2 bag (a bag is read as a whole directory).
+_BAG_MARKS = ('metadata.yaml',)
+_BAG_SUFFIXES = ('.mcap', '.db3')
 
 
 def kind_of(mode: int) -> str:
@@ -99,6 +105,58 @@ def same_file(path: PathLike, others: Iterable[PathLike]) -> Optional[str]:
     return None
 
 
+def _files_of(path: PathLike) -> list[str]:
+    """Return the regular files an input consists of (itself, or a directory's, sorted)."""
+    if os.path.isdir(path):
+        return sorted(os.path.join(root, name) for root, _, names in os.walk(path)
+                      for name in names if os.path.isfile(os.path.join(root, name)))
+    return [str(path)] if os.path.isfile(path) else []
+
+
+def _fingerprint(path: PathLike, depth: int) -> tuple:
+    """
+    Return the sizes of an input's files, and at ``depth`` 1 or 2 a digest of their bytes.
+
+    Depth 1 digests the first and last MiB of each file (cheap), depth 2 all of it (BLAKE2).
+    """
+    files = _files_of(path)
+    sizes = tuple(os.path.getsize(name) for name in files)
+    if not depth:
+        return sizes
+    digest = hashlib.blake2b(digest_size=20)
+    for name, size in zip(files, sizes):
+        with open(name, 'rb') as stream:
+            if depth == 1:
+                digest.update(stream.read(1 << 20))
+                stream.seek(max(size - (1 << 20), 0))
+                digest.update(stream.read(1 << 20))
+                continue
+            for block in iter(lambda: stream.read(1 << 20), b''):
+                digest.update(block)
+    return sizes, digest.hexdigest()
+
+
+def same_content(paths: Sequence[PathLike]) -> Optional[tuple[str, str]]:
+    """
+    Return two inputs whose bytes are identical (a copy under another name), else None.
+
+    Only inputs of equal sizes are read (a digest of their files): a copy fitted as a second
+    record would shrink the standard errors by the square root of two.
+    """
+    try:
+        sizes = [_fingerprint(path, 0) for path in paths]
+        for index, size in enumerate(sizes):
+            twins = [other for other in range(index) if sizes[other] == size and size]
+            for depth in (1, 2):
+                mine = _fingerprint(paths[index], depth) if twins else None
+                twins = [other for other in twins if _fingerprint(paths[other], depth) == mine]
+            if twins:
+                return str(paths[twins[0]]), str(paths[index])
+    except OSError:
+        return None  # the readers say what is wrong with the path
+    return None
+
+
 def _nearest_existing(path: str) -> str:
     """Return ``path`` or its nearest ancestor that exists."""
     while not os.path.exists(path):
@@ -110,7 +168,7 @@ def _nearest_existing(path: str) -> str:
 
 
 def check_output_path(path: str, option: str, directory: bool = False,
-                      inputs: Sequence[str] = ()) -> None:
+                      inputs: Sequence[PathLike] = (), writes: Sequence[str] = ('*',)) -> None:
     """
     Refuse an output path that cannot be written, before any work is done.
 
@@ -118,7 +176,8 @@ def check_output_path(path: str, option: str, directory: bool = False,
     that is not one of the ``inputs`` (never a symlink, a device, a FIFO nor a recording);
     for both kinds, the nearest existing ancestor must be a directory in which a file can be
     created (tried with a temporary file, which also catches read-only file systems and
-    running as root).
+    running as root).  No output lies inside an input bag directory, and a directory output
+    never holds an input under a name it ``writes`` (:func:`check_not_over_inputs`).
 
     Raises
     ------
@@ -127,6 +186,7 @@ def check_output_path(path: str, option: str, directory: bool = False,
 
     """
     target = os.path.abspath(path)
+    check_not_over_inputs(path, option, inputs, directory, writes)
     if not directory:
         check_replaceable(path, option, inputs)
     if not directory and (os.path.isdir(target) or path.endswith(os.sep)):
@@ -149,7 +209,7 @@ def check_output_path(path: str, option: str, directory: bool = False,
                              f'({error.strerror or error}); choose a writable place') from None
 
 
-def check_replaceable(path: str, option: str, inputs: Sequence[str] = ()) -> None:
+def check_replaceable(path: str, option: str, inputs: Sequence[PathLike] = ()) -> None:
     """Refuse an output file that exists and is not a regular file, or is an input."""
     try:
         mode = os.lstat(path).st_mode
@@ -168,3 +228,80 @@ def check_replaceable(path: str, option: str, inputs: Sequence[str] = ()) -> Non
     if twin is not None:
         raise InputDataError(f'{option} {path}: is the input {twin}; writing there would '
                              'destroy the recording: give another file name')
+
+
+def _real(path: PathLike) -> str:
+    """Return the real path of ``path``, which may not exist yet (its ancestors resolved)."""
+    return os.path.realpath(os.path.abspath(path))
+
+
+def is_bag_dir(directory: PathLike) -> bool:
+    """Whether ``directory`` looks like a rosbag2 bag (metadata or a storage file in it)."""
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return False
+    return any(name in _BAG_MARKS or name.endswith(_BAG_SUFFIXES) for name in names)
+
+
+def _input_areas(inputs: Iterable[PathLike]) -> tuple[list[str], list[str]]:
+    """Return the directories an input reads as a whole (bags) and the input files."""
+    directories, files = [], []
+    for item in inputs:
+        if item is None or not os.path.exists(item):
+            continue
+        real = _real(item)
+        if os.path.isdir(real):
+            directories.append(real)
+        else:
+            files.append(real)
+            parent = os.path.dirname(real)
+            if any(os.path.exists(os.path.join(parent, mark)) for mark in _BAG_MARKS):
+                directories.append(parent)
+    return directories, files
+
+
+def _inside(path: str, directory: str) -> bool:
+    """Whether the real ``path`` is ``directory`` or below it."""
+    return path == directory or path.startswith(directory.rstrip(os.sep) + os.sep)
+
+
+def check_not_over_inputs(path: PathLike, option: str, inputs: Sequence[PathLike],
+                          directory: bool = False, writes: Sequence[str] = ('*',)) -> None:
+    """
+    Refuse an output inside an input bag directory, or one that would replace an input.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file (or directory, when ``directory``).
+    option : str
+        The option named in the message (``--json``, ``--export``).
+    inputs : sequence of paths
+        Every file and directory the command reads.
+    directory : bool
+        Whether ``path`` is a directory into which files are written.
+    writes : sequence of str
+        Shell patterns of the names written into a directory output (default: any name).
+
+    Raises
+    ------
+    InputDataError
+        Naming the option, the path and the input it would damage.
+
+    """
+    target = _real(path)
+    directories, files = _input_areas(inputs)
+    for area in directories:
+        if _inside(target, area):
+            raise InputDataError(
+                f'{option} {path}: is inside the input bag directory {area}; writing there '
+                'could replace or damage the recording: give a place outside it')
+    if not directory:
+        return
+    for name in files:
+        if os.path.dirname(name) == target and any(
+                fnmatch.fnmatch(os.path.basename(name), pattern) for pattern in writes):
+            raise InputDataError(
+                f'{option} {path}: would overwrite the input {name} (it writes '
+                f"{', '.join(writes)} there); give another directory")

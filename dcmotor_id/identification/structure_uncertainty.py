@@ -53,6 +53,8 @@ DEFAULT_SEED = 0
 #: Most resamples accepted.
 MAX_RESAMPLES = 1000
 #: Name of the method in the result.
+#: The failure of a resample stopped by the time budget (``--max-time``).
+BUDGET_SPENT = 'the time budget (--max-time) ran out'
 METHOD = ('noise bootstrap: every channel is its running median (5 samples) plus fresh '
           'Gaussian noise of its measured level (on its quantisation grid when quantised); '
           'the identification, discovery included, is rerun on every resample; the structure '
@@ -173,25 +175,41 @@ def between_structures(draws: Sequence[tuple[tuple[str, ...], dict[str, float]]]
 
 def run_resamples(identify_once: Callable[[list[Record]], Any], records: Sequence[Record],
                   resamples: int, seed: int = DEFAULT_SEED,
-                  announce: Callable[[str], None] | None = None
+                  announce: Callable[[str], None] | None = None,
+                  remaining: Callable[[], float] | None = None
                   ) -> tuple[list[tuple[tuple[str, ...], dict[str, float]]], list[str]]:
     """
     Identify ``resamples`` noise resamples of the records; return the draws and the failures.
 
     Each draw is ``(structure key, parameters)``; a resample the identification refuses is a
-    failure (its message), not a draw.  ``announce`` is told which resample runs.
+    failure (its message), not a draw.  ``announce`` is told which resample runs.  With
+    ``remaining`` (seconds left of the time budget), no resample starts once it is spent and
+    one that runs out ends the loop (a failure naming the budget).
     """
     rng = np.random.default_rng(seed)
-    draws, failures = [], []
+    draws: list[tuple[tuple[str, ...], dict[str, float]]] = []
+    failures: list[str] = []
     for index in range(resamples):
+        if remaining is not None and remaining() <= 0:
+            failures.append(BUDGET_SPENT)
+            break
         if announce is not None:
             announce(f'structure bootstrap: resample {index + 1} of {resamples}')
         resampled = [resample_noise(record, rng) for record in records]
         try:
             result = identify_once(resampled)
-        except (DcMotorIdError, TimeBudgetExceeded) as error:
+        except TimeBudgetExceeded:
+            failures.append(BUDGET_SPENT)
+            break
+        except DcMotorIdError as error:
+            if remaining is not None and remaining() <= 0:
+                failures.append(BUDGET_SPENT)
+                break
             failures.append(str(error).split('. ')[0][:200])
             continue
+        if remaining is not None and remaining() <= 0:
+            failures.append(BUDGET_SPENT)  # its discovery may have been cut short: no draw
+            break
         draws.append((structure_key(result), dict(result.parameters)))
     return draws, failures
 
@@ -210,8 +228,9 @@ def summary(result: Any, draws: Sequence[tuple[tuple[str, ...], dict[str, float]
         'method': METHOD,
         'resamples': int(resamples),
         'completed': len(draws),
-        'failed': len(failures),
-        'failures': sorted(set(failures)),
+        'stopped_by_time_budget': BUDGET_SPENT in failures,
+        'failed': len([text for text in failures if text != BUDGET_SPENT]),
+        'failures': sorted(set(failures) - {BUDGET_SPENT}),
         'seed': int(seed),
         'chosen_structure': list(chosen),
         'chosen_share': counts.get(chosen, 0) / done,
@@ -253,7 +272,11 @@ def warnings_for(result: Any, info: dict[str, Any]) -> list[str]:
         out.append(f'the structure is uncertain: on {info["completed"]} noise resamples the '
                    f'loop chose {others}; the standard errors include the spread between '
                    'these structures (structure_uncertainty)')
-    if info['failed'] > info['completed']:
+    if info.get('stopped_by_time_budget'):
+        out.append(f'the time budget (--max-time) ran out during the structure bootstrap: '
+                   f'{info["completed"]} of {info["resamples"]} resamples were done; its '
+                   'figures rest on those (give more --max-time for all of them)')
+    elif info['failed'] > info['completed']:
         out.append(f'the structure bootstrap was refused on {info["failed"]} of '
                    f'{info["resamples"]} resamples: its figures rest on few draws')
     return out
@@ -295,14 +318,25 @@ def bootstrapped(identify: Callable[..., Any], records: Sequence[Record], resamp
         reason = ('discovery is off: the structure is fixed' if not result.discover else
                   'discovery did not run: ' + str((result.discovery or {}).get('skipped', '')))
         return replace(result, structure_uncertainty={'skipped': reason})
-    # Every resample has its own time budget; the user's progress only names the resample.
+    # The resamples share what is left of the one time budget; the user's progress only
+    # names the resample.
     quiet = {key: value for key, value in options.items() if key != 'progress'}
+    budget = options.get('max_time_s')
     progress = options.get('progress')
     if progress is not None:
         progress.deadline = None
-    draws, failures = run_resamples(lambda sample: identify(sample, **quiet), records,
-                                    resamples, seed,
-                                    None if progress is None else progress.set_stage)
+
+    def remaining() -> float:
+        return float('inf') if budget is None else budget - (time.monotonic() - start)
+
+    def identify_once(sample: list[Record]) -> Any:
+        if budget is not None:
+            quiet['max_time_s'] = max(remaining(), 1e-9)
+        return identify(sample, **quiet)
+
+    draws, failures = run_resamples(identify_once, records, resamples, seed,
+                                    None if progress is None else progress.set_stage,
+                                    remaining)
     part = between_structures(draws, list(result.parameters)) if draws else {}
     info = summary(result, draws, failures, resamples, seed, part)
     final = covered(result, part)

@@ -23,6 +23,7 @@ import numpy as np
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import MECHANICAL_NAMES, MotorParameters, PARAMETER_NAMES
 from dcmotor_id.core.records import COLUMNS, Record
+from dcmotor_id.formats.json_file import load_json
 from dcmotor_id.identification.effects import make_effect
 from dcmotor_id.simulation import simulate_mechanical_effects, simulate_motor_effects
 
@@ -52,9 +53,18 @@ def model_block(result: Mapping[str, Any]) -> dict[str, Any]:
     mode = result.get('mode', 'full')
     names = MECHANICAL_NAMES if mode == 'mechanical' else PARAMETER_NAMES
     parameters = result.get('parameters', {})
+    if not isinstance(parameters, Mapping):
+        raise InputDataError(f'"parameters" is {json.dumps(parameters)[:80]}, not a mapping of '
+                             'names to values; give the JSON written by dcmotor-id identify '
+                             '--json')
     units = result.get('units', {})
+    units = units if isinstance(units, Mapping) else {}
     effects = []
     for effect in result.get('effects', []) or []:
+        if not isinstance(effect, Mapping) or not isinstance(effect.get('parameters', {}),
+                                                             Mapping):
+            raise InputDataError(f'effect {json.dumps(effect)[:80]} is not {{"name": ..., '
+                                 '"parameters": {...}}')
         try:
             known = make_effect(effect['name']).PARAMETERS
         except (KeyError, ValueError):
@@ -191,7 +201,9 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
     if not isinstance(data, Mapping):
         raise InputDataError(f'{source}: not an identify result (a JSON object is expected)')
     given = data.get('model')
-    block: Mapping[str, Any] = given if isinstance(given, Mapping) else model_block(data)
+    if isinstance(given, Mapping):
+        check_one_model(data, source)
+    block: Mapping[str, Any] = given if isinstance(given, Mapping) else _top_level(data, source)
     mode = block.get('mode', 'full')
     if mode not in ('full', 'mechanical'):
         raise InputDataError(f'{source}: unknown mode {mode!r} (full or mechanical)')
@@ -213,6 +225,70 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
         _check_effect(effect, source)
     return Model(parameters, mode, None if constant is None else float(constant), effects,
                  block.get('sample_period_s'), dict(block))
+
+
+def _top_level(data: Mapping[str, Any], source: str) -> dict[str, Any]:
+    """Return :func:`model_block` of the top level; a malformed one is named by ``source``."""
+    try:
+        return model_block(data)
+    except InputDataError as error:
+        raise InputDataError(f'{source}: {error}') from None
+
+
+def check_one_model(data: Mapping[str, Any], source: str = 'model') -> None:
+    """
+    Refuse a result whose ``model`` block and top-level ``parameters`` describe two motors.
+
+    ``validate`` simulates the ``model`` block and ``design`` reads ``parameters``: an edit of
+    one of them alone (J x10, a string, an unknown effect) would be scored on the other.  The
+    refusal names the first key that differs.
+
+    Raises
+    ------
+    InputDataError
+        Naming the key, both values and what to do.
+
+    """
+    given = data.get('model')
+    if not isinstance(given, Mapping) or 'parameters' not in data:
+        return
+    rebuilt = _top_level(data, source)
+    names = [_effect_names(data.get('effects')), _effect_names(given.get('effects'))]
+    if names[0] != names[1]:
+        raise InputDataError(
+            f'{source}: "effects" ({", ".join(map(str, names[0])) or "none"}) differ from '
+            f'model.effects ({", ".join(map(str, names[1])) or "none"}): a result file holds '
+            'one model; edit both, or delete the "model" block (validate then uses the top '
+            'level)')
+    known = {effect['name'] for effect in rebuilt['effects']}
+    given = {**given, 'effects': [
+        {'name': effect.get('name'), 'parameters': effect.get('parameters', {})}
+        for effect in given.get('effects') or [] if effect.get('name') in known]}
+    for key in ('mode', 'parameters', 'effects'):
+        mine: Any = rebuilt.get(key)
+        theirs: Any = given.get(key)
+        if key == 'mode':
+            mine, theirs = mine or 'full', theirs or 'full'
+        if key == 'parameters' and isinstance(theirs, Mapping):
+            differs = [name for name in mine if mine[name] != theirs.get(name)]
+            if differs:
+                name = differs[0]
+                raise InputDataError(
+                    f'{source}: parameters.{name} = {json.dumps(mine[name])} but '
+                    f'model.parameters.{name} = {json.dumps(theirs.get(name))}: a result '
+                    'file holds one model; edit both, or delete the "model" block (validate '
+                    'then uses "parameters")')
+        elif mine != theirs:
+            raise InputDataError(
+                f'{source}: "{key}" ({json.dumps(mine)[:120]}) differs from model.{key} '
+                f'({json.dumps(theirs)[:120]}): a result file holds one model; edit both, or '
+                'delete the "model" block (validate then uses the top level)')
+
+
+def _effect_names(effects: Any) -> list[Any]:
+    """Return the names of a list of effects (an entry that is not a mapping: itself)."""
+    return [effect.get('name') if isinstance(effect, Mapping) else effect
+            for effect in (effects if isinstance(effects, list) else [])]
 
 
 def _check_effect(effect: Any, source: str) -> None:
@@ -241,7 +317,7 @@ def load_model(path: str) -> Model:
         raise InputDataError(f'{path}: no such file; give the JSON written by identify --json')
     try:
         with open(path, encoding='utf-8') as stream:
-            data = json.load(stream)
+            data = load_json(stream)
     except (ValueError, UnicodeDecodeError) as error:
         raise InputDataError(f'{path}: not a JSON file ({error}); give the JSON written by '
                              'dcmotor-id identify --json') from None

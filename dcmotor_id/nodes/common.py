@@ -6,6 +6,7 @@ from dataclasses import fields
 import errno
 import functools
 import os
+import re
 import signal
 import stat
 import subprocess
@@ -16,6 +17,7 @@ from typing import Any, Callable, Optional, Sequence, TypeVar
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 import rclpy
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -58,7 +60,17 @@ def declare(node: Node, name: str, default: Any, description: str, low: Optional
             descriptor.floating_point_range = [FloatingPointRange(
                 from_value=float(low if low is not None else -1e300),
                 to_value=float(high if high is not None else 1e300), step=0.0)]
-    value = node.declare_parameter(name, default, descriptor).value
+    try:
+        value = node.declare_parameter(name, default, descriptor).value
+    except InvalidParameterTypeException as error:
+        raise ValueError(f'parameter {name}: {str(error).splitlines()[0]}') from None
+    except InvalidParameterValueException as error:
+        # a value given at start-up outside the range: one line, exit 2 (run)
+        given = re.search(r'value \((.*?)\)', str(error))
+        raise ValueError(
+            f'parameter {name} = {given.group(1) if given else "?"} is out of range: give a '
+            f'value from {low if low is not None else "-inf"} to '
+            f'{high if high is not None else "inf"}') from None
     if choices is not None:
         check_choice(name, value, choices)
     return value
@@ -77,6 +89,59 @@ def declare_settings(node: Node, settings_class: type[Settings]) -> Settings:
     values = {item.name: declare(node, item.name, item.default, **item.metadata)
               for item in fields(settings_class)}  # type: ignore[arg-type]
     return settings_class(**values)
+
+
+def guard_parameters(node: Node, startup_only: Sequence[str],
+                     checks: Optional[dict[str, Callable[[Any], Any]]] = None) -> None:
+    """
+    Answer every run-time change of a node's parameters truthfully.
+
+    A parameter of ``startup_only`` is read once, when the node starts: a change is refused
+    with "restart the node" instead of being taken and ignored.  A parameter of ``checks``
+    applies at run time: its check (raising ``ValueError`` with the reason, the rule used at
+    start-up) decides.  Call it after the parameters are declared.
+    """
+    names = frozenset(startup_only)
+
+    def on_set(parameters: list[Parameter]) -> SetParametersResult:
+        for parameter in parameters:
+            if parameter.name in names:
+                return SetParametersResult(successful=False, reason=(
+                    f'parameter {parameter.name} is read at start-up only: restart the node '
+                    f'with the new value (--ros-args -p {parameter.name}:=...)'))
+            check = (checks or {}).get(parameter.name)
+            if check is not None:
+                try:
+                    check(parameter.value)
+                except ValueError as error:
+                    return SetParametersResult(successful=False, reason=str(error))
+        return SetParametersResult(successful=True)
+    node.add_on_set_parameters_callback(on_set)
+
+
+def own_parameters(node: Node) -> list[str]:
+    """Return the names of a node's declared parameters, without rclpy's ``use_sim_time``."""
+    return [name for name in node._parameters if name != 'use_sim_time']
+
+
+def check_writable_directory(path: str, name: str) -> str:
+    """
+    Return ``path`` (``~`` expanded), created if missing; ValueError when it is not writable.
+
+    Used at start-up for a node's output directory (``record_dir``): a node that cannot write
+    where it was told refuses to start instead of running without its output.
+    """
+    place = os.path.expanduser(path)
+    try:
+        os.makedirs(place, exist_ok=True)
+        probe = os.path.join(place, f'.dcmotor_id_probe_{os.getpid()}')
+        with open(probe, 'w', encoding='utf-8'):
+            pass
+        os.unlink(probe)
+    except OSError as error:
+        raise ValueError(f'parameter {name} = {path!r}: cannot write there '
+                         f'({error.strerror or error}); give a writable directory') from None
+    return place
 
 
 def guarded(callback: Callable[..., Any]) -> Callable[..., Any]:

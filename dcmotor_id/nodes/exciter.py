@@ -26,6 +26,7 @@ without starting ROS (the same as ``dcmotor-id plan``: :mod:`dcmotor_id.console.
 
 from __future__ import annotations
 
+from functools import partial
 import json
 import signal
 import sys
@@ -48,7 +49,9 @@ from std_srvs.srv import Trigger
 from dcmotor_id.core.errors import DcMotorIdError, InputDataError
 from dcmotor_id.design.routines import DIRECTIONS, ExcitationSession, Limits, Routine, ROUTINES
 from dcmotor_id.formats.batch import decode_batch_message
-from dcmotor_id.nodes.common import BulkInput, declare, read_regular_file, sample_qos, SERVICE_QOS
+from dcmotor_id.nodes.common import (BulkInput, check_choice, declare, guard_parameters,
+                                     own_parameters, read_regular_file, sample_qos,
+                                     SERVICE_QOS)
 
 #: QoS of ``voltage_command``: reliable, so that the final 0 V is delivered.
 COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
@@ -117,6 +120,12 @@ class Exciter(Node):
         self._declare_command()
         self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._subscribe(source, sample_qos(depth, reliability))
+        # the routine's parameters are read at ~/start (checked as at start-up), the others
+        # once, here
+        guard_parameters(self, [name for name in own_parameters(self)
+                                if name not in self._routine_parameters], {
+            'routine': partial(check_choice, 'routine', choices=ROUTINES),
+            'direction': partial(check_choice, 'direction', choices=DIRECTIONS)})
         # ~/stop and ~/start each in a group of their own: a stop is never queued behind a
         # start (reading plan_file) nor behind the tick, and the tick never waits for either.
         self.create_service(Trigger, '~/start', self._on_start, qos_profile=SERVICE_QOS,

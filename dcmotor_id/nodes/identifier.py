@@ -66,9 +66,11 @@ from dcmotor_id.core.records import MIN_SAMPLES
 from dcmotor_id.formats.batch import decode_batch
 from dcmotor_id.formats.regrid import StampRegridder
 from dcmotor_id.formats.streams import SampleInbox, StreamAligner
-from dcmotor_id.nodes.common import (BulkInput, declare_settings, guarded, ResultParameters, run,
+from dcmotor_id.nodes.common import (BulkInput, declare_settings, guard_parameters, guarded,
+                                     own_parameters, ResultParameters, run,
                                      sample_qos, SERVICE_QOS)
-from dcmotor_id.nodes.settings import check_structure_bootstrap, IdentifierSettings
+from dcmotor_id.nodes.settings import (check_settings, check_structure_bootstrap,
+                                       IdentifierSettings)
 from dcmotor_id.streaming.input_health import InputHealth
 from dcmotor_id.streaming.monitoring import LEVELS, monitor_from_settings
 from dcmotor_id.streaming.summary import (online_key_values, online_text, paper_status,
@@ -90,7 +92,10 @@ class Identifier(Node):
         super().__init__('identifier', **kwargs)
         self.settings = settings = declare_settings(self, IdentifierSettings)
         self.structure_bootstrap = self._startup_bootstrap(settings.structure_bootstrap)
+        check_settings(settings)
         self.add_on_set_parameters_callback(self._on_set_bootstrap)
+        guard_parameters(self, [name for name in own_parameters(self)
+                                if name != 'structure_bootstrap'])
         self.results = ResultParameters(self, 'identified.', {
             **dict.fromkeys(RESULT_KEYS, float('nan')), 'method': '', 'bags': ['']}, '~/identify')
 

@@ -6,7 +6,8 @@ published as recorded (serialized CDR, no decoding) at ``start + (stamp - first)
 ``/clock`` carries the message timestamp and is published before the first message of every
 timestamp, so a node with ``use_sim_time`` sees the bag's own time. Topics keep their
 recorded names (give ``topic_prefix`` to publish under another namespace). The node exits
-when the bag is done (unless ``loop``).
+when the bag is done (unless ``loop``). A gap between two messages longer than ``max_gap_s``
+(default 10 s of wall time) is shortened to it, with a warning naming the gap.
 
 Only the measurement topics are played: those named ``voltage``, ``current``, ``speed``,
 ``samples`` or ``joint_states`` (in any namespace, :data:`MEASUREMENTS`). Anything else a bag
@@ -42,7 +43,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 
 from dcmotor_id.formats.bag import load_messages
-from dcmotor_id.nodes.common import declare, run
+from dcmotor_id.nodes.common import declare, guard_parameters, own_parameters, run
 
 #: The message types a bag may declare -> their rclpy classes: the identifier's inputs, the
 #: simulator's outputs and what ``ros2 bag record -a`` adds beside them. Nothing else is played.
@@ -162,6 +163,39 @@ def playable(topics: Mapping[str, str], messages: list[tuple[int, str, bytes]],
     return names, kept, warnings
 
 
+def schedule(stamps: list[int], rate: float, max_gap_s: float
+             ) -> tuple[list[float], list[tuple[int, float]]]:
+    """
+    Return when each message is due [s after the start] and the gaps that were shortened.
+
+    A message is due ``(stamp - previous stamp) / rate`` after the previous one, but never
+    more than ``max_gap_s`` after it: a bag with a gap of years (a clock set wrong, two
+    recordings merged) is played on instead of sleeping it out.  Each shortened gap is
+    ``(index of the message after it, the gap as recorded [s])``.
+    """
+    due, shortened, at = [], [], 0.0
+    for index, stamp in enumerate(stamps):
+        if index:
+            gap = (stamp - stamps[index - 1]) * 1e-9
+            wait = gap / rate
+            if wait > max_gap_s:
+                shortened.append((index, gap))
+                wait = max_gap_s
+            at += max(wait, 0.0)
+        due.append(at)
+    return due, shortened
+
+
+def check_prefix(prefix: str) -> None:
+    """Refuse a ``topic_prefix`` that makes no valid ROS name (naming the parameter)."""
+    if not prefix:
+        return
+    invalid = name_problem(prefix.rstrip('/') + '/voltage')
+    if invalid:
+        raise ValueError(f'parameter topic_prefix = {prefix!r}: {invalid}; give a namespace '
+                         'like /replayed')
+
+
 class Replay(Node):
     """Publish a bag's messages with their recorded timing."""
 
@@ -174,6 +208,10 @@ class Replay(Node):
                                      'publish /clock with the recorded timestamps')
         self.topic_prefix = declare(self, 'topic_prefix', '',
                                     'namespace put before every recorded topic name')
+        self.max_gap_s = declare(self, 'max_gap_s', 10.0,
+                                 'longest wait between two messages [s]: a longer gap in the '
+                                 'bag is shortened to this, with a warning', low=0.0)
+        check_prefix(self.topic_prefix)
         self.start_delay_s = declare(self, 'start_delay_s', 1.0,
                                      'wait this long for subscribers before playing [s]',
                                      low=0.0)
@@ -203,23 +241,44 @@ class Replay(Node):
         for warning in warnings:
             self.get_logger().warning(warning)
         self.topics = {topic: self.topics[topic] for topic in names}
-        if not self.messages:
-            raise ValueError(f'the bag {self.bag} holds no message to play (measurement '
-                             f'topics: any named {", ".join(MEASUREMENTS)}; its topics: '
-                             f'{", ".join(map(str, every)) or "none"}); name others in '
-                             'extra_topics')
+        self._refuse_nothing_to_play(warnings, every)
+        self.due = self._schedule()
         qos = QoSProfile(depth=depth)
         self._topic_publishers = {
             topic: self.create_publisher(message_class(self.topics[topic], topic), name, qos)
             for topic, name in names.items()}
         self._clock_publisher = self.create_publisher(Clock, '/clock', 10) if self.publish_clock \
             else None
+        guard_parameters(self, own_parameters(self))  # all read here, at start-up
         self.done = threading.Event()
         self.published = 0
         self._thread = threading.Thread(target=self._play, name='replay', daemon=True)
         self._thread.start()
         self.get_logger().info(f'playing {len(self.messages)} messages of '
                                f'{", ".join(self.topics)} from {self.bag}')
+
+    def _refuse_nothing_to_play(self, warnings: list[str], every: list[str]) -> None:
+        """Raise ValueError saying why no message is left to play (if none is)."""
+        if not self.messages and warnings:
+            raise ValueError(f'nothing of the bag {self.bag} can be played: '
+                             + '; '.join(warnings))
+        if not self.messages:
+            raise ValueError(f'the bag {self.bag} holds no message to play (measurement '
+                             f'topics: any named {", ".join(MEASUREMENTS)}; its topics: '
+                             f'{", ".join(map(str, every)) or "none"}); name others in '
+                             'extra_topics')
+
+    def _schedule(self) -> list[float]:
+        """Return when each message is due [s]; warn about the gaps shortened to max_gap_s."""
+        due, shortened = schedule([item[0] for item in self.messages], self.rate,
+                                  self.max_gap_s)
+        for index, gap in shortened[:5]:
+            self.get_logger().warning(
+                f'a gap of {gap:.3g} s in the bag before message {index} (stamp '
+                f'{self.messages[index][0]} ns) is played as max_gap_s = {self.max_gap_s:g} s')
+        if len(shortened) > 5:
+            self.get_logger().warning(f'{len(shortened)} gaps longer than max_gap_s shortened')
+        return due
 
     def _say_what_is_left_out(self, every: list[str]) -> None:
         skipped = [topic for topic in every if topic not in self.topics]
@@ -237,12 +296,10 @@ class Replay(Node):
     def _play(self):
         time.sleep(self.start_delay_s)
         while rclpy.ok():
-            first = self.messages[0][0]
             start = time.monotonic()
             last_stamp = None
-            for stamp, topic, data in self.messages:
-                due = start + (stamp - first) * 1e-9 / self.rate
-                delay = due - time.monotonic()
+            for (stamp, topic, data), offset in zip(self.messages, self.due):
+                delay = start + offset - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
                 if not rclpy.ok():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 from typing import Any, Optional, Sequence
 
 from dcmotor_id.identification.identify import METHODS
@@ -133,3 +134,36 @@ class IdentifierSettings:
                                         0.01)
     process_rate_hz: float = parameter(50.0, 'rate at which received samples are aligned '
                                        '[Hz]', 1.0)
+
+
+#: Most samples a window may hold (the node keeps about three windows of four columns).
+MAX_WINDOW_SAMPLES = 1e7
+
+
+def check_settings(settings: IdentifierSettings) -> None:
+    """
+    Refuse at start-up settings that each pass their own range but cannot work together.
+
+    A window beyond :data:`MAX_WINDOW_SAMPLES` (memory), ``min_window_s`` above
+    ``window_s`` (no window is ever long enough), a non-finite
+    ``effort_scale``, and a ``record_dir`` that cannot be written while ``record`` is on (the
+    node would run without its recording).  ValueError naming the parameter.
+    """
+    from dcmotor_id.nodes.common import check_writable_directory
+
+    samples = settings.window_s * settings.sample_rate_hz
+    if samples > MAX_WINDOW_SAMPLES:
+        raise ValueError(f'parameter window_s = {settings.window_s:g} s is {samples:.3g} samples '
+                         f'at sample_rate_hz {settings.sample_rate_hz:g}: the node keeps about '
+                         f'three windows in memory; give at most {MAX_WINDOW_SAMPLES:.0e} '
+                         f'samples (window_s <= {MAX_WINDOW_SAMPLES / settings.sample_rate_hz:g}'
+                         ' s at this rate)')
+    if settings.min_window_s > settings.window_s:
+        raise ValueError(f'parameter min_window_s = {settings.min_window_s:g} s is longer than '
+                         f'window_s = {settings.window_s:g} s: no window could be kept; give a '
+                         'min_window_s at most window_s')
+    if not math.isfinite(settings.effort_scale) or settings.effort_scale == 0:
+        raise ValueError(f'parameter effort_scale = {settings.effort_scale!r}: give a finite, '
+                         'non-zero factor [A per unit of effort]')
+    if settings.record:
+        check_writable_directory(settings.record_dir, 'record_dir')

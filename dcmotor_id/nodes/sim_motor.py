@@ -31,7 +31,7 @@ from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, MultiA
 from dcmotor_id.core.model import MotorParameters, PAPER_MOTORS, UNITS
 from dcmotor_id.formats.batch import batch_message as build_batch, BatchTypes
 from dcmotor_id.identification.effects import parse_effect
-from dcmotor_id.nodes.common import declare, run, sample_qos
+from dcmotor_id.nodes.common import declare, guard_parameters, own_parameters, run, sample_qos
 from dcmotor_id.simulation import motor_forcing, motor_system, MotorStepper
 from dcmotor_id.simulation.excitation import EXCITATION_KINDS, make_excitation
 from dcmotor_id.streaming.online.schedule import parse_schedule
@@ -74,6 +74,7 @@ class SimMotor(Node):
         self.published = 0
         self.overflows = 0
         self._create_interfaces(sample_qos(depth, reliability))
+        guard_parameters(self, own_parameters(self))  # all read here, at start-up
         self.get_logger().info(
             f'simulating {self.params} at {self.sample_rate_hz:g} Hz, {signal} excitation, '
             f'transport {self.transport}')

@@ -53,6 +53,37 @@ def _float(value: Any) -> float:
     return float(value) if value is not None else math.nan
 
 
+#: Largest magnitude of a parameter or standard error a report plots: beyond it a row is
+#: corrupt (a history part written by hand, a fit gone wrong) and listed as failed.
+ABSURD_MAGNITUDE = 1e30
+
+
+def _flag_absurd(row: Mapping[str, Any]) -> Mapping[str, Any]:
+    """
+    Return an ``ok`` row whose values no motor has (Ra NaN, J -1e308) as a failed row.
+
+    Its error names the values; the motor's other windows and the other motors are reported.
+    """
+    if row.get('status') != 'ok':
+        return row
+    bad = []
+    needed = ('J', 'b', 'Mc') if row.get('mode') == 'mechanical' else PARAMETER_NAMES
+    for name in PARAMETER_NAMES:
+        value, stderr = _float(row.get(name)), _float(row.get(f'{name}_stderr'))
+        if math.isnan(value) and name not in needed:
+            continue  # not identified in the mechanical-only mode
+        positive = name in ('Ra', 'La', 'CPhi', 'J')
+        if not (math.isfinite(value) and abs(value) < ABSURD_MAGNITUDE) or \
+                (positive and value <= 0) or value < 0 or abs(stderr) >= ABSURD_MAGNITUDE:
+            spread = f' +- {stderr:.3g}' if math.isfinite(stderr) and stderr else ''
+            bad.append(f'{name} {value:.3g}{spread}')
+    if not math.isfinite(_float(row.get('window_start_ns'))):
+        bad.append(f"window_start_ns {row.get('window_start_ns')}")
+    if not bad:
+        return row
+    return {**row, 'status': 'absurd', 'error': f'absurd values, not plotted: {", ".join(bad)}'}
+
+
 class MotorTrend:
     """
     One motor's windows from the history, and what the report says about them.
@@ -71,6 +102,7 @@ class MotorTrend:
     def __init__(self, motor_id: str, rows: Sequence[Mapping[str, Any]],
                  settings: DetectorSettings = DetectorSettings()) -> None:
         self.motor_id = motor_id
+        rows = [_flag_absurd(row) for row in rows]
         self.failed = [row for row in rows if row.get('status') != 'ok']
         self.rows = sorted((row for row in rows if row.get('status') == 'ok'),
                            key=lambda row: (row['window_start_ns'], row['source_bag']))

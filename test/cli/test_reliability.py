@@ -807,3 +807,332 @@ def test_the_milliampere_flag_on_ampere_data_is_named(table, tmp_path, capsys):
     assert code == 0, err
     warnings = json.loads(out.read_text())['warnings']
     assert any('the current column looks already in amperes' in text for text in warnings)
+
+
+# ---------------------------------------------------------------- round 4 (issue 30)
+@pytest.fixture
+def small_bag(tmp_path):
+    """Return a rosbag2 directory of 2 s of motor 2 on /voltage /current /speed."""
+    from dcmotor_id.formats.bag import write_bag
+    from support import motor_samples
+    stamps, channels = motor_samples(2.0)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    return tmp_path / 'bag'
+
+
+def _bag_bytes(bag):
+    return {path.name: path.read_bytes() for path in sorted(bag.iterdir())}
+
+
+@pytest.mark.parametrize('command, output', [
+    (['identify', 'BAG', '--json', 'BAG/bag.mcap'], 'BAG/bag.mcap'),
+    (['identify', 'BAG', '--json', 'BAG/metadata.yaml'], 'BAG/metadata.yaml'),
+    (['identify', 'BAG/bag.mcap', '--json', 'BAG/metadata.yaml'], 'BAG/metadata.yaml'),
+    (['identify', 'BAG', '--json', 'BAG/new.json'], 'BAG/new.json'),
+    (['identify', 'BAG', '--report', 'BAG'], 'BAG'),
+    (['validate', 'MODEL', 'BAG', '--json', 'BAG/bag.mcap'], 'BAG/bag.mcap'),
+    (['validate', 'MODEL', 'BAG', '--report', 'BAG/report'], 'BAG/report'),
+    (['fleet', 'BAG', '--history', 'BAG/history'], 'BAG/history'),
+])
+def test_no_output_is_written_inside_an_input_bag(small_bag, tmp_path, capsys, monkeypatch,
+                                                  command, output):
+    """Issue 30, item 1: ``--json bag/<name>.mcap`` replaced the recording."""
+    monkeypatch.setattr(cli, 'identify', lambda *a, **k: pytest.fail('the fit ran'))
+    model = tmp_path / 'model.json'
+    model.write_text(json.dumps({'parameters': {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7,
+                                                'J': 0.0315, 'b': 0.3, 'Mc': 1.0}}))
+    before = _bag_bytes(small_bag)
+    args = [item.replace('BAG', str(small_bag)).replace('MODEL', str(model))
+            for item in command]
+    refused(capsys, *args, phrases=[output.replace('BAG', str(small_bag)),
+                                    'inside the input bag directory', 'outside it'])
+    assert _bag_bytes(small_bag) == before
+
+
+@pytest.mark.parametrize('option', ['--export', '--report'])
+def test_design_never_writes_its_directory_outputs_over_the_input(tmp_path, capsys, option):
+    """Issue 30, item 2: ``design X/model_statespace.json --export X`` replaced the input."""
+    folder = tmp_path / 'X'
+    folder.mkdir()
+    name = 'model_statespace.json' if option == '--export' else 'design.html'
+    source = folder / name
+    text = json.dumps({'parameters': {'Ra': 1.6, 'La': 0.016, 'CPhi': 0.7, 'J': 0.0315,
+                                      'b': 0.3, 'Mc': 1.0}, 'mode': 'full'})
+    source.write_text(text)
+    refused(capsys, 'design', source, option, folder,
+            phrases=[option, 'would overwrite the input', name])
+    assert source.read_text() == text
+    code, _, err = run_command(capsys, 'design', source, option, tmp_path / 'elsewhere')
+    assert code == 0, err
+
+
+def test_the_time_budget_covers_the_structure_bootstrap(table, tmp_path):
+    """Issue 30, item 3: 1000 resamples under ``--max-time 6`` ran for minutes."""
+    out = tmp_path / 'r.json'
+    started = time.monotonic()
+    completed = run_process('identify', write(tmp_path / 'x.csv', HEADER, table),
+                            '--structure-bootstrap', '1000', '--max-time', '6', '--json', out,
+                            '--quiet', timeout_s=90)
+    assert completed.returncode == 0, completed.stderr
+    assert time.monotonic() - started < 40
+    result = json.loads(out.read_text())
+    account = result['structure_uncertainty']
+    assert account['stopped_by_time_budget'] and account['completed'] < 1000
+    assert any(f'{account["completed"]} of 1000 resamples were done' in text
+               for text in result['warnings'])
+
+
+@pytest.mark.parametrize('workers', ['-3', '0', '1.5'])
+def test_fleet_refuses_fewer_than_one_worker(tmp_path, capsys, workers):
+    """Issue 30, item 4: ``--workers -3`` hung at 0 % CPU; 0 was taken without a meaning."""
+    with pytest.raises(SystemExit) as caught:
+        cli.main(['fleet', str(tmp_path), '--history', str(tmp_path / 'h'), '--workers',
+                  workers])
+    assert caught.value.code == 2
+    err = capsys.readouterr().err
+    assert '--workers' in err and ('must be 1 or more' in err or 'whole number' in err)
+    from dcmotor_id.fleet.job import start_client
+    with pytest.raises(InputDataError, match='1 or more workers'):
+        start_client(workers=0)
+
+
+@pytest.mark.parametrize('where', ['header', 'row'])
+def test_a_csv_field_beyond_the_csv_limit_is_refused_naming_the_line(table, tmp_path, capsys,
+                                                                     where):
+    """Issue 30, item 13: "field larger than field limit" was an internal error."""
+    path = tmp_path / 'long.csv'
+    if where == 'header':
+        path.write_text('t,voltage,current,' + 's' * 200_000 + '\n0,1,1,1\n')
+        line = 'line 1'
+    else:
+        rows = ''.join(f'{k * 1e-3},1,1,1\n' for k in range(300))
+        path.write_text('t,voltage,current,speed\n' + rows + 'x' * 200_000 + ',1,1,1\n')
+        line = 'line 302'
+    refused(capsys, 'identify', path, phrases=[line, 'field larger than field limit (131072)'])
+
+
+def test_an_absurd_sample_period_is_refused(table, tmp_path, capsys):
+    """Issue 30, item 14: ``--sample-period 1e300`` ended in ZeroDivisionError."""
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, table),
+                               '--sample-period', '1e300')
+    assert code == 2 and 'dcmotor-id: error: ' in err, err
+    assert 'samples 1e+300 s apart' in err and 'more than 1000 s apart' in err
+
+
+@pytest.fixture
+def result_file(table, tmp_path, capsys):
+    """Return the JSON of ``identify --no-discover`` on the good table (parsed)."""
+    out = tmp_path / 'model.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'base.csv', HEADER, table),
+                               '--no-discover', '--json', out)
+    assert code == 0, err
+    return json.loads(out.read_text())
+
+
+@pytest.mark.parametrize('edit, phrase', [
+    (lambda r: r['parameters'].update(J=r['parameters']['J'] * 10), 'parameters.J = '),
+    (lambda r: r['parameters'].update(J=-1.0), 'parameters.J = -1.0 but model.parameters.J'),
+    (lambda r: r['parameters'].update(Ra='1.6'), 'parameters.Ra = "1.6" but'),
+    (lambda r: r.update(effects=[{'name': 'bogus', 'parameters': {}}]),
+     '"effects" (bogus) differ from model.effects (none)'),
+])
+@pytest.mark.parametrize('command', ['validate', 'design'])
+def test_a_result_file_holds_one_model(result_file, tmp_path, capsys, edit, phrase, command):
+    """Issue 30, item 9: validate scored the ``model`` block, design the edited parameters."""
+    edit(result_file)
+    path = tmp_path / 'edited.json'
+    path.write_text(json.dumps(result_file))
+    args = [path, tmp_path / 'base.csv'] if command == 'validate' else [path]
+    refused(capsys, command, *args, phrases=[phrase, 'one model'])
+
+
+def test_parameters_that_are_not_a_mapping_are_refused(tmp_path, capsys):
+    path = tmp_path / 'list.json'
+    path.write_text('{"parameters": [1, 2, 3]}')
+    refused(capsys, 'validate', path, tmp_path / 'x.csv',
+            phrases=['"parameters" is [1, 2, 3], not a mapping'])
+
+
+@pytest.mark.parametrize('command', [['validate', 'FILE', 'x.csv'], ['design', 'FILE'],
+                                     ['plan', '--prior', 'FILE']])
+def test_a_json_nested_100000_deep_is_refused(tmp_path, capsys, command):
+    """Issue 30, item 15: RecursionError in validate, design and plan --prior."""
+    path = tmp_path / 'deep.json'
+    path.write_text('[' * 100_000 + ']' * 100_000)
+    (tmp_path / 'x.csv').write_text('t,voltage,current,speed\n')
+    args = [str(path) if item == 'FILE' else str(tmp_path / item) if item == 'x.csv'
+            else item for item in command]
+    refused(capsys, *args, phrases=['deep.json', 'nested too deeply'])
+
+
+def test_a_yaml_prior_with_a_python_tag_is_not_plain_yaml(tmp_path, capsys):
+    path = tmp_path / 'prior.yaml'
+    path.write_text('parameters: !!python/object/apply:os.system ["echo hi"]\n')
+    refused(capsys, 'plan', '--prior', path, phrases=['not plain YAML', 'without !! tags'])
+
+
+def test_design_bandwidths_are_checked_against_the_models_sampling_rate(result_file, tmp_path,
+                                                                        capsys):
+    """Issue 30, item 10: ``--current-bandwidth 1e6`` on a 1 kHz model was designed."""
+    path = tmp_path / 'model.json'
+    path.write_text(json.dumps(result_file))
+    rate = 1.0 / result_file['sample_period_s']
+    refused(capsys, 'design', path, '--current-bandwidth', '1e6',
+            phrases=['--current-bandwidth 1e+06 Hz is at or above the Nyquist frequency',
+                     'the sampling rate the model was identified at'])
+    out = tmp_path / 'design.json'
+    code, _, err = run_command(capsys, 'design', path, '--current-bandwidth', rate / 10,
+                               '--json', out)
+    assert code == 0, err
+    assert 'above a twentieth of the sampling rate' in err
+    assert any('above a twentieth' in text for text in json.loads(out.read_text())['warnings'])
+    code, _, err = run_command(capsys, 'design', path, '--current-bandwidth', rate / 40)
+    assert code == 0 and 'twentieth' not in err
+
+
+@pytest.mark.parametrize('value', ['nan', 'inf', '-inf'])
+def test_simulate_refuses_non_finite_effect_parameters(tmp_path, capsys, value):
+    """Issue 30, item 11: ``--effect load_torque:torque_Nm=nan`` was silently dropped."""
+    refused(capsys, 'simulate', '--duration', '0.2', '--effect',
+            f'load_torque:torque_Nm={value}', '--out', tmp_path / 'x.csv',
+            phrases=[f'torque_Nm = {value} is not a finite number'])
+    assert not (tmp_path / 'x.csv').exists()
+
+
+@pytest.mark.parametrize('unit, cphi', [('rpm', 6.68), ('deg/s', 40.1)])
+def test_a_speed_unit_flag_on_si_data_is_named(table, tmp_path, capsys, unit, cphi):
+    """Issue 30, item 6: ``--speed-unit rpm`` on rad/s data gave CPhi 6.68 without a word."""
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, table),
+                               '--no-discover', '--speed-unit', unit, '--json', out)
+    assert code == 0, err
+    result = json.loads(out.read_text())
+    assert result['parameters']['CPhi'] == pytest.approx(cphi, rel=0.05)
+    assert any(f'--speed-unit {unit} gives CPhi' in text and 'looks already in rad/s' in text
+               for text in result['warnings'])
+
+
+def test_a_speed_unit_flag_on_data_in_that_unit_is_not_warned(table, tmp_path, capsys):
+    rows = table.copy()
+    rows[:, 3] *= 60 / (2 * np.pi)   # the speed really in rpm
+    out = tmp_path / 'r.json'
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, rows),
+                               '--no-discover', '--speed-unit', 'rpm', '--json', out)
+    assert code == 0, err
+    result = json.loads(out.read_text())
+    assert result['parameters']['CPhi'] == pytest.approx(0.7, rel=0.02)
+    assert not any('--speed-unit' in text for text in result.get('warnings') or [])
+
+
+@pytest.mark.parametrize('kind', ['csv', 'bag'])
+def test_a_byte_identical_copy_is_refused(table, tmp_path, capsys, small_bag, kind):
+    """Issue 30, item 7: two names of one record shrank the standard errors by sqrt(2)."""
+    import shutil
+    if kind == 'csv':
+        first = write(tmp_path / 'a.csv', HEADER, table)
+        second = tmp_path / 'b.csv'
+        shutil.copy(first, second)
+    else:
+        first, second = small_bag, tmp_path / 'bag_copy'
+        shutil.copytree(first, second)
+    refused(capsys, 'identify', first, second, '--no-discover',
+            phrases=[str(second), 'byte for byte the same recording as', str(first)])
+
+
+def test_a_sample_period_that_disagrees_with_the_time_column_is_said(table, tmp_path, capsys):
+    """Issue 30, item 8: ``--sample-period`` 10x off the stamps gave La and J 10x, no note."""
+    path = write(tmp_path / 'x.csv', HEADER, table)
+    code, _, err = run_command(capsys, 'identify', path, '--no-discover', '--sample-period',
+                               '1e-2')
+    assert code == 0, err
+    assert '--sample-period 0.01 s disagrees with the time column' in err
+    assert '0.001 s apart (a factor 10)' in err
+    code, _, err = run_command(capsys, 'identify', path, '--no-discover', '--sample-period',
+                               '1e-3')
+    assert code == 0 and 'disagrees' not in err
+
+
+@pytest.mark.parametrize('args, phrases', [
+    (['plan', '--rate', '1e9'], ['--rate 1e+09', '1e+10 commands', '--memory-budget']),
+    (['simulate', '--duration', '1e9', '--out', 'OUT'], ['--duration 1e+09', '1e+13 samples',
+                                                         '--memory-budget']),
+    (['simulate', '--sample-period', '1e-12', '--out', 'OUT'],
+     ['8e+12 samples at --sample-period 1e-12 s', '--memory-budget']),
+])
+def test_memory_is_estimated_from_the_arguments_before_allocating(tmp_path, capsys, args,
+                                                                  phrases):
+    """Issue 30: a raw "MemoryError: Unable to allocate 74.5 GiB"."""
+    started = time.monotonic()
+    err = refused(capsys, *[str(tmp_path / 'x.csv') if item == 'OUT' else item
+                            for item in args], phrases=phrases)
+    assert 'MemoryError' not in err and time.monotonic() - started < 5
+
+
+def test_plan_refuses_a_ramp_in_not_shorter_than_the_duration(capsys):
+    refused(capsys, 'plan', '--ramp-in', '100', '--duration', '5',
+            phrases=['--ramp-in 100 s is not shorter than --duration 5 s', 'never reach'])
+
+
+def test_a_mat_of_complex_values_is_refused_naming_the_variable(table, tmp_path, capsys):
+    """Issue 30: the imaginary part was dropped with only numpy's ComplexWarning."""
+    from scipy.io import savemat
+    columns = {name: table[:, k] for k, name in enumerate(HEADER)}
+    savemat(tmp_path / 'real.mat', {**columns, 'current': columns['current'] + 0j})
+    code, _, err = run_command(capsys, 'identify', tmp_path / 'real.mat', '--no-discover')
+    assert code == 0 and 'ComplexWarning' not in err, err
+    savemat(tmp_path / 'complex.mat', {**columns, 'current': columns['current'] + 0.5j})
+    refused(capsys, 'identify', tmp_path / 'complex.mat',
+            phrases=["variable 'current' (current) holds complex values",
+                     'imaginary parts up to 0.5'])
+
+
+def test_flags_without_their_partner_are_named(table, tmp_path, capsys):
+    """Issue 30: --speed-cutoff without a position, --duty-full-scale without duty: ignored."""
+    code, _, err = run_command(capsys, 'identify', write(tmp_path / 'x.csv', HEADER, table),
+                               '--no-discover', '--speed-cutoff', '50', '--duty-full-scale',
+                               '100')
+    assert code == 0, err
+    assert '--speed-cutoff 50 Hz ignored' in err
+    assert '--duty-full-scale 100 ignored' in err
+
+
+def test_the_paper_method_refuses_a_window_without_voltage_without_numpy_warnings():
+    """Issue 30: "divide by zero" RuntimeWarnings of estimators/paper.py in the node log."""
+    import warnings
+    from dcmotor_id.identification.estimators.paper import PaperEstimator
+    t = np.arange(300) * 1e-3
+    record = Record(t, current=np.sin(50 * t), voltage=np.zeros_like(t), speed=np.cos(30 * t))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        with pytest.raises(FitError, match=r'weight w1 \(voltage\) is 0'):
+            PaperEstimator().fit([record])
+
+
+def test_resamples_stop_when_the_budget_is_spent_and_a_cut_one_is_no_draw(table):
+    """Issue 30, item 3: the resamples share the one budget; none starts once it is spent."""
+    from types import SimpleNamespace
+    from dcmotor_id.identification.structure_uncertainty import BUDGET_SPENT, run_resamples
+    record = Record(table[:, 0], table[:, 2], table[:, 1], table[:, 3])
+    clock = [10.0]   # seconds left; every resample takes 3
+
+    def identify_once(records):
+        clock[0] -= 3.0
+        return SimpleNamespace(effects=[], parameters={'Ra': 1.6})
+
+    draws, failures = run_resamples(identify_once, [record], 1000, remaining=lambda: clock[0])
+    assert len(draws) == 3 and failures == [BUDGET_SPENT]   # the 4th ended past the budget
+
+
+def test_two_recordings_of_equal_size_are_not_taken_for_copies(table, tmp_path):
+    from dcmotor_id.formats.paths import same_content
+    first = write(tmp_path / 'a.csv', HEADER, table)
+    data = bytearray(open(first, 'rb').read())
+    middle = len(data) // 2
+    while not chr(data[middle]).isdigit():
+        middle += 1
+    data[middle] = ord('1') if data[middle] != ord('1') else ord('2')   # same size, not a copy
+    (tmp_path / 'b.csv').write_bytes(bytes(data))
+    assert same_content([first, tmp_path / 'b.csv']) is None
+    (tmp_path / 'c.csv').write_bytes(open(first, 'rb').read())
+    assert same_content([first, tmp_path / 'b.csv', tmp_path / 'c.csv']) == (
+        first, str(tmp_path / 'c.csv'))

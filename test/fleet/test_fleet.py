@@ -234,3 +234,20 @@ def test_cli_fleet_local_cluster_and_report(tmp_path, capsys):
     assert main(['fleet-report', history_dir, '--out', str(tmp_path / 'report')]) == 0
     assert os.path.isfile(tmp_path / 'report' / 'motor_m000.png')
     assert main(['fleet', str(tmp_path / 'nowhere'), '--history', history_dir]) == 2
+
+
+def test_a_motor_of_absurd_rows_is_flagged_and_the_others_reported(tmp_path):
+    """Issue 30, item 16: Ra NaN, J -1e308 failed the whole report (arange)."""
+    _synthetic_history(tmp_path / 'history')
+    values = {'Ra': float('nan'), 'La': 0.016, 'CPhi': 0.7, 'J': -1e308, 'b': 0.3, 'Mc': 1.0}
+    result = {'parameters': values, 'stderr': dict.fromkeys(values, 1e-3), 'method': 'refined',
+              'effects': [], 'error_before': {}, 'error_after': {}, 'unexplained': False}
+    write_rows(str(tmp_path / 'history'), [dict(
+        result_row(result), motor_id='site/bad', source_bag=f'/bad/{k}', window_index=0,
+        window_start_ns=EPOCH_NS + k * DAY_NS, window_end_ns=EPOCH_NS + k * DAY_NS + 10 ** 10,
+        run_id='r2', processed_at=None) for k in range(3)], 'r2')
+    page = write_fleet_report(str(tmp_path / 'history'), str(tmp_path / 'report'))
+    text = open(page, encoding='utf-8').read()
+    assert 'href="#site_m2"' in text and 'href="#site_bad"' in text
+    assert 'absurd values, not plotted: Ra nan' in text and 'J -1e+308' in text
+    assert os.path.isfile(tmp_path / 'report' / 'motor_site_m1.png')

@@ -327,3 +327,88 @@ def test_sim_motor_survives_an_absurd_command_and_says_so(ros):
         assert np.all(np.isfinite(received[-1][1:]))  # the motor is simulated again
     finally:
         remove_nodes(ros, sim, probe)
+
+
+# ---------------------------------------------------------------- round 4 (issue 30)
+@pytest.mark.parametrize('name, value', [
+    ('method', 'bogus'), ('input', 'telepathy'), ('window_s', 1e12), ('min_window_s', 1e9),
+    ('record_dir', '/proc/forbidden'), ('effort_scale', float('inf'))])
+def test_identifier_refuses_a_start_up_parameter_changed_at_run_time(graph, name, value):
+    """Issue 30, item 12: these were answered successful=True and then ignored."""
+    ident, _ = graph(f'runtime_{name}')
+    before = ident.get_parameter(name).value
+    outcome, = ident.set_parameters([Parameter(name, value=value)])
+    assert not outcome.successful
+    assert name in outcome.reason and 'restart the node' in outcome.reason
+    assert ident.get_parameter(name).value == before
+    assert ident.set_parameters([Parameter('structure_bootstrap', value=5)])[0].successful
+    assert ident.structure_bootstrap == 5
+
+
+@pytest.mark.parametrize('overrides, phrase', [
+    ({'min_window_s': 3.0, 'window_s': 2.0}, 'min_window_s = 3 s is longer than window_s'),
+    ({'record': True, 'record_dir': '/proc/forbidden'},
+     "record_dir = '/proc/forbidden': cannot write there"),
+    ({'effort_scale': float('inf')}, 'effort_scale = inf'),
+    ({'window_s': 1e12}, 'window_s = 1e+12 s is 1e+15 samples'),
+])
+def test_identifier_refuses_settings_that_cannot_work_at_start_up(ros, overrides, phrase):
+    with pytest.raises(ValueError) as caught:
+        Identifier(namespace='refused', parameter_overrides=[
+            Parameter(name, value=value) for name, value in overrides.items()])
+    assert phrase in str(caught.value)
+
+
+def test_sim_motor_refuses_a_motor_changed_at_run_time(ros):
+    from dcmotor_id.nodes.sim_motor import SimMotor
+
+    sim = SimMotor(namespace='runtime_sim')
+    try:
+        outcome, = sim.set_parameters([Parameter('J', value=0.0)])
+        assert not outcome.successful and 'restart the node' in outcome.reason
+        assert sim.params.J == PAPER_MOTORS['paper2'].J
+    finally:
+        sim.destroy_node()
+
+
+def test_exciter_checks_a_routine_changed_at_run_time_by_the_start_up_rules(ros):
+    from dcmotor_id.nodes.exciter import Exciter
+
+    exciter = Exciter(namespace='runtime_exciter')
+    try:
+        outcome, = exciter.set_parameters([Parameter('routine', value='bogus')])
+        assert not outcome.successful and 'choose one of' in outcome.reason
+        outcome, = exciter.set_parameters([Parameter('rate_hz', value=50.0)])
+        assert not outcome.successful and 'restart the node' in outcome.reason
+        assert exciter.set_parameters([Parameter('amplitude_v', value=2.0)])[0].successful
+    finally:
+        exciter.destroy_node()
+
+
+@pytest.mark.parametrize('node, parameter, phrase', [
+    ('exciter', 'rate_hz:=1e9', 'parameter rate_hz = 1000000000.0 is out of range'),
+    ('replay', 'rate:=0.0', 'parameter rate = 0.0 is out of range'),
+    ('replay', 'rate:=-1.0', 'parameter rate = -1.0 is out of range'),
+])
+def test_an_out_of_range_start_up_value_is_one_line_and_exit_2(ros_env, tmp_path, node,
+                                                               parameter, phrase):
+    """Issue 30, item 17: a traceback of InvalidParameterValueException."""
+    result = subprocess.run(
+        [sys.executable, '-m', f'dcmotor_id.nodes.{node}', '--ros-args', '-p', parameter,
+         '-p', f'bag:={tmp_path}'], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert 'Traceback' not in result.stderr and phrase in result.stderr, result.stderr
+
+
+def test_replay_shortens_absurd_gaps_and_says_so():
+    """Issue 30, item 5: a 31-year gap between two messages was slept out."""
+    from dcmotor_id.nodes.replay import schedule
+
+    year_ns = 365 * 86400 * 10 ** 9
+    stamps = [0, 10 ** 6, 31 * year_ns, 31 * year_ns + 10 ** 6]
+    due, shortened = schedule(stamps, rate=1.0, max_gap_s=10.0)
+    assert due == pytest.approx([0.0, 1e-3, 10.001, 10.002])
+    assert [index for index, _ in shortened] == [2]
+    assert shortened[0][1] == pytest.approx(31 * 365 * 86400, rel=1e-6)
+    due, shortened = schedule(stamps[:2], rate=0.5, max_gap_s=10.0)
+    assert due == pytest.approx([0.0, 2e-3]) and not shortened

@@ -391,3 +391,27 @@ def test_replay_executable_skips_a_bad_topic_name_with_a_warning(ros_env, tmp_pa
         assert 'topic /current: 1 message(s) skipped, their payload is not a valid ' \
             'std_msgs/msg/Float64 (first at stamp 1007000000 ns)' in output, output
         assert 'done: 149 messages played' in output
+
+
+def test_replay_says_why_nothing_can_be_played(ros, tmp_path):
+    """Issue 30: undecodable payloads were "no message to play"; a bad prefix blamed the bag."""
+    bag = mixed_bag(tmp_path / 'broken', samples=5)
+    with pytest.raises(ValueError) as caught:
+        Replay(parameter_overrides=[Parameter('bag', value=str(bag)),
+                                    Parameter('topic_prefix', value='../bad name')])
+    assert "parameter topic_prefix = '../bad name'" in str(caught.value)
+    assert 'not a valid ROS topic name' in str(caught.value)
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    path = tmp_path / 'undecodable'
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    connection = writer.add_connection('/voltage', 'std_msgs/msg/Float64',
+                                       msgdef='float64 data', rihs01='RIHS01_' + '0' * 64)
+    for k in range(5):
+        writer.write(connection, 10 ** 9 + k * 10 ** 6, b'\x00\x01\x00')
+    writer.close()
+    with pytest.raises(ValueError) as caught:
+        Replay(parameter_overrides=[Parameter('bag', value=str(path))])
+    assert 'nothing of the bag' in str(caught.value)
+    assert 'topic /voltage: 5 message(s) skipped, their payload is not a valid' \
+        in str(caught.value)

@@ -22,6 +22,7 @@ effect in :data:`VOCABULARY` wins and the other is listed as equivalent).
 from __future__ import annotations
 
 import importlib
+import math
 import pkgutil
 from typing import Any
 
@@ -90,4 +91,7 @@ def parse_effect(text: str) -> Effect:
             parameters[key] = float(value)
         except ValueError:
             parameters[key] = value.strip()
+        if isinstance(parameters[key], float) and not math.isfinite(parameters[key]):
+            raise ValueError(f'--effect {text!r}: {key} = {value.strip()} is not a finite '
+                             'number; give a value')
     return make_effect(name.strip(), **parameters)

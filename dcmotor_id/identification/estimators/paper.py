@@ -32,6 +32,21 @@ from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm
 from dcmotor_id.identification.estimators.jacobian import jacobian
 
 
+def _check_weights(divisors: dict[str, float]) -> None:
+    """
+    Refuse neuron weights the physical parameters are divided by when they are (about) zero.
+
+    A window in which the voltage (or the current) does not move gives such a weight: the
+    parameters would be ``inf`` (a numpy "divide by zero" warning, then nonsense); the
+    refusal names the weight and what is missing.
+    """
+    for name, value in divisors.items():
+        if not (np.isfinite(value) and abs(value) > 1e-12):
+            raise FitError(f'the paper method cannot separate the parameters: its weight '
+                           f'{name} is {value:.3g} (the signal it multiplies does not move '
+                           'enough in these data); give a record with more excitation')
+
+
 def _train_neuron(inputs, target):
     """
     Train a linear neuron on its mean squared error; return weights and covariance.
@@ -103,6 +118,7 @@ class PaperEstimator:
         info = {'sample_period_s': dt, 'n2_weights': v.tolist()}
         if torque_constant is not None:
             cphi = float(torque_constant)
+            _check_weights({'v1 (current in N2)': v[0]})
 
             def mech(weights):
                 j = cphi * dt / weights[0]
@@ -119,6 +135,8 @@ class PaperEstimator:
             n1_in.append(np.column_stack([rec.voltage[:-1], rec.speed[:-1], rec.current[:-1]]))
             n1_out.append(rec.current[1:])
         w, cov_w = _train_neuron(np.vstack(n1_in), np.concatenate(n1_out))
+        _check_weights({'w1 (voltage)': w[0], '1 - w3 (current memory)': 1.0 - w[2],
+                        'v1 (current in N2)': v[0]})
         info['n1_weights'] = w.tolist()
         weights = np.concatenate([w, v])
         covariance = np.zeros((6, 6))
