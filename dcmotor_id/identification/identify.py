@@ -68,6 +68,8 @@ from dcmotor_id.identification.estimators.uncertainty import (between_record_war
                                                               with_robust_stderr)
 from dcmotor_id.identification.fitting import (check_physical, record_names, run_discovery,
                                                simulation_errors, supports_discovery)
+from dcmotor_id.identification.floor import (floor_fallback, regression_floor,
+                                             trimmed_records, with_floor)
 from dcmotor_id.identification.heldout import HELDOUT_CHOICE, heldout_warnings, record_errors
 from dcmotor_id.identification.multistart import ambiguity_warning, several_starts, with_starts
 from dcmotor_id.identification.position_error import check_base, with_chosen_error_model
@@ -168,8 +170,34 @@ def identify(records: Sequence[Record], method: str = 'refined',
                             estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,
                             progress=progress, initial_state=initial_state, criterion=criterion)
     progress = progress if progress is not None else Progress(max_time_s)
-    return _identify_checked(criterion, (records, method, torque_constant, discover, estimator,
-                                         vocabulary, progress, initial_state))
+    return _identify_with_floor(criterion, (records, method, torque_constant, discover,
+                                            estimator, vocabulary, progress, initial_state))
+
+
+# --- regression floor (issue 29; identification/floor.py): port as one stage -------------
+def _identify_with_floor(criterion, arguments):
+    """
+    Run :func:`_identify_checked` above the model-free regression's answer.
+
+    The regression (:func:`~dcmotor_id.identification.floor.regression_floor`) is computed
+    first; a command that did not reach the motor at a record's start is cut; a failed fit
+    falls back to the regression, and a fit that predicts the held-out part worse gives way
+    to it (:func:`~dcmotor_id.identification.floor.with_floor`).
+    """
+    records, torque_constant, progress = arguments[0], arguments[2], arguments[6]
+    floor = regression_floor(records, torque_constant) if arguments[4] is None else None
+    records, left_out = trimmed_records(records, floor)
+    try:
+        result = _identify_checked(criterion, (records, *arguments[1:]))
+    except FitError as error:
+        fallback = floor_fallback(floor, records, torque_constant, error, criterion,
+                                  progress.elapsed())
+        if fallback is None:
+            raise
+        result = fallback
+    result = with_floor(result, floor, records)
+    return replace(result, warnings=left_out + result.warnings) if left_out else result
+# --- end of the regression floor ---------------------------------------------------------
 
 
 def _identify_checked(criterion, arguments):

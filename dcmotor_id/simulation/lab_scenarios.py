@@ -552,3 +552,55 @@ SCENARIOS = {
     'ball_screw_sine': ball_screw_sine,
     'axis_both_ways': axis_both_ways,
 }
+
+
+#: A small 24 V motor whose armature time constant (0.52 ms) is below a 2 ms log period.
+SMALL_24V_MOTOR = MotorParameters(Ra=2.3, La=1.2e-3, CPhi=0.035, J=2.1e-5, b=3e-6, Mc=0.004)
+
+
+def small_motor_encoder_500hz(seed: int = 0, sample_period_s: float = 2e-3,
+                              counts_per_rev: int = 2048) -> Scenario:
+    """
+    Simulate a small 24 V motor logged at 500 Hz: encoder speed, current in 5 mA steps.
+
+    Voltage steps of both signs and several levels (as a bench supply or an H-bridge gives);
+    the speed is the encoder's pulse count per sample, the current is read by an ADC with a
+    5 mA resolution.
+    """
+    rng = np.random.default_rng(seed)
+    truth = SMALL_24V_MOTOR
+    levels = [6.0, 18.0, -12.0, 24.0, 3.0, -20.0, 10.0, -6.0, 0.0, 15.0, -24.0, 8.0]
+    command = step_levels(levels, 0.5, sample_period_s)
+    out = simulate_drive(truth, command, sample_period_s)
+    t = np.arange(command.shape[0]) * sample_period_s
+    current = np.round(_noisy(out['current'], 0.004, rng) / 0.005) * 0.005
+    speed = encoder_speed(out['angle'], sample_period_s, counts_per_rev)
+    record = Record(t, current=current, voltage=command, speed=speed,
+                    source='small_motor_encoder_500hz')
+    return Scenario('small_motor_encoder_500hz', [record], truth,
+                    note='La/Ra 0.52 ms below the 2 ms period, 2048-count encoder, 5 mA steps')
+
+
+def amplifier_ramp_step(seed: int = 0, sample_period_s: float = 2e-3, level_v: float = 8.0,
+                        ramp_s: float = 0.036, duration_s: float = 1.0) -> Scenario:
+    """
+    Simulate a voltage step from rest whose amplifier ramps the voltage it applies.
+
+    The log reads the commanded level from t = 0, while the motor gets a linear ramp over
+    ``ramp_s`` (an amplifier's soft start or slew limit): the current rises over the ramp,
+    not at once as the logged voltage implies.
+    """
+    rng = np.random.default_rng(seed)
+    truth = MotorParameters(Ra=9.5, La=2.0e-3, CPhi=0.0634, J=4.0e-5, b=2.0e-6, Mc=1.0e-3)
+    n = int(round(duration_s / sample_period_s))
+    t = np.arange(n) * sample_period_s
+    applied = level_v * np.clip((t + sample_period_s) / ramp_s, 0.0, 1.0)
+    out = simulate_drive(truth, applied, sample_period_s)
+    record = Record(t, current=_noisy(out['current'], 0.002, rng), voltage=np.full(n, level_v),
+                    speed=_noisy(out['speed'], 0.3, rng), source='amplifier_ramp_step')
+    return Scenario('amplifier_ramp_step', [record], truth,
+                    note=f'logged voltage constant from t = 0, applied ramp over {ramp_s:g} s')
+
+
+SCENARIOS.update({'small_motor_encoder_500hz': small_motor_encoder_500hz,
+                  'amplifier_ramp_step': amplifier_ramp_step})
