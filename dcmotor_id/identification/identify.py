@@ -81,6 +81,7 @@ from dcmotor_id.identification.quasi_static import (la_reason, la_unresolved, qu
 from dcmotor_id.identification.residuals import output_channels, simulate_records
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.identification.second_start import check_start, start_warning
+from dcmotor_id.identification.segments import split_tests
 from dcmotor_id.identification.validate import operating_range
 
 if TYPE_CHECKING:
@@ -185,8 +186,11 @@ def _identify_with_floor(criterion, arguments):
     to it (:func:`~dcmotor_id.identification.floor.with_floor`).
     """
     records, torque_constant, progress = arguments[0], arguments[2], arguments[6]
+    tests = split_tests(records)  # idle or braked stretches between tests (segments.py)
+    records = list(tests.records)
     floor = regression_floor(records, torque_constant) if arguments[4] is None else None
     records, left_out = trimmed_records(records, floor)
+    left_out = ([tests.note] if tests.note else []) + left_out
     try:
         result = _identify_checked(criterion, (records, *arguments[1:]))
     except FitError as error:
