@@ -18,10 +18,12 @@ import warnings
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.identification.floor import regression_floor
 from dcmotor_id.identification.identify import identify, prepare_records
-from dcmotor_id.simulation.lab_scenarios import SCENARIOS
+from dcmotor_id.identification.segments import split_tests
+from dcmotor_id.simulation.lab_scenarios import SCENARIOS, sysid_routine
 
-NAMES = ('small_motor_encoder_500hz', 'amplifier_ramp_step', 'voltage_step_from_rest',
-         'hobby_motor_encoder', 'small_motor_low_rate', 'coloured_disturbance')
+NAMES = ('small_motor_encoder_500hz', 'amplifier_ramp_step', 'hobby_servo_pwm_angle',
+         'sysid_routine', 'voltage_step_from_rest', 'hobby_motor_encoder', 'small_motor_low_rate',
+         'coloured_disturbance')
 PARAMETERS = ('Ra', 'CPhi', 'J', 'b', 'Mc')
 
 
@@ -34,10 +36,11 @@ def _errors(values, truth):
 def rows():
     """Yield one table row per scenario and estimator."""
     for name in NAMES:
-        scenario = SCENARIOS[name]()
+        scenario = sysid_routine()[0] if name == 'sysid_routine' else SCENARIOS[name]()
         records = prepare_records(scenario.records)
         start = time.perf_counter()
-        floor = regression_floor(records, scenario.torque_constant)
+        # The regression on the tests the identification fits (a SysId routine is split).
+        floor = regression_floor(list(split_tests(records).records), scenario.torque_constant)
         floor_s = time.perf_counter() - start
         start = time.perf_counter()
         try:
@@ -46,6 +49,10 @@ def rows():
             used = 'regression' if any('regression' in text and ('failed' in text or 'worse'
                                                                  in text)
                                        for text in result.warnings) else 'output error'
+            used += ''.join(f', {len(result.sources)} tests' for text in result.warnings
+                            if 'separate records' in text)
+            used += ''.join(', ramp cut' for text in result.warnings
+                            if 'did not reach the motor' in text)
         except DcMotorIdError as error:
             cells, used = ['-'] * len(PARAMETERS), f'refused: {str(error)[:60]}'
         identify_s = time.perf_counter() - start

@@ -125,11 +125,17 @@ def _solve(matrix: np.ndarray, rhs: np.ndarray,
     """Least squares with standard errors on the samples the residual is worth."""
     if matrix.shape[0] <= matrix.shape[1] + 2:
         return None
+    # Normal equations on columns scaled to unit norm (a few columns, many rows: fast).
+    norms = np.sqrt(np.einsum('ij,ij->j', matrix, matrix))
+    if not np.all(norms > 0):
+        return None
+    scaled = matrix / norms
     try:
-        solution = np.linalg.lstsq(matrix, rhs, rcond=None)[0]
-        covariance = np.linalg.inv(matrix.T @ matrix)
+        inverse = np.linalg.inv(scaled.T @ scaled)
     except np.linalg.LinAlgError:
         return None
+    solution = inverse @ (scaled.T @ rhs) / norms
+    covariance = inverse / np.outer(norms, norms)
     residual = rhs - matrix @ solution
     n, p = matrix.shape
     effective = max(n / correlation_time(residual), p + 1.0)
@@ -152,6 +158,9 @@ def ramp_samples(records: Sequence[Record]) -> list[np.ndarray]:
     its residual, with the sign of the step and starting at a logged voltage step (or the
     record's first samples), is a command the motor did not get at once.
     """
+    if not any(first == 0 for rec in records
+               for first, _ in _step_starts(np.asarray(rec.voltage, dtype=float))[:1]):
+        return [np.zeros(len(rec), dtype=bool) for rec in records]  # no step at a start
     raw = []
     for rec in records:
         dt = rec.sample_period_s

@@ -213,8 +213,9 @@ def heldout_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]
     ``b^2 - a^2 = -(2 a s + s^2)`` (weighted, summed over the output channels).  Its
     chance part is ``-2 a s``, noise times the change; its standard error counts the samples
     over the integrated correlation time of the candidate's residual ``a``
-    (:func:`~dcmotor_id.identification.checks.start.correlation_time`; largest over the
-    channels), not every correlated sample.  A change that follows the noise it removes
+    (:func:`~dcmotor_id.identification.checks.start.correlation_time`), per channel, not
+    every correlated sample; the channels' variances add, and the samples their sum is worth
+    follow Welch and Satterthwaite.  A change that follows the noise it removes
     (an effect) gives ``t ~ rms(s) / (2 sigma) sqrt(n_eff)``: an amplitude below the
     per-sample noise is resolved by many samples; a change independent of the held-out noise
     (fitted noise) makes the drop negative.  Returns ``(t, effective samples)``.
@@ -222,27 +223,29 @@ def heldout_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]
     from dcmotor_id.identification.checks.start import correlation_time
 
     weights = loop.weights or {}
-    drop, chance, tau = None, None, 1.0
+    total, variances, dofs = 0.0, [], []
     for channel in loop.outputs:
         before = current.channel_residual(channel, 'heldout')
         after = fitted.channel_residual(channel, 'heldout')
         common = min(before.shape[0], after.shape[0])  # a delay shifts the records
         before, after = before[before.shape[0] - common:], after[after.shape[0] - common:]
         scale = max(weights.get(channel, 1.0), 1e-300) ** 2
-        term = (before ** 2 - after ** 2) / scale
-        noise_term = 2.0 * after * (after - before) / scale
-        drop = term if drop is None else drop + term
-        chance = noise_term if chance is None else chance + noise_term
-        if common >= 3 and np.all(np.isfinite(after)):
-            tau = max(tau, correlation_time(after))
-    if drop is None or chance is None or drop.shape[0] < 3 or \
-            not np.all(np.isfinite(drop)) or not np.all(np.isfinite(chance)):
+        drop = (before ** 2 - after ** 2) / scale
+        chance = 2.0 * after * (after - before) / scale
+        if common < 3 or not (np.all(np.isfinite(drop)) and np.all(np.isfinite(chance))):
+            return 0.0, 0.0
+        effective = max(common / correlation_time(after), 2.0)
+        total += float(np.mean(drop))
+        variances.append(float(np.var(chance, ddof=1)) / effective)
+        dofs.append(effective - 1.0)
+    if not variances:
         return 0.0, 0.0
-    effective = max(drop.shape[0] / tau, 2.0)
-    spread = float(np.std(chance, ddof=1)) / np.sqrt(effective)
-    mean = float(np.mean(drop))
-    t = mean / spread if spread > 0 else (np.inf if mean > 0 else 0.0)
-    return float(t), float(effective)
+    variance = float(sum(variances))
+    # Welch-Satterthwaite: the samples the channels' sum is worth.
+    worth = 1.0 + variance ** 2 / max(sum(v ** 2 / d for v, d in zip(variances, dofs)),
+                                      1e-300)
+    t = total / np.sqrt(variance) if variance > 0 else (np.inf if total > 0 else 0.0)
+    return float(t), float(worth)
 
 
 def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
