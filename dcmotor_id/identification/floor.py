@@ -505,11 +505,18 @@ def _tighter_la(result: IdentificationResult, floor: RegressionFloor) -> Identif
         bounds['Ta'] = float(parameters['Ta'])
     warnings = [text for text in result.warnings
                 if not text.startswith('the time looks like')]
+    reasons = dict(result.not_identifiable)
+    marker = '(upper bound, given as its value)'
+    reason = reasons.get('La', '')
+    reasons['La'] = (f'{reason.split(": La <")[0] or "La is not determined"}: La < {new:.3g} H '
+                     '(upper bound from the model-free regression, whose electrical equation '
+                     'shows no La the data resolve; given as its value)'
+                     + (reason.split(marker, 1)[1] if marker in reason else ''))
     estimate = result.estimate
     if estimate is not None:
         estimate = replace(estimate, parameters={**estimate.parameters, **parameters})
     return replace(result, parameters=parameters, upper_bounds=bounds, warnings=warnings,
-                   estimate=estimate)
+                   estimate=estimate, not_identifiable=reasons)
 
 
 def _as_floor(result: IdentificationResult, floor: RegressionFloor, records: Sequence[Record],
