@@ -32,6 +32,13 @@ one, in this order (:mod:`~dcmotor_id.identification.pipeline.run`):
     :meth:`~dcmotor_id.identification.result.IdentificationResult.as_dict` is the JSON layout
     of the CLI contract (:mod:`~dcmotor_id.identification.pipeline.result`).
 
+Around the run stands the floor (:mod:`~dcmotor_id.identification.pipeline.floor`): before
+it, the records are split into their tests
+(:mod:`~dcmotor_id.identification.pipeline.segments`), the model-free regression of both
+equations is computed and a command that did not reach the motor at a record's start is cut;
+after it, a failed fit falls back to the regression, and a fit that predicts the held-out part
+worse than the regression gives way to it, with a warning that says why.
+
 On the position the run is made with the position error as white noise and, when that
 disagrees with model-free evidence, as a drift (AR(1)); the closer result is kept
 (:mod:`~dcmotor_id.identification.pipeline.position_error`).  When the fit on the position
@@ -55,7 +62,7 @@ from dcmotor_id.identification.pipeline.discovery import (HOPELESS_DISCOVERY_S,
                                                           supports_discovery)
 from dcmotor_id.identification.pipeline.fit_outcome import NO_FIT_NRMSE_PCT, simulation_errors
 from dcmotor_id.identification.pipeline.heldout import HELDOUT_CHOICE, record_errors
-from dcmotor_id.identification.pipeline.run import identify_checked
+from dcmotor_id.identification.pipeline.floor import identify_above_floor
 from dcmotor_id.identification.pipeline.state import Request
 from dcmotor_id.identification.prepare import (check_excitation, common_period, one_level_reason,
                                                PERIOD_RTOL, prepare_records, SETTLE_SAMPLES,
@@ -138,8 +145,9 @@ def identify(records: Sequence[Record], method: str = 'refined',
                             estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,
                             progress=progress, initial_state=initial_state, criterion=criterion)
     progress = progress if progress is not None else Progress(max_time_s)
-    return identify_checked(criterion, Request(records, method, torque_constant, discover,
-                                               estimator, vocabulary, progress, initial_state))
+    return identify_above_floor(criterion, Request(records, method, torque_constant, discover,
+                                                   estimator, vocabulary, progress,
+                                                   initial_state))
 
 
 def _check_choices(method: str, initial_state: str) -> None:

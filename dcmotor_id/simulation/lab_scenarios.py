@@ -552,3 +552,120 @@ SCENARIOS = {
     'ball_screw_sine': ball_screw_sine,
     'axis_both_ways': axis_both_ways,
 }
+
+
+#: A small 24 V motor whose armature time constant (0.52 ms) is below a 2 ms log period.
+SMALL_24V_MOTOR = MotorParameters(Ra=2.3, La=1.2e-3, CPhi=0.035, J=2.1e-5, b=3e-6, Mc=0.004)
+
+
+def small_motor_encoder_500hz(seed: int = 0, sample_period_s: float = 2e-3,
+                              counts_per_rev: int = 2048) -> Scenario:
+    """
+    Simulate a small 24 V motor logged at 500 Hz: encoder speed, current in 5 mA steps.
+
+    Voltage steps of both signs and several levels (as a bench supply or an H-bridge gives);
+    the speed is the encoder's pulse count per sample, the current is read by an ADC with a
+    5 mA resolution.
+    """
+    rng = np.random.default_rng(seed)
+    truth = SMALL_24V_MOTOR
+    levels = [6.0, 18.0, -12.0, 24.0, 3.0, -20.0, 10.0, -6.0, 0.0, 15.0, -24.0, 8.0]
+    command = step_levels(levels, 0.5, sample_period_s)
+    out = simulate_drive(truth, command, sample_period_s)
+    t = np.arange(command.shape[0]) * sample_period_s
+    current = np.round(_noisy(out['current'], 0.004, rng) / 0.005) * 0.005
+    speed = encoder_speed(out['angle'], sample_period_s, counts_per_rev)
+    record = Record(t, current=current, voltage=command, speed=speed,
+                    source='small_motor_encoder_500hz')
+    return Scenario('small_motor_encoder_500hz', [record], truth,
+                    note='La/Ra 0.52 ms below the 2 ms period, 2048-count encoder, 5 mA steps')
+
+
+def amplifier_ramp_step(seed: int = 0, sample_period_s: float = 2e-3, level_v: float = 8.0,
+                        ramp_s: float = 0.036, duration_s: float = 1.0) -> Scenario:
+    """
+    Simulate a voltage step from rest whose amplifier ramps the voltage it applies.
+
+    The log reads the commanded level from t = 0, while the motor gets a linear ramp over
+    ``ramp_s`` (an amplifier's soft start or slew limit): the current rises over the ramp,
+    not at once as the logged voltage implies.
+    """
+    rng = np.random.default_rng(seed)
+    truth = MotorParameters(Ra=9.5, La=2.0e-3, CPhi=0.0634, J=4.0e-5, b=2.0e-6, Mc=1.0e-3)
+    n = int(round(duration_s / sample_period_s))
+    t = np.arange(n) * sample_period_s
+    applied = level_v * np.clip((t + sample_period_s) / ramp_s, 0.0, 1.0)
+    out = simulate_drive(truth, applied, sample_period_s)
+    record = Record(t, current=_noisy(out['current'], 0.002, rng), voltage=np.full(n, level_v),
+                    speed=_noisy(out['speed'], 0.3, rng), source='amplifier_ramp_step')
+    return Scenario('amplifier_ramp_step', [record], truth,
+                    note=f'logged voltage constant from t = 0, applied ramp over {ramp_s:g} s')
+
+
+SCENARIOS.update({'small_motor_encoder_500hz': small_motor_encoder_500hz,
+                  'amplifier_ramp_step': amplifier_ramp_step})
+
+
+#: A geared hobby servo's motor seen at the output shaft (gear 1:50 folded into CPhi and J).
+HOBBY_SERVO = MotorParameters(Ra=4.0, La=1.0e-3, CPhi=0.25, J=2.0e-4, b=4e-4, Mc=0.02)
+
+
+def hobby_servo_pwm_angle(seed: int = 0, sample_period_s: float = 2e-3,
+                          counts_per_rev: int = 4096, bus_voltage_v: float = 6.0) -> Scenario:
+    """
+    Simulate a geared hobby servo driven both ways by PWM, logged at 500 Hz with its angle only.
+
+    The logged voltage is the duty cycle times the bus voltage (the mean the motor gets over a
+    PWM period, far shorter than the log's), the current is read by a shunt with noise, and
+    the output angle by a 12-bit magnetic encoder: no speed column (the tool derives it).
+    """
+    rng = np.random.default_rng(seed)
+    truth = HOBBY_SERVO
+    duties = [0.4, -0.6, 0.8, -0.3, 1.0, -1.0, 0.5, -0.8, 0.2, 0.7]
+    command = step_levels([duty * bus_voltage_v for duty in duties], 0.6, sample_period_s)
+    out = simulate_drive(truth, command, sample_period_s)
+    t = np.arange(command.shape[0]) * sample_period_s
+    counts = np.floor(out['angle'] / (2 * np.pi) * counts_per_rev)
+    angle = counts * 2 * np.pi / counts_per_rev
+    record = Record(t, current=_noisy(out['current'], 0.01, rng), voltage=command,
+                    position=angle, source='hobby_servo_pwm_angle')
+    return Scenario('hobby_servo_pwm_angle', [record], truth,
+                    note='PWM both ways, 500 Hz, angle only (12-bit), speed derived by the tool')
+
+
+SCENARIOS['hobby_servo_pwm_angle'] = hobby_servo_pwm_angle
+
+
+#: A drivetrain motor (12 V class) with the drivetrain's inertia at its shaft.
+DRIVETRAIN_MOTOR = MotorParameters(Ra=0.09, La=0.1e-3, CPhi=0.0205, J=5e-4, b=1e-5, Mc=0.01)
+
+
+def sysid_routine(seed: int = 0, sample_period_s: float = 0.02,
+                  brake_s: float = 1.0) -> tuple[Scenario, np.ndarray]:
+    """
+    Simulate a SysId-style routine: quasistatic ramps and dynamic steps, both directions.
+
+    Logged in 20 ms status frames.  Between the tests the drive brakes with the windings
+    shorted (0 V applied, a braking current flows) while the logged voltage and current read
+    0; the current is logged as a magnitude with the sign of the voltage.  Returns the scenario
+    and the segment column (the test's number, 0 between tests).
+    """
+    rng = np.random.default_rng(seed)
+    truth = DRIVETRAIN_MOTOR
+    per = int(round(1.0 / sample_period_s))
+    ramp = np.arange(7 * per) * sample_period_s * 1.0  # 1 V/s
+    tests = [ramp, -ramp, np.full(3 * per, 4.0), np.full(3 * per, -4.0)]
+    pieces, marks = [], []
+    for number, test in enumerate(tests, start=1):
+        pieces += [test, np.zeros(int(round(brake_s / sample_period_s)))]
+        marks += [np.full(test.shape[0], number), np.zeros(pieces[-1].shape[0])]
+    command = np.concatenate(pieces)
+    segment = np.concatenate(marks)
+    out = simulate_drive(truth, command, sample_period_s)
+    t = np.arange(command.shape[0]) * sample_period_s
+    current = np.abs(_noisy(out['current'], 0.05, rng)) * np.sign(command)
+    record = Record(t, current=current, voltage=command,
+                    speed=_noisy(out['speed'], 0.5, rng), source='sysid_routine')
+    return (Scenario('sysid_routine', [record], truth,
+                     note='SysId routine, 20 ms frames, braked with 0 logged between tests'),
+            segment)

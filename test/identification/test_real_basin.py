@@ -11,6 +11,7 @@ from dcmotor_id.identification.checks.start import (correlation_time, offset_sup
                                                     regression_evidence)
 from dcmotor_id.identification.discovery import DiscoveryLoop, excited_stop, Structure
 from dcmotor_id.identification.discovery.judging import unearned
+from dcmotor_id.identification.discovery.state import DEFAULT_ACCEPTANCE
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.pipeline.second_start import _choose
@@ -142,13 +143,17 @@ def test_a_quantised_speed_has_a_noise_floor():
 def _fit(residuals, stop):
     """Return a stand-in for a Fit: one speed record whose simulation misses by ``residuals``."""
     record = SimpleNamespace(speed=np.zeros(residuals.shape[0]))
-    return SimpleNamespace(stops=[stop], records=[record], simulated=[{'speed': residuals}],
-                           fitted=None, values={'Mc': 1.0}, terms=())
+    fit = SimpleNamespace(stops=[stop], records=[record], simulated=[{'speed': residuals}],
+                          fitted=None, values={'Mc': 1.0}, terms=())
+    fit.channel_residual = lambda channel, part: (residuals[stop:] if part == 'heldout'
+                                                  else residuals[:stop])
+    return fit
 
 
-def _loop():
+def _loop(acceptance=DEFAULT_ACCEPTANCE):
     loop = DiscoveryLoop.__new__(DiscoveryLoop)
     loop.outputs, loop.weights, loop.min_gain = ('speed',), {'speed': 1.0}, 0.05
+    loop.acceptance = acceptance
     return loop
 
 
@@ -171,7 +176,7 @@ def test_a_gain_carried_by_one_block_does_not_earn_an_effect():
         assert (reason is None) == earned, reason
 
 
-def test_a_cogging_ripple_above_the_coulomb_friction_needs_more_evidence():
+def test_a_cogging_ripple_above_the_coulomb_friction_needs_more_evidence_by_the_former_rule():
     rng = np.random.default_rng(1)
     n, stop = 16000, 8000
     current = _fit(rng.normal(0, 1, n), stop)
@@ -179,13 +184,30 @@ def test_a_cogging_ripple_above_the_coulomb_friction_needs_more_evidence():
     fitted = _fit(better, stop)
     fitted.values = {'Mc': 0.01, 'cogging.sin_Nm': 0.03, 'cogging.cos_Nm': 0.0}
     gain = 1 - 0.96 ** 2
-    loop = _loop()
+    loop = _loop('noise-level')
     candidate = SimpleNamespace(name='cogging', fitted=fitted, gain=gain, effect=None)
     reason = unearned(loop, current, candidate)
     assert reason is not None and 'larger than the Coulomb friction' in reason
     fitted.values = {'Mc': 0.05, 'cogging.sin_Nm': 0.03, 'cogging.cos_Nm': 0.0}
     assert unearned(loop, current, SimpleNamespace(name='cogging', fitted=fitted, gain=gain,
                                                    effect=None)) is None
+
+
+def test_a_cogging_ripple_of_any_size_is_judged_by_its_significance_alone():
+    # The held-out t on effective samples has no size rule (issue 29): a consistent 8 % gain
+    # earns the ripple whatever its size against the Coulomb friction.
+    rng = np.random.default_rng(1)
+    n, stop = 16000, 8000
+    current = _fit(rng.normal(0, 1, n), stop)
+    fitted = _fit(current.simulated[0]['speed'] * 0.96, stop)
+    fitted.values = {'Mc': 0.01, 'cogging.sin_Nm': 0.03, 'cogging.cos_Nm': 0.0}
+    candidate = SimpleNamespace(name='cogging', fitted=fitted, gain=1 - 0.96 ** 2, effect=None)
+    assert DEFAULT_ACCEPTANCE == 'heldout-t'
+    assert unearned(_loop(), current, candidate) is None
+    # White noise traded for other white noise: a gain of 1 % that is chance.
+    noise = _fit(rng.normal(0, 0.995, n), stop)
+    chance = SimpleNamespace(name='cogging', fitted=noise, gain=0.06, effect=None)
+    assert 'not significant' in unearned(_loop(), current, chance)
 
 
 def test_validate_warns_outside_the_operating_range(opposite):

@@ -75,24 +75,7 @@ def regression_evidence(records: Sequence[Record],
     """
     offset = both_directions(records)
     mechanical_only = torque_constant is not None
-    rows_m, rhs_m, rows_e, rhs_e = [], [], [], []
-    for rec in records:
-        n = len(rec)
-        trim = min(int(3.0 / (REGRESSION_CUTOFF * 2 * np.pi)) + 2, n // 4)
-        if n - 2 * trim < 20:
-            continue
-        dt = rec.sample_period_s
-        keep = slice(trim, n - trim)
-        measured = np.asarray(rec.speed, dtype=float)
-        current = low_pass(np.asarray(rec.current, dtype=float), REGRESSION_CUTOFF)
-        speed = low_pass(measured, REGRESSION_CUTOFF)
-        sign = low_pass(np.sign(measured), REGRESSION_CUTOFF)
-        columns = [np.gradient(speed, dt), speed, sign] + ([np.ones(n)] if offset else [])
-        rows_m.append(np.column_stack(columns)[keep])
-        rhs_m.append(current[keep] * (torque_constant or 1.0))
-        if not mechanical_only:
-            rows_e.append(np.column_stack([np.gradient(current, dt), current, speed])[keep])
-            rhs_e.append(low_pass(np.asarray(rec.voltage, dtype=float), REGRESSION_CUTOFF)[keep])
+    rows_m, rhs_m, rows_e, rhs_e = regression_rows(records, torque_constant, offset)
     if not rows_m:
         return None
     try:
@@ -114,6 +97,47 @@ def regression_evidence(records: Sequence[Record],
     if not all(np.isfinite(value) for value in values.values()):
         return None
     return values
+
+
+def regression_rows(records: Sequence[Record], torque_constant: float | None, offset: bool,
+                    left_out: Sequence[np.ndarray | None] | None = None
+                    ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray],
+                               list[np.ndarray]]:
+    """
+    Rows of the regression's two equations, per record, on zero-phase low-passed signals.
+
+    Mechanical: columns ``dw/dt, w, sgn w [, 1]`` against ``i`` (times ``torque_constant`` in
+    the mechanical-only mode); electrical (full mode): ``di/dt, i, w`` against ``u``.  The
+    filter's settling is trimmed at both ends of each record; ``left_out``: per record, a
+    boolean mask of samples the rows must not rest on (None: every sample is used).
+    Returns ``(rows_m, rhs_m, rows_e, rhs_e)``, one array per record that is long enough.
+    """
+    mechanical_only = torque_constant is not None
+    rows_m, rhs_m, rows_e, rhs_e = [], [], [], []
+    for index, rec in enumerate(records):
+        n = len(rec)
+        trim = min(int(3.0 / (REGRESSION_CUTOFF * 2 * np.pi)) + 2, n // 4)
+        keep = np.zeros(n, dtype=bool)
+        keep[trim:n - trim] = True
+        mask = None if left_out is None else left_out[index]
+        if mask is not None and np.any(mask):
+            # Every row within the filter's reach of a left-out sample rests on it.
+            reach = np.convolve(mask.astype(float), np.ones(2 * trim + 1), mode='same')
+            keep &= reach == 0.0
+        if np.count_nonzero(keep) < 20:
+            continue
+        dt = rec.sample_period_s
+        measured = np.asarray(rec.speed, dtype=float)
+        current = low_pass(np.asarray(rec.current, dtype=float), REGRESSION_CUTOFF)
+        speed = low_pass(measured, REGRESSION_CUTOFF)
+        sign = low_pass(np.sign(measured), REGRESSION_CUTOFF)
+        columns = [np.gradient(speed, dt), speed, sign] + ([np.ones(n)] if offset else [])
+        rows_m.append(np.column_stack(columns)[keep])
+        rhs_m.append(current[keep] * (torque_constant or 1.0))
+        if not mechanical_only:
+            rows_e.append(np.column_stack([np.gradient(current, dt), current, speed])[keep])
+            rhs_e.append(low_pass(np.asarray(rec.voltage, dtype=float), REGRESSION_CUTOFF)[keep])
+    return rows_m, rhs_m, rows_e, rhs_e
 
 
 def known_evidence(records: Sequence[Record], torque_constant: float | None,

@@ -1,10 +1,17 @@
 """
-Judging candidates on the held-out parts: gain, its noise and t, own part, the round's choice.
+Judging candidates on the held-out parts: gain, its noise and t, the round's choice.
 
 A refitted candidate is scored (:func:`score`); the best admissible one that gains enough is
-chosen (:func:`choose`) if it has earned its place (:func:`unearned`: :func:`own_part`,
-:func:`gain_t`), else the next best is considered (:func:`decide`).  The loop never ends worse
-than its base model (:func:`never_worse`).
+chosen (:func:`choose`) if it has earned its place (:func:`unearned`), else the next best is
+considered (:func:`decide`).  The loop never ends worse than its base model
+(:func:`never_worse`).
+
+Earned (rule ``heldout-t``, the default): the held-out drop is significant on the samples it
+is worth (:func:`heldout_t`, the residual's correlation time) and spread over the held-out
+part (:func:`gain_t`).  The former rules (``noise-level``: an effect's own part of the outputs
+against the per-sample noise, :func:`own_part`, and a cogging ripple above the Coulomb
+friction needing twice the evidence) are kept to be measured against
+(``bench/bench_discovery.py``, a column per rule).
 """
 
 from __future__ import annotations
@@ -34,6 +41,10 @@ OWN_PART_SHARE = 0.5
 OWN_PART_STRONG = 3.0
 #: Least t of the held-out gain for an effect to be added.
 GAIN_T = 2.0
+#: Nominal one-sided size of the held-out t test (:func:`heldout_t_threshold`): t >= 3 on
+#: many samples; the false-effect rate and the power are measured by
+#: ``bench/bench_discovery.py`` (a column per rule) and ``bench/bench_discovery_real.py``.
+HELDOUT_ALPHA = 0.00135
 
 
 def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
@@ -188,9 +199,103 @@ def gain_t(loop: LoopState, current: Fit, fitted: Fit) -> float:
     return mean / spread if spread > 0 else (np.inf if mean > 0 else 0.0)
 
 
+def heldout_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]:
+    """
+    Student t of the held-out drop on the samples the noise is worth, and that number.
+
+    With ``b`` the current fit's held-out residual, ``a`` the candidate's and ``s = a - b``
+    the change the candidate makes to the simulated outputs, the per-sample drop is
+    ``b^2 - a^2 = -(2 a s + s^2)`` (weighted, summed over the output channels).  Its
+    chance part is ``-2 a s``, noise times the change; its standard error counts the samples
+    over the integrated correlation time of the candidate's residual ``a``
+    (:func:`~dcmotor_id.identification.checks.start.correlation_time`), per channel, not
+    every correlated sample; the channels' variances add, and the samples their sum is worth
+    follow Welch and Satterthwaite.  A change that follows the noise it removes
+    (an effect) gives ``t ~ rms(s) / (2 sigma) sqrt(n_eff)``: an amplitude below the
+    per-sample noise is resolved by many samples; a change independent of the held-out noise
+    (fitted noise) makes the drop negative.  Returns ``(t, effective samples)``.
+    """
+    from dcmotor_id.identification.checks.start import correlation_time
+
+    weights = loop.weights or {}
+    total, variances, dofs = 0.0, [], []
+    for channel in loop.outputs:
+        before = current.channel_residual(channel, 'heldout')
+        after = fitted.channel_residual(channel, 'heldout')
+        common = min(before.shape[0], after.shape[0])  # a delay shifts the records
+        before, after = before[before.shape[0] - common:], after[after.shape[0] - common:]
+        scale = max(weights.get(channel, 1.0), 1e-300) ** 2
+        drop = (before ** 2 - after ** 2) / scale
+        chance = 2.0 * after * (after - before) / scale
+        if common < 3 or not (np.all(np.isfinite(drop)) and np.all(np.isfinite(chance))):
+            return 0.0, 0.0
+        effective = max(common / correlation_time(after), 2.0)
+        total += float(np.mean(drop))
+        variances.append(float(np.var(chance, ddof=1)) / effective)
+        dofs.append(effective - 1.0)
+    if not variances:
+        return 0.0, 0.0
+    variance = float(sum(variances))
+    # Welch-Satterthwaite: the samples the channels' sum is worth.
+    worth = 1.0 + variance ** 2 / max(sum(v ** 2 / d for v, d in zip(variances, dofs)),
+                                      1e-300)
+    t = total / np.sqrt(variance) if variance > 0 else (np.inf if total > 0 else 0.0)
+    return float(t), float(worth)
+
+
 def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     """
     Why a winning candidate has not earned its place on held-out data, or None.
+
+    By the loop's rule (``loop.acceptance``, one of
+    :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``
+    (default): :func:`unearned_heldout_t`; ``noise-level`` (the former rules, kept to measure
+    against): :func:`unearned_noise_level`.
+    """
+    if loop.acceptance == 'noise-level':
+        return unearned_noise_level(loop, current, candidate)
+    return unearned_heldout_t(loop, current, candidate)
+
+
+def unearned_heldout_t(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
+    """
+    Why a winning candidate's held-out gain is not significant, or None.
+
+    Its held-out drop must have a t of at least :func:`heldout_t_threshold` on the samples it
+    is worth (:func:`heldout_t`), the gain must be spread over the held-out part
+    (:func:`gain_t` over blocks at least :data:`GAIN_T`: not one stretch traded for another)
+    and at least the loop's least gain.  No size rule: a per-sample amplitude below the
+    per-sample noise is what many samples resolve.
+    """
+    t, effective = heldout_t(loop, current, candidate.fitted)
+    achieved = float(candidate.gain or 0.0)
+    required = heldout_t_threshold(effective)
+    if t >= required and achieved >= loop.min_gain:
+        blocks = gain_t(loop, current, candidate.fitted)
+        if blocks >= GAIN_T:
+            return None
+        return (f'its held-out gain ({100 * achieved:.3g} %) is carried by a few stretches '
+                f'(t = {blocks:.2g} over {GAIN_BLOCKS} blocks per record, {GAIN_T:g} needed)')
+    return (f'its held-out gain ({100 * achieved:.3g} %, t = {t:.2g} on {effective:.0f} '
+            f'effective samples) is not significant (t >= {required:.3g} needed)')
+
+
+def heldout_t_threshold(effective: float) -> float:
+    """
+    Least t of :func:`heldout_t` on ``effective`` samples: one-sided :data:`HELDOUT_ALPHA`.
+
+    Student's t with ``effective - 1`` degrees of freedom (3.0 for many
+    samples; far more for a handful, where a drop carried by a few correlated stretches is
+    likely by chance).
+    """
+    from scipy.stats import t as student
+
+    return float(student.ppf(1.0 - HELDOUT_ALPHA, max(effective - 1.0, 1.0)))
+
+
+def unearned_noise_level(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
+    """
+    Why a winning candidate has not earned its place by the former rules, or None.
 
     Its own part of the simulated outputs must exceed the noise (:func:`own_part`); unless
     it stands far out of it (:data:`OWN_PART_STRONG` noise levels), its held-out gain must

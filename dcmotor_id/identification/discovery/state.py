@@ -11,6 +11,14 @@ from dcmotor_id.identification.discovery.structure import Fit
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.residuals import ALPHA, DEFAULT_LAGS, output_channels
 
+#: The rules a winning candidate may be judged by
+#: (:func:`~dcmotor_id.identification.discovery.judging.unearned`): ``heldout-t``, the held-out
+#: t test on effective samples, and ``noise-level``, the former own-part and cogging-size
+#: rules, kept so that ``bench/bench_discovery.py`` measures both on the same data.
+ACCEPTANCE_RULES = ('heldout-t', 'noise-level')
+#: The rule of every identification.
+DEFAULT_ACCEPTANCE = 'heldout-t'
+
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.effects import Effect
@@ -60,6 +68,9 @@ class LoopState:
     position_error : str
         The position error's model of every fit of the loop, ``adaptive`` (default) or
         ``white`` (:func:`~dcmotor_id.identification.criterion.check_position_error_model`).
+    acceptance : str
+        The rule a winning candidate must pass, one of :data:`ACCEPTANCE_RULES` (default
+        :data:`DEFAULT_ACCEPTANCE`).
 
     """
 
@@ -69,7 +80,12 @@ class LoopState:
                  max_effects: int = MAX_EFFECTS, max_lag: int = DEFAULT_LAGS,
                  alpha: float = ALPHA, progress: Progress | None = None,
                  initial_state: str = 'estimate', quasi_static: bool = False,
-                 criterion: str = 'speed', position_error: str = 'adaptive') -> None:
+                 criterion: str = 'speed', position_error: str = 'adaptive',
+                 acceptance: str = DEFAULT_ACCEPTANCE) -> None:
+        if acceptance not in ACCEPTANCE_RULES:
+            raise ValueError(f'unknown acceptance rule {acceptance!r}; one of '
+                             f'{", ".join(ACCEPTANCE_RULES)}')
+        self.acceptance = acceptance
         self.records = list(records)
         self.torque_constant = torque_constant
         self.mechanical_only = torque_constant is not None

@@ -151,7 +151,10 @@ class PaperEstimator:
             ra = 1.0 / ka
             j = cphi * dt / v1
             return [ra, ta * ra, cphi, j, (1.0 - v2) * j / dt, -v3 * j / dt]
-        values, cov = _propagate(physical, weights, covariance)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            # A weight at zero (no dynamics in the data) gives non-finite values, which the
+            # caller refuses or replaces; not a warning on the user's terminal.
+            values, cov = _propagate(physical, weights, covariance)
         names = PARAMETER_NAMES
         parameters = dict(zip(names, map(float, values)))
         stderr = dict(zip(names, map(float, np.sqrt(np.maximum(np.diag(cov), 0.0)))))
