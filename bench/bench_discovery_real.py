@@ -3,11 +3,11 @@ False effects on real recordings: the effects ``identify`` adds under each disco
 
 For every real record of the scorecard (``bench/bench_real.py``: the HSM150 servo's 12 torque
 steps, the UBC MECH 467 ball screw's Part B and C records, EMPS's two records), the default
-``dcmotor-id identify`` (in process, with the scorecard's reading options and torque
-constant) is run once per rule of
-:data:`dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`, and the effects it adds are listed.  The references name the effects each set is known to
-have (HSM150 and EMPS: a constant load torque, the offset of their references); any other
-effect counts as a false one.
+``dcmotor-id identify`` (in process, with the scorecard's reading options and torque constant)
+is run once per rule of :data:`dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`, and
+the effects it adds are listed. The references name the effects each set is known to have
+(HSM150 and EMPS: a constant load torque, the offset of their references); any other effect
+counts as a false one.
 
 Run from the repository root (the data fetched as for ``bench/bench_real.py``)::
 
@@ -69,7 +69,6 @@ def data_sets(args, cache):
     if args.emps:
         sets.append(bench_real.emps_set(args.emps, args.quick))
     return sets
-
 
 
 def judged_by(rule):
