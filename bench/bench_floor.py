@@ -16,8 +16,8 @@ import time
 import warnings
 
 from dcmotor_id.core.errors import DcMotorIdError
-from dcmotor_id.identification.pipeline.floor import regression_floor
 from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.identification.pipeline.floor import regression_floor
 from dcmotor_id.identification.pipeline.segments import split_tests
 from dcmotor_id.simulation.lab_scenarios import SCENARIOS, sysid_routine
 

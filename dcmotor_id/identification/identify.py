@@ -61,8 +61,8 @@ from dcmotor_id.identification.pipeline.discovery import (HOPELESS_DISCOVERY_S,
                                                           HOPELESS_NRMSE_PCT,
                                                           supports_discovery)
 from dcmotor_id.identification.pipeline.fit_outcome import NO_FIT_NRMSE_PCT, simulation_errors
-from dcmotor_id.identification.pipeline.heldout import HELDOUT_CHOICE, record_errors
 from dcmotor_id.identification.pipeline.floor import identify_above_floor
+from dcmotor_id.identification.pipeline.heldout import HELDOUT_CHOICE, record_errors
 from dcmotor_id.identification.pipeline.state import Request
 from dcmotor_id.identification.prepare import (check_excitation, common_period, one_level_reason,
                                                PERIOD_RTOL, prepare_records, SETTLE_SAMPLES,

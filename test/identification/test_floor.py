@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from dcmotor_id.core.errors import FitError
-from dcmotor_id.identification import identify as identify_module
-from dcmotor_id.identification.pipeline.floor import (first_states, floor_choice, ramp_samples,
-                                             regression_floor)
 from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.identification.pipeline import floor as floor_module
+from dcmotor_id.identification.pipeline.floor import (first_states, floor_choice, ramp_samples,
+                                                      regression_floor)
 from dcmotor_id.simulation import lab_scenarios
 
 
@@ -82,7 +82,7 @@ def test_a_failed_output_error_fit_falls_back_to_the_regression(monkeypatch):
         raise FitError('the output-error fit diverged (OverflowError in the simulation). '
                        'Check the units')
 
-    monkeypatch.setattr(identify_module, '_identify_checked', diverged)
+    monkeypatch.setattr(floor_module, 'identify_checked', diverged)
     result = identify(prepare_records(scenario.records))
     assert result.method == 'regression'
     assert 'the output-error fit failed (the output-error fit diverged' in result.warnings[0]
@@ -98,7 +98,7 @@ def test_a_time_budget_failure_is_not_replaced(monkeypatch):
     def out_of_time(*arguments, **keywords):
         raise FitError('no fit finished within the time budget (1 s)')
 
-    monkeypatch.setattr(identify_module, '_identify_checked', out_of_time)
+    monkeypatch.setattr(floor_module, 'identify_checked', out_of_time)
     with pytest.raises(FitError, match='time budget'):
         identify(prepare_records(scenario.records))
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from dcmotor_id.identification import identify as identify_module
 from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.identification.pipeline import floor as floor_module
 from dcmotor_id.identification.pipeline.segments import idle_samples, split_tests, Tests
 from dcmotor_id.simulation import lab_scenarios
 
@@ -50,7 +50,7 @@ def test_sysid_routine_is_identified_as_separate_tests(routine):
 
 def test_without_the_tests_the_routine_was_refused(routine, monkeypatch):
     scenario, _, records = routine
-    monkeypatch.setattr(identify_module, 'split_tests',
+    monkeypatch.setattr(floor_module, 'split_tests',
                         lambda records: Tests(tuple(records), ''))
     with pytest.raises(Exception, match='does not reproduce'):
         identify(records)

@@ -11,14 +11,6 @@ from dcmotor_id.identification.discovery.structure import Fit
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.residuals import ALPHA, DEFAULT_LAGS, output_channels
 
-#: The rules a winning candidate may be judged by
-#: (:func:`~dcmotor_id.identification.discovery.judging.unearned`): ``heldout-t``, the held-out
-#: t test on effective samples, and ``noise-level``, the former own-part and cogging-size
-#: rules, kept so that ``bench/bench_discovery.py`` measures both on the same data.
-ACCEPTANCE_RULES = ('heldout-t', 'noise-level')
-#: The rule of every identification.
-DEFAULT_ACCEPTANCE = 'heldout-t'
-
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.effects import Effect
@@ -28,6 +20,15 @@ if TYPE_CHECKING:
 MIN_GAIN = 0.05
 #: Most effects added.
 MAX_EFFECTS = 4
+
+
+#: The rules a winning candidate may be judged by
+#: (:func:`~dcmotor_id.identification.discovery.judging.unearned`): ``heldout-t``, the held-out
+#: t test on effective samples, and ``noise-level``, the former own-part and cogging-size
+#: rules, kept so that ``bench/bench_discovery.py`` measures both on the same data.
+ACCEPTANCE_RULES = ('heldout-t', 'noise-level')
+#: The rule of every identification.
+DEFAULT_ACCEPTANCE = 'heldout-t'
 
 
 class LoopState:
