@@ -144,10 +144,9 @@ def identify(records: Sequence[Record], method: str = 'refined',
                             torque_constant=torque_constant, discover=discover,
                             estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,
                             progress=progress, initial_state=initial_state, criterion=criterion)
-    progress = progress if progress is not None else Progress(max_time_s)
-    return identify_above_floor(criterion, Request(records, method, torque_constant, discover,
-                                                   estimator, vocabulary, progress,
-                                                   initial_state))
+    request = Request(records, method, torque_constant, discover, estimator, vocabulary,
+                      progress if progress is not None else Progress(max_time_s), initial_state)
+    return identify_above_floor(criterion, request)
 
 
 def _check_choices(method: str, initial_state: str) -> None:

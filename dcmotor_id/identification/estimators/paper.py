@@ -151,9 +151,7 @@ class PaperEstimator:
             ra = 1.0 / ka
             j = cphi * dt / v1
             return [ra, ta * ra, cphi, j, (1.0 - v2) * j / dt, -v3 * j / dt]
-        with np.errstate(divide='ignore', invalid='ignore'):
-            # A weight at zero (no dynamics in the data) gives non-finite values, which the
-            # caller refuses or replaces; not a warning on the user's terminal.
+        with np.errstate(divide='ignore', invalid='ignore'):  # non-finite: refused by callers
             values, cov = _propagate(physical, weights, covariance)
         names = PARAMETER_NAMES
         parameters = dict(zip(names, map(float, values)))
