@@ -5,7 +5,8 @@ import warnings
 import numpy as np
 import pytest
 
-from dcmotor_id.core.errors import FitError
+from dcmotor_id.core.errors import FitError, NotIdentifiableError
+from dcmotor_id.core.records import Record
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.pipeline import floor as floor_module
 from dcmotor_id.identification.pipeline.floor import (first_states, floor_choice, ramp_samples,
@@ -115,3 +116,14 @@ def test_the_regression_replaces_a_fit_that_predicts_the_held_out_part_worse():
     replaced = floor_choice(floor, wrong, states, records, None, False)
     assert replaced.use_floor and replaced.floor_heldout_pct < replaced.fit_heldout_pct
     assert 'predicts the held-out part worse' in replaced.warning
+
+
+def test_a_record_where_the_motor_never_moves_is_refused_as_before_not_by_the_floor():
+    # Zero voltage and noise only: the regression's residuals are about zero; the floor must
+    # not end in a ZeroDivisionError before the pipeline's own refusal says what to record.
+    rng = np.random.default_rng(0)
+    t = np.arange(3000) * 1e-3
+    record = Record(t, 0.01 * rng.standard_normal(t.size), np.zeros(t.size),
+                    0.01 * rng.standard_normal(t.size))
+    with pytest.raises(NotIdentifiableError, match='never moves'):
+        identify(prepare_records([record]))

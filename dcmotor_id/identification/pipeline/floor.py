@@ -274,8 +274,8 @@ def _electrical(rows_e, rhs_e, dt) -> tuple[EquationFit | None, bool, float | No
         return None, True, None
     # La earns its column when it lowers the residual beyond chance on the effective samples
     # (likelihood ratio, one degree of freedom, 0.1 %).
-    gain = dynamic.effective_samples * np.log(max(static.residual_rms, 1e-300) ** 2
-                                              / max(dynamic.residual_rms, 1e-300) ** 2)
+    gain = 2.0 * dynamic.effective_samples * (np.log(max(static.residual_rms, 1e-300))
+                                              - np.log(max(dynamic.residual_rms, 1e-300)))
     if ra > 0 and la > 0 and la / ra >= dt and la_se <= LA_UNDETERMINED_REL * la and \
             gain > LA_CHI2:
         return dynamic, False, None
@@ -603,7 +603,7 @@ def identify_above_floor(criterion: str, request: Request) -> IdentificationResu
     (:func:`with_floor`).  What was split or cut is said first among the warnings.
     """
     tests = split_tests(request.records)
-    floor = (regression_floor(list(tests.records), request.torque_constant)
+    floor = (_floor_or_none(list(tests.records), request.torque_constant)
              if request.estimator is None else None)
     records, left_out = trimmed_records(list(tests.records), floor)
     left_out = ([tests.note] if tests.note else []) + left_out
@@ -617,3 +617,16 @@ def identify_above_floor(criterion: str, request: Request) -> IdentificationResu
         result = fallback
     result = with_floor(result, floor, records)
     return replace(result, warnings=left_out + result.warnings) if left_out else result
+
+
+def _floor_or_none(records: list[Record], torque_constant: float | None) -> RegressionFloor | None:
+    """
+    Return :func:`regression_floor`, or None when its arithmetic fails on these records.
+
+    Data that cannot carry a regression (no motion, a constant channel) are refused by the
+    pipeline's own checks, with what to do; the floor then has nothing to add.
+    """
+    try:
+        return regression_floor(records, torque_constant)
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError):
+        return None
