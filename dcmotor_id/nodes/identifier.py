@@ -499,17 +499,18 @@ def dynamic_joint_state_type() -> Any:
     """
     Return ``control_msgs.msg.DynamicJointState``; ValueError saying how to install it.
 
-    On a ROS machine it is the installed control_msgs (``ros-jazzy-control-msgs``); with the
-    PyPI wheels of ROS, ``make control-msgs`` generates it (tools/build_control_msgs.sh).
+    On a ROS machine it is the installed control_msgs (``ros-jazzy-control-msgs``, not in
+    package.xml: only this input needs it); with the PyPI wheels of ROS, ``make control-msgs``
+    generates it (tools/build_control_msgs.sh).
     """
     try:
         from control_msgs.msg import DynamicJointState
     except ImportError as error:
         raise ValueError(f"parameter input = dynamic_joint_state needs control_msgs' Python "
                          f'messages, which cannot be imported ({error}): on a ROS machine '
-                         'install ros-jazzy-control-msgs (rosdep install --from-paths .); with '
-                         'the ROS wheels from PyPI run `make control-msgs` (docs/nodes.md); '
-                         'or use input joint_state') from None
+                         'apt-get install ros-jazzy-control-msgs; with the ROS wheels from '
+                         'PyPI run `make control-msgs` (docs/nodes.md); or use input '
+                         'joint_state') from None
     return DynamicJointState
 
 
