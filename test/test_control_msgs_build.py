@@ -4,7 +4,8 @@ The install step that generates control_msgs' DynamicJointState (tools/build_con
 It builds the package into a temporary prefix with the generators of the venv (or of the venv
 named by ``DCMOTOR_ID_CONTROL_MSGS_VENV``) and checks, in a fresh interpreter, that the
 message it generates is the one the bag reader decodes: the CDR bytes rclpy serializes read
-back with rosbags from the same .msg definitions, field by field.
+back with rosbags from the same .msg definitions, field by field, and the type hash the
+build gave the type the one rosbags computes from the definition.
 """
 
 import os
@@ -42,6 +43,14 @@ CHECK = textwrap.dedent("""
     assert list(back.joint_names) == ['other', 'axis']
     assert list(back.interface_values[1].interface_names) == ['current', 'voltage']
     assert list(back.interface_values[1].values) == [1.25, -12.0]
+    # the type hash the build gave the type (what DDS discovery and bags carry) is the one
+    # rosbags computes from control_msgs' definition
+    import json
+    described = json.loads((pathlib.Path(sys.argv[1]) / 'share' / 'control_msgs' / 'msg' /
+                            'DynamicJointState.json').read_text())
+    hashes = {entry['type_name']: entry['hash_string'] for entry in described['type_hashes']}
+    assert hashes['control_msgs/msg/DynamicJointState'] == store.hash_rihs01(
+        'control_msgs/msg/DynamicJointState')
     print('decoded', len(data), 'bytes')
 """)
 
