@@ -14,7 +14,7 @@ STAMP := $(VENV)/.installed-stamp
 BENCH_OUT := out/bench
 
 .PHONY: demo demo-loop demo-offline test test-fast typecheck warmup bench docs clean \
-	upgrade-deps check-python
+	upgrade-deps check-python control-msgs
 
 # The install also compiles the numba kernels into their on-disk cache (dcmotor_id.cli.warmup),
 # and the identify path's kernels ahead of time (dcmotor_id/simulation/compiled.py, needs a C
@@ -50,6 +50,21 @@ upgrade-deps: $(STAMP)
 warmup: $(STAMP)
 	$(PY) -m dcmotor_id.cli.warmup
 
+# control_msgs' DynamicJointState for the identifier's input dynamic_joint_state: the ROS wheels
+# have none, so tools/build_control_msgs.sh generates it from control_msgs' .msg files with the
+# rosidl generators (requirements-control-msgs.txt) into the venv (needs cmake and a C++
+# compiler, about a minute). `make test` does it first (the node tests of that input); on a ROS
+# machine install ros-jazzy-control-msgs instead.
+CONTROL_MSGS_STAMP := $(VENV)/.control-msgs-stamp
+control-msgs: $(CONTROL_MSGS_STAMP)
+
+$(CONTROL_MSGS_STAMP): $(STAMP) requirements-control-msgs.txt tools/build_control_msgs.sh \
+		tools/control_msgs/CMakeLists.txt tools/control_msgs/package.xml \
+		$(wildcard tools/control_msgs/msg/*.msg)
+	$(PY) -m pip install --progress-bar off -r requirements-control-msgs.txt -c constraints.txt
+	bash tools/build_control_msgs.sh $(VENV)
+	touch $@
+
 # The real node graph: sim_motor and identifier as processes, recording, then ~/identify.
 demo: $(STAMP)
 	$(PY) -m dcmotor_id.nodes.demo
@@ -63,7 +78,7 @@ demo-offline: $(STAMP)
 	$(VENV)/bin/dcmotor-id demo
 
 # Everything: the type check, then every test (pytest's exit code, 5 when none is collected).
-test: typecheck
+test: typecheck control-msgs
 	$(PY) -m pytest -q -ra
 
 # The inner loop: no ROS graph, nothing slower than a few seconds.

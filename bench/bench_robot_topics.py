@@ -5,7 +5,8 @@ For each publisher mode, at 500 Hz and 1 kHz, the paper's motor 2 under the pape
 excitation (6 s, 1 % noise on current and speed) is published in real time by
 :class:`dcmotor_id.nodes.drive_emulator.DrivePlayer` (header stamps from ``now()`` or on the
 grid with jitter, 50 ms bursts, a voltage without header, the voltage at twice the rate,
-Float64 topics by timestamp, batches) to an ``identifier`` node in the same process; ``~/identify``
+Float64 topics by timestamp, batches, ros2_control's DynamicJointState: needs control_msgs,
+``make control-msgs``) to an ``identifier`` node in the same process; ``~/identify``
 is called once the drive has published everything. The table gives the share of the
 published samples (at the identification rate) that the fit used, how each topic was placed
 on the grid, and the relative errors of Ra, CPhi, J and b against the emulator's truth.
@@ -43,6 +44,11 @@ MODES = {
         'batch', {}, {'stamps': 'grid', 'jitter': 0.2, 'burst_s': 0.05}),
     'mechanical only (torque_constant), now() bursts': (
         'joint_state', {'torque_constant': 0.7}, {'stamps': 'now', 'burst_s': 0.05}),
+    # control_msgs' Python messages needed (make control-msgs, docs/nodes.md)
+    'dynamic_joint_states now() stamps, 50 ms bursts (voltage an interface)': (
+        'dynamic_joint_state', {}, {'stamps': 'now', 'burst_s': 0.05}),
+    'dynamic_joint_states on the grid, 20 % jitter, 50 ms bursts': (
+        'dynamic_joint_state', {}, {'stamps': 'grid', 'jitter': 0.2, 'burst_s': 0.05}),
 }
 KEYS = ('Ra', 'CPhi', 'J', 'b')
 

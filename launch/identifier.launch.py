@@ -7,7 +7,9 @@ Start the identifier on a robot's joint: its topics, a namespace, a params file,
         [dynamic_joint_states_topic:=/dynamic_joint_states]
 
 ``input`` is ``joint_state`` (sensor_msgs/JointState: speed from velocity, current from
-effort; the voltage as std_msgs/Float64), ``float64`` or ``batch``. The joint-state and voltage
+effort; the voltage as std_msgs/Float64), ``dynamic_joint_state`` (control_msgs/
+DynamicJointState: the joint's interfaces ``current_interface``, ``voltage_interface``,
+``speed_interface`` of the params file), ``float64`` or ``batch``. The joint-state and voltage
 topics are remapped for the whole process (the identifier takes its samples through a
 helper node that the remaps must reach too). The default params file,
 ``config/identifier_robot.yaml``, applies to an identifier in any namespace.
@@ -29,8 +31,9 @@ def generate_launch_description():
         ('namespace', '', 'namespace of the identifier (the joint, say)'),
         ('params_file', os.path.join(config, 'identifier_robot.yaml'),
          'parameter file of the identifier'),
-        ('input', 'joint_state', 'joint_state, float64 or batch'),
-        ('joint_name', '', 'joint_state input: the joint ("" = the first)'),
+        ('input', 'joint_state', 'joint_state, dynamic_joint_state, float64 or batch'),
+        ('joint_name', '', 'joint_state and dynamic_joint_state input: the joint ("" = the '
+         'first)'),
         ('use_sim_time', 'false', 'true: the node runs on /clock (a replayed bag)'),
         ('joint_states_topic', '/joint_states', 'the sensor_msgs/JointState topic'),
         ('voltage_topic', 'voltage', 'the armature voltage (std_msgs/Float64)'),

@@ -11,6 +11,11 @@ due, from a thread of its own, with a publisher of the given node:
   stamp, or with ``stamps='now'`` the system time when it is published) and the armature
   voltage as ``std_msgs/Float64`` on ``voltage`` (no header: the receiver sees its DDS
   source time, the real publication time);
+* ``transport='dynamic_joint_state'``: ``control_msgs/DynamicJointState`` on
+  ``dynamic_joint_states`` (joints ``other`` and ``axis``, the interfaces ``position``,
+  ``velocity``, ``current`` and ``voltage`` of each, stamped as the joint states above), as
+  ros2_control's joint_state_broadcaster publishes a drive's state interfaces; no separate
+  voltage topic;
 * ``transport='float64'``: ``voltage``, ``current`` and ``speed`` as ``std_msgs/Float64``
   (publication times only);
 * ``transport='batch'``: the samples of each burst (or each sample) in one
@@ -32,12 +37,15 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 
+from dcmotor_id.nodes.identifier import dynamic_joint_state_type
 from dcmotor_id.nodes.sim_motor import batch_message
 from dcmotor_id.simulation.drive_publisher import drive_messages
 
 __all__ = ['DrivePlayer', 'TRANSPORTS']
 
-TRANSPORTS = ('joint_state', 'float64', 'batch')
+TRANSPORTS = ('joint_state', 'dynamic_joint_state', 'float64', 'batch')
+#: The interfaces of each joint in the ``dynamic_joint_state`` transport.
+DYNAMIC_INTERFACES = ('position', 'velocity', 'current', 'voltage')
 
 
 class DrivePlayer:
@@ -75,8 +83,11 @@ class DrivePlayer:
         self.transport = transport
         self.options = publish
         topics = {'joint_state': ('voltage', 'joint_states'),
+                  'dynamic_joint_state': ('dynamic_joint_states',),
                   'float64': ('voltage', 'current', 'speed'), 'batch': ('samples',)}[transport]
-        kinds = {'joint_states': JointState, 'samples': Float64MultiArray}
+        kinds: dict[str, Any] = {'joint_states': JointState, 'samples': Float64MultiArray}
+        if transport == 'dynamic_joint_state':
+            kinds['dynamic_joint_states'] = dynamic_joint_state_type()
         self.publishers = {topic: node.create_publisher(kinds.get(topic, Float64), topic,
                                                         qos_depth)
                            for topic in topics}
@@ -97,6 +108,8 @@ class DrivePlayer:
                                   **self.options)
         if self.transport == 'batch':
             messages = _batches(messages, start_ns)
+        elif self.transport == 'dynamic_joint_state':  # the voltage is an interface
+            messages = [message for message in messages if message.topic != 'voltage']
         self._thread = threading.Thread(target=self._play, args=(messages,), daemon=True,
                                         name='drive')
         self._thread.start()
@@ -141,17 +154,37 @@ class DrivePlayer:
             for topic, value in zip(('current', 'speed'), message.values):
                 self.publishers[topic].publish(Float64(data=value))
                 self.published[topic] += 1
+        elif self.transport == 'dynamic_joint_state':
+            current, speed = message.values
+            voltage = float(self.samples[0][message.sequence - 1])
+            state = dynamic_joint_state_type()(joint_names=['other', 'axis'])
+            state.interface_values = [_interface_value((0.0, 0.0, 0.0, 0.0)),
+                                      _interface_value((0.0, speed, current, voltage))]
+            self._stamp(state, message)
+            self.publishers['dynamic_joint_states'].publish(state)
+            self.published['dynamic_joint_states'] += 1
         else:
             current, speed = message.values
             joint_state = JointState(name=['other', 'axis'], position=[0.0, 0.0],
                                      velocity=[0.0, speed], effort=[0.0, current])
-            # now(): the time it is published, as a drive's loop stamps it (also when late)
-            stamp_ns = time.time_ns() if self.options.get('stamps') == 'now' else \
-                message.stamp_ns
-            joint_state.header.stamp.sec, joint_state.header.stamp.nanosec = divmod(
-                stamp_ns, 1_000_000_000)
+            self._stamp(joint_state, message)
             self.publishers['joint_states'].publish(joint_state)
             self.published['joint_states'] += 1
+
+    def _stamp(self, joint_state: Any, message: Any) -> None:
+        """Stamp a joint state: ``now()`` when it is published, or the message's stamp."""
+        # now(): the time it is published, as a drive's loop stamps it (also when late)
+        stamp_ns = time.time_ns() if self.options.get('stamps') == 'now' else message.stamp_ns
+        joint_state.header.stamp.sec, joint_state.header.stamp.nanosec = divmod(
+            stamp_ns, 1_000_000_000)
+
+
+def _interface_value(values: tuple) -> Any:
+    """Return one joint's ``control_msgs/InterfaceValue`` of :data:`DYNAMIC_INTERFACES`."""
+    from control_msgs.msg import InterfaceValue
+
+    return InterfaceValue(interface_names=list(DYNAMIC_INTERFACES),
+                          values=[float(value) for value in values])
 
 
 def _batches(messages: list, start_ns: int) -> list:

@@ -22,6 +22,11 @@ timer through :class:`~dcmotor_id.nodes.common.BulkInput`), by ``input``:
   ``velocity``, current from ``effort`` times ``effort_scale``, both at ``header.stamp``) plus
   ``voltage`` by its source timestamp, or no voltage when ``torque_constant`` > 0
   (mechanical-only identification of J, b, Mc).
+* ``dynamic_joint_state``: ``dynamic_joint_states`` (``control_msgs/msg/DynamicJointState``,
+  as ros2_control's joint_state_broadcaster publishes it): the joint's state interfaces
+  ``current_interface``, ``voltage_interface`` and ``speed_interface`` at ``header.stamp``
+  (the voltage from the ``voltage`` topic when ``voltage_interface`` is empty; none in the
+  mechanical-only mode). Needs control_msgs' Python messages (:func:`dynamic_joint_state_type`).
 
 Outputs: ``~/parameters`` (``diagnostic_msgs/msg/DiagnosticStatus``, TRANSIENT_LOCAL depth 1:
 keys Ra, La, CPhi, J, b, Mc, Ka, Ta, ``<key>_stderr`` and ``effect.<name>.<parameter>``),
@@ -93,6 +98,9 @@ class Identifier(Node):
         self.settings = settings = declare_settings(self, IdentifierSettings)
         self.structure_bootstrap = self._startup_bootstrap(settings.structure_bootstrap)
         check_settings(settings)
+        # a missing control_msgs is said at start-up, before anything is started
+        self.joint_state_type = dynamic_joint_state_type() if \
+            settings.input == 'dynamic_joint_state' else JointState
         self.add_on_set_parameters_callback(self._on_set_bootstrap)
         guard_parameters(self, [name for name in own_parameters(self)
                                 if name != 'structure_bootstrap'])
@@ -110,6 +118,8 @@ class Identifier(Node):
                                    settings.min_window_s, min_samples=MIN_SAMPLES,
                                    clock_ns=lambda: self.get_clock().now().nanoseconds,
                                    restart_samples=self.aligner.restart_samples)
+        #: The channels the joint-state messages carry (joint_state, dynamic_joint_state).
+        self.joint_channels: tuple[str, ...] = ()
         self.regridder = self._make_regridder(settings)
         self.health = InputHealth(self.channels, self.inbox, self.aligner, self.cutter,
                                   self.regridder)
@@ -167,10 +177,20 @@ class Identifier(Node):
             for channel in self.channels:
                 regridder.add_source(channel, (channel,))
         else:
-            regridder.add_source('joint_states', ('current', 'speed'))
-            if not self.mechanical:
+            source, channels = self._joint_source(settings)
+            self.joint_channels = channels
+            regridder.add_source(source, channels)
+            if 'voltage' in self.channels and 'voltage' not in channels:
                 regridder.add_source('voltage', ('voltage',))
         return regridder
+
+    def _joint_source(self, settings: IdentifierSettings) -> tuple[str, tuple[str, ...]]:
+        """Return the joint-state topic and the channels its messages carry."""
+        if settings.input == 'joint_state':
+            return 'joint_states', ('current', 'speed')
+        if settings.voltage_interface and not self.mechanical:
+            return 'dynamic_joint_states', ('voltage', 'current', 'speed')
+        return 'dynamic_joint_states', ('current', 'speed')
 
     def _subscribe(self, settings: IdentifierSettings) -> None:
         """Subscribe to the samples of the configured input (Float64, batch, joint states)."""
@@ -183,8 +203,12 @@ class Identifier(Node):
             inputs.add(Float64MultiArray, 'samples', qos, lambda message, _: self._on_batch(
                 message))
         else:
-            inputs.add(JointState, 'joint_states', qos, self._on_joint_state)
-            if not self.mechanical:
+            if settings.input == 'joint_state':
+                inputs.add(JointState, 'joint_states', qos, self._on_joint_state)
+            else:
+                inputs.add(self.joint_state_type, 'dynamic_joint_states', qos,
+                           self._on_dynamic_joint_state)
+            if 'voltage' in self.channels and 'voltage' not in self.joint_channels:
                 inputs.add(Float64, 'voltage', qos, partial(self._on_float64, 'voltage'))
 
     # ------------------------------------------------------------------ input
@@ -232,6 +256,34 @@ class Identifier(Node):
                            (self.settings.effort_scale * message.effort[position],
                             message.velocity[position]))
         self.inbox.seen(('current', 'speed'))
+
+    def _on_dynamic_joint_state(self, message, info):
+        names, joint = list(message.joint_names), self.settings.joint_name
+        if joint and joint not in names or not names:
+            self._refuse_joint_state(f'dynamic_joint_states: no joint {joint!r} (has {names})')
+            return
+        position = names.index(joint) if joint else 0
+        if len(message.interface_values) <= position:
+            self._refuse_joint_state(f'dynamic_joint_states: {len(message.interface_values)} '
+                                     f'interface value sets for joint {position}')
+            return
+        found = message.interface_values[position]
+        values = dict(zip(found.interface_names, found.values))
+        channels, settings = self.joint_channels, self.settings
+        wanted = {'voltage': settings.voltage_interface, 'current': settings.current_interface,
+                  'speed': settings.speed_interface}
+        missing = [wanted[channel] for channel in channels if wanted[channel] not in values]
+        if missing:
+            self._refuse_joint_state(f'dynamic_joint_states: joint {names[position]!r} has no '
+                                     f'interface {", ".join(missing)} (has '
+                                     f'{", ".join(values) or "none"})')
+            return
+        stamp = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+        assert self.regridder is not None
+        self.regridder.put('dynamic_joint_states', stamp or info.get('source_timestamp') or
+                           info['received_timestamp'], info.get('publication_sequence_number'),
+                           tuple(float(values[wanted[channel]]) for channel in channels))
+        self.inbox.seen(channels)
 
     def _refuse_joint_state(self, why):
         self.health.refuse_joint_state(why)
@@ -441,6 +493,25 @@ class Identifier(Node):
                 self.recorder.close()
             self.input_node.destroy()
             self._fits.shutdown()
+
+
+def dynamic_joint_state_type() -> Any:
+    """
+    Return ``control_msgs.msg.DynamicJointState``; ValueError saying how to install it.
+
+    On a ROS machine it is the installed control_msgs (``ros-jazzy-control-msgs``, not in
+    package.xml: only this input needs it); with the PyPI wheels of ROS, ``make control-msgs``
+    generates it (tools/build_control_msgs.sh).
+    """
+    try:
+        from control_msgs.msg import DynamicJointState
+    except ImportError as error:
+        raise ValueError(f"parameter input = dynamic_joint_state needs control_msgs' Python "
+                         f'messages, which cannot be imported ({error}): on a ROS machine '
+                         'apt-get install ros-jazzy-control-msgs; with the ROS wheels from '
+                         'PyPI run `make control-msgs` (docs/nodes.md); or use input '
+                         'joint_state') from None
+    return DynamicJointState
 
 
 def main(args: Optional[list[str]] = None) -> int:

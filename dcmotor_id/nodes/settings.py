@@ -8,7 +8,7 @@ from typing import Any, Optional, Sequence
 
 from dcmotor_id.identification.identify import METHODS
 
-INPUTS = ('float64', 'batch', 'joint_state')
+INPUTS = ('float64', 'batch', 'joint_state', 'dynamic_joint_state')
 
 
 def parameter(default: Any, description: str, low: Optional[float] = None,
@@ -53,8 +53,8 @@ def check_structure_bootstrap(value: Any) -> int:
 class IdentifierSettings:
     """The settings of the ``identifier`` node, one field per ROS parameter."""
 
-    input: str = parameter('float64', 'float64, batch or joint_state',  # noqa: A003
-                           choices=INPUTS)
+    input: str = parameter(  # noqa: A003
+        'float64', 'float64, batch, joint_state or dynamic_joint_state', choices=INPUTS)
     sample_rate_hz: float = parameter(1000.0, 'sample rate of the drive [Hz]', 1.0, 1e6)
     align_by: str = parameter('sequence', 'float64 input: sequence (DDS publication sequence '
                               'number) or timestamp (DDS source timestamp)',
@@ -64,7 +64,15 @@ class IdentifierSettings:
     qos_depth: int = parameter(5000, 'history depth of the sample topics', 1)
     qos_reliability: str = parameter('reliable', 'reliable or best_effort',
                                      choices=('reliable', 'best_effort'))
-    joint_name: str = parameter('', 'joint_state input: joint to use ("" = the first)')
+    joint_name: str = parameter('', 'joint_state and dynamic_joint_state input: joint to use '
+                                '("" = the first)')
+    current_interface: str = parameter('current', "dynamic_joint_state input: the joint's "
+                                       'state interface of the armature current [A]')
+    voltage_interface: str = parameter('voltage', "dynamic_joint_state input: the joint's "
+                                       'state interface of the armature voltage [V] ("" = '
+                                       'the voltage topic, by its source timestamp)')
+    speed_interface: str = parameter('velocity', "dynamic_joint_state input: the joint's "
+                                     'state interface of the speed [rad/s]')
     effort_scale: float = parameter(1.0, 'joint_state input: current = effort_scale * effort '
                                     '[A]')
     torque_constant: float = parameter(0.0, '> 0: mechanical-only mode, torque = K current '

@@ -210,6 +210,8 @@ class InputHealth:
             level, message = 'WARN', f'nothing received on {", ".join(missing)}'
         if self.malformed and level == 'OK':
             level, message = 'WARN', 'receiving; malformed batches refused'
+        if self.malformed_joint_states and level == 'OK':
+            level, message = 'WARN', 'receiving; malformed joint states refused'
         if recorder_error:
             level, message = 'ERROR', recorder_error
         return level, message
@@ -220,7 +222,8 @@ class InputHealth:
 
         The aligner's counters (:class:`~dcmotor_id.formats.streams.AlignerStats`), then
         ``first_sample``, ``next_sample``, ``windows_in_memory``, ``discarded_samples``,
-        ``missing_channels``, ``malformed_batches``, ``malformed_reason``, ``invalid_times``,
+        ``missing_channels``, ``malformed_batches``, ``malformed_reason``,
+        ``malformed_joint_states``, ``malformed_joint_state_reason``, ``invalid_times``,
         ``window_restarts``, ``fit_restarts`` (restarts of the fit process), ``problems``,
         ``invalid.<channel>``, with stamped topics ``regrid.<topic>.<counter>``
         (:class:`~dcmotor_id.formats.regrid.SourceStats`) and, when recording,
@@ -234,6 +237,8 @@ class InputHealth:
                   ('missing_channels', ', '.join(self.missing())),
                   ('malformed_batches', str(sum(self.malformed.values()))),
                   ('malformed_reason', self.last_malformed),
+                  ('malformed_joint_states', str(self.malformed_joint_states)),
+                  ('malformed_joint_state_reason', self.last_malformed_joint_state),
                   ('invalid_times', str(self.inbox.invalid_times)),
                   ('window_restarts', str(self.cutter.restarts)),
                   ('fit_restarts', str(fit_restarts)),

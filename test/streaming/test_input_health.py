@@ -139,7 +139,8 @@ def test_key_values_keep_their_keys_and_order():
                     'invalid', 'restarts', 'unmatched_at_start', 'first_sample',
                     'next_sample', 'windows_in_memory', 'discarded_samples',
                     'missing_channels', 'malformed_batches', 'malformed_reason',
-                    'invalid_times', 'window_restarts', 'fit_restarts', 'problems',
+                    'malformed_joint_states', 'malformed_joint_state_reason', 'invalid_times',
+                    'window_restarts', 'fit_restarts', 'problems',
                     'invalid.voltage', 'invalid.current', 'invalid.speed', 'record_dir']
     values = dict(pairs)
     assert values['invalid.speed'] == '2000' and values['invalid'] == '2000'
