@@ -364,7 +364,8 @@ def _cmd_simulate(args):
 def _cmd_design(args):
     from dcmotor_id.design import control as control_design
     from dcmotor_id.design.export import write_exports
-    from dcmotor_id.design.plant import DesignOptions, load_result, motor_from_result
+    from dcmotor_id.design.plant import (armature_lag_note, DesignOptions, load_result,
+                                         motor_from_result)
     check_input_path(args.result, 'RESULT.json ')
     if args.json and args.json != STDOUT:
         check_output_path(args.json, '--json', inputs=[args.result])
@@ -379,6 +380,7 @@ def _cmd_design(args):
                             args.sample_period)
     notes = bandwidth_notes(result, args)
     design, gains = control_design.design(motor, options)
+    design['notes'] += armature_lag_note(result, design['requested']['speed_bandwidth_hz'])
     design['source'] = args.result
     if notes:
         design['warnings'] = notes + list(design.get('warnings') or [])

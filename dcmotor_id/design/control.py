@@ -83,6 +83,11 @@ class Gains:
     torque_loop_hz: float | None = None
 
 
+def reference_of(motor: Motor) -> str:
+    """Return the speed PI's output: the current, torque or voltage reference."""
+    return {'full': 'i_ref', 'voltage_speed': 'u'}.get(motor.mode, 'torque_ref')
+
+
 def loops(motor: Motor, gains: Gains) -> dict:
     """
     Build every loop of a design for a (possibly perturbed) motor.
@@ -94,7 +99,7 @@ def loops(motor: Motor, gains: Gains) -> dict:
         ``speed_closed`` (``w_ref -> w, reference, ...``), as python-control systems.
 
     """
-    reference = 'i_ref' if motor.mode == 'full' else 'torque_ref'
+    reference = reference_of(motor)
     inner = inner_loop(motor, gains.current, gains.torque_loop_hz, gains.dt)
     speed_open, speed_closed = speed_loops(inner, *gains.speed, gains.dt, reference)
     systems = {'speed_open': speed_open, 'speed_closed': speed_closed, 'inner': inner}
@@ -232,8 +237,8 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
         assert current_bandwidth is not None
         current, correction = sampled_current_pi(motor, current_bandwidth, dt)
     torque_loop = None if full else current_bandwidth
-    notes = _design_notes(full, torque_loop, current_bandwidth or speed_bandwidth, dt)
-    reference = 'i_ref' if full else 'torque_ref'
+    notes = _design_notes(motor.mode, torque_loop, current_bandwidth or speed_bandwidth, dt)
+    reference = reference_of(motor)
     inner = inner_loop(motor, current, torque_loop, dt)
     kp, ki, crossover = design_speed(inner, speed_bandwidth,
                                      options.phase_margin_deg, dt, reference)
@@ -254,11 +259,15 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
     return result, gains
 
 
-def _design_notes(full: bool, torque_loop: float | None, fastest: float,
+def _design_notes(mode: str, torque_loop: float | None, fastest: float,
                   dt: float | None) -> list[str]:
     """Return the notes on the mode and on a bandwidth close to the sampling rate."""
     notes = []
-    if not full:
+    if mode == 'voltage_speed':
+        notes.append('voltage-to-speed result (kS, kV, kA; no current): the speed PI acts on '
+                     'the voltage, plant kA s + kV with the armature lag neglected; no current '
+                     'loop (it needs Ra and La: identify with the current)')
+    elif mode == 'mechanical':
         notes.append('mechanical-only result (J, b, Mc): the speed loop acts on a torque '
                      'command; the current loop needs Ra and La (identify with voltage).')
         notes.append('torque loop assumed ideal' if torque_loop is None else
@@ -307,7 +316,7 @@ def _speed_loop(motor: Motor, speed: tuple[float, float], crossover: float,
     kp, ki = speed
     dt = options.sample_period_s
     pi = pi_controller(kp, ki, dt, 'e_w', reference)
-    unit = 'A' if motor.mode == 'full' else 'N m'
+    unit = {'full': 'A', 'voltage_speed': 'V'}.get(motor.mode, 'N m')
     speed_loop = {
         'kp': kp, 'ki': ki, 'ti_s': kp / ki,
         'units': {'kp': f'{unit} s/rad', 'ki': f'{unit}/rad'},
@@ -327,8 +336,10 @@ def _speed_loop(motor: Motor, speed: tuple[float, float], crossover: float,
 def format_design(result: dict) -> str:
     """Render a design as a readable table."""
     dt = result['sample_period_s']
-    made = ('current and speed loops' if result['mode'] == 'full' else
-            'speed loop only, on an ideal torque source: the result has no electrical model')
+    made = {'full': 'current and speed loops',
+            'voltage_speed': 'speed loop on the voltage: the result has no current'}.get(
+        result['mode'], 'speed loop only, on an ideal torque source: the result has no '
+        'electrical model')
     lines = [f"design: mode {result['mode']} ({made}), {result['shaft']} shaft (gear ratio "
              f"{result['gear_ratio']:g}), " + (f'sample period {dt:g} s (Tustin)' if dt
                                                else 'continuous')]

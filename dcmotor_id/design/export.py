@@ -12,7 +12,8 @@ Files written by :func:`write_exports` (``dcmotor-id design RESULT.json --export
 * ``sim_motor.yaml`` (full mode only): the parameters of the ``sim_motor`` node, so that
   ``sim_motor --ros-args --params-file DIR/sim_motor.yaml`` simulates the identified motor.
 * ``urdf_dynamics.xml``: ``<dynamics damping="b N^2" friction="Mc N"/>`` for the joint on the
-  output shaft of a gear of ratio ``N`` (motor speed / output speed; an ideal, loss-free gear).
+  output shaft of a gear of ratio ``N`` (motor speed / output speed; an ideal, loss-free gear);
+  not for a voltage-to-speed result (kS, kV, kA: no torque without the current).
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ from dcmotor_id.formats.json_file import load_json
 
 #: Format tag of the StateSpace JSON.
 STATESPACE_FORMAT = 'dcmotor_id.statespace/1'
-_UNITS = {'Ra': 'Ohm', 'La': 'H', 'CPhi': 'V s', 'J': 'kg m^2', 'b': 'N m s/rad', 'Mc': 'N m'}
+_UNITS = {'Ra': 'Ohm', 'La': 'H', 'CPhi': 'V s', 'J': 'kg m^2', 'b': 'N m s/rad', 'Mc': 'N m',
+          'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'}
 _SIGNAL_UNITS = {'i': 'A', 'w': 'rad/s', 'u': 'V', 'torque': 'N m'}
 
 
@@ -49,7 +51,9 @@ def statespace_dict(motor: Motor) -> dict:
         'units': {name: _UNITS[name] for name in motor.values},
         'mode': motor.mode, 'shaft': motor.shaft, 'gear_ratio': motor.gear_ratio,
         'torque_constant': motor.torque_constant,
-        'nonlinear': 'Coulomb friction: torque input -Mc sgn(w) (stiction at rest)',
+        'nonlinear': ('Coulomb friction: voltage input -kS sgn(w) (stiction at rest)'
+                      if motor.mode == 'voltage_speed' else
+                      'Coulomb friction: torque input -Mc sgn(w) (stiction at rest)'),
     }
 
 
@@ -123,7 +127,8 @@ def write_exports(directory: str, motor: Motor, motor_shaft_values: dict) -> dic
     Returns
     -------
     dict
-        ``{'statespace': path, 'sim_motor': path or None, 'urdf': path, 'urdf_dynamics': {...}}``.
+        ``{'statespace': path, 'sim_motor': path or None, 'urdf': path or None,
+        'urdf_dynamics': {...} or None}``.
 
     """
     os.makedirs(directory, exist_ok=True)
@@ -138,6 +143,9 @@ def write_exports(directory: str, motor: Motor, motor_shaft_values: dict) -> dic
         with open(path, 'w', encoding='utf-8') as stream:
             stream.write(sim_motor_yaml(motor_shaft_values))
         paths['sim_motor'] = path
+    paths['urdf'] = paths['urdf_dynamics'] = None
+    if motor.mode == 'voltage_speed':  # no torque without the current: no URDF friction
+        return paths
     dynamics = urdf_dynamics(motor.values, motor.gear_ratio, motor.shaft)
     path = os.path.join(directory, 'urdf_dynamics.xml')
     with open(path, 'w', encoding='utf-8') as stream:

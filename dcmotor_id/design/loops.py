@@ -39,9 +39,13 @@ def motor_model(motor: Motor) -> control.StateSpace:
 
     Full mode: states ``i, w``, inputs ``u`` [V] and ``torque`` [N m] (any further torque on
     the shaft; Coulomb friction is ``-Mc sgn(w)`` on it), outputs ``i, w``. Mechanical mode:
-    state and output ``w``, input ``torque``.
+    state and output ``w``, input ``torque``. Voltage-speed mode: ``kA dw/dt = u - kV w``,
+    state and output ``w``, input ``u``.
     """
     p = motor.values
+    if motor.mode == 'voltage_speed':
+        return control.ss([[-p['kV'] / p['kA']]], [[1.0 / p['kA']]], [[1.0]], [[0.0]],
+                          inputs=['u'], outputs=['w'], states=['w'], name='motor')
     if motor.mode == 'mechanical':
         return control.ss([[-p['b'] / p['J']]], [[1.0 / p['J']]], [[1.0]], [[0.0]],
                           inputs=['torque'], outputs=['w'], states=['w'], name='motor')
@@ -102,9 +106,15 @@ def feedforward(motor: Motor) -> dict:
     Full mode: ``kS = Ra Mc / CPhi`` [V], ``kV = CPhi + Ra b / CPhi`` [V s/rad],
     ``kA = Ra J / CPhi`` [V s^2/rad] (``La`` neglected). Mechanical mode: the torque
     feedforward ``Mc`` [N m], ``b`` [N m s/rad], ``J`` [N m s^2/rad] (and divided by the
-    torque constant, in amperes, when it is known).
+    torque constant, in amperes, when it is known). Voltage-speed mode: the identified
+    ``kS, kV, kA`` themselves.
     """
     p = motor.values
+    if motor.mode == 'voltage_speed':
+        return {'kS': p['kS'], 'kV': p['kV'], 'kA': p['kA'],
+                'units': {'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'},
+                'convention': 'u = kS sgn(w) + kV w + kA dw/dt (WPILib SimpleMotorFeedforward)',
+                'identified': 'directly, from voltage and speed (no current)'}
     if motor.mode == 'full':
         return {'kS': p['Ra'] * p['Mc'] / p['CPhi'],
                 'kV': p['CPhi'] + p['Ra'] * p['b'] / p['CPhi'],
@@ -150,8 +160,12 @@ def inner_loop(motor: Motor, current_gains: tuple[float, float] | None,
     Full mode: the current PI closed around the exact motor (back-EMF included), input
     ``i_ref`` [A], outputs ``w, i, u``. Mechanical mode: the torque source, ideal or a first
     order lag of ``current_bandwidth_hz``, input ``torque_ref`` [N m], outputs ``w``.
+    Voltage-speed mode: the motor itself, input ``u`` [V], output ``w``.
     """
     plant = sampled_system(motor_model(motor), dt)
+    if motor.mode == 'voltage_speed':
+        return control.interconnect([plant], inplist=['u'], outlist=['w'], inputs=['u'],
+                                    outputs=['w'], name='inner')
     if motor.mode == 'mechanical':
         if current_bandwidth_hz is None:
             actuator = control.ss([], [], [], [[1.0]], dt=0 if dt is None else dt,
