@@ -151,6 +151,8 @@ def test_cli_identify_design_validate(tmp_path, capsys):
     csv = str(tmp_path / 'sysid.csv')
     write_csv(csv, record)
     out = str(tmp_path / 'result.json')
+    assert main(['identify', csv, '--quiet', '--report', str(tmp_path / 'report')]) == 2
+    assert 'no HTML report yet' in capsys.readouterr().err
     assert main(['identify', csv, '--quiet', '--json', out]) == 0
     result = json.loads(open(out, encoding='utf-8').read())
     for name in ('kS', 'kV'):
