@@ -375,6 +375,7 @@ def _cmd_simulate(args):
 def _cmd_design(args):
     from dcmotor_id.design import control as control_design
     from dcmotor_id.design.export import write_exports
+    from dcmotor_id.design.loops import add_gravity, gravity_feedforward
     from dcmotor_id.design.plant import (armature_lag_note, DesignOptions, load_result,
                                          motor_from_result)
     check_input_path(args.result, 'RESULT.json ')
@@ -392,6 +393,8 @@ def _cmd_design(args):
     notes = bandwidth_notes(result, args)
     design, gains = control_design.design(motor, options)
     design['notes'] += armature_lag_note(result, design['requested']['speed_bandwidth_hz'])
+    if args.gravity_load:
+        add_gravity(design['feedforward'], gravity_feedforward(motor))
     design['source'] = args.result
     if notes:
         design['warnings'] = notes + list(design.get('warnings') or [])
@@ -638,6 +641,9 @@ def _add_design_command(commands: Any) -> None:
                      help='motor speed / output speed (default 1)')
     ctl.add_argument('--output-shaft', action='store_true',
                      help='express speeds, gains and the model on the output shaft')
+    ctl.add_argument('--gravity-load', action='store_true',
+                     help='take the load_torque effect the identification found as gravity on '
+                          'an elevator: kG of the feedforward (WPILib ElevatorFeedforward)')
     ctl.add_argument('--json', metavar='OUT', help='write the design as JSON here (- : on stdout)')
     ctl.add_argument('--report', metavar='DIR', help='write design.html with step responses '
                      'and Bode plots to DIR')

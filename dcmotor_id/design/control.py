@@ -255,8 +255,35 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
     result['feedforward'] = feedforward(motor)
     result['nominal'] = nominal
     result['robustness'] = robustness(motor, gains)
-    result['notes'] = notes + result['robustness']['notes']
+    result['notes'] = notes + effect_notes(motor) + result['robustness']['notes']
     return result, gains
+
+
+#: What the controller does with each effect beyond ignoring it in the linear loops.
+EFFECT_REMARKS = {
+    'stribeck': 'kS is its break-away friction (Mc + excess); the speed PI ignores the '
+                "friction's fall with speed",
+    'load_torque': "the speed PI's integral holds the constant torque; the feedforward leaves "
+                   'it out',
+    'coulomb_asymmetry': 'kS is one value for both directions',
+    'viscous_asymmetry': 'kV is one value for both directions',
+    'cogging': 'the torque ripple with the angle is left to the speed PI',
+    'quadratic_drag': 'kV holds the viscous part alone',
+    'sensor_delay': 'the loops assume sensors without delay: the margins are lower by the '
+                    'phase of the delay',
+}
+
+
+def effect_notes(motor: Motor) -> list[str]:
+    """Return a note per effect of the identification: what the controller ignores of it."""
+    notes = []
+    for effect in motor.effects:
+        values = ', '.join(f'{key} = {value:.4g}' if isinstance(value, float) else
+                           f'{key} = {value}' for key, value in effect['parameters'].items())
+        remark = EFFECT_REMARKS.get(effect['name'])
+        notes.append(f"effect {effect['name']} ({values}): the linear loops ignore it"
+                     + (f'; {remark}' if remark else ''))
+    return notes
 
 
 def _design_notes(mode: str, torque_loop: float | None, fastest: float,
@@ -357,7 +384,8 @@ def format_design(result: dict) -> str:
                      f"margin {metrics['gain_margin_db']:.3g} dB")
     ff = result['feedforward']
     lines.append(f"feedforward kS = {ff['kS']:.5g} {ff['units']['kS']}, kV = {ff['kV']:.5g} "
-                 f"{ff['units']['kV']}, kA = {ff['kA']:.5g} {ff['units']['kA']}")
+                 f"{ff['units']['kV']}, kA = {ff['kA']:.5g} {ff['units']['kA']}"
+                 + (f", kG = {ff['kG']:.5g} {ff['units']['kG']}" if 'kG' in ff else ''))
     spread = result['robustness']['range']
     for key in ('current.phase_margin_deg', 'speed.phase_margin_deg', 'speed.bandwidth_hz'):
         if key in spread:

@@ -62,6 +62,10 @@ class Motor:
         ``N``, motor speed / output speed.
     shaft : str
         ``'motor'`` or ``'output'``: where speeds, torques and gains are expressed.
+    effects : tuple of dict
+        The effects the identification found, ``{"name", "parameters"}`` each, on the motor
+        shaft (:func:`effects_of`): exported to ``sim_motor``, the break-away friction of a
+        Stribeck effect in ``kS``, each named in the design's notes.
 
     """
 
@@ -71,6 +75,7 @@ class Motor:
     torque_constant: float | None = None
     gear_ratio: float = 1.0
     shaft: str = 'motor'
+    effects: tuple = ()
 
     @property
     def linear_names(self) -> tuple:
@@ -196,7 +201,44 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
         if torque_constant is not None:
             torque_constant *= gear_ratio
     return Motor(values, stderr, mode, torque_constant, float(gear_ratio),
-                 'output' if output_shaft else 'motor')
+                 'output' if output_shaft else 'motor', effects_of(result))
+
+
+def effects_of(result: dict) -> tuple:
+    """
+    Return the effects of an identify result (``{"name", "parameters"}`` each, JSON numbers).
+
+    Raises
+    ------
+    InputDataError
+        An entry that is not ``{"name": ..., "parameters": {...}}``.
+
+    """
+    found = []
+    for effect in result.get('effects') or []:
+        if not (isinstance(effect, dict) and isinstance(effect.get('name'), str)
+                and isinstance(effect.get('parameters', {}), dict)):
+            raise InputDataError(f'effect {json.dumps(effect)[:80]} is not {{"name": ..., '
+                                 '"parameters": {...}}; give the JSON written by dcmotor-id '
+                                 'identify --json')
+        found.append({'name': effect['name'], 'parameters': dict(effect.get('parameters', {}))})
+    return tuple(found)
+
+
+def breakaway_excess(motor: Motor) -> float:
+    """
+    Return the static minus Coulomb friction of a Stribeck effect on the controlled shaft.
+
+    0 without a Stribeck effect (or one without a positive ``excess_Nm``); on the output
+    shaft the torque is multiplied by the gear ratio as ``Mc`` is.
+    """
+    scale = motor.gear_ratio if motor.shaft == 'output' else 1.0
+    for effect in motor.effects:
+        if effect['name'] == 'stribeck':
+            excess = _number(effect['parameters'].get('excess_Nm'))
+            if np.isfinite(excess) and excess > 0:
+                return excess * scale
+    return 0.0
 
 
 def _checked_values(result: dict, names: tuple[str, ...]) -> tuple[dict, dict]:

@@ -110,7 +110,8 @@ def test_voltage_and_velocity_alone_give_ks_kv_ka(motor_log, tmp_path):
                  '--column', COLUMNS[0], '--column', COLUMNS[2]]) == 0
     result = json.loads(out.read_text())
     assert result['mode'] == 'voltage_speed'
-    expected = {'kS': true.Ra * true.Mc / true.CPhi, 'kV': true.CPhi + true.Ra * true.b / true.CPhi,
+    expected = {'kS': true.Ra * true.Mc / true.CPhi,
+                'kV': true.CPhi + true.Ra * true.b / true.CPhi,
                 'kA': true.Ra * true.J / true.CPhi}
     for name, value in expected.items():
         assert result['parameters'][name] == pytest.approx(value, rel=0.02), name
