@@ -286,6 +286,54 @@ def effect_notes(motor: Motor) -> list[str]:
     return notes
 
 
+def design_controller(result: Any, current_bandwidth_hz: float | None = None,
+                      speed_bandwidth_hz: float | None = None,
+                      phase_margin_deg: float = 60.0, sample_period_s: float | None = None,
+                      gear_ratio: float = 1.0, output_shaft: bool = False,
+                      gravity_load: bool = False) -> dict:
+    """
+    Design the controller for an identification result (what ``dcmotor-id design`` prints).
+
+    Parameters
+    ----------
+    result : IdentificationResult or dict
+        The result of :func:`~dcmotor_id.identification.identify.identify`, or its JSON.
+    current_bandwidth_hz, speed_bandwidth_hz, phase_margin_deg, sample_period_s : float
+        The request (:class:`~dcmotor_id.design.plant.DesignOptions`; None: the defaults).
+    gear_ratio : float
+        Motor speed / output speed.
+    output_shaft : bool
+        Design on the output shaft.
+    gravity_load : bool
+        Take the identified load torque as an elevator's gravity (``kG``).
+
+    Returns
+    -------
+    dict
+        The design JSON: ``speed_loop``, ``current_loop`` (full mode), ``feedforward``,
+        ``nominal``, ``robustness``, ``notes``.
+
+    Examples
+    --------
+    >>> import dcmotor_id as dm
+    >>> values = dm.PAPER_MOTORS['paper2'].as_dict(derived=False)
+    >>> made = dm.design_controller({'parameters': values, 'stderr': {}, 'mode': 'full'})
+    >>> round(made['feedforward']['kV'], 4), round(made['nominal']['speed']['bandwidth_hz'], 3)
+    (1.3857, 20.0)
+
+    """
+    from dcmotor_id.design.loops import add_gravity, gravity_feedforward
+    from dcmotor_id.design.plant import armature_lag_note, motor_from_result
+    data = result if isinstance(result, dict) else result.as_dict()
+    motor = motor_from_result(data, gear_ratio, output_shaft)
+    made, _ = design(motor, DesignOptions(current_bandwidth_hz, speed_bandwidth_hz,
+                                          phase_margin_deg, sample_period_s))
+    made['notes'] += armature_lag_note(data, made['requested']['speed_bandwidth_hz'])
+    if gravity_load:
+        add_gravity(made['feedforward'], gravity_feedforward(motor))
+    return made
+
+
 def _design_notes(mode: str, torque_loop: float | None, fastest: float,
                   dt: float | None) -> list[str]:
     """Return the notes on the mode and on a bandwidth close to the sampling rate."""

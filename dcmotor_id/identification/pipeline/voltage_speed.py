@@ -14,6 +14,7 @@ from __future__ import annotations
 import time
 from typing import Sequence, TYPE_CHECKING
 
+from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.estimators.voltage_speed import (COMBINATIONS,
                                                                 fit_voltage_speed,
                                                                 NOT_SEPARABLE, UNITS)
@@ -81,6 +82,9 @@ def identify_voltage_speed(records: Sequence[Record],
         uncertainty_method=note,
         not_identifiable={'Ra, CPhi, J, b, Mc': NOT_SEPARABLE},
         warnings=warnings, combined=combined, operating_range=operating_range(records),
-        input_records=list(records))
+        input_records=list(records),
+        estimate=Estimate(MODE, dict(fit.values), dict(fit.stderr),
+                          [[speed] for speed in fit.initial_speeds],
+                          {'simulated_speeds': fit.speeds, 'start': fit.start}))
     result.elapsed_s = time.monotonic() - began
     return result
