@@ -152,10 +152,12 @@ def motor_of(theta: np.ndarray) -> MotorParameters:
     """
     Return the motor (``Ra`` = 1 Ohm) of the second-order parameters.
 
-    ``theta`` = log kA, log kV, kS, log Ta, c with ``CPhi = c kV``.
+    ``theta`` = log kA, log kV, kS, log(Ta kV/kA), c with ``CPhi = c kV``: the armature's
+    time constant as a share of the mechanical one (at most 1: the two poles of the voltage
+    to the speed would otherwise swap their roles).
     """
-    ka, kv, ks, ta, share = (math.exp(theta[0]), math.exp(theta[1]), theta[2],
-                             math.exp(theta[3]), theta[4])
+    ka, kv, ks, share = math.exp(theta[0]), math.exp(theta[1]), theta[2], theta[4]
+    ta = math.exp(theta[3]) * ka / kv
     cphi = share * kv
     return MotorParameters(1.0, ta, cphi, ka * cphi, (kv - cphi) * cphi, ks * cphi)
 
@@ -276,17 +278,17 @@ def fit_voltage_speed(records: Sequence[Record]) -> VoltageSpeedFit:
                        'the speed are in SI units (V, rad/s) and of one sign convention')
     chosen, size, lag = first, 3, None
     dt = records[0].sample_period_s
-    ta0 = max(0.1 * math.exp(first.x[0] - first.x[1]), 2.0 * dt)
+    share = max(0.1, 2.0 * dt / math.exp(first.x[0] - first.x[1]))
     second = _fit(_second_order, records,
-                  np.concatenate([first.x[:3], [math.log(ta0), 0.5]]),
-                  [-np.inf, -np.inf, 0.0, math.log(dt / 100.0), 1e-3],
-                  [np.inf, np.inf, np.inf, np.inf, 1.0])
+                  np.concatenate([first.x[:3], [math.log(min(share, 0.5)), 0.5]]),
+                  [-np.inf, -np.inf, 0.0, -15.0, 1e-3], [np.inf, np.inf, np.inf, 0.0, 1.0])
     if (np.all(np.isfinite(second.x))
             and _bic(second.fun, second.x.size) < _bic(first.fun, first.x.size) - BIC_MARGIN):
         covariance, _ = _covariance(second, second.fun)
         chosen, size = second, 5
-        lag = (math.exp(second.x[3]), math.exp(second.x[3]) * math.sqrt(max(covariance[3, 3],
-                                                                            0.0)))
+        ta = math.exp(second.x[3] + second.x[0] - second.x[1])
+        slope = np.array([1.0, -1.0, 0.0, 1.0, 0.0])  # of log Ta
+        lag = (ta, ta * math.sqrt(max(float(slope @ covariance[:5, :5] @ slope), 0.0)))
     covariance, factor = _covariance(chosen, chosen.fun)
     values, stderr = _combinations(chosen.x[:size], covariance)
     model = _first_order_state if size == 3 else _second_order

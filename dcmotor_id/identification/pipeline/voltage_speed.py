@@ -14,6 +14,7 @@ from __future__ import annotations
 import time
 from typing import Sequence, TYPE_CHECKING
 
+from dcmotor_id.formats.held import restore_held
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.estimators.voltage_speed import (COMBINATIONS,
                                                                 fit_voltage_speed,
@@ -54,17 +55,20 @@ def identify_voltage_speed(records: Sequence[Record],
 
     """
     began = time.monotonic()
+    # A speed sensor refreshing slower than the log: fit on its real updates (as stage 1).
+    records, held = restore_held(list(records))
     fit = fit_voltage_speed(records)
     combined = {name: {'value': fit.values[name], 'stderr': fit.stderr[name],
                        'of': COMBINATIONS[name], 'unit': UNITS[name]} for name in COMBINATIONS}
-    warnings = [NO_CURRENT_COLUMN]
+    warnings = [NO_CURRENT_COLUMN] + held
     if fit.armature_time_constant_s is not None:
         combined['armature_time_constant_s'] = {
             'value': fit.armature_time_constant_s, 'stderr': fit.armature_stderr_s,
             'of': 'La / Ra', 'unit': 's'}
-        warnings.append(f'the armature lag shapes the speed (Ta = La/Ra = '
-                        f'{fit.armature_time_constant_s:.3g} s): kA was fitted with it '
-                        '(a first-order model would read it as inertia)')
+        warnings.append(f'a second, faster lag shapes the speed (Ta = '
+                        f'{fit.armature_time_constant_s:.3g} s: the armature La/Ra, or a lag '
+                        'of the drive or the speed sensor): kA was fitted with it (a '
+                        'first-order model would read it as inertia)')
     note = ('Gauss-Newton of the output-error fit on the speed, scaled by the residual '
             f'correlation (factor {fit.correlation_factor:.3g})')
     result = IdentificationResult(
