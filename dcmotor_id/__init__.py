@@ -71,6 +71,7 @@ _HOME = {
     'IdentificationResult': 'identification.result',
     'make_effect': 'identification.effects', 'parse_effect': 'identification.effects',
     'load_model': 'identification.validate', 'validate': 'identification.validate',
+    'design_controller': 'design.control',
     'make_estimator': 'streaming.online', 'OnlineEstimator': 'streaming.online',
 }
 

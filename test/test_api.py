@@ -34,7 +34,8 @@ def test_every_public_name_resolves():
 
 
 @pytest.mark.parametrize('module', ['dcmotor_id', 'dcmotor_id.core.model',
-                                    'dcmotor_id.identification.effects'])
+                                    'dcmotor_id.identification.effects',
+                                    'dcmotor_id.design.control'])
 def test_doctested_examples(module):
     imported = __import__(module, fromlist=['_'])
     failures, attempted = doctest.testmod(imported, optionflags=doctest.ELLIPSIS)
@@ -62,3 +63,18 @@ def test_identify_path_loads_neither_scipy_nor_numba(tmp_path):
                  f'assert main(["identify", {str(csv_path)!r}, "--json", {str(out)!r}, '
                  '"--quiet"]) == 0')
     assert loaded_after(statement) == ''
+
+
+def test_design_controller_is_public_and_takes_a_result_object():
+    """Issue 31: the design from the package face, for an IdentificationResult as for its JSON."""
+    import numpy as np
+    true = dcmotor_id.PAPER_MOTORS['paper2']
+    t = np.arange(0.0, 3.0, 1e-3)
+    voltage = 60.0 * np.sign(np.sin(2 * np.pi * 1.5 * t)) + 20.0 * np.sin(2 * np.pi * 7 * t)
+    current, speed = dcmotor_id.simulate_motor(true, voltage, 1e-3)
+    result = dcmotor_id.identify([dcmotor_id.Record(t, current, voltage, speed)],
+                                 discover=False)
+    made = dcmotor_id.design_controller(result, sample_period_s=1e-4)
+    assert made == dcmotor_id.design_controller(result.as_dict(), sample_period_s=1e-4)
+    assert made['feedforward']['kA'] == pytest.approx(true.Ra * true.J / true.CPhi)
+    assert made['current_loop']['kp'] > 0

@@ -37,6 +37,7 @@ from dcmotor_id.identification.criterion import CRITERIA
 from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
 from dcmotor_id.identification.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES,
                                                 METHODS, prepare_records)
+from dcmotor_id.identification.prepare import is_voltage_speed
 from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 from dcmotor_id.simulation.excitation import (add_sensor_noise, EXCITATION_KINDS, make_excitation,
                                               quantise)
@@ -138,6 +139,7 @@ def _cmd_identify(args):
                                                args.torque_constant is not None)
     records, repairs = repair_all(prepare_records(loaded, args.torque_constant, args.resample,
                                                   args.speed_cutoff))
+    _check_report_for(args, records)
     for note in repairs + ignored_flags(args, records):
         print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
@@ -185,6 +187,15 @@ def _cmd_identify(args):
     for failure in failures:
         print(f'dcmotor-id: error: {failure} (the result is printed above)', file=sys.stderr)
     return 2 if failures else 0
+
+
+def _check_report_for(args: argparse.Namespace, records: Sequence[Record]) -> None:
+    """Refuse ``--report`` for records without a current before the fit (no such report)."""
+    if args.report and is_voltage_speed(records, args.torque_constant):
+        raise InputDataError(f'--report {args.report}: the records have no current, so the '
+                             'result is the voltage-to-speed model (kS, kV, kA), which has no '
+                             'HTML report yet; leave --report out (the table and --json hold '
+                             'the result)')
 
 
 def ignored_flags(args: argparse.Namespace, records: Sequence[Record]) -> list[str]:
@@ -364,7 +375,9 @@ def _cmd_simulate(args):
 def _cmd_design(args):
     from dcmotor_id.design import control as control_design
     from dcmotor_id.design.export import write_exports
-    from dcmotor_id.design.plant import DesignOptions, load_result, motor_from_result
+    from dcmotor_id.design.loops import add_gravity, gravity_feedforward
+    from dcmotor_id.design.plant import (armature_lag_note, DesignOptions, load_result,
+                                         motor_from_result)
     check_input_path(args.result, 'RESULT.json ')
     if args.json and args.json != STDOUT:
         check_output_path(args.json, '--json', inputs=[args.result])
@@ -379,6 +392,9 @@ def _cmd_design(args):
                             args.sample_period)
     notes = bandwidth_notes(result, args)
     design, gains = control_design.design(motor, options)
+    design['notes'] += armature_lag_note(result, design['requested']['speed_bandwidth_hz'])
+    if args.gravity_load:
+        add_gravity(design['feedforward'], gravity_feedforward(motor))
     design['source'] = args.result
     if notes:
         design['warnings'] = notes + list(design.get('warnings') or [])
@@ -625,6 +641,9 @@ def _add_design_command(commands: Any) -> None:
                      help='motor speed / output speed (default 1)')
     ctl.add_argument('--output-shaft', action='store_true',
                      help='express speeds, gains and the model on the output shaft')
+    ctl.add_argument('--gravity-load', action='store_true',
+                     help='take the load_torque effect the identification found as gravity on '
+                          'an elevator: kG of the feedforward (WPILib ElevatorFeedforward)')
     ctl.add_argument('--json', metavar='OUT', help='write the design as JSON here (- : on stdout)')
     ctl.add_argument('--report', metavar='DIR', help='write design.html with step responses '
                      'and Bode plots to DIR')

@@ -110,16 +110,17 @@ def record_from_stamps(stamps_ns: np.ndarray, channels: Mapping[str, np.ndarray]
                   source=str(source))
 
 
-#: Why a record without a current cannot be identified, and what to record.
+#: Why a record without a current cannot be identified with others that have one.
 NO_CURRENT = ('. Without the current, voltage and speed determine only the combinations '
-              'J Ra/CPhi, CPhi + b Ra/CPhi and Mc Ra/CPhi (the voltage-to-speed dynamics), not '
-              'the parameters: record the armature current (a shunt, a current probe or the '
-              "drive's current monitor); with a current-controlled drive its current set-point "
-              'is the current')
+              'kS = Ra Mc/CPhi, kV = CPhi + Ra b/CPhi and kA = Ra J/CPhi (the voltage-to-speed '
+              'model), not the parameters: identify the records without a current on their own '
+              '(they give kS, kV, kA), or record the armature current (a shunt, a current probe '
+              "or the drive's current monitor; with a current-controlled drive its current "
+              'set-point is the current)')
 
 
 def check_record(record: Record, need_voltage: bool = True,
-                 resample: bool = False) -> Record:
+                 resample: bool = False, need_current: bool = True) -> Record:
     """
     Check a record and return it uniformly sampled, or raise :class:`InputDataError`.
 
@@ -131,11 +132,13 @@ def check_record(record: Record, need_voltage: bool = True,
         Whether a voltage column is required (not in mechanical-only mode).
     resample : bool
         Interpolate an irregularly sampled record onto a uniform grid instead of refusing it.
+    need_current : bool
+        Whether a current column is required (not for the voltage-to-speed model).
 
     """
     name = record.source or 'record'
     present = record.columns()
-    needed = ['current'] + (['voltage'] if need_voltage else [])
+    needed = (['current'] if need_current else []) + (['voltage'] if need_voltage else [])
     missing = [column for column in needed if column not in present]
     if record.speed is None and record.position is None:
         missing.append('speed (or position)')

@@ -83,6 +83,11 @@ class Gains:
     torque_loop_hz: float | None = None
 
 
+def reference_of(motor: Motor) -> str:
+    """Return the speed PI's output: the current, torque or voltage reference."""
+    return {'full': 'i_ref', 'voltage_speed': 'u'}.get(motor.mode, 'torque_ref')
+
+
 def loops(motor: Motor, gains: Gains) -> dict:
     """
     Build every loop of a design for a (possibly perturbed) motor.
@@ -94,7 +99,7 @@ def loops(motor: Motor, gains: Gains) -> dict:
         ``speed_closed`` (``w_ref -> w, reference, ...``), as python-control systems.
 
     """
-    reference = 'i_ref' if motor.mode == 'full' else 'torque_ref'
+    reference = reference_of(motor)
     inner = inner_loop(motor, gains.current, gains.torque_loop_hz, gains.dt)
     speed_open, speed_closed = speed_loops(inner, *gains.speed, gains.dt, reference)
     systems = {'speed_open': speed_open, 'speed_closed': speed_closed, 'inner': inner}
@@ -232,8 +237,8 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
         assert current_bandwidth is not None
         current, correction = sampled_current_pi(motor, current_bandwidth, dt)
     torque_loop = None if full else current_bandwidth
-    notes = _design_notes(full, torque_loop, current_bandwidth or speed_bandwidth, dt)
-    reference = 'i_ref' if full else 'torque_ref'
+    notes = _design_notes(motor.mode, torque_loop, current_bandwidth or speed_bandwidth, dt)
+    reference = reference_of(motor)
     inner = inner_loop(motor, current, torque_loop, dt)
     kp, ki, crossover = design_speed(inner, speed_bandwidth,
                                      options.phase_margin_deg, dt, reference)
@@ -250,15 +255,94 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
     result['feedforward'] = feedforward(motor)
     result['nominal'] = nominal
     result['robustness'] = robustness(motor, gains)
-    result['notes'] = notes + result['robustness']['notes']
+    result['notes'] = notes + effect_notes(motor) + result['robustness']['notes']
     return result, gains
 
 
-def _design_notes(full: bool, torque_loop: float | None, fastest: float,
+#: What the controller does with each effect beyond ignoring it in the linear loops.
+EFFECT_REMARKS = {
+    'stribeck': 'kS is its break-away friction (Mc + excess); the speed PI ignores the '
+                "friction's fall with speed",
+    'load_torque': "the speed PI's integral holds the constant torque; the feedforward leaves "
+                   'it out',
+    'coulomb_asymmetry': 'kS is one value for both directions',
+    'viscous_asymmetry': 'kV is one value for both directions',
+    'cogging': 'the torque ripple with the angle is left to the speed PI',
+    'quadratic_drag': 'kV holds the viscous part alone',
+    'sensor_delay': 'the loops assume sensors without delay: the margins are lower by the '
+                    'phase of the delay',
+}
+
+
+def effect_notes(motor: Motor) -> list[str]:
+    """Return a note per effect of the identification: what the controller ignores of it."""
+    notes = []
+    for effect in motor.effects:
+        values = ', '.join(f'{key} = {value:.4g}' if isinstance(value, float) else
+                           f'{key} = {value}' for key, value in effect['parameters'].items())
+        remark = EFFECT_REMARKS.get(effect['name'])
+        notes.append(f"effect {effect['name']} ({values}): the linear loops ignore it"
+                     + (f'; {remark}' if remark else ''))
+    return notes
+
+
+def design_controller(result: Any, current_bandwidth_hz: float | None = None,
+                      speed_bandwidth_hz: float | None = None,
+                      phase_margin_deg: float = 60.0, sample_period_s: float | None = None,
+                      gear_ratio: float = 1.0, output_shaft: bool = False,
+                      gravity_load: bool = False) -> dict:
+    """
+    Design the controller for an identification result (what ``dcmotor-id design`` prints).
+
+    Parameters
+    ----------
+    result : IdentificationResult or dict
+        The result of :func:`~dcmotor_id.identification.identify.identify`, or its JSON.
+    current_bandwidth_hz, speed_bandwidth_hz, phase_margin_deg, sample_period_s : float
+        The request (:class:`~dcmotor_id.design.plant.DesignOptions`; None: the defaults).
+    gear_ratio : float
+        Motor speed / output speed.
+    output_shaft : bool
+        Design on the output shaft.
+    gravity_load : bool
+        Take the identified load torque as an elevator's gravity (``kG``).
+
+    Returns
+    -------
+    dict
+        The design JSON: ``speed_loop``, ``current_loop`` (full mode), ``feedforward``,
+        ``nominal``, ``robustness``, ``notes``.
+
+    Examples
+    --------
+    >>> import dcmotor_id as dm
+    >>> values = dm.PAPER_MOTORS['paper2'].as_dict(derived=False)
+    >>> made = dm.design_controller({'parameters': values, 'stderr': {}, 'mode': 'full'})
+    >>> round(made['feedforward']['kV'], 4), round(made['nominal']['speed']['bandwidth_hz'], 3)
+    (1.3857, 20.0)
+
+    """
+    from dcmotor_id.design.loops import add_gravity, gravity_feedforward
+    from dcmotor_id.design.plant import armature_lag_note, motor_from_result
+    data = result if isinstance(result, dict) else result.as_dict()
+    motor = motor_from_result(data, gear_ratio, output_shaft)
+    made, _ = design(motor, DesignOptions(current_bandwidth_hz, speed_bandwidth_hz,
+                                          phase_margin_deg, sample_period_s))
+    made['notes'] += armature_lag_note(data, made['requested']['speed_bandwidth_hz'])
+    if gravity_load:
+        add_gravity(made['feedforward'], gravity_feedforward(motor))
+    return made
+
+
+def _design_notes(mode: str, torque_loop: float | None, fastest: float,
                   dt: float | None) -> list[str]:
     """Return the notes on the mode and on a bandwidth close to the sampling rate."""
     notes = []
-    if not full:
+    if mode == 'voltage_speed':
+        notes.append('voltage-to-speed result (kS, kV, kA; no current): the speed PI acts on '
+                     'the voltage, plant kA s + kV with the armature lag neglected; no current '
+                     'loop (it needs Ra and La: identify with the current)')
+    elif mode == 'mechanical':
         notes.append('mechanical-only result (J, b, Mc): the speed loop acts on a torque '
                      'command; the current loop needs Ra and La (identify with voltage).')
         notes.append('torque loop assumed ideal' if torque_loop is None else
@@ -307,7 +391,7 @@ def _speed_loop(motor: Motor, speed: tuple[float, float], crossover: float,
     kp, ki = speed
     dt = options.sample_period_s
     pi = pi_controller(kp, ki, dt, 'e_w', reference)
-    unit = 'A' if motor.mode == 'full' else 'N m'
+    unit = {'full': 'A', 'voltage_speed': 'V'}.get(motor.mode, 'N m')
     speed_loop = {
         'kp': kp, 'ki': ki, 'ti_s': kp / ki,
         'units': {'kp': f'{unit} s/rad', 'ki': f'{unit}/rad'},
@@ -327,8 +411,10 @@ def _speed_loop(motor: Motor, speed: tuple[float, float], crossover: float,
 def format_design(result: dict) -> str:
     """Render a design as a readable table."""
     dt = result['sample_period_s']
-    made = ('current and speed loops' if result['mode'] == 'full' else
-            'speed loop only, on an ideal torque source: the result has no electrical model')
+    made = {'full': 'current and speed loops',
+            'voltage_speed': 'speed loop on the voltage: the result has no current'}.get(
+        result['mode'], 'speed loop only, on an ideal torque source: the result has no '
+        'electrical model')
     lines = [f"design: mode {result['mode']} ({made}), {result['shaft']} shaft (gear ratio "
              f"{result['gear_ratio']:g}), " + (f'sample period {dt:g} s (Tustin)' if dt
                                                else 'continuous')]
@@ -346,7 +432,8 @@ def format_design(result: dict) -> str:
                      f"margin {metrics['gain_margin_db']:.3g} dB")
     ff = result['feedforward']
     lines.append(f"feedforward kS = {ff['kS']:.5g} {ff['units']['kS']}, kV = {ff['kV']:.5g} "
-                 f"{ff['units']['kV']}, kA = {ff['kA']:.5g} {ff['units']['kA']}")
+                 f"{ff['units']['kV']}, kA = {ff['kA']:.5g} {ff['units']['kA']}"
+                 + (f", kG = {ff['kG']:.5g} {ff['units']['kG']}" if 'kG' in ff else ''))
     spread = result['robustness']['range']
     for key in ('current.phase_margin_deg', 'speed.phase_margin_deg', 'speed.bandwidth_hz'):
         if key in spread:

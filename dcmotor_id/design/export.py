@@ -10,27 +10,32 @@ Files written by :func:`write_exports` (``dcmotor-id design RESULT.json --export
   :func:`load_statespace` rebuilds it with ``control.ss``. Coulomb friction is not linear: it
   acts on the ``torque`` input as ``-Mc sgn(w)``.
 * ``sim_motor.yaml`` (full mode only): the parameters of the ``sim_motor`` node, so that
-  ``sim_motor --ros-args --params-file DIR/sim_motor.yaml`` simulates the identified motor.
+  ``sim_motor --ros-args --params-file DIR/sim_motor.yaml`` simulates the identified motor,
+  its ``effects`` entry the effects the identification found (:func:`effects_text`).
 * ``urdf_dynamics.xml``: ``<dynamics damping="b N^2" friction="Mc N"/>`` for the joint on the
-  output shaft of a gear of ratio ``N`` (motor speed / output speed; an ideal, loss-free gear).
+  output shaft of a gear of ratio ``N`` (motor speed / output speed; an ideal, loss-free gear);
+  not for a voltage-to-speed result (kS, kV, kA: no torque without the current).
 """
 
 from __future__ import annotations
 
 import json
 import os
-from typing import Any
+from typing import Any, Sequence
 
 import control
 import numpy as np
 
+from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.design.loops import motor_model
 from dcmotor_id.design.plant import Motor
 from dcmotor_id.formats.json_file import load_json
+from dcmotor_id.identification.effects import parse_effect
 
 #: Format tag of the StateSpace JSON.
 STATESPACE_FORMAT = 'dcmotor_id.statespace/1'
-_UNITS = {'Ra': 'Ohm', 'La': 'H', 'CPhi': 'V s', 'J': 'kg m^2', 'b': 'N m s/rad', 'Mc': 'N m'}
+_UNITS = {'Ra': 'Ohm', 'La': 'H', 'CPhi': 'V s', 'J': 'kg m^2', 'b': 'N m s/rad', 'Mc': 'N m',
+          'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'}
 _SIGNAL_UNITS = {'i': 'A', 'w': 'rad/s', 'u': 'V', 'torque': 'N m'}
 
 
@@ -49,7 +54,9 @@ def statespace_dict(motor: Motor) -> dict:
         'units': {name: _UNITS[name] for name in motor.values},
         'mode': motor.mode, 'shaft': motor.shaft, 'gear_ratio': motor.gear_ratio,
         'torque_constant': motor.torque_constant,
-        'nonlinear': 'Coulomb friction: torque input -Mc sgn(w) (stiction at rest)',
+        'nonlinear': ('Coulomb friction: voltage input -kS sgn(w) (stiction at rest)'
+                      if motor.mode == 'voltage_speed' else
+                      'Coulomb friction: torque input -Mc sgn(w) (stiction at rest)'),
     }
 
 
@@ -76,8 +83,34 @@ def _yaml_double(value: float) -> str:
     return mantissa + ('e' + exponent if exponent else '')
 
 
-def sim_motor_yaml(values: dict) -> str:
-    """Return a ``sim_motor`` parameter file for the motor ``values`` (motor shaft, SI)."""
+def effects_text(effects: Sequence[dict]) -> str:
+    """
+    Return effects as the ``sim_motor`` node's ``effects`` parameter takes them.
+
+    ``NAME:param=value,...`` joined by ``;``; each entry is read back with
+    :func:`~dcmotor_id.identification.effects.parse_effect` (what the node does), so an
+    effect the vocabulary does not know is refused here, not by the node.
+    """
+    entries = []
+    for effect in effects:
+        values = ','.join(f'{key}={value!r}' if isinstance(value, float) else f'{key}={value}'
+                          for key, value in effect['parameters'].items())
+        entry = f"{effect['name']}:{values}" if values else effect['name']
+        try:
+            parse_effect(entry)
+        except (KeyError, ValueError, TypeError) as error:
+            raise InputDataError(f'effect {entry!r} of the result: sim_motor cannot simulate '
+                                 f'it ({error}); correct or remove it in the result') from None
+        entries.append(entry)
+    return ';'.join(entries)
+
+
+def sim_motor_yaml(values: dict, effects: Sequence[dict] = ()) -> str:
+    """
+    Return a ``sim_motor`` parameter file for the motor ``values`` (motor shaft, SI).
+
+    ``effects`` (``{"name", "parameters"}`` each, motor shaft) become its ``effects`` entry.
+    """
     lines = ['# The identified motor for the sim_motor node (dcmotor-id design --export).',
              '#   sim_motor --ros-args --params-file sim_motor.yaml',
              'sim_motor:', '  ros__parameters:']
@@ -88,6 +121,8 @@ def sim_motor_yaml(values: dict) -> str:
     for name in ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc'):
         entry = f'{name}: {_yaml_double(values[name])}'
         lines.append(f'    {entry:<28} # {comments[name]}')
+    quoted = "'{}'".format(effects_text(effects).replace("'", "''"))
+    lines.append(f'    effects: {quoted}  # the effects identified (sim_motor simulates them)')
     return '\n'.join(lines) + '\n'
 
 
@@ -123,9 +158,12 @@ def write_exports(directory: str, motor: Motor, motor_shaft_values: dict) -> dic
     Returns
     -------
     dict
-        ``{'statespace': path, 'sim_motor': path or None, 'urdf': path, 'urdf_dynamics': {...}}``.
+        ``{'statespace': path, 'sim_motor': path or None, 'urdf': path or None,
+        'urdf_dynamics': {...} or None}``.
 
     """
+    # The sim_motor file first: an effect it cannot simulate is refused before any file.
+    simulator = sim_motor_yaml(motor_shaft_values, motor.effects) if motor.mode == 'full' else ''
     os.makedirs(directory, exist_ok=True)
     paths: dict[str, Any] = {}
     path = os.path.join(directory, 'model_statespace.json')
@@ -136,8 +174,11 @@ def write_exports(directory: str, motor: Motor, motor_shaft_values: dict) -> dic
     if motor.mode == 'full':
         path = os.path.join(directory, 'sim_motor.yaml')
         with open(path, 'w', encoding='utf-8') as stream:
-            stream.write(sim_motor_yaml(motor_shaft_values))
+            stream.write(simulator)
         paths['sim_motor'] = path
+    paths['urdf'] = paths['urdf_dynamics'] = None
+    if motor.mode == 'voltage_speed':  # no torque without the current: no URDF friction
+        return paths
     dynamics = urdf_dynamics(motor.values, motor.gear_ratio, motor.shaft)
     path = os.path.join(directory, 'urdf_dynamics.xml')
     with open(path, 'w', encoding='utf-8') as stream:

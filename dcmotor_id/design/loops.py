@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 from scipy.signal import BadCoefficients
 
-from dcmotor_id.design.plant import DesignError, Motor
+from dcmotor_id.design.plant import breakaway_excess, DesignError, Motor
 
 
 class _NoPI(DesignError):
@@ -39,9 +39,13 @@ def motor_model(motor: Motor) -> control.StateSpace:
 
     Full mode: states ``i, w``, inputs ``u`` [V] and ``torque`` [N m] (any further torque on
     the shaft; Coulomb friction is ``-Mc sgn(w)`` on it), outputs ``i, w``. Mechanical mode:
-    state and output ``w``, input ``torque``.
+    state and output ``w``, input ``torque``. Voltage-speed mode: ``kA dw/dt = u - kV w``,
+    state and output ``w``, input ``u``.
     """
     p = motor.values
+    if motor.mode == 'voltage_speed':
+        return control.ss([[-p['kV'] / p['kA']]], [[1.0 / p['kA']]], [[1.0]], [[0.0]],
+                          inputs=['u'], outputs=['w'], states=['w'], name='motor')
     if motor.mode == 'mechanical':
         return control.ss([[-p['b'] / p['J']]], [[1.0 / p['J']]], [[1.0]], [[0.0]],
                           inputs=['torque'], outputs=['w'], states=['w'], name='motor')
@@ -100,25 +104,89 @@ def feedforward(motor: Motor) -> dict:
     Return the feedforward gains (WPILib ``SimpleMotorFeedforward``), in shaft units.
 
     Full mode: ``kS = Ra Mc / CPhi`` [V], ``kV = CPhi + Ra b / CPhi`` [V s/rad],
-    ``kA = Ra J / CPhi`` [V s^2/rad] (``La`` neglected). Mechanical mode: the torque
+    ``kA = Ra J / CPhi`` [V s^2/rad] (``La`` neglected).  Where a Stribeck effect was found
+    ``kS`` holds the break-away friction ``Mc + excess`` (what the voltage must overcome to
+    start the motor), ``kS_coulomb`` the sliding one. Mechanical mode: the torque
     feedforward ``Mc`` [N m], ``b`` [N m s/rad], ``J`` [N m s^2/rad] (and divided by the
-    torque constant, in amperes, when it is known).
+    torque constant, in amperes, when it is known). Voltage-speed mode: the identified
+    ``kS, kV, kA`` themselves.
     """
     p = motor.values
+    if motor.mode == 'voltage_speed':
+        return {'kS': p['kS'], 'kV': p['kV'], 'kA': p['kA'],
+                'units': {'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'},
+                'convention': 'u = kS sgn(w) + kV w + kA dw/dt (WPILib SimpleMotorFeedforward)',
+                'identified': 'directly, from voltage and speed (no current)'}
+    excess = breakaway_excess(motor)
     if motor.mode == 'full':
-        return {'kS': p['Ra'] * p['Mc'] / p['CPhi'],
+        return {'kS': p['Ra'] * (p['Mc'] + excess) / p['CPhi'],
+                **_coulomb_ks(p['Ra'] * p['Mc'] / p['CPhi'], excess),
                 'kV': p['CPhi'] + p['Ra'] * p['b'] / p['CPhi'],
                 'kA': p['Ra'] * p['J'] / p['CPhi'],
                 'units': {'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'},
                 'convention': 'u = kS sgn(w) + kV w + kA dw/dt (WPILib SimpleMotorFeedforward)'}
-    gains = {'kS': p['Mc'], 'kV': p['b'], 'kA': p['J'],
+    gains = {'kS': p['Mc'] + excess, **_coulomb_ks(p['Mc'], excess), 'kV': p['b'], 'kA': p['J'],
              'units': {'kS': 'N m', 'kV': 'N m s/rad', 'kA': 'N m s^2/rad'},
              'convention': 'torque = kS sgn(w) + kV w + kA dw/dt (no voltage: mechanical mode)'}
     if motor.torque_constant:
         k = motor.torque_constant
-        gains['current'] = {'kS': p['Mc'] / k, 'kV': p['b'] / k, 'kA': p['J'] / k,
+        gains['current'] = {'kS': (p['Mc'] + excess) / k, 'kV': p['b'] / k, 'kA': p['J'] / k,
                             'units': {'kS': 'A', 'kV': 'A s/rad', 'kA': 'A s^2/rad'}}
     return gains
+
+
+def gravity_feedforward(motor: Motor) -> dict:
+    """
+    Return ``kG`` of WPILib's ``ElevatorFeedforward`` from the identified load torque.
+
+    The ``load_torque`` effect's ``T_L`` (positive when it opposes positive rotation) taken
+    as gravity on an elevator, constant over the travel: ``kG = Ra T_L / CPhi`` [V] (full
+    mode), ``T_L`` [N m] (mechanical mode, and ``T_L / K`` [A] with the torque constant), on
+    the controlled shaft.
+
+    Raises
+    ------
+    DesignError
+        When the identification found no load torque.
+
+    """
+    scale = motor.gear_ratio if motor.shaft == 'output' else 1.0
+    torques = [effect['parameters'].get('torque_Nm') for effect in motor.effects
+               if effect['name'] == 'load_torque']
+    if not torques or not isinstance(torques[0], (int, float)):
+        raise DesignError('--gravity-load: the result has no load_torque effect to take as '
+                          'gravity; identify with discovery on (a record that moves the '
+                          'mechanism up and down), or leave --gravity-load out')
+    torque = float(torques[0]) * scale
+    p = motor.values
+    convention = 'u = kG + kS sgn(w) + kV w + kA dw/dt (WPILib ElevatorFeedforward)'
+    if motor.mode == 'full':
+        return {'kG': p['Ra'] * torque / p['CPhi'], 'convention': convention,
+                'units': {'kG': 'V'}}
+    gains: dict = {'kG': torque, 'convention': convention.replace('u =', 'torque ='),
+                   'units': {'kG': 'N m'}}
+    if motor.torque_constant:
+        gains['current'] = {'kG': torque / motor.torque_constant}
+    return gains
+
+
+def add_gravity(feedforward: dict, gravity: dict) -> None:
+    """Put ``kG`` (:func:`gravity_feedforward`) into a design's feedforward, in place."""
+    feedforward['kG'] = gravity['kG']
+    feedforward['convention'] = gravity['convention']
+    feedforward['units'] = {**feedforward['units'], **gravity['units']}
+    if 'current' in gravity and 'current' in feedforward:
+        feedforward['current']['kG'] = gravity['current']['kG']
+        feedforward['current']['units']['kG'] = 'A'
+
+
+def _coulomb_ks(coulomb: float, excess: float) -> dict:
+    """Return ``kS_coulomb`` and what ``kS`` is, when a break-away excess raised ``kS``."""
+    if excess <= 0:
+        return {}
+    return {'kS_coulomb': coulomb,
+            'kS_source': 'break-away friction Mc + excess of the Stribeck effect (kS_coulomb: '
+                         'the sliding friction Mc alone)'}
 
 
 def pi_controller(kp: float, ki: float, dt: float | None, inputs: str,
@@ -150,8 +218,12 @@ def inner_loop(motor: Motor, current_gains: tuple[float, float] | None,
     Full mode: the current PI closed around the exact motor (back-EMF included), input
     ``i_ref`` [A], outputs ``w, i, u``. Mechanical mode: the torque source, ideal or a first
     order lag of ``current_bandwidth_hz``, input ``torque_ref`` [N m], outputs ``w``.
+    Voltage-speed mode: the motor itself, input ``u`` [V], output ``w``.
     """
     plant = sampled_system(motor_model(motor), dt)
+    if motor.mode == 'voltage_speed':
+        return control.interconnect([plant], inplist=['u'], outlist=['w'], inputs=['u'],
+                                    outputs=['w'], name='inner')
     if motor.mode == 'mechanical':
         if current_bandwidth_hz is None:
             actuator = control.ss([], [], [], [[1.0]], dt=0 if dt is None else dt,

@@ -30,6 +30,11 @@ DEFAULT_PHASE_MARGIN_DEG = 60.0
 #: Parameters of the linear loops (Mc only shifts the operating point).
 LINEAR_FULL = ('Ra', 'La', 'CPhi', 'J', 'b')
 LINEAR_MECHANICAL = ('J', 'b')
+LINEAR_VOLTAGE_SPEED = ('kA', 'kV')
+#: The parameters of each mode of an identify result, and those that must be positive.
+MODE_NAMES = {'full': ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc'), 'mechanical': ('J', 'b', 'Mc'),
+              'voltage_speed': ('kS', 'kV', 'kA')}
+POSITIVE = ('Ra', 'La', 'CPhi', 'J', 'kV', 'kA')
 
 
 class DesignError(DcMotorIdError):
@@ -44,17 +49,23 @@ class Motor:
     Attributes
     ----------
     values : dict
-        ``Ra, La, CPhi, J, b, Mc`` (full mode) or ``J, b, Mc`` (mechanical mode).
+        ``Ra, La, CPhi, J, b, Mc`` (full mode), ``J, b, Mc`` (mechanical mode) or
+        ``kS, kV, kA`` (voltage_speed mode: identified without a current).
     stderr : dict
         Standard error of each value (``nan`` when unknown), same units.
     mode : str
-        ``'full'`` or ``'mechanical'`` (``dcmotor-id identify --torque-constant``).
+        ``'full'``, ``'mechanical'`` (``dcmotor-id identify --torque-constant``) or
+        ``'voltage_speed'``.
     torque_constant : float or None
         ``K`` [N m/A] of the mechanical mode (torque = K * current), on the controlled shaft.
     gear_ratio : float
         ``N``, motor speed / output speed.
     shaft : str
         ``'motor'`` or ``'output'``: where speeds, torques and gains are expressed.
+    effects : tuple of dict
+        The effects the identification found, ``{"name", "parameters"}`` each, on the motor
+        shaft (:func:`effects_of`): exported to ``sim_motor``, the break-away friction of a
+        Stribeck effect in ``kS``, each named in the design's notes.
 
     """
 
@@ -64,11 +75,13 @@ class Motor:
     torque_constant: float | None = None
     gear_ratio: float = 1.0
     shaft: str = 'motor'
+    effects: tuple = ()
 
     @property
     def linear_names(self) -> tuple:
         """Names of the parameters that shape the linear loops."""
-        return LINEAR_FULL if self.mode == 'full' else LINEAR_MECHANICAL
+        return {'full': LINEAR_FULL, 'voltage_speed': LINEAR_VOLTAGE_SPEED}.get(
+            self.mode, LINEAR_MECHANICAL)
 
     def with_values(self, **changes: float) -> Motor:
         """Return a copy with some parameter values changed."""
@@ -152,7 +165,7 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
         ``N`` = motor speed / output speed (> 0).
     output_shaft : bool
         Express everything on the output shaft (the equivalent motor ``CPhi N``, ``J N^2``,
-        ``b N^2``, ``Mc N``, ``K N``).
+        ``b N^2``, ``Mc N``, ``K N``; ``kV N``, ``kA N`` of the voltage-to-speed model).
 
     Raises
     ------
@@ -168,13 +181,13 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
     # electrical parameter at all): NaN electrical values of a full result are refused, not
     # silently designed around.
     mode = result.get('mode')
-    if mode not in (None, 'full', 'mechanical'):
-        raise InputDataError(f'the result has mode {mode!r}; it must be "full" or '
-                             '"mechanical" (as `dcmotor-id identify --json` writes it)')
+    if mode not in (None, *MODE_NAMES):
+        raise InputDataError(f'the result has mode {mode!r}; it must be "full", "mechanical" '
+                             'or "voltage_speed" (as `dcmotor-id identify --json` writes it)')
     mechanical = mode == 'mechanical' or (mode is None and all(
         given.get(name) is None for name in ('Ra', 'La', 'CPhi')))
-    names = ('J', 'b', 'Mc') if mechanical else ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc')
-    values, stderr = _checked_values(result, names)
+    mode = 'mechanical' if mechanical else mode or 'full'
+    values, stderr = _checked_values(result, MODE_NAMES[mode])
     torque_constant = None
     if mechanical:
         torque_constant = _number(result.get('torque_constant'))
@@ -182,13 +195,50 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
             torque_constant = None
     if output_shaft:
         scale = {'CPhi': gear_ratio, 'J': gear_ratio ** 2, 'b': gear_ratio ** 2,
-                 'Mc': gear_ratio}
+                 'Mc': gear_ratio, 'kV': gear_ratio, 'kA': gear_ratio}
         values = {name: value * scale.get(name, 1.0) for name, value in values.items()}
         stderr = {name: value * scale.get(name, 1.0) for name, value in stderr.items()}
         if torque_constant is not None:
             torque_constant *= gear_ratio
-    return Motor(values, stderr, 'mechanical' if mechanical else 'full', torque_constant,
-                 float(gear_ratio), 'output' if output_shaft else 'motor')
+    return Motor(values, stderr, mode, torque_constant, float(gear_ratio),
+                 'output' if output_shaft else 'motor', effects_of(result))
+
+
+def effects_of(result: dict) -> tuple:
+    """
+    Return the effects of an identify result (``{"name", "parameters"}`` each, JSON numbers).
+
+    Raises
+    ------
+    InputDataError
+        An entry that is not ``{"name": ..., "parameters": {...}}``.
+
+    """
+    found = []
+    for effect in result.get('effects') or []:
+        if not (isinstance(effect, dict) and isinstance(effect.get('name'), str)
+                and isinstance(effect.get('parameters', {}), dict)):
+            raise InputDataError(f'effect {json.dumps(effect)[:80]} is not {{"name": ..., '
+                                 '"parameters": {...}}; give the JSON written by dcmotor-id '
+                                 'identify --json')
+        found.append({'name': effect['name'], 'parameters': dict(effect.get('parameters', {}))})
+    return tuple(found)
+
+
+def breakaway_excess(motor: Motor) -> float:
+    """
+    Return the static minus Coulomb friction of a Stribeck effect on the controlled shaft.
+
+    0 without a Stribeck effect (or one without a positive ``excess_Nm``); on the output
+    shaft the torque is multiplied by the gear ratio as ``Mc`` is.
+    """
+    scale = motor.gear_ratio if motor.shaft == 'output' else 1.0
+    for effect in motor.effects:
+        if effect['name'] == 'stribeck':
+            excess = _number(effect['parameters'].get('excess_Nm'))
+            if np.isfinite(excess) and excess > 0:
+                return excess * scale
+    return 0.0
 
 
 def _checked_values(result: dict, names: tuple[str, ...]) -> tuple[dict, dict]:
@@ -205,7 +255,7 @@ def _checked_values(result: dict, names: tuple[str, ...]) -> tuple[dict, dict]:
     values, stderr, bad = {}, {}, []
     for name in names:
         value = _number(given.get(name))
-        positive = name in ('Ra', 'La', 'CPhi', 'J')
+        positive = name in POSITIVE
         if not np.isfinite(value) or value < 0 or (positive and value == 0):
             raw = given.get(name)
             typed = raw is None or (isinstance(raw, (int, float)) and not isinstance(raw, bool))
@@ -216,9 +266,10 @@ def _checked_values(result: dict, names: tuple[str, ...]) -> tuple[dict, dict]:
         stderr[name] = abs(error) if np.isfinite(error) else float('nan')
     if bad:
         raise InputDataError(
-            f'the result holds unusable parameters ({", ".join(bad)}): Ra, La, CPhi, J must be '
-            'finite and positive, b and Mc finite and >= 0. Identify the motor again (more '
-            'excitation, `dcmotor-id identify ... --json OUT`) before designing a controller.')
+            f'the result holds unusable parameters ({", ".join(bad)}): Ra, La, CPhi, J (kV, '
+            'kA) must be finite and positive, b and Mc (kS) finite and >= 0. Identify the '
+            'motor again (more excitation, `dcmotor-id identify ... --json OUT`) before '
+            'designing a controller.')
     return values, stderr
 
 
@@ -237,6 +288,11 @@ def resolve_options(motor: Motor, options: DesignOptions) -> DesignOptions:
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise DesignError(f'--sample-period must be a positive number of seconds, got {dt}')
     current = options.current_bandwidth_hz
+    if current is not None and motor.mode == 'voltage_speed':
+        raise DesignError(f'--current-bandwidth {current:g} Hz: the result was identified '
+                          'without a current (kS, kV, kA), so there is no current loop to '
+                          'design; leave --current-bandwidth out (the speed loop then acts on '
+                          'the voltage)')
     if current is None and motor.mode == 'full':
         current = DEFAULT_CURRENT_BANDWIDTH_HZ
         if dt is not None:
@@ -263,3 +319,25 @@ def resolve_options(motor: Motor, options: DesignOptions) -> DesignOptions:
         raise DesignError(f'--phase-margin must lie between 0 and 90 degrees, got '
                           f'{options.phase_margin_deg:g}')
     return replace(options, current_bandwidth_hz=current, speed_bandwidth_hz=speed)
+
+
+def armature_lag_note(result: dict, speed_bandwidth_hz: float) -> list[str]:
+    """
+    Return a note on the armature lag a voltage-to-speed design neglects, when it was found.
+
+    The identification reports ``Ta = La/Ra`` in ``combined['armature_time_constant_s']``
+    when the lag shapes the speed; the speed loop's plant ``kA s + kV`` leaves out its pole
+    at ``1/(2 pi Ta)``, which costs phase margin near it.
+    """
+    lag = (result.get('combined') or {}).get('armature_time_constant_s') or {}
+    value = _number(lag.get('value')) if isinstance(lag, dict) else float('nan')
+    if result.get('mode') != 'voltage_speed' or not (np.isfinite(value) and value > 0):
+        return []
+    pole_hz = 1.0 / (2.0 * np.pi * value)
+    text = (f'the armature lag Ta = {value:.3g} s (a pole at {pole_hz:.3g} Hz) is neglected by '
+            'the speed loop (plant kA s + kV)')
+    if speed_bandwidth_hz > 0.2 * pole_hz:
+        text += (f': the speed bandwidth {speed_bandwidth_hz:g} Hz is above a fifth of that '
+                 'pole, so the real phase margin is lower; lower --speed-bandwidth to '
+                 f'{0.2 * pole_hz:.3g} Hz or less')
+    return [text]

@@ -26,7 +26,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ('effects',),
     ('checks', 'prepare', 'validate'),
     ('discovery',),
-    ('result', 'structure_uncertainty'),
+    ('figures', 'result', 'structure_uncertainty'),
     ('pipeline',),
     ('identify',),
 )

@@ -39,6 +39,10 @@ equations is computed and a command that did not reach the motor at a record's s
 after it, a failed fit falls back to the regression, and a fit that predicts the held-out part
 worse than the regression gives way to it, with a warning that says why.
 
+Records of voltage and speed without a current take their own path
+(:mod:`~dcmotor_id.identification.pipeline.voltage_speed`): the voltage-to-speed model
+``kS, kV, kA`` in WPILib's convention, Ra, CPhi, J, b, Mc not separable.
+
 On the position the run is made with the position error as white noise and, when that
 disagrees with model-free evidence, as a drift (AR(1)); the closer result is kept
 (:mod:`~dcmotor_id.identification.pipeline.position_error`).  When the fit on the position
@@ -64,8 +68,10 @@ from dcmotor_id.identification.pipeline.fit_outcome import NO_FIT_NRMSE_PCT, sim
 from dcmotor_id.identification.pipeline.floor import identify_above_floor
 from dcmotor_id.identification.pipeline.heldout import HELDOUT_CHOICE, record_errors
 from dcmotor_id.identification.pipeline.state import Request
-from dcmotor_id.identification.prepare import (check_excitation, common_period, one_level_reason,
-                                               PERIOD_RTOL, prepare_records, SETTLE_SAMPLES,
+from dcmotor_id.identification.pipeline.voltage_speed import identify_voltage_speed
+from dcmotor_id.identification.prepare import (check_excitation, common_period,
+                                               is_voltage_speed, one_level_reason, PERIOD_RTOL,
+                                               prepare_records, SETTLE_SAMPLES,
                                                single_current_level)
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.identification.structure_uncertainty import bootstrapped
@@ -104,7 +110,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
     method : str
         ``refined`` (default) or ``paper``.
     torque_constant : float, optional
-        Mechanical-only mode with this torque constant [N m/A].
+        Mechanical-only mode with this torque constant [N m/A]; without it, records with no
+        current give ``kS, kV, kA`` (:mod:`~dcmotor_id.identification.pipeline.voltage_speed`).
     discover : bool
         Run the discovery loop (:mod:`~dcmotor_id.identification.discovery`) after an
         estimator that :func:`supports_discovery`.
@@ -139,14 +146,23 @@ def identify(records: Sequence[Record], method: str = 'refined',
 
     """
     _check_choices(method, initial_state)
-    if structure_bootstrap:
-        return bootstrapped(identify, records, structure_bootstrap, method=method,
-                            torque_constant=torque_constant, discover=discover,
-                            estimator=estimator, vocabulary=vocabulary, max_time_s=max_time_s,
-                            progress=progress, initial_state=initial_state, criterion=criterion)
+    if is_voltage_speed(records, torque_constant):  # no current: kS, kV, kA
+        return identify_voltage_speed(records, discover)
     request = Request(records, method, torque_constant, discover, estimator, vocabulary,
                       progress if progress is not None else Progress(max_time_s), initial_state)
+    if structure_bootstrap:
+        return _bootstrapped(request, criterion, max_time_s, progress, structure_bootstrap)
     return identify_above_floor(criterion, request)
+
+
+def _bootstrapped(request: Request, criterion: str, max_time_s: float | None,
+                  progress: Progress | None, resamples: int) -> IdentificationResult:
+    """Run :func:`identify` under the structure bootstrap with the request's arguments."""
+    return bootstrapped(identify, request.records, resamples, method=request.method,
+                        torque_constant=request.torque_constant, discover=request.discover,
+                        estimator=request.estimator, vocabulary=request.vocabulary,
+                        max_time_s=max_time_s, progress=progress,
+                        initial_state=request.initial_state, criterion=criterion)
 
 
 def _check_choices(method: str, initial_state: str) -> None:

@@ -34,6 +34,9 @@ def prepare_records(records: Sequence[Record], torque_constant: float | None = N
     """
     Check records and give each a speed; return the list ready for an estimator.
 
+    Records without a current (all of them, no torque constant) are kept for the
+    voltage-to-speed model (:func:`is_voltage_speed`).
+
     Parameters
     ----------
     records : list of Record
@@ -53,13 +56,15 @@ def prepare_records(records: Sequence[Record], torque_constant: float | None = N
         raise InputDataError(f'--torque-constant must be a positive number in N m/A, got '
                              f'{torque_constant}')
     prepared = []
+    voltage_speed = torque_constant is None and all(rec.current is None for rec in records)
     for record in records:
         if torque_constant is None and record.voltage is None:
             name = record.source or 'record'
             raise InputDataError(
                 f'{name}: no voltage column. Name it voltage, or identify the mechanical part '
                 'only (J, b, Mc) by giving the torque constant: --torque-constant K [N m/A]')
-        record = check_record(record, need_voltage=torque_constant is None, resample=resample)
+        record = check_record(record, need_voltage=torque_constant is None, resample=resample,
+                              need_current=not voltage_speed)
         if record.speed is None:
             nyquist_hz = 0.5 / record.sample_period_s
             if speed_cutoff_hz is not None and not 0 < speed_cutoff_hz < nyquist_hz:
@@ -72,6 +77,12 @@ def prepare_records(records: Sequence[Record], torque_constant: float | None = N
                 record.position, record.sample_period_s, speed_cutoff_hz), speed_derived=True)
         prepared.append(record)
     return common_period(prepared)
+
+
+def is_voltage_speed(records: Sequence[Record], torque_constant: float | None = None) -> bool:
+    """Whether records are identified as the voltage-to-speed model: no current anywhere."""
+    return (torque_constant is None and bool(records)
+            and all(rec.current is None and rec.voltage is not None for rec in records))
 
 
 def common_period(records: Sequence[Record]) -> list[Record]:

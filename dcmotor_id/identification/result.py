@@ -14,6 +14,8 @@ from typing import Any, TYPE_CHECKING
 from dcmotor_id.identification.validate import model_block
 
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import DiscoveryResult
     from dcmotor_id.identification.estimators.base import Estimate
@@ -211,3 +213,21 @@ class IdentificationResult:
         }
         out['model'] = model_block(out)  # all that `dcmotor-id validate` needs to simulate
         return out
+
+    def plot(self) -> list[Figure]:
+        """
+        Return matplotlib figures: measured against simulated channels, and the residual.
+
+        One row per record and channel (at most four records), the model simulated from each
+        record's identified initial state (:func:`~dcmotor_id.identification.figures.
+        result_figures`); the figures are not shown (``fig.savefig`` or a notebook shows
+        them).
+        """
+        from dcmotor_id.identification.figures import result_figures
+        speeds = self.estimate.info.get('simulated_speeds') if self.estimate else None
+        return result_figures(self.as_dict(), self.input_records, speeds)
+
+    def _repr_html_(self) -> str:
+        """Return the notebook view: the parameters, effects and warnings as HTML."""
+        from dcmotor_id.identification.figures import result_html
+        return result_html(self.as_dict())

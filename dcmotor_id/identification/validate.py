@@ -25,6 +25,7 @@ from dcmotor_id.core.model import MECHANICAL_NAMES, MotorParameters, PARAMETER_N
 from dcmotor_id.core.records import COLUMNS, Record
 from dcmotor_id.formats.json_file import load_json
 from dcmotor_id.identification.effects import make_effect
+from dcmotor_id.identification.estimators.voltage_speed import NAMES as VOLTAGE_SPEED_NAMES
 from dcmotor_id.simulation import simulate_mechanical_effects, simulate_motor_effects
 
 #: Samples at the start of a record used for the initial state (and not scored), by default.
@@ -41,7 +42,8 @@ def model_block(result: Mapping[str, Any]) -> dict[str, Any]:
 
     Everything :func:`load_model` needs to simulate the model again: ``mode``,
     ``torque_constant``, the base ``parameters`` (Ra, La, CPhi, J, b, Mc, or J, b, Mc in
-    mechanical mode) with their ``parameter_units``, the ``effects`` with their parameters,
+    mechanical mode, kS, kV, kA in voltage_speed mode) with their ``parameter_units``, the
+    ``effects`` with their parameters,
     the ``sample_period_s`` it was identified at and the ``channel_units`` of the records.
 
     Parameters
@@ -51,7 +53,8 @@ def model_block(result: Mapping[str, Any]) -> dict[str, Any]:
 
     """
     mode = result.get('mode', 'full')
-    names = MECHANICAL_NAMES if mode == 'mechanical' else PARAMETER_NAMES
+    names = {'mechanical': MECHANICAL_NAMES,
+             'voltage_speed': VOLTAGE_SPEED_NAMES}.get(mode, PARAMETER_NAMES)
     parameters = result.get('parameters', {})
     if not isinstance(parameters, Mapping):
         raise InputDataError(f'"parameters" is {json.dumps(parameters)[:80]}, not a mapping of '
@@ -205,6 +208,10 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
         check_one_model(data, source)
     block: Mapping[str, Any] = given if isinstance(given, Mapping) else _top_level(data, source)
     mode = block.get('mode', 'full')
+    if mode == 'voltage_speed':
+        raise InputDataError(f'{source}: a voltage-to-speed model (kS, kV, kA, identified '
+                             'without a current) cannot be validated here: validate simulates '
+                             'the current too; use dcmotor-id design for its feedforward')
     if mode not in ('full', 'mechanical'):
         raise InputDataError(f'{source}: unknown mode {mode!r} (full or mechanical)')
     names = MECHANICAL_NAMES if mode == 'mechanical' else PARAMETER_NAMES

@@ -94,8 +94,6 @@ def test_good_data_pass(table, tmp_path, out, capsys):
     (['t', 'Voltage', 'current', 'speed'], ["'Voltage' must be named 'voltage'", 'rename']),
     (['t', 'voltage', 'amps', 'speed'], ["found 'amps'", 'rename it to current']),
     (['t', 'voltage', 'current', 'rpm'], ["found 'rpm'", 'rename it to speed', 'rad/s']),
-    (['t', 'voltage', 'x1', 'speed'], ['missing column(s) current', 'name the columns',
-                                       'J Ra/CPhi', 'record the armature current']),
     (['t', 'voltage', 'current', 'x2'], ['speed (or position)', 'name the columns']),
     (['t', 'volts_in', 'current', 'speed'], ['no voltage column', '--torque-constant']),
     (['t', 'voltage', 'current', 'current'], ["'current' appears twice"]),
@@ -104,6 +102,16 @@ def test_missing_or_misnamed_columns(table, tmp_path, out, capsys, header, phras
     path = write(tmp_path / 'named.csv', header, table)
     expect_refusal(capsys, [path, '--json', out], *phrases)
     assert not out.exists()
+
+
+def test_a_current_under_another_name_is_not_fitted_silently(table, tmp_path, out, capsys):
+    """Issue 31: no current column gives kS, kV, kA, with a warning naming the fix."""
+    path = write(tmp_path / 'named.csv', ['t', 'voltage', 'x1', 'speed'], table)
+    code, message = run(capsys, path, '--json', out)
+    assert code == 0, message
+    result = json.loads(out.read_text())
+    assert result['mode'] == 'voltage_speed' and set(result['parameters']) == {'kS', 'kV', 'kA'}
+    assert any('name its column current' in text for text in result['warnings'])
 
 
 def test_columns_named_with_units_get_the_options_that_map_them(table, tmp_path, out, capsys):

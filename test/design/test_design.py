@@ -153,6 +153,7 @@ def test_export_round_trip(tmp_path, output_shaft):
     np.testing.assert_allclose(control.dcgain(rebuilt), control.dcgain(original))
     with open(paths['sim_motor'], encoding='utf-8') as stream:
         node = yaml.safe_load(stream)['sim_motor']['ros__parameters']
+    assert node.pop('effects') == ''  # none found: sim_motor simulates none
     assert node == PAPER_MOTORS['paper1'].as_dict(derived=False)
     assert all(isinstance(value, float) for value in node.values())
     p = PAPER_MOTORS['paper1']

@@ -102,6 +102,21 @@ def test_identified_within_one_percent_by_entry_names(motor_log, tmp_path, capsy
         assert parameters[name] == pytest.approx(getattr(true, name), rel=0.01), name
 
 
+def test_voltage_and_velocity_alone_give_ks_kv_ka(motor_log, tmp_path):
+    """Most SysId logs hold no current: kS, kV, kA by entry names, within 2 % (issue 31)."""
+    path, true, *_ = motor_log
+    out = tmp_path / 'result.json'
+    assert main(['identify', str(path), '--speed-unit', 'rpm', '--quiet', '--json', str(out),
+                 '--column', COLUMNS[0], '--column', COLUMNS[2]]) == 0
+    result = json.loads(out.read_text())
+    assert result['mode'] == 'voltage_speed'
+    expected = {'kS': true.Ra * true.Mc / true.CPhi,
+                'kV': true.CPhi + true.Ra * true.b / true.CPhi,
+                'kA': true.Ra * true.J / true.CPhi}
+    for name, value in expected.items():
+        assert result['parameters'][name] == pytest.approx(value, rel=0.02), name
+
+
 def test_without_column_the_entries_are_listed_with_their_types(motor_log):
     with pytest.raises(InputDataError) as refusal:
         read_record(motor_log[0])

@@ -27,5 +27,6 @@ On the position, stages 1-4 run with the position error as white noise; when tha
 the white result) disagrees with the model-free regression the run is made again with the
 position error as a drift, and the closer result is kept (:mod:`.position_error`).
 :mod:`.fit_outcome` is what every stage measures of a fit: its simulation errors, refused
-when non-physical.
+when non-physical.  Records without a current never enter the stages: :mod:`.voltage_speed`
+fits the voltage-to-speed model (kS, kV, kA) instead.
 """

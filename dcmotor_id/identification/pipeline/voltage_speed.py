@@ -1,0 +1,94 @@
+"""
+The path of records without a current: the voltage-to-speed model as an identification result.
+
+:func:`identify_voltage_speed` fits ``kS, kV, kA``
+(:mod:`~dcmotor_id.identification.estimators.voltage_speed`) and returns an
+:class:`~dcmotor_id.identification.result.IdentificationResult` of mode ``voltage_speed``:
+``parameters`` and ``stderr`` hold ``kS, kV, kA``; ``not_identifiable`` says plainly that
+Ra, CPhi, J, b and Mc are not separable without the current; ``combined`` gives what each
+parameter is made of (and the armature time constant when the data resolve it).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Sequence, TYPE_CHECKING
+
+from dcmotor_id.formats.held import restore_held
+from dcmotor_id.identification.estimators.base import Estimate
+from dcmotor_id.identification.estimators.voltage_speed import (COMBINATIONS,
+                                                                fit_voltage_speed,
+                                                                NOT_SEPARABLE, UNITS)
+from dcmotor_id.identification.result import IdentificationResult
+from dcmotor_id.identification.validate import operating_range
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+
+#: The mode of the result (JSON ``mode``).
+MODE = 'voltage_speed'
+#: Why the effect discovery does not run on such records.
+#: Said with every such result: a current recorded under another name is not used.
+NO_CURRENT_COLUMN = ('no current in the records: the voltage-to-speed model (kS, kV, kA) was '
+                     'fitted; if the current was recorded, name its column current (or give '
+                     '--column current=NAME) to identify Ra, La, CPhi, J, b, Mc')
+NO_DISCOVERY = ('the effect vocabulary is written for the motor with its current; on voltage '
+                'and speed alone only kS, kV, kA are fitted')
+
+
+def identify_voltage_speed(records: Sequence[Record],
+                           discover: bool = True) -> IdentificationResult:
+    """
+    Identify ``kS, kV, kA`` from records of voltage and speed (no current).
+
+    Parameters
+    ----------
+    records : list of Record
+        Prepared records with a voltage and a speed and no current.
+    discover : bool
+        Whether discovery was asked for (it is skipped; ``discovery`` says why).
+
+    Returns
+    -------
+    IdentificationResult
+        Of mode ``voltage_speed`` (method ``voltage_speed``).
+
+    """
+    began = time.monotonic()
+    # A speed sensor refreshing slower than the log: fit on its real updates (as stage 1).
+    records, held = restore_held(list(records))
+    fit = fit_voltage_speed(records)
+    combined = {name: {'value': fit.values[name], 'stderr': fit.stderr[name],
+                       'of': COMBINATIONS[name], 'unit': UNITS[name]} for name in COMBINATIONS}
+    warnings = [NO_CURRENT_COLUMN] + held
+    if fit.armature_time_constant_s is not None:
+        combined['armature_time_constant_s'] = {
+            'value': fit.armature_time_constant_s, 'stderr': fit.armature_stderr_s,
+            'of': 'La / Ra', 'unit': 's'}
+        warnings.append(f'a second, faster lag shapes the speed (Ta = '
+                        f'{fit.armature_time_constant_s:.3g} s: the armature La/Ra, or a lag '
+                        'of the drive or the speed sensor): kA was fitted with it (a '
+                        'first-order model would read it as inertia)')
+    note = ('Gauss-Newton of the output-error fit on the speed, scaled by the residual '
+            f'correlation (factor {fit.correlation_factor:.3g})')
+    result = IdentificationResult(
+        parameters=dict(fit.values), stderr=dict(fit.stderr), method=MODE, effects=[],
+        error_before={'current_nrmse_pct': None, 'speed_nrmse_pct': fit.nrmse_start_pct},
+        error_after={'current_nrmse_pct': None, 'speed_nrmse_pct': fit.nrmse_pct},
+        unexplained=False, mode=MODE, torque_constant=None,
+        initial_states=[[speed] for speed in fit.initial_speeds],
+        noise_std={'speed': fit.noise_std}, sample_period_s=records[0].sample_period_s,
+        n_samples=sum(len(rec) for rec in records), sources=[rec.source for rec in records],
+        units=dict(UNITS), discover=discover,
+        discovery={'skipped': NO_DISCOVERY} if discover else None,
+        stderr_model={name: value / fit.correlation_factor
+                      for name, value in fit.stderr.items()},
+        uncertainty_method=note,
+        not_identifiable={'Ra, CPhi, J, b, Mc': NOT_SEPARABLE},
+        warnings=warnings, combined=combined, operating_range=operating_range(records),
+        input_records=list(records),
+        estimate=Estimate(MODE, dict(fit.values), dict(fit.stderr),
+                          [[speed] for speed in fit.initial_speeds],
+                          {'simulated_speeds': fit.speeds, 'start': fit.start}))
+    result.elapsed_s = time.monotonic() - began
+    return result
