@@ -101,7 +101,7 @@ def score(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
                    bic_delta=bic(loop, candidate.fit) - bic(loop, current),
                    insample_gain=1.0 - candidate.fit.train_cost / current.train_cost,
                    gain_noise=heldout_gain_noise(current, candidate.fit, loop.outputs,
-                                                 loop.weights or {}))
+                                                 dict(loop.weights or {})))
 
 
 def choose(loop: LoopState, current: Fit, admissible: list[Candidate],
