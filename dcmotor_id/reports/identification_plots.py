@@ -21,7 +21,7 @@ from matplotlib.ticker import MaxNLocator
 import numpy as np
 
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
-from dcmotor_id.identification.residuals import (autocorrelation, confidence_band,
+from dcmotor_id.identification.error_model.residuals import (autocorrelation, confidence_band,
                                                  cross_correlation, DEFAULT_LAGS, output_channels,
                                                  simulate_records)
 

@@ -36,7 +36,7 @@ import numpy as np
 from dcmotor_id.core.model import make_admissible
 from dcmotor_id.identification.checks.identifiability import (initial_state_warnings,
                                                               MISFIT_FACTOR, noise_level)
-from dcmotor_id.identification.residuals import output_channels, simulate_records
+from dcmotor_id.identification.error_model.residuals import output_channels, simulate_records
 from dcmotor_id.signals.filters import low_pass
 
 if TYPE_CHECKING:

@@ -13,7 +13,7 @@ from dataclasses import replace
 from dcmotor_id.core.errors import FitError, NotIdentifiableError
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.identification.checks.identifiability import ONE_DIRECTION_CONFOUNDED
-from dcmotor_id.identification.criterion import with_position_states
+from dcmotor_id.identification.error_model.criterion import with_position_states
 from dcmotor_id.identification.estimators.base import Estimate, Estimator
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
@@ -75,7 +75,7 @@ def _speed_base(inputs: Inputs, error: FitError) -> tuple[Estimate, str]:
     A model that lacks the very effect the loop is there to find (a force offset on an axis
     driven both ways) may have no fit on the position: its integral drifts and the fit runs
     to an infinite inertia.  Its speed fit is the base the loop starts from
-    (:func:`~dcmotor_id.identification.criterion.with_position_states`); returned with the
+    (:func:`~dcmotor_id.identification.error_model.criterion.with_position_states`); returned with the
     warning that says so.
     """
     if inputs.criterion == 'speed' or not isinstance(inputs.estimator, RefinedEstimator):

@@ -45,7 +45,7 @@ from dcmotor_id.identification.pipeline.fit_outcome import simulation_errors
 from dcmotor_id.identification.pipeline.run import identify_checked
 from dcmotor_id.identification.pipeline.segments import split_tests
 from dcmotor_id.identification.pipeline.state import Request
-from dcmotor_id.identification.residuals import output_channels
+from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.identification.validate import operating_range
 
