@@ -52,7 +52,8 @@ class Record:
         Where the record came from (a path), for messages.
     speed_derived : bool
         The speed was derived from the position (not measured): the fit's ``auto`` criterion
-        then compares the position instead (:mod:`dcmotor_id.identification.error_model.criterion`).
+        then compares the position instead
+        (:mod:`dcmotor_id.identification.error_model.criterion`).
 
     """
 

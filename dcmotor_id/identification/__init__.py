@@ -8,7 +8,8 @@ docstring; the details of each stage in a module of its own, e.g.
 :mod:`~dcmotor_id.identification.estimators` (all behind one ``Estimator`` interface), the
 checks of the answer (the checks in one place, :mod:`~dcmotor_id.identification.checks`, which
 says which runs when), the residual analysis
-(:mod:`~dcmotor_id.identification.error_model.residuals`, the error model's home) and the effect discovery loop
+(:mod:`~dcmotor_id.identification.error_model.residuals`, the error model's home) and the effect
+discovery loop
 (:mod:`~dcmotor_id.identification.discovery`) over the effect vocabulary
 (:mod:`~dcmotor_id.identification.effects`, one module per effect).
 :mod:`~dcmotor_id.identification.validate` simulates a model on records it was not fitted on.

@@ -16,8 +16,8 @@ from dcmotor_id.identification.validate import model_block
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import DiscoveryResult
-    from dcmotor_id.identification.estimators.base import Estimate
     from dcmotor_id.identification.error_model.residuals import ChannelErrors
+    from dcmotor_id.identification.estimators.base import Estimate
 
 
 @dataclass

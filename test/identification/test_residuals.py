@@ -7,9 +7,10 @@ from scipy.stats import chi2
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.records import Record
 from dcmotor_id.identification.error_model import residuals
-from dcmotor_id.identification.error_model.residuals import (analyse_channel, autocorrelation, confidence_band,
-                                                 correlation_summary, cross_correlation, ljung_box,
-                                                 one_step_error, predictable_fraction)
+from dcmotor_id.identification.error_model.residuals import (analyse_channel, autocorrelation,
+                                                             confidence_band, correlation_summary,
+                                                             cross_correlation, ljung_box,
+                                                             one_step_error, predictable_fraction)
 from dcmotor_id.signals.filters import noise_std as noise_std_estimate
 from dcmotor_id.simulation import simulate_mechanical, simulate_motor
 from dcmotor_id.simulation.excitation import make_excitation

@@ -166,7 +166,8 @@ def test_position_kernel_equals_the_integral_of_the_stored_speed(rho, states):
 
     The reference is the integral of the speed and of its sensitivities
     (:func:`~dcmotor_id.identification.error_model.criterion.integrate_speed`), whitened
-    (:func:`~dcmotor_id.identification.error_model.criterion.whiten`) and multiplied out as matrices.
+    (:func:`~dcmotor_id.identification.error_model.criterion.whiten`) and multiplied out as
+    matrices.
     """
     from dcmotor_id.identification.error_model.criterion import integrate_speed, whiten
     from dcmotor_id.simulation.compiled import kernel

@@ -19,8 +19,8 @@ import numpy as np
 
 from dcmotor_id.core.model import UNITS
 from dcmotor_id.identification.checks.input_noise import input_noise_warning
-from dcmotor_id.identification.error_model.criterion import noise_level
 from dcmotor_id.identification.effects.base import torque_spread
+from dcmotor_id.identification.error_model.criterion import noise_level
 from dcmotor_id.signals.filters import low_pass, noise_std
 
 #: Relative standard error above which a parameter counts as not identified.

@@ -4,7 +4,8 @@ The effect discovery loop: trace the residual to an effect the model lacks, add 
 1. Split every record in time: the first part (70 % by default) trains, the rest is held out.
 2. Fit the base model on the training part; simulate the whole record (the held-out part continues
    the simulation from the training part) and analyse the held-out residual
-   (:mod:`dcmotor_id.identification.error_model.residuals`): Ljung-Box whiteness, predictable share,
+   (:mod:`dcmotor_id.identification.error_model.residuals`): Ljung-Box whiteness, predictable
+   share,
    correlation with the inputs and with every candidate's regressor.
 3. If the residual is not white, try every effect of the vocabulary
    (:mod:`dcmotor_id.identification.effects`) not yet in the model.  A cheap linearised screen (the

@@ -23,8 +23,8 @@ import numpy as np
 
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit
-from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.error_model.residuals import simulate_records
+from dcmotor_id.identification.estimators.refined import OutputErrorModel
 
 
 #: Contiguous blocks of the held-out part whose error drops give the noise of the gain.

@@ -17,7 +17,6 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.identification.checks.start import far_from_evidence, regression_evidence
-from dcmotor_id.identification.error_model.criterion import with_position_states
 from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.discovery.probe import fails_on_an_excerpt
 from dcmotor_id.identification.discovery.screening import (base_sensitivities, delay_estimate,
@@ -26,8 +25,9 @@ from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import (Candidate, Fit, slice_terms, Structure,
                                                            with_initial)
 from dcmotor_id.identification.effects import SensorDelay, torque_spread
-from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
+from dcmotor_id.identification.error_model.criterion import with_position_states
 from dcmotor_id.identification.error_model.residuals import simulate_records
+from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.validate import Model, simulate
 
 if TYPE_CHECKING:

@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.progress import Progress
-from dcmotor_id.identification.error_model.criterion import fitted_outputs
 from dcmotor_id.identification.discovery.parts import HOLDOUT_FRACTION
 from dcmotor_id.identification.discovery.structure import Fit
 from dcmotor_id.identification.effects import VOCABULARY
+from dcmotor_id.identification.error_model.criterion import fitted_outputs
 from dcmotor_id.identification.error_model.residuals import ALPHA, DEFAULT_LAGS, output_channels
 
 if TYPE_CHECKING:
@@ -73,11 +73,13 @@ class LoopState:
         period) throughout.
     criterion : str
         ``speed`` (default), ``position`` or ``both``: the channels fitted and judged
-        (:mod:`dcmotor_id.identification.error_model.criterion`); the held-out errors also report the
+        (:mod:`dcmotor_id.identification.error_model.criterion`); the held-out errors also report
+        the
         speed (and the current) when they are not compared.
     position_error : str
         The position error's model of every fit of the loop, ``adaptive`` (default) or
-        ``white`` (:func:`~dcmotor_id.identification.error_model.criterion.check_position_error_model`).
+        ``white``
+        (:func:`~dcmotor_id.identification.error_model.criterion.check_position_error_model`).
     acceptance : str
         The rule a winning candidate must pass, one of :data:`ACCEPTANCE_RULES` (default
         :data:`DEFAULT_ACCEPTANCE`).

@@ -26,8 +26,8 @@ from dcmotor_id.identification.pipeline.state import Fit, Inputs
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
-    from dcmotor_id.identification.estimators.base import Estimate
     from dcmotor_id.identification.error_model.residuals import ChannelErrors
+    from dcmotor_id.identification.estimators.base import Estimate
 
 
 def armature(inputs: Inputs, fit: Fit) -> Fit:

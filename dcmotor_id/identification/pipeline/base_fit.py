@@ -75,7 +75,8 @@ def _speed_base(inputs: Inputs, error: FitError) -> tuple[Estimate, str]:
     A model that lacks the very effect the loop is there to find (a force offset on an axis
     driven both ways) may have no fit on the position: its integral drifts and the fit runs
     to an infinite inertia.  Its speed fit is the base the loop starts from
-    (:func:`~dcmotor_id.identification.error_model.criterion.with_position_states`); returned with the
+    (:func:`~dcmotor_id.identification.error_model.criterion.with_position_states`); returned with
+    the
     warning that says so.
     """
     if inputs.criterion == 'speed' or not isinstance(inputs.estimator, RefinedEstimator):

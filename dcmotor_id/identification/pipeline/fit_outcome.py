@@ -13,8 +13,8 @@ from typing import Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import inadmissible, UNITS
-from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.error_model.residuals import ChannelErrors, model_errors
+from dcmotor_id.identification.estimators.refined import OutputErrorModel
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -31,7 +31,8 @@ def simulation_errors(estimate: Estimate, records: Sequence[Record],
     Return the simulation error of an estimate over the records (from its initial states).
 
     The result is ``{current_nrmse_pct, speed_nrmse_pct}``
-    (:func:`dcmotor_id.identification.error_model.residuals.model_errors`); the current error is ``None`` in
+    (:func:`dcmotor_id.identification.error_model.residuals.model_errors`); the current error is
+    ``None`` in
     mechanical-only mode (current is the input there).
     """
     model = OutputErrorModel(records, torque_constant, terms, quasi_static)
