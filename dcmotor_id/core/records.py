@@ -9,6 +9,7 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import InputDataError
 
 #: A path given as text or as an :class:`os.PathLike`.
@@ -282,3 +283,9 @@ def resample_uniform(record: Record, sample_period_s: float) -> Record:
         return None if values is None else np.interp(grid, t, values)
     return Record(grid, interp(record.current), interp(record.voltage), interp(record.speed),
                   interp(record.position), record.source)
+
+
+register(Check('record', 'read', 'record', check_record,
+               "a record's channels: lengths, finite values, increasing times, regular sampling"))
+register(Check('magnitudes', 'read', 'record', check_magnitudes,
+               'channels in implausible units or scales (a voltage in mV, a speed in rpm)'))
