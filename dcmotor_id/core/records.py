@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 import os
-from typing import Any, Optional, Union
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
@@ -283,6 +283,14 @@ def resample_uniform(record: Record, sample_period_s: float) -> Record:
         return None if values is None else np.interp(grid, t, values)
     return Record(grid, interp(record.current), interp(record.voltage), interp(record.speed),
                   interp(record.position), record.source)
+
+
+def record_names(records: Sequence[Record]) -> str | None:
+    """Name the records for the progress line: the one source, or how many records."""
+    names = [rec.source for rec in records if rec.source]
+    if not names:
+        return None
+    return names[0] if len(names) == 1 else f'{len(records)} records'
 
 
 register(Check('record', 'read', 'record', check_record,
