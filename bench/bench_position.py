@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from dcmotor_id.core.model import PAPER_MOTORS  # noqa: E402
 from dcmotor_id.core.records import Record  # noqa: E402
-from dcmotor_id.identification.criterion import integrate_speed  # noqa: E402
+from dcmotor_id.identification.error_model.criterion import integrate_speed  # noqa: E402
 from dcmotor_id.identification.estimators.fisher import cramer_rao_bound  # noqa: E402
 from dcmotor_id.identification.estimators.refined import RefinedEstimator  # noqa: E402
 from dcmotor_id.identification.identify import identify, prepare_records  # noqa: E402

@@ -33,8 +33,8 @@ from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assig
                                         SIGNED_CHANNELS, SPEED_UNITS)
 from dcmotor_id.formats.paths import check_input_path, check_output_path, is_bag_dir
 from dcmotor_id.identification.checks.dropouts import repair_all
-from dcmotor_id.identification.criterion import CRITERIA
 from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
+from dcmotor_id.identification.error_model.criterion import CRITERIA
 from dcmotor_id.identification.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES,
                                                 METHODS, prepare_records)
 from dcmotor_id.identification.prepare import is_voltage_speed

@@ -5,10 +5,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 import os
-from typing import Any, Optional, Union
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import InputDataError
 
 #: A path given as text or as an :class:`os.PathLike`.
@@ -52,7 +53,8 @@ class Record:
         Where the record came from (a path), for messages.
     speed_derived : bool
         The speed was derived from the position (not measured): the fit's ``auto`` criterion
-        then compares the position instead (:mod:`dcmotor_id.identification.criterion`).
+        then compares the position instead
+        (:mod:`dcmotor_id.identification.error_model.criterion`).
 
     """
 
@@ -284,3 +286,17 @@ def resample_uniform(record: Record, sample_period_s: float) -> Record:
         return None if values is None else np.interp(grid, t, values)
     return Record(grid, interp(record.current), interp(record.voltage), interp(record.speed),
                   interp(record.position), record.source)
+
+
+def record_names(records: Sequence[Record]) -> str | None:
+    """Name the records for the progress line: the one source, or how many records."""
+    names = [rec.source for rec in records if rec.source]
+    if not names:
+        return None
+    return names[0] if len(names) == 1 else f'{len(records)} records'
+
+
+register(Check('record', 'read', 'record', check_record,
+               "a record's channels: lengths, finite values, increasing times, regular sampling"))
+register(Check('magnitudes', 'read', 'record', check_magnitudes,
+               'channels in implausible units or scales (a voltage in mV, a speed in rpm)'))

@@ -23,6 +23,7 @@ from typing import Optional
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import Record
 
@@ -277,3 +278,13 @@ def check_channels(record: Record, mechanical_only: bool = False) -> Record:
     if problems:
         raise InputDataError('; '.join(problems))
     return record
+
+
+register(Check('pwm_sampled_current', 'read', 'record', pwm_sampled_current,
+               'a current sampled inside the PWM cycle (refused)'))
+register(Check('quantised_speed', 'read', 'record', quantised_speed,
+               'a speed quantised to a few levels (refused)'))
+register(Check('command_voltage', 'read', 'record', command_voltage,
+               'a voltage that is a command never reaching the motor (refused)'))
+register(Check('coarse_speed', 'before_fit', 'record', coarse_speed,
+               'a coarse speed kept, said in a warning'))

@@ -126,8 +126,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
     initial_state : str
         ``estimate`` (each record's initial state is fitted) or ``measured`` (first samples).
     criterion : str
-        ``auto`` (default), ``speed``, ``position`` or ``both``: the channels the fit compares
-        (:func:`~dcmotor_id.identification.criterion.resolve_criterion`; JSON ``criterion``).
+        ``auto`` (default), ``speed``, ``position`` or ``both``: the channels compared, JSON
+        ``criterion`` (:func:`~dcmotor_id.identification.error_model.criterion.resolve_criterion`).
     structure_bootstrap : int
         Noise resamples rerunning discovery so that ``stderr`` covers the structure choice
         (:mod:`~dcmotor_id.identification.structure_uncertainty`); 0 (default): not run.

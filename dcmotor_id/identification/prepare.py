@@ -14,6 +14,7 @@ from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import InputDataError, NotIdentifiableError
 from dcmotor_id.core.records import check_record
 from dcmotor_id.identification.checks.identifiability import assess_excitation, Excitation
@@ -183,3 +184,7 @@ def one_level_reason(level: float, failure: str) -> str:
             "current's small fluctuations, too little here. Record a second current "
             'level (a step between two non-zero levels, or a step in the other '
             'direction) and give the records together')
+
+
+register(Check('excitation', 'before_fit', 'records', check_excitation,
+               'data that do not move the motor, or hold one current level, refused'))

@@ -18,8 +18,8 @@ if TYPE_CHECKING:
 
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import DiscoveryResult
+    from dcmotor_id.identification.error_model.residuals import ChannelErrors
     from dcmotor_id.identification.estimators.base import Estimate
-    from dcmotor_id.identification.residuals import ChannelErrors
 
 
 @dataclass
@@ -110,7 +110,7 @@ class IdentificationResult:
         The loop's result, when it ran.
     criterion : str
         The channels the fit compared: ``speed``, ``position`` or ``both``
-        (:mod:`dcmotor_id.identification.criterion`).
+        (:mod:`dcmotor_id.identification.error_model.criterion`).
     structure_uncertainty : dict or None
         The noise bootstrap over the structure choice
         (:mod:`~dcmotor_id.identification.structure_uncertainty`; its part is in ``stderr``),

@@ -20,10 +20,10 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 import numpy as np
 
+from dcmotor_id.identification.error_model.residuals import (autocorrelation, confidence_band,
+                                                             cross_correlation, DEFAULT_LAGS,
+                                                             output_channels, simulate_records)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
-from dcmotor_id.identification.residuals import (autocorrelation, confidence_band,
-                                                 cross_correlation, DEFAULT_LAGS, output_channels,
-                                                 simulate_records)
 
 if TYPE_CHECKING:
     from dcmotor_id.identification.discovery import DiscoveryResult

@@ -521,8 +521,8 @@ def position_kernel(trajectory, dt, initial_position, measured, rho, weight, wit
     as :func:`normal_kernel` stores it) from ``initial_position``; its sensitivities are the
     speed's integrated, and 1 for the initial position (column ``m``).  Error and rows are
     whitened by the AR(1) ``rho`` and weighted by ``weight``: the values of
-    :func:`dcmotor_id.identification.criterion.integrate_speed` and
-    :func:`~dcmotor_id.identification.criterion.whiten` step for step.  Returns
+    :func:`dcmotor_id.identification.error_model.criterion.integrate_speed` and
+    :func:`~dcmotor_id.identification.error_model.criterion.whiten` step for step.  Returns
     ``(hessian, gradient, blocks, sum_of_squares, cost)`` (the first three zero unless
     ``with_sens``; the sum of squares of the whitened error, the cost of the weighted one).
     """

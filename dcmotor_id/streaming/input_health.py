@@ -18,6 +18,7 @@ from collections import Counter
 import time
 from typing import Optional, Sequence
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.formats.regrid import StampRegridder
 from dcmotor_id.formats.streams import SampleInbox, StreamAligner
 from dcmotor_id.streaming.windowing import WindowCutter
@@ -250,3 +251,7 @@ class InputHealth:
         if record_dir is not None:
             pairs.append(('record_dir', record_dir))
         return pairs
+
+
+register(Check('batch', 'read', 'batch', batch_refusal_reason,
+               "why a node's incoming batch was refused (labels, times, sizes)"))

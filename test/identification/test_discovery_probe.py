@@ -1,5 +1,7 @@
 """A costly candidate refit on many records is first tried on an excerpt of them (issue 19)."""
 
+import dataclasses
+
 import pytest
 
 from dcmotor_id.identification.discovery import Candidate, DiscoveryLoop, Structure
@@ -92,3 +94,18 @@ def test_a_delay_screened_negative_is_rejected_without_a_refit(fitted, monkeypat
     late = Candidate(SensorDelay, {'channel': 'speed', 'samples': 3}, {}, 0.004)
     refitting.refit_candidate(loop, current, late)
     assert calls == [4]  # a late sensor is refitted as before
+
+
+def test_the_loop_state_is_frozen_and_the_base_fit_teaches_a_new_one(fitted):
+    loop, base = fitted
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        loop.weights = {'speed': 1.0}
+    # Fitting the base changed nothing of the loop: what it learned is a new state.
+    assert loop.weights is None and loop.position_ar is None
+    learned = refitting.taught(loop, base)
+    assert learned.weights == {channel: max(base.estimate.info['noise_std'][channel], 1e-300)
+                               for channel in loop.outputs}
+    assert learned.position_ar == base.estimate.info['position_ar']
+    assert learned.records == loop.records and learned.weights is not loop.weights
+    # A loop that has its weights keeps them.
+    assert refitting.taught(learned, base).weights == learned.weights

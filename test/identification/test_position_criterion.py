@@ -10,9 +10,10 @@ from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.records import Record
 from dcmotor_id.formats.csv import write_csv
-from dcmotor_id.identification.criterion import fitted_outputs, integrate_speed, resolve_criterion
 from dcmotor_id.identification.discovery import (DiscoveryLoop, heldout_gain_noise, never_worse,
                                                  Structure)
+from dcmotor_id.identification.error_model.criterion import (fitted_outputs, integrate_speed,
+                                                             resolve_criterion)
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.identify import identify, prepare_records

@@ -5,7 +5,8 @@ import pytest
 
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.records import Record
-from dcmotor_id.identification.criterion import ar_settled, integrate_speed, position_ar, whiten
+from dcmotor_id.identification.error_model.criterion import (ar_settled, integrate_speed,
+                                                             position_ar, whiten)
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.simulation import simulate_motor
 from dcmotor_id.simulation.excitation import make_excitation

@@ -7,7 +7,7 @@ import pytest
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.progress import Progress
-from dcmotor_id.identification.criterion import position_ar
+from dcmotor_id.identification.error_model.criterion import position_ar
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.pipeline.position_error import AGREEMENT_FACTOR, disagreement

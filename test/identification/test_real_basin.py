@@ -151,10 +151,8 @@ def _fit(residuals, stop):
 
 
 def _loop(acceptance=DEFAULT_ACCEPTANCE):
-    loop = DiscoveryLoop.__new__(DiscoveryLoop)
-    loop.outputs, loop.weights, loop.min_gain = ('speed',), {'speed': 1.0}, 0.05
-    loop.acceptance = acceptance
-    return loop
+    # Mechanical-only (a torque constant): the speed is the one output.
+    return DiscoveryLoop([], 1.0, weights={'speed': 1.0}, min_gain=0.05, acceptance=acceptance)
 
 
 def test_a_gain_carried_by_one_block_does_not_earn_an_effect():

@@ -6,10 +6,11 @@ from scipy.stats import chi2
 
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.records import Record
-from dcmotor_id.identification import residuals
-from dcmotor_id.identification.residuals import (analyse_channel, autocorrelation, confidence_band,
-                                                 correlation_summary, cross_correlation, ljung_box,
-                                                 one_step_error, predictable_fraction)
+from dcmotor_id.identification.error_model import residuals
+from dcmotor_id.identification.error_model.residuals import (analyse_channel, autocorrelation,
+                                                             confidence_band, correlation_summary,
+                                                             cross_correlation, ljung_box,
+                                                             one_step_error, predictable_fraction)
 from dcmotor_id.signals.filters import noise_std as noise_std_estimate
 from dcmotor_id.simulation import simulate_mechanical, simulate_motor
 from dcmotor_id.simulation.excitation import make_excitation
@@ -163,7 +164,7 @@ def test_analyse_channel_reports_json_ready_evidence():
 def test_chi_square_survival_matches_scipy():
     from scipy.special import chdtrc
 
-    from dcmotor_id.identification.residuals import chi_square_sf
+    from dcmotor_id.identification.error_model.residuals import chi_square_sf
     for dof in (1, 2, 3, 10, 25, 26, 99, 400):
         for statistic in (1e-6, 0.5, dof * 0.3, dof * 1.0, dof + 3.0 * np.sqrt(2.0 * dof),
                           dof * 5.0, 1e3, 1e5, 1e9):

@@ -165,10 +165,11 @@ def test_position_kernel_equals_the_integral_of_the_stored_speed(rho, states):
     The position's normal equations in one pass are those of the integral and its whitening.
 
     The reference is the integral of the speed and of its sensitivities
-    (:func:`~dcmotor_id.identification.criterion.integrate_speed`), whitened
-    (:func:`~dcmotor_id.identification.criterion.whiten`) and multiplied out as matrices.
+    (:func:`~dcmotor_id.identification.error_model.criterion.integrate_speed`), whitened
+    (:func:`~dcmotor_id.identification.error_model.criterion.whiten`) and multiplied out as
+    matrices.
     """
-    from dcmotor_id.identification.criterion import integrate_speed, whiten
+    from dcmotor_id.identification.error_model.criterion import integrate_speed, whiten
     from dcmotor_id.simulation.compiled import kernel
 
     rng = np.random.default_rng(3)

@@ -24,4 +24,7 @@ The checks of the data and of the answer, in the order a record meets them.
    answer's physics).
 
 :func:`dcmotor_id.identification.identify.identify` runs steps 1 (the excitation) to 3.
+Every check is registered where it is written (:mod:`dcmotor_id.core.checks`: one protocol,
+one registry of the package's checks with their time and what they look at); a new check is
+one function here and one ``register(Check(...))`` line beside it.
 """

@@ -16,6 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.records import Record
 
 #: Channels searched (the measured outputs; the voltage is the commanded input).
@@ -103,3 +104,7 @@ def repair_all(records: Sequence[Record]) -> tuple[list[Record], list[str]]:
         repaired.append(fixed)
         notes += found
     return repaired, notes
+
+
+register(Check('dropouts', 'before_fit', 'records', repair_all,
+               'isolated dropouts and spikes of the current and speed, repaired and named'))

@@ -17,10 +17,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.model import UNITS
 from dcmotor_id.identification.checks.input_noise import input_noise_warning
-from dcmotor_id.identification.criterion import noise_level
 from dcmotor_id.identification.effects.base import torque_spread
+from dcmotor_id.identification.error_model.criterion import noise_level
 from dcmotor_id.signals.filters import low_pass, noise_std
 
 #: Relative standard error above which a parameter counts as not identified.
@@ -333,3 +334,17 @@ def useful(parameters: Sequence[str], not_identifiable: dict[str, str],
     """Whether anything worth reporting was identified (J, or CPhi in the full mode)."""
     key = ('J',) if mechanical_only else ('J', 'CPhi', 'Ra')
     return any(name in parameters and name not in not_identifiable for name in key)
+
+
+register(Check('current_limit', 'before_fit', 'records', limited_samples,
+               "samples at an amplifier's current limit (their own path)"))
+register(Check('at_bound', 'after_fit', 'fit', at_bound,
+               'parameters at a bound of the fit: not identifiable'))
+register(Check('loose', 'after_fit', 'fit', loose,
+               'parameters the data do not determine (standard error beyond the value)'))
+register(Check('correlated_pairs', 'after_fit', 'fit', correlated_pairs,
+               'parameters whose estimates are strongly correlated (a warning)'))
+register(Check('initial_states', 'after_fit', 'fit', initial_state_warnings,
+               'fitted initial states far from the measured ones (a warning)'))
+register(Check('misfit', 'after_fit', 'fit', misfit_warning,
+               'a fit that misses the data by more than their noise (a warning)'))

@@ -21,6 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.signals.filters import noise_std
 
 #: A residual up to this multiple of the speed RMS the current's noise gives is that noise.
@@ -76,3 +77,7 @@ def input_noise_warning(parameters: dict[str, float], records: Sequence[Any],
             'beyond their standard errors.  Fit '
             'several records together, or record the current averaged over each sample period '
             '(a low-pass filter before the sampling, or sampling in step with the switching)')
+
+
+register(Check('input_noise', 'after_fit', 'fit', input_noise_warning,
+               "a speed misfit that the measured current's own noise explains"))

@@ -19,6 +19,7 @@ from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import UNITS
 from dcmotor_id.core.records import Record
@@ -163,3 +164,7 @@ def _degenerate_warnings(values: Mapping[str, float], stderr: Mapping[str, float
         warnings.append(f'the standard error of {", ".join(zero)} is exactly 0: not a '
                         'precision but a degenerate fit; do not trust those values')
     return warnings
+
+
+register(Check('plausibility', 'after_fit', 'fit', check_plausibility,
+               'the answer against the scales the data imply (refused, or warnings)'))

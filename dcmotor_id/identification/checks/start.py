@@ -33,10 +33,11 @@ from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.model import make_admissible
 from dcmotor_id.identification.checks.identifiability import (initial_state_warnings,
                                                               MISFIT_FACTOR, noise_level)
-from dcmotor_id.identification.residuals import output_channels, simulate_records
+from dcmotor_id.identification.error_model.residuals import output_channels, simulate_records
 from dcmotor_id.signals.filters import low_pass
 
 if TYPE_CHECKING:
@@ -352,3 +353,7 @@ def effective_samples(estimate: Estimate, records: Sequence[Record], model: Any)
             residual = out[channel] - getattr(rec, channel)
             total += residual.shape[0] / correlation_time(residual)
     return total
+
+
+register(Check('start', 'after_fit', 'fit', start_doubts,
+               'a base fit far from the model-free evidence or misfitting: a second start'))

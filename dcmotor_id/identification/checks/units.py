@@ -18,6 +18,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from dcmotor_id.core.checks import Check, register
 from dcmotor_id.identification.checks.start import regression_evidence
 
 #: Longest electrical time constant La/Ra of a DC motor armature [s] (large motors: 0.1 s).
@@ -119,3 +120,7 @@ def _consistent_when_negated(records: Sequence[Any], torque_constant: float | No
         return False
     names = ('J',) if torque_constant is not None else ('Ra', 'CPhi', 'J')
     return all(evidence[name] > 0 for name in names)
+
+
+register(Check('units', 'after_fit', 'fit', unit_warnings,
+               "a channel off by 1000, named by the answer's physics"))

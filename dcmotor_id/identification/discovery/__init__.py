@@ -4,7 +4,8 @@ The effect discovery loop: trace the residual to an effect the model lacks, add 
 1. Split every record in time: the first part (70 % by default) trains, the rest is held out.
 2. Fit the base model on the training part; simulate the whole record (the held-out part continues
    the simulation from the training part) and analyse the held-out residual
-   (:mod:`dcmotor_id.identification.residuals`): Ljung-Box whiteness, predictable share,
+   (:mod:`dcmotor_id.identification.error_model.residuals`): Ljung-Box whiteness, predictable
+   share,
    correlation with the inputs and with every candidate's regressor.
 3. If the residual is not white, try every effect of the vocabulary
    (:mod:`dcmotor_id.identification.effects`) not yet in the model.  A cheap linearised screen (the
@@ -23,7 +24,8 @@ The effect discovery loop: trace the residual to an effect the model lacks, add 
 autoregressive predictor explains at least 5 % of it from its own past (structure of a size
 that matters) while no candidate helps: the evidence says how much and where.
 
-:class:`DiscoveryLoop` does all the fitting; what it found is plain data
+:class:`DiscoveryLoop` (:func:`~dcmotor_id.identification.discovery.loop.run_loop`) does all
+the fitting; what it found is plain data
 (:class:`DiscoveryResult`, its search rounds :class:`Round` of screened and refitted
 :class:`Candidate` effects).
 
@@ -32,9 +34,10 @@ One module per seam of the loop; each imports only the modules before it in this
 - :mod:`~dcmotor_id.identification.discovery.parts`: where a record's held-out part starts;
 - :mod:`~dcmotor_id.identification.discovery.structure`: :class:`Structure`, :class:`Fit`,
   :class:`Candidate`, :class:`Round` and the helpers on effect terms and record parts;
-- :mod:`~dcmotor_id.identification.discovery.state`: :class:`LoopState`, the loop's settings
-  and what it learns on the way (error weights, the speed-criterion anchor), which the
-  functions of the modules below take as their first argument;
+- :mod:`~dcmotor_id.identification.discovery.state`: :class:`LoopState`, the loop's frozen
+  settings and what its base fit taught it (error weights, the position error's AR(1)
+  coefficients, the speed-criterion anchor), which the functions of the modules below take
+  as their first argument and never change (a step returns what it found);
 - :mod:`~dcmotor_id.identification.discovery.analysis`: the residual analysis of a fit (step 2);
 - :mod:`~dcmotor_id.identification.discovery.screening`: the linearised screen (step 3);
 - :mod:`~dcmotor_id.identification.discovery.probe`: a costly candidate refit on many

@@ -6,11 +6,11 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from dcmotor_id.identification.criterion import noise_level
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Fit, join_part
-from dcmotor_id.identification.residuals import (analyse_channel, correlation_summary,
-                                                 one_step_error, residual_nrmse_pct)
+from dcmotor_id.identification.error_model.criterion import noise_level
+from dcmotor_id.identification.error_model.residuals import (analyse_channel, correlation_summary,
+                                                             one_step_error, residual_nrmse_pct)
 
 
 #: Share of the residual an AR predictor must explain for structure to count as material.
@@ -56,7 +56,8 @@ def analyse(loop: LoopState, fitted: Fit, part: str = 'heldout') -> dict[str, di
     """
     Residual analysis of a fit on a part: per output channel (JSON-ready).
 
-    Each channel's :func:`~dcmotor_id.identification.residuals.analyse_channel` of the output
+    Each channel's :func:`~dcmotor_id.identification.error_model.residuals.analyse_channel` of the
+    output
     error, plus
     ``one_step_nrmse_pct``, the one-step prediction error on the same part (None when the
     structure has an effect the one-step model does not represent).  The loop decides on
@@ -87,7 +88,8 @@ def one_step_errors(loop: LoopState, fitted: Fit,
     """
     One-step prediction error of a fit on a part, percent of the signal spread, by channel.
 
-    :func:`~dcmotor_id.identification.residuals.one_step_error` on every record with the fit's
+    :func:`~dcmotor_id.identification.error_model.residuals.one_step_error` on every record with
+    the fit's
     linear
     effect terms; a prediction belongs to the part of the sample it predicts.  Empty when
     the structure has a term the one-step model does not represent.

@@ -23,8 +23,8 @@ import numpy as np
 
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit
+from dcmotor_id.identification.error_model.residuals import simulate_records
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
-from dcmotor_id.identification.residuals import simulate_records
 
 
 #: Contiguous blocks of the held-out part whose error drops give the noise of the gain.
@@ -101,7 +101,7 @@ def score(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
                    bic_delta=bic(loop, candidate.fit) - bic(loop, current),
                    insample_gain=1.0 - candidate.fit.train_cost / current.train_cost,
                    gain_noise=heldout_gain_noise(current, candidate.fit, loop.outputs,
-                                                 loop.weights or {}))
+                                                 dict(loop.weights or {})))
 
 
 def choose(loop: LoopState, current: Fit, admissible: list[Candidate],

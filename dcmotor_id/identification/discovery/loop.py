@@ -1,8 +1,16 @@
-"""The discovery loop (:class:`DiscoveryLoop`): fit, analyse, screen, refit, judge, repeat."""
+"""
+The discovery loop (:class:`DiscoveryLoop`): fit, analyse, screen, refit, judge, repeat.
+
+Each step is a function of the frozen
+:class:`~dcmotor_id.identification.discovery.state.LoopState` that returns what it found:
+:func:`base_fit` the loop it taught and the base, :func:`one_round` a
+:class:`~dcmotor_id.identification.discovery.structure.Round`, :func:`search_rounds` the
+:class:`Search`, :func:`refit_all_data` the all-data fits.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.errors import DcMotorIdError
@@ -13,7 +21,7 @@ from dcmotor_id.identification.discovery.analysis import (analyse, explained, ma
 from dcmotor_id.identification.discovery.judging import decide, never_worse, round_report, score
 from dcmotor_id.identification.discovery.refitting import (anchor_fit, base_unsound, fit_structure,
                                                            refit_all, refit_candidate,
-                                                           speed_base_on_the_position)
+                                                           speed_base_on_the_position, taught)
 from dcmotor_id.identification.discovery.result import DiscoveryResult
 from dcmotor_id.identification.discovery.screening import (screen_absent, SCREEN_SHARE, SCREEN_TOP,
                                                            SCREEN_TOP_MISFIT)
@@ -41,7 +49,7 @@ class DiscoveryLoop(LoopState):
     Residual analysis and effect discovery on a set of prepared records.
 
     The parameters are those of :class:`~dcmotor_id.identification.discovery.state.LoopState`
-    (records, torque constant, vocabulary, hold-out share, least gain, ...).  A round
+    (records, torque constant, vocabulary, hold-out share, least gain, ...), frozen.  A round
     screens every absent effect (:mod:`~dcmotor_id.identification.discovery.screening`),
     refits the promising ones (:mod:`~dcmotor_id.identification.discovery.refitting`) and
     judges them on the held-out parts (:mod:`~dcmotor_id.identification.discovery.judging`).
@@ -58,151 +66,168 @@ class DiscoveryLoop(LoopState):
         model-free evidence's, :mod:`~dcmotor_id.identification.pipeline.second_start`), their
         coefficients started from ``estimate``'s values.
         """
-        base = self._base_fit(estimate, structure or Structure())
-        analysis_before = analyse(self, base)
-        search = self._search(base, analysis_before)
-        current, reason = never_worse(base, search.current, search.reason)
-        records, terms, estimate, base_estimate, out_of_time = self._refit_all_data(
-            base, current, estimate, search.out_of_time)
-        analysis = search.analysis
-        return DiscoveryResult(
-            holdout_fraction=self.holdout_fraction, min_gain=self.min_gain,
-            outputs=self.outputs, torque_constant=self.torque_constant,
-            source_records=list(self.records), base=base, final=current, steps=search.steps,
-            analysis_before=analysis_before, analysis_after=analysis, reason=reason,
-            unexplained=material(self, analysis), records=records, terms=terms,
-            estimate=estimate, effects=current.structure.effects(estimate.parameters),
-            base_estimate=base_estimate, error_before=base.errors(self.error_channels),
-            error_after=current.errors(self.error_channels), out_of_time=out_of_time,
-            quasi_static=self.quasi_static, criterion=self.criterion)
+        return run_loop(self, estimate, structure)
 
-    def _base_fit(self, estimate: Estimate | None, structure: Structure) -> Fit:
-        """
-        Fit the base structure on the training parts (from ``estimate`` if given); the anchor.
 
-        On the position, a base model fit that fails or lands far from the model-free evidence
-        (:func:`~dcmotor_id.identification.discovery.refitting.base_unsound`) gives way to the
-        base fitted on the speed (:func:`speed_base_on_the_position`).
-        """
-        if self.progress is not None:
-            self.progress.set_stage('discovery: base model on the training parts')
-        on_the_position = self.criterion != 'speed' and not len(structure)
-        try:
-            base = self._fit_base(estimate, structure)
-        except DcMotorIdError:
-            fallback = speed_base_on_the_position(self) if on_the_position else None
-            if fallback is None:
-                raise
+def run_loop(settings: LoopState, estimate: Estimate | None = None,
+             structure: Structure | None = None) -> DiscoveryResult:
+    """Run the loop from these settings (:meth:`DiscoveryLoop.run`); return what it found."""
+    loop, base = base_fit(settings, estimate, structure or Structure())
+    analysis_before = analyse(loop, base)
+    search = search_rounds(loop, base, analysis_before)
+    current, reason = never_worse(base, search.current, search.reason)
+    records, terms, estimate, base_estimate, out_of_time = refit_all_data(
+        loop, base, current, estimate, search.out_of_time)
+    analysis = search.analysis
+    return DiscoveryResult(
+        holdout_fraction=loop.holdout_fraction, min_gain=loop.min_gain,
+        outputs=loop.outputs, torque_constant=loop.torque_constant,
+        source_records=list(loop.records), base=base, final=current, steps=search.steps,
+        analysis_before=analysis_before, analysis_after=analysis, reason=reason,
+        unexplained=material(loop, analysis), records=records, terms=terms,
+        estimate=estimate, effects=current.structure.effects(estimate.parameters),
+        base_estimate=base_estimate, error_before=base.errors(loop.error_channels),
+        error_after=current.errors(loop.error_channels), out_of_time=out_of_time,
+        quasi_static=loop.quasi_static, criterion=loop.criterion)
+
+
+def base_fit(loop: LoopState, estimate: Estimate | None,
+             structure: Structure) -> tuple[LoopState, Fit]:
+    """
+    Fit the base structure on the training parts (from ``estimate`` if given); the anchor.
+
+    Returns the loop with what the base taught it
+    (:func:`~dcmotor_id.identification.discovery.refitting.taught`, the pinned initial states,
+    the anchor) and the base.  On the position, a base model fit that fails or lands far from
+    the model-free evidence (:func:`~dcmotor_id.identification.discovery.refitting.base_unsound`)
+    gives way to the base fitted on the speed (:func:`speed_base_on_the_position`).
+    """
+    if loop.progress is not None:
+        loop.progress.set_stage('discovery: base model on the training parts')
+    on_the_position = loop.criterion != 'speed' and not len(structure)
+    try:
+        base = _fit_base(loop, estimate, structure)
+    except DcMotorIdError:
+        fallback = speed_base_on_the_position(loop) if on_the_position else None
+        if fallback is None:
+            raise
+        return fallback
+    loop = taught(loop, base)
+    if on_the_position and base_unsound(loop, base):
+        fallback = speed_base_on_the_position(loop)
+        if fallback is not None:
             return fallback
-        if on_the_position and base_unsound(self, base):
-            fallback = speed_base_on_the_position(self)
-            if fallback is not None:
-                return fallback
-        if base.estimate.info.get('initial_state') == 'measured':
-            # The position criterion pinned the base's initial states (its fitted start moved
-            # to absorb a misfit): the candidates start pinned too, without a second fit.
-            self.initial_state = 'measured'
-        self.anchor = anchor_fit(self)
-        return base
+    if base.estimate.info.get('initial_state') == 'measured':
+        # The position criterion pinned the base's initial states (its fitted start moved
+        # to absorb a misfit): the candidates start pinned too, without a second fit.
+        loop = replace(loop, initial_state='measured')
+    return replace(loop, anchor=anchor_fit(loop)), base
 
-    def _fit_base(self, estimate: Estimate | None, structure: Structure) -> Fit:
-        """Fit the base structure on the training parts, from ``estimate`` if given."""
-        if estimate is None:
-            return fit_structure(self, structure)
-        start = {name: float(estimate.parameters[name])
-                 for name in parameter_names(self.mechanical_only)
-                 if name in estimate.parameters}
-        return fit_structure(self, structure, start=start, initial=dict(estimate.parameters),
-                             initial_states=estimate.initial_states)
 
-    def _search(self, base: Fit, analysis: dict) -> Search:
-        """Add effects round by round until the residual is white or nothing helps."""
-        search = Search(base, analysis)
-        try:
-            while True:
-                if explained(self, search.analysis):
-                    search.reason = 'the residual is white' if not negligible(
-                        search.analysis) else 'the model reproduces the data exactly'
-                    break
-                if len(search.current.structure) >= self.max_effects:
-                    search.reason = f'stopped at {self.max_effects} effects'
-                    break
-                step = self._round(search.current, search.analysis)
-                search.steps.append(step.report)
-                if step.chosen is None:
-                    search.reason = 'no candidate lowers the held-out error enough'
-                    break
-                search.current = step.chosen.fitted
-                search.analysis = analyse(self, search.current)
-        except TimeBudgetExceeded:
-            search.out_of_time = True
-            search.reason = 'the time budget ran out: the best structure so far is kept'
-        return search
+def _fit_base(loop: LoopState, estimate: Estimate | None, structure: Structure) -> Fit:
+    """Fit the base structure on the training parts, from ``estimate`` if given."""
+    if estimate is None:
+        return fit_structure(loop, structure)
+    start = {name: float(estimate.parameters[name])
+             for name in parameter_names(loop.mechanical_only)
+             if name in estimate.parameters}
+    return fit_structure(loop, structure, start=start, initial=dict(estimate.parameters),
+                         initial_states=estimate.initial_states)
 
-    def _refit_all_data(self, base: Fit, current: Fit, estimate: Estimate | None,
-                        out_of_time: bool) -> tuple[list, tuple, Estimate, Estimate, bool]:
-        """
-        Refit the final and the base structure on all the data.
 
-        Returns the final structure's records, terms and estimate, the base estimate and
-        whether the time budget ran out (then the training-part fits are what there is).
-        """
-        try:
-            if out_of_time:
-                raise TimeBudgetExceeded('no time left for the all-data refit')
-            if self.progress is not None:
-                self.progress.set_stage('discovery: final refit on all the data')
-            if len(current.structure) == 0 and estimate is not None:
-                # The base model on all of the data is the one given: no refit.
-                return list(self.records), (), estimate, estimate, out_of_time
-            records, terms, estimate = refit_all(self, current)
-            base_estimate = self._base_on_all_data(base) if current is not base else estimate
-            return records, terms, estimate, base_estimate, out_of_time
-        except TimeBudgetExceeded:
-            # The training-part fits are what there is: report them, said so in the result.
-            return (current.records, current.terms, current.estimate, base.estimate, True)
+def search_rounds(loop: LoopState, base: Fit, analysis: dict) -> Search:
+    """Add effects round by round until the residual is white or nothing helps."""
+    search = Search(base, analysis)
+    try:
+        while True:
+            if explained(loop, search.analysis):
+                search.reason = 'the residual is white' if not negligible(
+                    search.analysis) else 'the model reproduces the data exactly'
+                break
+            if len(search.current.structure) >= loop.max_effects:
+                search.reason = f'stopped at {loop.max_effects} effects'
+                break
+            step = one_round(loop, search.current, search.analysis)
+            search.steps.append(step.report)
+            if step.chosen is None:
+                search.reason = 'no candidate lowers the held-out error enough'
+                break
+            search.current = step.chosen.fitted
+            search.analysis = analyse(loop, search.current)
+    except TimeBudgetExceeded:
+        search.out_of_time = True
+        search.reason = 'the time budget ran out: the best structure so far is kept'
+    return search
 
-    def _base_on_all_data(self, base: Fit) -> Estimate:
-        """Refit the base structure on all the data; its training fit when it has none."""
-        if 'base_from' in base.estimate.info:
-            return base.estimate  # the speed fit: the base has no fit on the position
-        try:
-            return refit_all(self, base)[2]
-        except DcMotorIdError:
-            # A base that lacks the effect found may have no fit on the whole position
-            # (:func:`speed_base_on_the_position`): the comparison uses its training fit.
-            return base.estimate
 
-    def _round(self, current: Fit, analysis: dict) -> Round:
-        """One search round: screen every absent effect, refit the promising, choose."""
-        scored = self._refit_promising(current, screen_absent(self, current))
-        order = {cls.name: position for position, cls in enumerate(self.candidates)}
-        refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
-                          key=lambda candidate: candidate.fitted.heldout_cost)
-        screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
-                              key=lambda candidate: -candidate.screen_explained)
-        chosen, equivalent, refitted = decide(self, current, refitted, order)
-        results = refitted + screened_out
-        return Round(results, chosen,
-                     round_report(self, current, analysis, results, chosen, equivalent))
+def refit_all_data(loop: LoopState, base: Fit, current: Fit, estimate: Estimate | None,
+                   out_of_time: bool) -> tuple[list, tuple, Estimate, Estimate, bool]:
+    """
+    Refit the final and the base structure on all the data.
 
-    def _refit_promising(self, current: Fit, screened: list[Candidate]) -> list[Candidate]:
-        """
-        Refit and score the candidates the screen supports, and the best few anyway.
+    Returns the final structure's records, terms and estimate, the base estimate and
+    whether the time budget ran out (then the training-part fits are what there is).
+    """
+    try:
+        if out_of_time:
+            raise TimeBudgetExceeded('no time left for the all-data refit')
+        if loop.progress is not None:
+            loop.progress.set_stage('discovery: final refit on all the data')
+        if len(current.structure) == 0 and estimate is not None:
+            # The base model on all of the data is the one given: no refit.
+            return list(loop.records), (), estimate, estimate, out_of_time
+        records, terms, estimate = refit_all(loop, current)
+        base_estimate = _base_on_all_data(loop, base) if current is not base else estimate
+        return records, terms, estimate, base_estimate, out_of_time
+    except TimeBudgetExceeded:
+        # The training-part fits are what there is: report them, said so in the result.
+        return (current.records, current.terms, current.estimate, base.estimate, True)
 
-        The screen is a linearisation: a strongly nonlinear effect may look smaller than it
-        is.  ``screened`` is in the order of the screen, best first; so is the list returned.
-        """
-        threshold = SCREEN_SHARE * self.min_gain
-        top = SCREEN_TOP_MISFIT if misfit(self, current) else SCREEN_TOP
-        scored = []
-        for rank, candidate in enumerate(screened):
-            if rank < top or candidate.screen_explained >= threshold:
-                if self.progress is not None:
-                    self.progress.set_stage(f'discovery: candidate {candidate.name}')
-                candidate = score(self, current, refit_candidate(self, current, candidate))
-            scored.append(candidate)
-        return scored
+
+def _base_on_all_data(loop: LoopState, base: Fit) -> Estimate:
+    """Refit the base structure on all the data; its training fit when it has none."""
+    if 'base_from' in base.estimate.info:
+        return base.estimate  # the speed fit: the base has no fit on the position
+    try:
+        return refit_all(loop, base)[2]
+    except DcMotorIdError:
+        # A base that lacks the effect found may have no fit on the whole position
+        # (:func:`speed_base_on_the_position`): the comparison uses its training fit.
+        return base.estimate
+
+
+def one_round(loop: LoopState, current: Fit, analysis: dict) -> Round:
+    """One search round: screen every absent effect, refit the promising, choose."""
+    scored = refit_promising(loop, current, screen_absent(loop, current))
+    order = {cls.name: position for position, cls in enumerate(loop.candidates)}
+    refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
+                      key=lambda candidate: candidate.fitted.heldout_cost)
+    screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
+                          key=lambda candidate: -candidate.screen_explained)
+    chosen, equivalent, refitted = decide(loop, current, refitted, order)
+    results = refitted + screened_out
+    return Round(results, chosen,
+                 round_report(loop, current, analysis, results, chosen, equivalent))
+
+
+def refit_promising(loop: LoopState, current: Fit,
+                    screened: list[Candidate]) -> list[Candidate]:
+    """
+    Refit and score the candidates the screen supports, and the best few anyway.
+
+    The screen is a linearisation: a strongly nonlinear effect may look smaller than it
+    is.  ``screened`` is in the order of the screen, best first; so is the list returned.
+    """
+    threshold = SCREEN_SHARE * loop.min_gain
+    top = SCREEN_TOP_MISFIT if misfit(loop, current) else SCREEN_TOP
+    scored = []
+    for rank, candidate in enumerate(screened):
+        if rank < top or candidate.screen_explained >= threshold:
+            if loop.progress is not None:
+                loop.progress.set_stage(f'discovery: candidate {candidate.name}')
+            candidate = score(loop, current, refit_candidate(loop, current, candidate))
+        scored.append(candidate)
+    return scored
 
 
 def discover(records: Sequence[Record], torque_constant: float | None = None,

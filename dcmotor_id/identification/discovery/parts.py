@@ -6,7 +6,7 @@ from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from dcmotor_id.identification.criterion import noise_level
+from dcmotor_id.identification.error_model.criterion import noise_level
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record

@@ -15,7 +15,7 @@ affected; records within the budget are never cut.
 
 from __future__ import annotations
 
-import copy
+from dataclasses import replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -78,10 +78,9 @@ def fails_on_an_excerpt(loop: LoopState, current: Fit, structure: Structure, sta
     chosen = excerpt(current.stops)
     if chosen is None or not needs_differences(loop, structure, dict(current.values)):
         return False
-    probe = copy.copy(loop)
-    probe.records = [loop.records[index] for index in chosen]
-    if loop.position_ar is not None:
-        probe.position_ar = [loop.position_ar[index] for index in chosen]
+    probe = replace(loop, records=[loop.records[index] for index in chosen],
+                    position_ar=None if loop.position_ar is None else
+                    [loop.position_ar[index] for index in chosen])
     states = [current.estimate.initial_states[index] for index in chosen]
     if loop.progress is not None:
         loop.progress.set_stage(f'discovery: {structure.names()[-1]} on '

@@ -17,7 +17,6 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.identification.checks.start import far_from_evidence, regression_evidence
-from dcmotor_id.identification.criterion import with_position_states
 from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.discovery.probe import fails_on_an_excerpt
 from dcmotor_id.identification.discovery.screening import (base_sensitivities, delay_estimate,
@@ -26,8 +25,9 @@ from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import (Candidate, Fit, slice_terms, Structure,
                                                            with_initial)
 from dcmotor_id.identification.effects import SensorDelay, torque_spread
+from dcmotor_id.identification.error_model.criterion import with_position_states
+from dcmotor_id.identification.error_model.residuals import simulate_records
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.identification.residuals import simulate_records
 from dcmotor_id.identification.validate import Model, simulate
 
 if TYPE_CHECKING:
@@ -84,9 +84,28 @@ def fit_structure(loop: LoopState, structure: Structure, start: dict | None = No
         raise ValueError('a structure with effects needs a start point')
     estimate = estimator.fit(train, torque_constant=loop.torque_constant,
                              terms=slice_terms(terms, stops))
-    if loop.position_ar is None:  # the base's error model warm-starts the candidates'
-        loop.position_ar = estimate.info.get('position_ar')
     return judged_fit(loop, structure, estimate, records, stops, terms)
+
+
+def noise_weights(loop: LoopState, estimate: Estimate) -> dict[str, float]:
+    """Return the loop's error weights; a fit's noise levels when the loop has none yet."""
+    if loop.weights is not None:
+        return dict(loop.weights)
+    return {channel: max(estimate.info['noise_std'][channel], 1e-300)
+            for channel in loop.outputs}
+
+
+def taught(loop: LoopState, base: Fit) -> LoopState:
+    """
+    Return the loop with what its base fit taught it: the error weights, the position AR.
+
+    Both are kept when the loop has them already: the base's error model warm-starts the
+    candidates' fits, its noise levels weigh every fit's errors.
+    """
+    position_ar = loop.position_ar
+    if position_ar is None:
+        position_ar = base.estimate.info.get('position_ar')
+    return replace(loop, weights=noise_weights(loop, base.estimate), position_ar=position_ar)
 
 
 def judged_fit(loop: LoopState, structure: Structure, estimate: Estimate,
@@ -98,9 +117,8 @@ def judged_fit(loop: LoopState, structure: Structure, estimate: Estimate,
     if loop.criterion != 'speed' and len(structure) and not loop.quasi_static:
         simulated = open_loop_outputs(structure, estimate, records, loop.torque_constant)
     fitted = Fit(structure, estimate, records, stops, simulated, terms)
-    if loop.weights is None:
-        loop.weights = {channel: max(estimate.info['noise_std'][channel], 1e-300)
-                        for channel in loop.outputs}
+    if loop.weights is None:  # the loop's first fit: weighed by its own noise levels
+        loop = replace(loop, weights=noise_weights(loop, estimate))
     fitted.train_cost = cost(loop, fitted, 'train')
     fitted.heldout_cost = cost(loop, fitted, 'heldout')
     fitted.n_train = int(sum(stops)) * len(loop.outputs)
@@ -198,22 +216,23 @@ def base_unsound(loop: LoopState, base: Fit) -> bool:
     return bool(far_from_evidence(base.values, evidence))
 
 
-def speed_base_on_the_position(loop: LoopState) -> Fit | None:
+def speed_base_on_the_position(loop: LoopState) -> tuple[LoopState, Fit] | None:
     """
     Fit the base model on the speed, judged on the position; None when that fails too.
 
     A base model that lacks the very effect the loop is there to find (a force offset on an
     axis driven both ways) may have no fit on the position at all: its integral drifts, and
     the fit runs to an infinite inertia.  The speed fit of the same model is sound; the loop
-    starts from it, and its candidates are fitted on the position.
+    starts from it, and its candidates are fitted on the position.  Returns the loop with
+    the speed fit as its anchor and its weights, and the base.
     """
     anchor = anchor_fit(loop)
     if anchor is None:
         return None
     records = list(loop.records)
     estimate = with_position_states(anchor.estimate, records)
-    loop.anchor = anchor
-    return judged_fit(loop, Structure(), estimate, records, training_stops(loop, records), ())
+    base = judged_fit(loop, Structure(), estimate, records, training_stops(loop, records), ())
+    return replace(loop, anchor=anchor, weights=noise_weights(loop, estimate)), base
 
 
 def refit_candidate(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:

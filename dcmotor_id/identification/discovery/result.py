@@ -7,8 +7,8 @@ from typing import Any, Sequence, TYPE_CHECKING
 
 from dcmotor_id.identification.discovery.refitting import refit_all_data, refit_start
 from dcmotor_id.identification.discovery.structure import Fit, Structure
+from dcmotor_id.identification.error_model.residuals import ChannelErrors, model_errors
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
-from dcmotor_id.identification.residuals import ChannelErrors, model_errors
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record

@@ -15,9 +15,9 @@ import numpy as np
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit, slice_terms
 from dcmotor_id.identification.effects import SensorDelay
+from dcmotor_id.identification.error_model.residuals import simulate_records
 from dcmotor_id.identification.estimators.jacobian import jacobian
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
-from dcmotor_id.identification.residuals import simulate_records
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record

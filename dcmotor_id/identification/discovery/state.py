@@ -1,15 +1,23 @@
-"""The loop's settings and working state, which the screening, refitting and judging read."""
+"""
+The loop's frozen settings and what its base fit taught it, which every step of the loop reads.
+
+:class:`LoopState` is a frozen dataclass: no step of the loop changes it.  What the base fit
+teaches the loop (the channels' error weights, the position error's AR(1) coefficients, the
+pinned initial states, the speed-criterion anchor) is a new state
+(:func:`~dcmotor_id.identification.discovery.refitting.taught`, ``dataclasses.replace``).
+"""
 
 from __future__ import annotations
 
-from typing import Sequence, TYPE_CHECKING
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.progress import Progress
-from dcmotor_id.identification.criterion import fitted_outputs
 from dcmotor_id.identification.discovery.parts import HOLDOUT_FRACTION
 from dcmotor_id.identification.discovery.structure import Fit
 from dcmotor_id.identification.effects import VOCABULARY
-from dcmotor_id.identification.residuals import ALPHA, DEFAULT_LAGS, output_channels
+from dcmotor_id.identification.error_model.criterion import fitted_outputs
+from dcmotor_id.identification.error_model.residuals import ALPHA, DEFAULT_LAGS, output_channels
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -31,9 +39,10 @@ ACCEPTANCE_RULES = ('heldout-t', 'noise-level')
 DEFAULT_ACCEPTANCE = 'heldout-t'
 
 
+@dataclass(frozen=True, eq=False)
 class LoopState:
     """
-    The discovery loop's settings, and what it learns on the way (weights, anchor fit).
+    The discovery loop's settings, and what its base fit taught it (weights, anchor fit).
 
     Parameters
     ----------
@@ -64,52 +73,70 @@ class LoopState:
         period) throughout.
     criterion : str
         ``speed`` (default), ``position`` or ``both``: the channels fitted and judged
-        (:mod:`dcmotor_id.identification.criterion`); the held-out errors also report the
+        (:mod:`dcmotor_id.identification.error_model.criterion`); the held-out errors also report
+        the
         speed (and the current) when they are not compared.
     position_error : str
         The position error's model of every fit of the loop, ``adaptive`` (default) or
-        ``white`` (:func:`~dcmotor_id.identification.criterion.check_position_error_model`).
+        ``white``
+        (:func:`~dcmotor_id.identification.error_model.criterion.check_position_error_model`).
     acceptance : str
         The rule a winning candidate must pass, one of :data:`ACCEPTANCE_RULES` (default
         :data:`DEFAULT_ACCEPTANCE`).
+    weights : dict, optional
+        The channels' error weights (their noise levels); set from the base fit.
+    position_ar : list of float, optional
+        The position error's AR(1) coefficient per record, from the base fit: it warm-starts
+        the candidates' fits.
+    anchor : Fit, optional
+        The base fitted on the speed when the criterion is not the speed.
 
     """
 
-    def __init__(self, records: Sequence[Record], torque_constant: float | None = None,
-                 vocabulary: Sequence[type[Effect]] = VOCABULARY,
-                 holdout_fraction: float = HOLDOUT_FRACTION, min_gain: float = MIN_GAIN,
-                 max_effects: int = MAX_EFFECTS, max_lag: int = DEFAULT_LAGS,
-                 alpha: float = ALPHA, progress: Progress | None = None,
-                 initial_state: str = 'estimate', quasi_static: bool = False,
-                 criterion: str = 'speed', position_error: str = 'adaptive',
-                 acceptance: str = DEFAULT_ACCEPTANCE) -> None:
-        if acceptance not in ACCEPTANCE_RULES:
-            raise ValueError(f'unknown acceptance rule {acceptance!r}; one of '
+    records: Sequence[Record]
+    torque_constant: float | None = None
+    vocabulary: Sequence[type[Effect]] = VOCABULARY
+    holdout_fraction: float = HOLDOUT_FRACTION
+    min_gain: float = MIN_GAIN
+    max_effects: int = MAX_EFFECTS
+    max_lag: int = DEFAULT_LAGS
+    alpha: float = ALPHA
+    progress: Progress | None = None
+    initial_state: str = 'estimate'
+    quasi_static: bool = False
+    criterion: str = 'speed'
+    position_error: str = 'adaptive'
+    acceptance: str = DEFAULT_ACCEPTANCE
+    weights: Mapping[str, float] | None = None
+    position_ar: Sequence[float] | None = None
+    anchor: Fit | None = None
+    mechanical_only: bool = field(init=False)
+    outputs: tuple[str, ...] = field(init=False)
+    error_channels: tuple[str, ...] = field(init=False)
+    candidates: list[type[Effect]] = field(init=False)
+
+    def __post_init__(self) -> None:
+        """Check the acceptance rule; derive the mode, the channels and the candidates."""
+        if self.acceptance not in ACCEPTANCE_RULES:
+            raise ValueError(f'unknown acceptance rule {self.acceptance!r}; one of '
                              f'{", ".join(ACCEPTANCE_RULES)}')
-        self.acceptance = acceptance
-        self.records = list(records)
-        self.torque_constant = torque_constant
-        self.mechanical_only = torque_constant is not None
-        self.criterion = criterion
-        self.position_error = position_error
-        self.outputs = fitted_outputs(self.mechanical_only, criterion)
-        self.error_channels = output_channels(self.mechanical_only) + tuple(
-            channel for channel in self.outputs if channel == 'position')
-        self.candidates = [cls for cls in vocabulary if cls.applies(self.mechanical_only)]
-        self.holdout_fraction = float(holdout_fraction)
-        self.min_gain = float(min_gain)
-        self.max_effects = int(max_effects)
-        self.max_lag = int(max_lag)
-        self.alpha = float(alpha)
-        self.weights: dict[str, float] | None = None
-        self.progress = progress
-        self.initial_state = initial_state
-        self.quasi_static = bool(quasi_static) and not self.mechanical_only
-        self.anchor: Fit | None = None
-        self.position_ar: list[float] | None = None
+        mechanical_only = self.torque_constant is not None
+        outputs = fitted_outputs(mechanical_only, self.criterion)
+        derived: dict[str, Any] = {
+            'records': list(self.records), 'mechanical_only': mechanical_only,
+            'outputs': outputs,
+            'error_channels': output_channels(mechanical_only) + tuple(
+                channel for channel in outputs if channel == 'position'),
+            'candidates': [cls for cls in self.vocabulary if cls.applies(mechanical_only)],
+            'holdout_fraction': float(self.holdout_fraction),
+            'min_gain': float(self.min_gain), 'max_effects': int(self.max_effects),
+            'max_lag': int(self.max_lag), 'alpha': float(self.alpha),
+            'quasi_static': bool(self.quasi_static) and not mechanical_only}
+        for name, value in derived.items():
+            object.__setattr__(self, name, value)
 
     @property
-    def fitted_weights(self) -> dict[str, float]:
+    def fitted_weights(self) -> Mapping[str, float]:
         """Weights of the channels' errors (their noise levels), set by the loop's first fit."""
         if self.weights is None:
             raise ValueError('the error weights are set by the first fit of the loop')

@@ -14,7 +14,7 @@ from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from dcmotor_id.identification.residuals import channel_errors, ChannelErrors
+from dcmotor_id.identification.error_model.residuals import channel_errors, ChannelErrors
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record

@@ -248,7 +248,8 @@ def cramer_rao_bound(records: Sequence[Any], truth: MotorParameters | Mapping[st
     include_initial_states : bool
         Treat the initial states as unknown, as the refined estimator does.
     criterion : str
-        The channels observed (:mod:`dcmotor_id.identification.criterion`): with ``position``
+        The channels observed (:mod:`dcmotor_id.identification.error_model.criterion`): with
+        ``position``
         the noise of ``position`` [rad] is needed, and the initial position is a nuisance
         parameter.
 

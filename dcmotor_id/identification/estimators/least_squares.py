@@ -17,7 +17,7 @@ import numpy as np
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import derived_stderr, derived_values
-from dcmotor_id.identification.criterion import whiten
+from dcmotor_id.identification.error_model.criterion import whiten
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.estimators.jacobian import record_sparse_jacobian
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations

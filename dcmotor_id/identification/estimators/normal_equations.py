@@ -153,7 +153,7 @@ class NormalEquations:
         Accumulate the normal equations with the position: the kernel's, then the position's.
 
         The position is the trapezoidal integral of the simulated speed from the initial
-        position (:func:`dcmotor_id.identification.criterion.integrate_speed`), so its
+        position (:func:`dcmotor_id.identification.error_model.criterion.integrate_speed`), so its
         sensitivities are the
         running integral of the speed's, which the kernel stores (the trajectory), and 1 for
         the initial position; :func:`~dcmotor_id.simulation.sensitivity.position_kernel`

@@ -32,9 +32,10 @@ import numpy as np
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (make_admissible, MotorParameters, parameter_names,
                                    POSITIVE_NAMES, state_matrix)
-from dcmotor_id.identification.criterion import (AR_PASSES, ar_settled,
-                                                 check_position_error_model, fitted_outputs,
-                                                 integrate_speed, noise_level, position_ar)
+from dcmotor_id.identification.error_model.criterion import (AR_PASSES, ar_settled,
+                                                             check_position_error_model,
+                                                             fitted_outputs, integrate_speed,
+                                                             noise_level, position_ar)
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.identification.estimators.least_squares import (FitProblem,
                                                                 levenberg_marquardt, MISFIT)
@@ -77,7 +78,8 @@ class OutputErrorModel:
         ``i = (u - CPhi w) / Ra``; La is not a parameter then.
     criterion : str
         ``speed`` (default), ``position`` or ``both``: the channels compared
-        (:func:`dcmotor_id.identification.criterion.fitted_outputs`).  With the position, every
+        (:func:`dcmotor_id.identification.error_model.criterion.fitted_outputs`).  With the
+        position, every
         record's
         initial state ends with its initial position and :meth:`simulate` also returns the
         position (the integral of the simulated speed).
@@ -106,7 +108,8 @@ class OutputErrorModel:
         self.outputs = fitted_outputs(self.mechanical_only, criterion)
         self.states = self.dynamic + (('position',) if 'position' in self.outputs else ())
         # AR(1) coefficient of every record's position error (0: white, compared sample by
-        # sample; :func:`dcmotor_id.identification.criterion.position_ar`), set by the fit.
+        # sample; :func:`dcmotor_id.identification.error_model.criterion.position_ar`), set by the
+        # fit.
         self.position_ar = [0.0] * len(self.records)
         self.position_rms = [0.0] * len(self.records)
         # The period is a median over the record: computed once, not at every simulation.
@@ -338,7 +341,7 @@ class RefinedEstimator:
         from an earlier fit of the same records; :func:`_update_position_ar`); default white.
     position_error : str
         The position error's model, ``adaptive`` (default) or ``white``
-        (:func:`~dcmotor_id.identification.criterion.check_position_error_model`).
+        (:func:`~dcmotor_id.identification.error_model.criterion.check_position_error_model`).
     retry : bool
         A fit on the position that does not converge is tried once more with
         :data:`POSITION_NFEV_FACTOR` times ``max_nfev`` (default).  False: the fit keeps its
@@ -527,9 +530,10 @@ def _update_position_ar(model: OutputErrorModel, values: Mapping[str, float],
     """
     Re-estimate every record's AR(1) coefficient of the position error at ``values``.
 
-    :func:`dcmotor_id.identification.criterion.position_ar` of the residual against the
+    :func:`dcmotor_id.identification.error_model.criterion.position_ar` of the residual against the
     sensor noise (quantisation included); returns whether a coefficient moved beyond
-    :func:`~dcmotor_id.identification.criterion.ar_settled` (never without the position).
+    :func:`~dcmotor_id.identification.error_model.criterion.ar_settled` (never without the
+    position).
     """
     if 'position' not in model.outputs:
         return False

@@ -26,8 +26,8 @@ from dcmotor_id.identification.pipeline.state import Fit, Inputs
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.error_model.residuals import ChannelErrors
     from dcmotor_id.identification.estimators.base import Estimate
-    from dcmotor_id.identification.residuals import ChannelErrors
 
 
 def armature(inputs: Inputs, fit: Fit) -> Fit:
@@ -50,8 +50,8 @@ def armature(inputs: Inputs, fit: Fit) -> Fit:
     if refit is None:
         return replace(fit, not_identifiable={**fit.not_identifiable,
                                               'La': la_reason(*full_la, dt, None)})
-    return replace(fit, estimate=refit, quasi=True,
-                   errors=simulation_errors(refit, inputs.records, None, quasi_static=True))
+    estimate, errors = refit
+    return replace(fit, estimate=estimate, quasi=True, errors=errors)
 
 
 def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
@@ -62,9 +62,10 @@ def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
 def quasi_static_refit(estimate: Estimate, records: Sequence[Record], errors: ChannelErrors,
                        initial_state: str, progress: Progress,
                        criterion: str = 'speed',
-                       position_error: str = 'adaptive') -> Estimate | None:
+                       position_error: str = 'adaptive'
+                       ) -> tuple[Estimate, ChannelErrors] | None:
     """
-    Refit with the quasi-static armature (La -> 0); return the estimate or None.
+    Refit with the quasi-static armature (La -> 0); return the estimate and its errors, or None.
 
     The refit is kept when its current simulation error is at most 25 % (and 0.5 points)
     worse than the full model's: the full model's La then adds nothing the data resolve.
@@ -84,7 +85,7 @@ def quasi_static_refit(estimate: Estimate, records: Sequence[Record], errors: Ch
     quasi_current = quasi_errors.get('current_nrmse_pct')
     if quasi_current is None or quasi_current > 1.25 * full_current + 0.5:
         return None
-    return quasi
+    return quasi, quasi_errors
 
 
 def with_la_bound(quasi: Estimate, la: float, la_stderr: float, ra_full: float,

@@ -12,13 +12,13 @@ from dataclasses import replace
 
 from dcmotor_id.core.errors import FitError, NotIdentifiableError
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
+from dcmotor_id.core.records import record_names
 from dcmotor_id.identification.checks.identifiability import ONE_DIRECTION_CONFOUNDED
-from dcmotor_id.identification.criterion import with_position_states
+from dcmotor_id.identification.error_model.criterion import with_position_states
 from dcmotor_id.identification.estimators.base import Estimate, Estimator
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
-from dcmotor_id.identification.pipeline.fit_outcome import (check_physical, record_names,
-                                                            simulation_errors)
+from dcmotor_id.identification.pipeline.fit_outcome import physical_errors
 from dcmotor_id.identification.pipeline.state import Fit, Inputs
 from dcmotor_id.identification.prepare import one_level_reason, single_current_level
 
@@ -54,8 +54,7 @@ def base_fit(inputs: Inputs) -> tuple[Inputs, Fit]:
         raise FitError(f'no fit finished within the time budget '
                        f'({inputs.progress.max_time_s:g} s): give more time with --max-time, '
                        'or shorten or decimate the records') from None
-    check_physical(estimate)
-    errors = simulation_errors(estimate, inputs.records, inputs.torque_constant)
+    errors = physical_errors(estimate, inputs.records, inputs.torque_constant)
     return inputs, Fit(estimate, errors, warnings)
 
 
@@ -75,7 +74,8 @@ def _speed_base(inputs: Inputs, error: FitError) -> tuple[Estimate, str]:
     A model that lacks the very effect the loop is there to find (a force offset on an axis
     driven both ways) may have no fit on the position: its integral drifts and the fit runs
     to an infinite inertia.  Its speed fit is the base the loop starts from
-    (:func:`~dcmotor_id.identification.criterion.with_position_states`); returned with the
+    (:func:`~dcmotor_id.identification.error_model.criterion.with_position_states`); returned with
+    the
     warning that says so.
     """
     if inputs.criterion == 'speed' or not isinstance(inputs.estimator, RefinedEstimator):

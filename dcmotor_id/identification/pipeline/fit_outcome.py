@@ -3,7 +3,7 @@ What a fit gives, as every stage measures it: its simulation errors, refused whe
 
 :func:`simulation_errors` of an estimate over the records, :data:`NO_FIT_NRMSE_PCT` (the
 error beyond which a model does not fit at all), :func:`check_physical` refusing non-physical
-values, and :func:`record_names` naming the records for the progress line.
+values (:func:`physical_errors`: both at once, for a fit every stage then carries).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import inadmissible, UNITS
+from dcmotor_id.identification.error_model.residuals import ChannelErrors, model_errors
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
-from dcmotor_id.identification.residuals import ChannelErrors, model_errors
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -31,11 +31,20 @@ def simulation_errors(estimate: Estimate, records: Sequence[Record],
     Return the simulation error of an estimate over the records (from its initial states).
 
     The result is ``{current_nrmse_pct, speed_nrmse_pct}``
-    (:func:`dcmotor_id.identification.residuals.model_errors`); the current error is ``None`` in
+    (:func:`dcmotor_id.identification.error_model.residuals.model_errors`); the current error is
+    ``None`` in
     mechanical-only mode (current is the input there).
     """
     model = OutputErrorModel(records, torque_constant, terms, quasi_static)
     return model_errors(model, dict(estimate.parameters), estimate.initial_states)
+
+
+def physical_errors(estimate: Estimate, records: Sequence[Record],
+                    torque_constant: float | None = None, terms: Sequence = (),
+                    quasi_static: bool = False) -> ChannelErrors:
+    """Refuse a non-physical estimate (:func:`check_physical`); return its simulation errors."""
+    check_physical(estimate)
+    return simulation_errors(estimate, records, torque_constant, terms, quasi_static)
 
 
 def check_physical(estimate: Estimate) -> None:
@@ -49,11 +58,3 @@ def check_physical(estimate: Estimate) -> None:
             hint += ' The paper method is also not robust to sensor noise: use --method refined.'
         raise FitError(f'the {estimate.method} method gave non-physical values: {listing}.'
                        + hint)
-
-
-def record_names(records: Sequence[Record]) -> str | None:
-    """Name the records for the progress line: the one source, or how many records."""
-    names = [rec.source for rec in records if rec.source]
-    if not names:
-        return None
-    return names[0] if len(names) == 1 else f'{len(records)} records'

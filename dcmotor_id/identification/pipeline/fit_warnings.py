@@ -14,11 +14,11 @@ import numpy as np
 from dcmotor_id.identification.checks.identifiability import (correlated_pairs,
                                                               initial_state_warnings,
                                                               misfit_warning)
+from dcmotor_id.identification.error_model.residuals import output_channels, simulate_records
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.estimators.uncertainty import between_record_warnings
 from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
-from dcmotor_id.identification.residuals import output_channels, simulate_records
 
 
 def fit_warnings(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:

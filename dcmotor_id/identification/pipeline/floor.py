@@ -39,13 +39,13 @@ from dcmotor_id.core.model import (DERIVED_NAMES, derived_values, MECHANICAL_NAM
 from dcmotor_id.identification.checks.start import (both_directions, correlation_time,
                                                     regression_rows)
 from dcmotor_id.identification.discovery.parts import excited_stop
+from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.pipeline.fit_outcome import simulation_errors
 from dcmotor_id.identification.pipeline.run import identify_checked
 from dcmotor_id.identification.pipeline.segments import split_tests
 from dcmotor_id.identification.pipeline.state import Request
-from dcmotor_id.identification.residuals import output_channels
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.identification.validate import operating_range
 

@@ -39,10 +39,11 @@ import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
+from dcmotor_id.core.records import record_names
 from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, known_evidence,
                                                     regression_start, start_doubts)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
-from dcmotor_id.identification.pipeline.fit_outcome import check_physical, record_names
+from dcmotor_id.identification.pipeline.fit_outcome import check_physical
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record

@@ -15,9 +15,9 @@ from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.identification.error_model.residuals import output_channels, simulation_error_pct
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
-from dcmotor_id.identification.residuals import output_channels, simulation_error_pct
 from dcmotor_id.signals.filters import noise_std
 
 if TYPE_CHECKING:

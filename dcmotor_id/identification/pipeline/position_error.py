@@ -2,7 +2,8 @@
 The position error's model of a fit on the position, chosen against model-free evidence.
 
 A fit that compares the position weights it first as the sensor's white noise
-(:func:`~dcmotor_id.identification.criterion.position_ar` with the ``white`` model): the position
+(:func:`~dcmotor_id.identification.error_model.criterion.position_ar` with the ``white`` model):
+the position
 sample by sample, which is what an open-loop validation of the model scores.  When the model
 lacks a force (a friction that varies along a ball screw's travel), that fit can bend the
 physical parameters to cancel the position's drift: a Coulomb friction pressed to zero, an
@@ -10,7 +11,8 @@ inertia far off.  The model-free regression on the data
 (:func:`~dcmotor_id.identification.checks.start.regression_evidence`) sees that without a
 model.  When the white fit's J, b or Mc lie more than :data:`AGREEMENT_FACTOR` from it, the
 identification runs again with the ``adaptive`` error model (an AR(1) drift when the residual
-misfits, :func:`~dcmotor_id.identification.criterion.position_ar`), and the result closer to
+misfits, :func:`~dcmotor_id.identification.error_model.criterion.position_ar`), and the result
+closer to
 the evidence is kept.  JSON ``position_error`` says which and why.
 
 This module holds the decisions (functions of the runs' results); the pipeline runs the

@@ -2,7 +2,8 @@
 The pipeline's control flow: the stages in order, the criterion, the position error's model.
 
 :func:`identify_checked` runs one identification: on the resolved criterion
-(:func:`~dcmotor_id.identification.criterion.resolve_criterion`), falling back to the speed
+(:func:`~dcmotor_id.identification.error_model.criterion.resolve_criterion`), falling back to the
+speed
 when the fit on the position fails under ``--criterion auto``; a refusal names a channel that
 looks reversed.  One run (:func:`identify_with`) is :func:`begin` (stages 1-4, or the
 current-limited path) then :func:`finish` (stages 5-12), each stage a function of the frozen
@@ -22,7 +23,7 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
 from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.identification.checks.units import sign_problem
-from dcmotor_id.identification.criterion import resolve_criterion
+from dcmotor_id.identification.error_model.criterion import resolve_criterion
 from dcmotor_id.identification.pipeline.armature import armature
 from dcmotor_id.identification.pipeline.base_fit import base_fit
 from dcmotor_id.identification.pipeline.current_limited import (electrical_part,

@@ -24,13 +24,14 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
+from dcmotor_id.core.records import record_names
 from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, known_evidence,
                                                     offset_supported, regression_start,
                                                     start_doubts)
 from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.pipeline.discovery import run_discovery
-from dcmotor_id.identification.pipeline.fit_outcome import check_physical, record_names
+from dcmotor_id.identification.pipeline.fit_outcome import check_physical
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record

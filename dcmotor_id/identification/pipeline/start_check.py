@@ -30,18 +30,22 @@ def check_base_start(inputs: Inputs, fit: Fit) -> Fit:
     estimate, starts = several_starts(records, constant, fit.quasi, progress, fit.estimate,
                                       inputs.criterion, inputs.evidence, inputs.on.earlier,
                                       inputs.on.position_error)
-    errors = fit.errors
-    if starts is not None and starts['chosen'] != 'default':
-        errors = simulation_errors(estimate, records, constant, quasi_static=fit.quasi)
+    started = estimate
     found, estimate, info, check = check_start(
         records, constant, fit.quasi, inputs.discover, inputs.vocabulary, progress, estimate,
         None, None, inputs.criterion, inputs.evidence, inputs.on.position_error)
+    first = check['chosen'] == 'first start'
+    # The errors of the base the loop starts from, measured once: the second start's, or the
+    # further starts' when one of them won, or the base fit's as they were.
+    errors = fit.errors
+    if not first or (starts is not None and starts['chosen'] != 'default'):
+        errors = simulation_errors(started if first else estimate, records, constant,
+                                   quasi_static=fit.quasi)
     fit = replace(fit, estimate=estimate, starts=starts, errors=errors, found=found,
                   discovery_info=info)
-    if check['chosen'] == 'first start':
+    if first:
         return replace(fit, start_check=None if not check['doubts'] else check)
     return replace(fit, start_check=check,
-                   errors=simulation_errors(estimate, records, constant, quasi_static=fit.quasi),
                    warnings=fit.warnings + time_warnings(found, info, progress))
 
 

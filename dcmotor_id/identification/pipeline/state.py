@@ -26,8 +26,8 @@ if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import DiscoveryResult
     from dcmotor_id.identification.effects import Effect
+    from dcmotor_id.identification.error_model.residuals import ChannelErrors
     from dcmotor_id.identification.estimators.base import Estimate
-    from dcmotor_id.identification.residuals import ChannelErrors
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,8 @@ class RunOn:
     How one run fits: the criterion, the position error's model, an earlier run's starts.
 
     ``position_error``: ``adaptive`` or ``white``
-    (:func:`~dcmotor_id.identification.criterion.check_position_error_model`); ``earlier``:
+    (:func:`~dcmotor_id.identification.error_model.criterion.check_position_error_model`);
+    ``earlier``:
     the further starts' account of an earlier run of the same identification
     (:func:`~dcmotor_id.identification.pipeline.further_starts.several_starts`).
     """
