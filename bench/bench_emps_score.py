@@ -261,8 +261,9 @@ def main() -> int:
             '(auto). Baselines from the same run below.', '',
             product_table(products, score), '', 'The loop, round by round (gains of the '
             'candidates refitted; in-sample: training part, held-out: the last 30 % of the '
-            'motion, open-loop simulation; an effect is added when its held-out gain is at '
-            'least 5 %, above its noise, and lowers the BIC):', '', rounds_text(products), '',
+            'motion, open-loop simulation; an effect is added when its held-out drop is '
+            'significant by the held-out t test on the samples the residual is worth, '
+            '`discovery/judging.py`):', '', rounds_text(products), '',
             '## The study (studies/emps.py)', '',
             format_score(score), '', difference_text(score), '',
             f'The force pulses: {pulses["pulses"]} onsets of `pulses_N` (height '

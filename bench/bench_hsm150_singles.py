@@ -355,7 +355,8 @@ def summary(rows: list[dict[str, Any]], tool: list[dict[str, Any]],
                  for kind in {misfit_kind(runs[label]).split(' (')[0]
                               for runs in cli.values() if label in runs}}.items()))
             for label in ('before', 'after') if any(label in runs for runs in cli.values()))
-        + '; J and b are the same (the check changes the warning, not the fit).']
+        + '; J and b are the same (the check changes the warning and the standard errors, '
+        'not the fit).']
 
 
 def head() -> str:

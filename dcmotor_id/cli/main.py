@@ -543,7 +543,8 @@ def _add_identify_command(commands: Any) -> None:
                             'after, residual whiteness, parameters, effects) to DIR')
     ident.add_argument('--extended-vocabulary', action='store_true',
                        help='let the discovery loop also try the effects beyond the standard '
-                            'vocabulary (viscous_asymmetry)')
+                            'vocabulary (none at present: viscous_asymmetry joined the '
+                            'standard one)')
     ident.add_argument('--resample', action='store_true',
                        help='interpolate irregularly sampled data onto a uniform grid')
     ident.add_argument('--speed-cutoff', type=positive, metavar='HZ',

@@ -25,7 +25,8 @@ def sine_voltage(duration_s=3.0, amplitude_v=None):
 
 
 def test_vocabulary_has_the_issue_names_and_describes_itself():
-    assert tuple(cls.name for cls in VOCABULARY) == ISSUE_NAMES
+    # viscous_asymmetry joined the issue's nine once its false-effect rate was measured
+    assert tuple(cls.name for cls in VOCABULARY) == ISSUE_NAMES + ('viscous_asymmetry',)
     assert set(ISSUE_NAMES) < set(EFFECTS)
     for cls in EXTENDED_VOCABULARY:
         assert cls.summary and cls.PARAMETERS

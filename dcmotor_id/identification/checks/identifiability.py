@@ -252,6 +252,33 @@ def initial_state_warnings(estimate: Any, records: Sequence[Any],
     return out
 
 
+def misfit_ratios(records: Sequence[Any], outputs: Sequence[str],
+                  residual_rms: dict[str, float]) -> dict[str, float]:
+    """Return the channels whose residual is beyond :data:`MISFIT_FACTOR` sensor noises."""
+    ratios = {}
+    for channel in outputs:
+        noise = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2 for rec in records]))
+        if noise > 0 and residual_rms.get(channel) is not None:
+            ratios[channel] = residual_rms[channel] / noise
+    return {channel: ratio for channel, ratio in ratios.items() if ratio > MISFIT_FACTOR}
+
+
+def input_noise_misfit(estimate: Any, records: Sequence[Any], outputs: Sequence[str],
+                       residual_rms: dict[str, float],
+                       torque_constant: float | None = None) -> str | None:
+    """
+    Return the warning of a speed misfit the measured current's noise explains, else None.
+
+    The check of :func:`misfit_warning` in mechanical mode: the speed alone misfits and
+    :func:`~dcmotor_id.identification.checks.input_noise.input_noise_warning` explains it.
+    """
+    bad = misfit_ratios(records, outputs, residual_rms)
+    if list(bad) != ['speed'] or tuple(outputs) != ('speed',):
+        return None
+    return input_noise_warning(estimate.parameters, records, torque_constant,
+                               residual_rms['speed'], bad['speed'])
+
+
 def misfit_warning(estimate: Any, records: Sequence[Any], outputs: Sequence[str],
                    residual_rms: dict[str, float],
                    torque_constant: float | None = None) -> str | None:
@@ -259,22 +286,14 @@ def misfit_warning(estimate: Any, records: Sequence[Any], outputs: Sequence[str]
     Return a warning when the model misfits far above the sensor noise, else None.
 
     In mechanical mode (``torque_constant`` given) a speed misfit that the measured current's
-    own noise explains gets the warning of
-    :func:`~dcmotor_id.identification.checks.input_noise.input_noise_warning` instead.
+    own noise explains gets the warning of :func:`input_noise_misfit` instead.
     """
-    ratios = {}
-    for channel in outputs:
-        noise = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2 for rec in records]))
-        if noise > 0 and residual_rms.get(channel) is not None:
-            ratios[channel] = residual_rms[channel] / noise
-    bad = {channel: ratio for channel, ratio in ratios.items() if ratio > MISFIT_FACTOR}
+    bad = misfit_ratios(records, outputs, residual_rms)
     if not bad:
         return None
-    if list(bad) == ['speed'] and tuple(outputs) == ('speed',):
-        explained = input_noise_warning(estimate.parameters, records, torque_constant,
-                                        residual_rms['speed'], bad['speed'])
-        if explained:
-            return explained
+    explained = input_noise_misfit(estimate, records, outputs, residual_rms, torque_constant)
+    if explained:
+        return explained
     listing = ', '.join(f'{channel} {ratio:.3g}x' for channel, ratio in bad.items())
     return (f'the model misfits far above the sensor noise (residual / noise: {listing}): the '
             "standard errors cover the noise and the residual's correlation, not the model "

@@ -13,11 +13,16 @@ from dcmotor_id.simulation.coefficients import MotorEffects
 
 
 class ViscousAsymmetry(Effect):
-    """Direction-dependent viscous friction (an addition to the issue's vocabulary)."""
+    """
+    Direction-dependent viscous friction (an addition to the issue's vocabulary).
+
+    In the standard vocabulary: no false effect on the clean simulations of
+    ``bench/bench_discovery.py`` and no more real records with a false effect in
+    ``bench/bench_discovery_real.py`` than without it (``bench/discovery_results.md``).
+    """
 
     name = 'viscous_asymmetry'
     RANK = 100
-    EXTENDED = True
     summary = ('viscous friction (b + d) w for w > 0 and (b - d) w for w < 0: an extra '
                'torque -d |w|.')
     PARAMETERS = {'delta_Nm_s': ('N m s/rad', 0.0, 'd, half the difference b+ - b-')}

@@ -41,15 +41,21 @@ def result_warnings(estimate, records, terms, outputs, torque_constant, quasi, s
     warnings = correlated_pairs(estimate, skip=skip)
     if initial_state == 'estimate':
         warnings += initial_state_warnings(estimate, records, outputs)
-    model = OutputErrorModel(records, torque_constant, terms, quasi)
-    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
-    rms = {channel: float(np.sqrt(np.mean(np.concatenate(
-        [out[channel] - getattr(rec, channel) for out, rec in zip(simulated, records)]) ** 2)))
-        for channel in outputs}
+    rms = residual_rms(estimate, records, terms, outputs, torque_constant, quasi)
     misfit = misfit_warning(estimate, records, outputs, rms, torque_constant)
     if misfit:
         warnings.append(misfit)
     return warnings
+
+
+def residual_rms(estimate: Estimate, records, terms, outputs, torque_constant,
+                 quasi: bool) -> dict[str, float]:
+    """Return the RMS of each output channel's simulation residual over all records."""
+    model = OutputErrorModel(records, torque_constant, terms, quasi)
+    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
+    return {channel: float(np.sqrt(np.mean(np.concatenate(
+        [out[channel] - getattr(rec, channel) for out, rec in zip(simulated, records)]) ** 2)))
+        for channel in outputs}
 
 
 def structure_shift(base: Estimate, parameters: dict[str, float],

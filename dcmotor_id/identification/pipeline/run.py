@@ -33,6 +33,7 @@ from dcmotor_id.identification.pipeline.final_fit import final_fit, uncertainty
 from dcmotor_id.identification.pipeline.fit_warnings import fit_warnings
 from dcmotor_id.identification.pipeline.heldout import heldout
 from dcmotor_id.identification.pipeline.identifiability import identifiability
+from dcmotor_id.identification.pipeline.input_noise import input_noise_stderr
 from dcmotor_id.identification.pipeline.position_error import (adaptive_after_white_failed,
                                                                adaptive_agreeing, ADAPTIVE_RUN,
                                                                after_a_far_white,
@@ -139,6 +140,7 @@ def finish(begun: Begun) -> IdentificationResult:
     fit = check_final_start(inputs, discovery(inputs, begun.fit))
     answer = uncertainty(inputs, fit, final_fit(inputs, fit))
     answer = fit_warnings(inputs, fit, identifiability(inputs, answer))
+    answer = input_noise_stderr(inputs, fit, answer)
     return result(inputs, fit, heldout(inputs, fit, answer))
 
 
