@@ -23,10 +23,10 @@ import numpy as np
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.identification.checks.identifiability import input_noise_misfit
+from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.pipeline.fit_warnings import residual_rms
 from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
-from dcmotor_id.identification.residuals import output_channels
 from dcmotor_id.signals.filters import noise_std
 
 #: Refits of the parametric bootstrap of the current's noise.
