@@ -13,7 +13,7 @@ import time
 
 import pytest
 import rclpy
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -84,26 +84,22 @@ def rig(ros_env):
         Parameter('ramp_in_s', value=0.2), Parameter('speed_limit_rad_s', value=100.0),
         Parameter('stale_timeout_s', value=0.3)])
     controller = ForwardController(namespace)
-    executor = MultiThreadedExecutor(num_threads=4)
+    # One thread spins both nodes. rclpy's MultiThreadedExecutor held the GIL for up to 2 s at
+    # a time while it polled its futures (four 200-250 Hz callbacks): the stand-in's joint
+    # states then went out late and the exciter rightly called them stale.
+    executor = SingleThreadedExecutor()
     for node in (exciter, controller.node):
         executor.add_node(node)
-    running = threading.Event()
-    running.set()
-
-    def spin():
-        while running.is_set():
-            executor.spin_once(timeout_sec=0.05)
-    thread = threading.Thread(target=spin, daemon=True)
+    thread = threading.Thread(target=executor.spin, daemon=True)
     thread.start()
     try:
         assert wait_for(lambda: controller.publisher.get_subscription_count() > 0 and
                         exciter.command_publisher.get_subscription_count() > 0, 30.0)
         yield exciter, controller
     finally:
-        running.clear()
+        executor.shutdown(timeout_sec=10)
         thread.join(timeout=10)
         remove_nodes(executor, exciter, controller.node)
-        executor.shutdown()
         rclpy.try_shutdown()
 
 
