@@ -91,9 +91,10 @@ def resampled_spread(inputs: Inputs, fit: Fit, answer: Answer) -> tuple[dict[str
         initial_states=final.initial_states)
     drawn: list[dict[str, Any]] = []
     took = 0.0
-    for _ in range(REFITS):
+    for refit in range(REFITS):
         if inputs.progress.remaining() < 2.0 * took:
             break  # the next refit would end past the time budget
+        inputs.progress.set_stage(f'current-noise refit {refit + 1} of {REFITS}')
         started = inputs.progress.now()
         noisy = [rec.replace(current=_current(rec)
                              + rng.normal(0.0, noise_std(_current(rec)), len(rec)))
