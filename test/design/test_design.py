@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import re
 
 import control
 from matplotlib.image import imread
@@ -247,3 +248,23 @@ def test_unreachable_phase_margin_is_a_design_error():
     with pytest.raises(DesignError, match='phase'):
         design(motor, DesignOptions(current_bandwidth_hz=30.0, speed_bandwidth_hz=25.0,
                                     phase_margin_deg=89.0))
+
+
+def test_a_bandwidth_no_pi_reaches_is_refused_with_the_reachable_range(tmp_path, capsys):
+    # Paper motor 2 with 60 deg: below about 1.4 Hz the plant has too little phase lag for a
+    # PI; the search used to stop at that edge and return a 1.38 Hz loop for 1 Hz asked.
+    motor = motor_from_result(result_of('paper2'))
+    with pytest.raises(DesignError) as refused:
+        design(motor, DesignOptions(speed_bandwidth_hz=1.0))
+    message = str(refused.value)
+    assert '--speed-bandwidth 1 Hz: no PI meets it' in message
+    low, high = (float(text) for text in re.search(
+        r'a PI reaches ([\d.]+) to ([\d.]+) Hz', message).groups())
+    assert 1.0 < low < 1.6 < 10.0 < high
+    reached, _ = design(motor, DesignOptions(speed_bandwidth_hz=low * 1.02))
+    assert reached['nominal']['speed']['bandwidth_hz'] == pytest.approx(low * 1.02, rel=1e-3)
+    path = tmp_path / 'result.json'
+    path.write_text(json.dumps(result_of('paper2')))
+    assert main(['design', str(path), '--speed-bandwidth', '1']) == 2
+    err = capsys.readouterr().err
+    assert 'no PI meets it' in err and 'Traceback' not in err
