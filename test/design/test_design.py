@@ -189,6 +189,14 @@ def test_cli_design_writes_json_report_and_exports(tmp_path, capsys):
     for name in ('design.html', 'design_steps.png', 'design_bode.png'):
         assert os.path.getsize(tmp_path / 'report' / name) > 1000
     assert imread(str(tmp_path / 'report' / 'design_bode.png')).shape[1] >= 800
+    # the robustness table fits the page: headings in words that wrap, and a box that scrolls
+    page = (tmp_path / 'report' / 'design.html').read_text()
+    table = page[page.index('<h2>Robustness'):]
+    assert table.index('<div class="wide"><table>') < table.index('</table></div>')
+    assert '.wide{max-width:100%;overflow-x:auto}' in page
+    headings = re.findall(r'<th>([^<]*)</th>', table[:table.index('</tr>')])
+    assert 'speed phase margin [deg]' in headings
+    assert max(len(word) for heading in headings for word in heading.split()) <= 12
     for name in ('model_statespace.json', 'sim_motor.yaml', 'urdf_dynamics.xml'):
         assert (tmp_path / 'export' / name).exists()
 
