@@ -164,6 +164,7 @@ def _cmd_identify(args):
         result['warnings'] = loss + repairs + list(result.get('warnings') or [])
     if loss:
         result['data_loss'] = loss
+    result['input_units'] = options.input_units()
     if options.gear_ratio != 1.0:
         result['gear_ratio'] = options.gear_ratio
         result['output_shaft'] = output_shaft(result['parameters'], options.gear_ratio)
