@@ -276,3 +276,14 @@ def test_a_bandwidth_no_pi_reaches_is_refused_with_the_reachable_range(tmp_path,
     assert main(['design', str(path), '--speed-bandwidth', '1']) == 2
     err = capsys.readouterr().err
     assert 'no PI meets it' in err and 'Traceback' not in err
+
+
+def test_a_slow_speed_loop_designs_without_scipy_warnings():
+    # 41 BadCoefficients warnings from the closed loop's poles reached the user at 1.4 Hz
+    from scipy.signal import BadCoefficients
+    import warnings
+    motor = motor_from_result(result_of('paper2'))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', BadCoefficients)
+        made, _ = design(motor, DesignOptions(speed_bandwidth_hz=1.45))
+    assert made['nominal']['speed']['bandwidth_hz'] == pytest.approx(1.45, rel=1e-6)
