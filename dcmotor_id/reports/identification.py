@@ -309,8 +309,9 @@ def _summary_parts(title: str, result: dict[str, Any], found: DiscoveryResult | 
 
 def outputs_of(result: Mapping[str, Any]) -> list[str]:
     """Return the channels of the records the report speaks of: the input and the outputs."""
-    channels = ['current', 'speed'] if result.get('mode') == 'mechanical' else \
-        ['voltage', 'current', 'speed']
+    channels = {'mechanical': ['current', 'speed'],
+                'voltage_speed': ['voltage', 'speed']}.get(str(result.get('mode')),
+                                                           ['voltage', 'current', 'speed'])
     if (result.get('position_error') or result.get('criterion') in ('position', 'both')):
         channels.append('position')
     return channels
