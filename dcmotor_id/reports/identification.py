@@ -512,8 +512,14 @@ def _validation_parts(directory: str, validation: Validation,
 
 def write_validation_report(directory: str, validation: Validation,
                             channel_units: Mapping[str, str] | None = None,
-                            title: str = 'DC motor model: validation on new records') -> str:
-    """Write ``validation.html`` and its PNGs (``validate --report DIR``); return its path."""
+                            title: str = 'DC motor model: validation on new records',
+                            input_units: Mapping[str, Any] | None = None) -> str:
+    """
+    Write ``validation.html`` and its PNGs (``validate --report DIR``); return its path.
+
+    ``input_units`` (:meth:`~dcmotor_id.formats.mapping.ReadOptions.input_units`): the units
+    the files gave each channel in, said under the title.
+    """
     os.makedirs(directory, exist_ok=True)
     units = dict(CHANNEL_UNITS, **(channel_units or {}))
     model = validation.model
@@ -523,6 +529,11 @@ def write_validation_report(directory: str, validation: Validation,
     parts = [f'<h1>{html.escape(title)}</h1>',
              f'<p>Model ({html.escape(model.mode)}): {html.escape(parameters)}; effects: '
              f'{html.escape(effects)}.</p>']
+    channels = ['current', 'speed'] if model.mechanical_only else ['voltage', 'current',
+                                                                   'speed']
+    if all(item.record.position is not None for item in validation.records):
+        channels.append('position')
+    parts.append(_units_paragraph({'input_units': input_units}, channels))
     parts += _validation_parts(directory, validation, units)
     return _write_page(directory, 'validation.html', 'dcmotor_id validation', parts)
 

@@ -222,6 +222,13 @@ def test_the_report_says_from_which_units_the_input_was_converted(tmp_path):
     page = (report / 'index.html').read_text(encoding='utf-8')
     assert ('converted on reading: current from mA to A, x 0.001; speed from rpm to rad/s, '
             'x 0.10472; read as given: voltage in V') in page
+    # validate reads the same way and says so too
+    checked = tmp_path / 'validation.json'
+    assert cli_main(['validate', str(out), str(scaled), '--speed-unit', 'rpm', '--current-unit',
+                     'mA', '--json', str(checked), '--report', str(tmp_path / 'val')]) == 0
+    assert json.loads(checked.read_text())['input_units']['speed']['given'] == 'rpm'
+    page = (tmp_path / 'val' / 'validation.html').read_text(encoding='utf-8')
+    assert 'speed from rpm to rad/s, x 0.10472' in page
     # SI as given: said so
     assert cli_main(['identify', str(csv), '--no-discover', '--report',
                      str(tmp_path / 'si')]) == 0
