@@ -14,7 +14,7 @@ STAMP := $(VENV)/.installed-stamp
 BENCH_OUT := out/bench
 
 .PHONY: demo demo-loop demo-offline test test-fast typecheck warmup bench docs clean \
-	upgrade-deps check-python control-msgs
+	upgrade-deps check-python control-msgs docs-regenerate
 
 # The install also compiles the numba kernels into their on-disk cache (dcmotor_id.cli.warmup),
 # and the identify path's kernels ahead of time (dcmotor_id/simulation/compiled.py, needs a C
@@ -93,6 +93,11 @@ typecheck: $(STAMP)
 docs: $(STAMP)
 	$(PY) -m sphinx -b html -W --keep-going docs docs/_build/html
 	@echo "the manual: docs/_build/html/index.html"
+
+# The command output and report figures the manual shows, regenerated from the current code
+# (tools/generate_docs.py; test/test_docs_generated.py fails until they are).
+docs-regenerate: $(STAMP)
+	$(PY) tools/generate_docs.py
 
 # The simulated benchmarks of bench/README.md, each table written to $(BENCH_OUT) under its
 # committed name (long: about an hour).

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from dcmotor_id.core.lazy import LazyNames
+from dcmotor_id.core.lazy import bind, LazyNames
 
 #: The layers, bottom first: a subpackage imports only from its own layer and those below.
 LAYERS: tuple[tuple[str, ...], ...] = (
@@ -76,6 +76,8 @@ _HOME = {
 }
 
 _NAMES = LazyNames(__name__, _HOME)
+# IdentificationResult.design hands the result to the controller design one floor up.
+bind('design_controller', f'{__name__}.design.control:design_controller')
 __all__ = _NAMES.names
 
 

@@ -78,3 +78,14 @@ def test_design_controller_is_public_and_takes_a_result_object():
     assert made == dcmotor_id.design_controller(result.as_dict(), sample_period_s=1e-4)
     assert made['feedforward']['kA'] == pytest.approx(true.Ra * true.J / true.CPhi)
     assert made['current_loop']['kp'] > 0
+    # the notebook way: the result designs its own controller, the same dict
+    assert result.design(sample_period_s=1e-4) == made
+    assert result.design(speed_bandwidth_hz=10.0)['nominal']['speed']['bandwidth_hz'] == \
+        pytest.approx(10.0, rel=1e-6)
+
+
+def test_a_result_designs_only_through_the_package_face_binding():
+    from dcmotor_id.core import lazy
+    assert lazy.bound('design_controller') is dcmotor_id.design_controller
+    with pytest.raises(LookupError, match='nothing is bound'):
+        lazy.bound('no such function')

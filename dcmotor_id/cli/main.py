@@ -164,6 +164,7 @@ def _cmd_identify(args):
         result['warnings'] = loss + repairs + list(result.get('warnings') or [])
     if loss:
         result['data_loss'] = loss
+    result['input_units'] = options.input_units()
     if options.gear_ratio != 1.0:
         result['gear_ratio'] = options.gear_ratio
         result['output_shaft'] = output_shaft(result['parameters'], options.gear_ratio)
@@ -327,6 +328,7 @@ def _cmd_validate(args):
         print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     validation = validate(model, records, args.init_samples, options.position_factor)
     result = validation.as_dict()
+    result['input_units'] = options.input_units()
     if loss:
         result['warnings'] = loss + list(result.get('warnings') or [])
         result['data_loss'] = loss
@@ -334,7 +336,9 @@ def _cmd_validate(args):
         _write_result(args, result)
     if args.report:
         from dcmotor_id.reports.identification import write_validation_report
-        print(f'report: {write_validation_report(args.report, validation)}')
+        page = write_validation_report(args.report, validation,
+                                       input_units=result['input_units'])
+        print(f'report: {page}')
     print(format_validation(result))
     return 0
 

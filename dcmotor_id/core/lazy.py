@@ -12,7 +12,7 @@ import importlib
 import sys
 from typing import Any, Mapping
 
-__all__ = ['LazyNames']
+__all__ = ['LazyNames', 'bind', 'bound']
 
 
 class LazyNames:
@@ -40,3 +40,28 @@ class LazyNames:
         value = getattr(importlib.import_module(f'{self.package}.{self.home[name]}'), name)
         setattr(sys.modules[self.package], name, value)
         return value
+
+
+#: Name -> ``module:attribute`` of a function a lower floor calls without importing it
+#: (filled by the package face ``dcmotor_id``, which sits above every floor).
+_BOUND: dict[str, str] = {}
+
+
+def bind(name: str, target: str) -> None:
+    """
+    Name a function of a higher floor for the floors below (``module:attribute``, not imported).
+
+    The package face binds, e.g., ``design_controller`` to ``dcmotor_id.design.control``, so
+    that :meth:`~dcmotor_id.identification.result.IdentificationResult.design` can hand a
+    result to the controller design one floor up without importing upward.
+    """
+    _BOUND[name] = target
+
+
+def bound(name: str) -> Any:
+    """Return the function bound to ``name`` (imported now); LookupError when none is."""
+    if name not in _BOUND:
+        raise LookupError(f'nothing is bound to {name!r}: import dcmotor_id (the package face '
+                          'binds it)')
+    module, attribute = _BOUND[name].split(':')
+    return getattr(importlib.import_module(module), attribute)

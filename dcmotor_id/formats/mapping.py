@@ -181,6 +181,41 @@ class ReadOptions:
         skip = set() if self.bus_voltage is not None else {'duty', 'direction'}
         return [channel for channel in CHANNELS if channel not in skip]
 
+    def input_units(self) -> dict[str, dict[str, Any]]:
+        """
+        Return, per channel, the unit the file gave it in and the factor to SI (``input_units``).
+
+        ``{'speed': {'given': 'rpm', 'si': 'rad/s', 'factor': 0.1047}, ...}`` for current, speed
+        and position (the factor includes the gear ratio to the motor shaft), and the voltage
+        as given or made from a duty column; a flipped sign says ``'negated': True``. The
+        result and the report say from what the records were converted.
+        """
+        gear = self.gear_ratio
+        speed_given = (f'encoder counts per sample ({self.speed_counts_per_rev:g} per rev)'
+                       if self.speed_counts_per_rev is not None else self.speed_unit)
+        position_given = (f'encoder counts ({self.position_counts_per_rev:g} per rev)'
+                          if self.position_counts_per_rev is not None else self.position_unit)
+        units: dict[str, dict[str, Any]] = {
+            'voltage': {'given': 'V', 'si': 'V', 'factor': 1.0} if self.bus_voltage is None else
+            {'given': f'duty (full scale {self.duty_full_scale:g}) on a {self.bus_voltage:g} V '
+                      'bus', 'si': 'V', 'factor': self.bus_voltage / self.duty_full_scale},
+            'current': {'given': self.current_unit, 'si': 'A',
+                        'factor': CURRENT_UNITS[self.current_unit]},
+            # counts per sample: the factor depends on the sample period (None here)
+            'speed': {'given': speed_given, 'si': 'rad/s',
+                      'factor': None if self.speed_counts_per_rev is not None else
+                      SPEED_UNITS[self.speed_unit] * gear},
+            'position': {'given': position_given,
+                         'si': 'm' if self.position_unit == 'm' else 'rad',
+                         'factor': self.position_factor},
+        }
+        if gear != 1.0:
+            for channel in ('speed', 'position'):
+                units[channel]['given'] += f' at the output of a {gear:g}:1 gear'
+        for channel in self.negated:
+            units[channel]['negated'] = True
+        return units
+
     @property
     def position_factor(self) -> float:
         """Factor from the file's position unit to the motor shaft's rad (or m)."""

@@ -227,6 +227,47 @@ class IdentificationResult:
         speeds = self.estimate.info.get('simulated_speeds') if self.estimate else None
         return result_figures(self.as_dict(), self.input_records, speeds)
 
+    def design(self, current_bandwidth_hz: float | None = None,
+               speed_bandwidth_hz: float | None = None, phase_margin_deg: float = 60.0,
+               sample_period_s: float | None = None, gear_ratio: float = 1.0,
+               output_shaft: bool = False, gravity_load: bool = False) -> dict[str, Any]:
+        """
+        Design the controller for this result: what ``dcmotor-id design`` computes.
+
+        The same as :func:`dcmotor_id.design_controller` ``(self, ...)`` (the design floor
+        sits above this one: the call goes through the package face's binding,
+        :func:`dcmotor_id.core.lazy.bind`).
+
+        Parameters
+        ----------
+        current_bandwidth_hz, speed_bandwidth_hz, phase_margin_deg, sample_period_s : float
+            The request (None: the defaults of ``dcmotor-id design``).
+        gear_ratio : float
+            Motor speed / output speed.
+        output_shaft : bool
+            Design on the output shaft.
+        gravity_load : bool
+            Take the identified load torque as an elevator's gravity (``kG``).
+
+        Returns
+        -------
+        dict
+            The design JSON: ``speed_loop``, ``current_loop`` (full mode), ``feedforward``,
+            ``nominal``, ``robustness``, ``notes``.
+
+        Raises
+        ------
+        dcmotor_id.design.plant.DesignError
+            When no controller meets the request (the message says what to ask instead).
+
+        """
+        from dcmotor_id.core.lazy import bound
+        return bound('design_controller')(
+            self, current_bandwidth_hz=current_bandwidth_hz,
+            speed_bandwidth_hz=speed_bandwidth_hz, phase_margin_deg=phase_margin_deg,
+            sample_period_s=sample_period_s, gear_ratio=gear_ratio, output_shaft=output_shaft,
+            gravity_load=gravity_load)
+
     def _repr_html_(self) -> str:
         """Return the notebook view: the parameters, effects and warnings as HTML."""
         from dcmotor_id.identification.figures import result_html

@@ -140,6 +140,27 @@ def _fmt(value: object) -> str:
     return '' if value is None else str(value)
 
 
+#: The page's style: a table wider than the page scrolls in its own box (``.wide``).
+_STYLE = ('body{font-family:sans-serif;max-width:1100px;margin:auto}'
+          'table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:2px 8px}'
+          'th{font-weight:normal;background:#eee;vertical-align:bottom}'
+          '.wide{max-width:100%;overflow-x:auto}img{max-width:100%}')
+
+
+def metric_heading(key: str) -> str:
+    """
+    Return the robustness table's heading of a metric key, in words that wrap.
+
+    ``speed.phase_margin_deg`` -> ``speed phase margin [deg]`` (a key is one unbreakable word
+    that widened the table beyond the page).
+    """
+    loop, _, metric = key.partition('.')
+    words = metric.split('_')
+    unit = {'deg': 'deg', 'db': 'dB', 'hz': 'Hz'}.get(words[-1])
+    name = ' '.join(words[:-1] if unit else words)
+    return f'{loop} {name}' + (f' [{unit}]' if unit else '')
+
+
 def write_design_report(directory: str, result: dict, motor: Motor, gains: Gains) -> str:
     """
     Write ``design.html`` and its PNGs into ``directory``; return the page's path.
@@ -158,9 +179,7 @@ def write_design_report(directory: str, result: dict, motor: Motor, gains: Gains
     steps = _save(step_figure(motor, gains, result), directory, 'design_steps.png')
     bode = _save(bode_figure(motor, gains, result), directory, 'design_bode.png')
     parts = ['<!DOCTYPE html><html><head><meta charset="utf-8"><title>dcmotor_id design'
-             '</title><style>body{font-family:sans-serif;max-width:1100px;margin:auto}'
-             'table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:2px 8px}'
-             '</style></head><body><h1>Controller design</h1>']
+             f'</title><style>{_STYLE}</style></head><body><h1>Controller design</h1>']
     dt = result['sample_period_s']
     parts.append(f"<p>mode {result['mode']}, {result['shaft']} shaft, gear ratio "
                  f"{result['gear_ratio']:g}, "
@@ -208,8 +227,10 @@ def _gain_rows(result: dict) -> list[str]:
 def _robustness_rows(robust: dict) -> list[str]:
     """Return the table of the nominal gains' metrics across the 95 % intervals."""
     keys = list(robust['range'])
-    parts = ['<h2>Robustness: the nominal gains across the 95 % intervals</h2><table>'
-             + _row(['parameter', 'end', 'value'] + keys, True)]
+    parts = ['<h2>Robustness: the nominal gains across the 95 % intervals</h2>'
+             '<div class="wide"><table>'
+             + _row(['parameter', 'end', 'value'] + [metric_heading(key) for key in keys],
+                    True)]
     for row in robust['one_at_a_time']:
         parts.append(_row([row['parameter'], row['end'], _fmt(row['value'])]
                           + [_fmt(row.get(key)) for key in keys]))
@@ -217,5 +238,5 @@ def _robustness_rows(robust: dict) -> list[str]:
                       + [_fmt(robust['range'][key][0]) for key in keys]))
     parts.append(_row(['all', f"max over ends and {robust['corners']} corners", '']
                       + [_fmt(robust['range'][key][1]) for key in keys]))
-    parts.append('</table>')
+    parts.append('</table></div>')
     return parts

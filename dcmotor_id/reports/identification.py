@@ -287,6 +287,7 @@ def _summary_parts(title: str, result: dict[str, Any], found: DiscoveryResult | 
              f'{result["n_samples"]} samples, dt {result["sample_period_s"]:.6g} s; mode '
              f'{html.escape(result["mode"])}; method {html.escape(result["method"])}; '
              f'criterion {html.escape(_criterion_text(result.get("criterion", "speed")))}.</p>',
+             _units_paragraph(result, outputs_of(result)),
              f'<p class="{verdict_class}">{verdict}</p>',
              '<h2>Simulation error</h2>',
              _table(['', 'current NRMSE', 'speed NRMSE'],
@@ -304,6 +305,48 @@ def _summary_parts(title: str, result: dict[str, Any], found: DiscoveryResult | 
              _table(['parameter', 'value', 'std. error', '95 % interval', 'rel. error',
                      'unit', 'flag'], _parameter_rows(result))]
     return parts + structure_parts(result)
+
+
+def outputs_of(result: Mapping[str, Any]) -> list[str]:
+    """Return the channels of the records the report speaks of: the input and the outputs."""
+    channels = {'mechanical': ['current', 'speed'],
+                'voltage_speed': ['voltage', 'speed']}.get(str(result.get('mode')),
+                                                           ['voltage', 'current', 'speed'])
+    if (result.get('position_error') or result.get('criterion') in ('position', 'both')):
+        channels.append('position')
+    return channels
+
+
+def _units_paragraph(result: Mapping[str, Any], channels: Sequence[str]) -> str:
+    """
+    Return the paragraph that says in which units the file gave each channel ('' if unknown).
+
+    From the result's ``input_units`` (written by ``dcmotor-id identify``): a channel given
+    in other units than SI is named with its unit and factor, so that a plot in rad/s of a
+    column written in rpm is not read as wrong.
+    """
+    units = result.get('input_units')
+    if not units:
+        return ''
+    converted, as_given = [], []
+    for channel in channels:
+        unit = units.get(channel)
+        if unit is None:
+            continue
+        flipped = ' (sign flipped)' if unit.get('negated') else ''
+        if unit['given'] == unit['si'] and unit['factor'] == 1.0:
+            as_given.append(f'{channel} in {unit["si"]}{flipped}')
+        else:
+            factor = '' if unit['factor'] is None else f', x {unit["factor"]:.6g}'
+            converted.append(f'{channel} from {unit["given"]} to {unit["si"]}{factor}{flipped}')
+    parts = []
+    if converted:
+        parts.append('converted on reading: ' + '; '.join(converted))
+    if as_given:
+        parts.append(('read as given: ' if converted else 'the file gave ')
+                     + ', '.join(as_given) + ('' if converted else ' (SI, nothing converted)'))
+    return ('<p class="units"><b>Units of the input</b>: ' + html.escape('; '.join(parts))
+            + '. Every number and plot of this page is in SI units.</p>')
 
 
 def _verdict(result: dict[str, Any], found: DiscoveryResult | None,
@@ -469,8 +512,14 @@ def _validation_parts(directory: str, validation: Validation,
 
 def write_validation_report(directory: str, validation: Validation,
                             channel_units: Mapping[str, str] | None = None,
-                            title: str = 'DC motor model: validation on new records') -> str:
-    """Write ``validation.html`` and its PNGs (``validate --report DIR``); return its path."""
+                            title: str = 'DC motor model: validation on new records',
+                            input_units: Mapping[str, Any] | None = None) -> str:
+    """
+    Write ``validation.html`` and its PNGs (``validate --report DIR``); return its path.
+
+    ``input_units`` (:meth:`~dcmotor_id.formats.mapping.ReadOptions.input_units`): the units
+    the files gave each channel in, said under the title.
+    """
     os.makedirs(directory, exist_ok=True)
     units = dict(CHANNEL_UNITS, **(channel_units or {}))
     model = validation.model
@@ -480,6 +529,11 @@ def write_validation_report(directory: str, validation: Validation,
     parts = [f'<h1>{html.escape(title)}</h1>',
              f'<p>Model ({html.escape(model.mode)}): {html.escape(parameters)}; effects: '
              f'{html.escape(effects)}.</p>']
+    channels = ['current', 'speed'] if model.mechanical_only else ['voltage', 'current',
+                                                                   'speed']
+    if all(item.record.position is not None for item in validation.records):
+        channels.append('position')
+    parts.append(_units_paragraph({'input_units': input_units}, channels))
     parts += _validation_parts(directory, validation, units)
     return _write_page(directory, 'validation.html', 'dcmotor_id validation', parts)
 

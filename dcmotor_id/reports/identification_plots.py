@@ -30,7 +30,8 @@ if TYPE_CHECKING:
 
 #: Units of the plotted channels.
 CHANNEL_UNITS = {'current': 'A', 'speed': 'rad/s', 'voltage': 'V', 'position': 'rad'}
-_COLOURS = {'measured': '0.55', 'before': '#d62728', 'after': '#1f77b4', 'band': '0.85'}
+_COLOURS = {'measured': '0.55', 'before': '#d62728', 'after': '#1f77b4', 'band': '0.85',
+            'zoom': '#ffe680'}
 
 
 def _save(figure, directory, name):
@@ -97,40 +98,79 @@ def plot_fit(series: list[dict], outputs: Sequence[str], directory: str,
 
     One column per record (wrapping after :data:`COLUMNS_PER_ROW`), one row per channel;
     ``scores`` (one short text per record, e.g. its NRMSE) goes under the record's name.
+    Where a base and a final model differ (effects were found), a second row per channel
+    zooms on the stretch where they differ most (:func:`zoom_window`, shaded on the whole
+    record): over a whole record the two lines lie on top of each other.
     """
     shown = series[:MAX_RECORDS_DRAWN]
-    figure, axes, columns = _grid(len(shown), len(outputs))
+    zoom = any(item['before'] is not item['after'] for item in shown)
+    rows_each = len(outputs) * (2 if zoom else 1)
+    figure, axes, columns = _grid(len(shown), rows_each)
     for number, item in enumerate(shown):
         group, column = divmod(number, columns)
-        t = item['time']
-        stop = item['stop']
+        window = zoom_window(item, outputs) if zoom else None
         for row, channel in enumerate(outputs):
-            ax = axes[group * len(outputs) + row, column]
-            ax.plot(t, item['measured'][channel], color=_COLOURS['measured'], lw=1.4,
-                    label='measured')
-            if item['before'] is not item['after']:
-                ax.plot(t, item['before'][channel], color=_COLOURS['before'], lw=0.8, ls='--',
-                        label='base model')
-            ax.plot(t, item['after'][channel], color=_COLOURS['after'], lw=0.8,
-                    label='final model' if item['before'] is not item['after'] else 'model')
-            if stop < len(t):
-                ax.axvspan(t[stop], t[-1], color=_COLOURS['band'], alpha=0.5, lw=0,
-                           label='held out')
-            ax.set_ylabel(f'{channel} [{units.get(channel, "")}]', fontsize=8)
-            ax.tick_params(labelsize=7)
-            ax.grid(True, lw=0.3)
-            ax.xaxis.set_major_locator(MaxNLocator(5))
+            ax = axes[group * rows_each + row, column]
+            _fit_panel(ax, item, channel, slice(None), units)
             if row == 0:
                 title = _record_label(labels, number)
                 if scores and number < len(scores) and scores[number]:
                     title += '\n' + scores[number]
                 ax.set_title(title, fontsize=8)
-        axes[group * len(outputs) + len(outputs) - 1, column].set_xlabel('time [s]', fontsize=8)
-    for number in range(len(shown), axes.shape[1] * (axes.shape[0] // len(outputs))):
+            if window is not None:
+                t = item['time']
+                ax.axvspan(t[window.start], t[window.stop - 1], color=_COLOURS['zoom'],
+                           alpha=0.6, lw=0, label='zoomed below')
+                zoomed = axes[group * rows_each + len(outputs) + row, column]
+                _fit_panel(zoomed, item, channel, window, units)
+                if row == 0:
+                    zoomed.set_title(f'zoom: where base and final differ most '
+                                     f'({t[window.start]:.4g} to {t[window.stop - 1]:.4g} s)',
+                                     fontsize=8)
+        axes[group * rows_each + rows_each - 1, column].set_xlabel('time [s]', fontsize=8)
+    for number in range(len(shown), axes.shape[1] * (axes.shape[0] // rows_each)):
         group, column = divmod(number, columns)
-        for row in range(len(outputs)):
-            axes[group * len(outputs) + row, column].set_visible(False)
-    handles, texts = axes[0, 0].get_legend_handles_labels()
+        for row in range(rows_each):
+            axes[group * rows_each + row, column].set_visible(False)
+    handles, texts = _unique_legend(axes)
+    _title_and_legend(figure, _fit_title(series, shown, outputs, errors), handles, texts)
+    return _save(figure, directory, name)
+
+
+def _fit_panel(ax, item: dict, channel: str, part: slice, units: Mapping[str, str]) -> None:
+    """Draw measured, base and final model of one channel over ``part`` of the record."""
+    t = item['time'][part]
+    ax.plot(t, item['measured'][channel][part], color=_COLOURS['measured'], lw=1.4,
+            label='measured')
+    if item['before'] is not item['after']:
+        ax.plot(t, item['before'][channel][part], color=_COLOURS['before'], lw=0.8, ls='--',
+                label='base model')
+    ax.plot(t, item['after'][channel][part], color=_COLOURS['after'], lw=0.8,
+            label='final model' if item['before'] is not item['after'] else 'model')
+    stop = item['stop']
+    if stop < len(item['time']) and item['time'][stop] <= t[-1]:
+        ax.axvspan(max(item['time'][stop], t[0]), t[-1], color=_COLOURS['band'], alpha=0.5,
+                   lw=0, label='held out')
+    ax.set_ylabel(f'{channel} [{units.get(channel, "")}]', fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(True, lw=0.3)
+    ax.xaxis.set_major_locator(MaxNLocator(5))
+
+
+def _unique_legend(axes) -> tuple[list, list[str]]:
+    """Return the legend entries of all panels, each label once."""
+    handles, texts = [], []
+    for ax in axes.flat:
+        for handle, text in zip(*ax.get_legend_handles_labels()):
+            if text not in texts:
+                handles.append(handle)
+                texts.append(text)
+    return handles, texts
+
+
+def _fit_title(series: list[dict], shown: list[dict], outputs: Sequence[str],
+               errors: Mapping[str, Mapping[str, float | None]]) -> str:
+    """Return the fit figure's title: what it shows and the held-out errors."""
     more = f' ({len(series) - len(shown)} more not drawn)' if len(series) > len(shown) else ''
     before = ', '.join(f'{c} {pct_text(errors["before"].get(f"{c}_nrmse_pct"))}' for c in outputs)
     after = ', '.join(f'{c} {pct_text(errors["after"].get(f"{c}_nrmse_pct"))}' for c in outputs)
@@ -140,8 +180,32 @@ def plot_fit(series: list[dict], outputs: Sequence[str], directory: str,
         title += f'.\nHeld-out NRMSE base {before}; final {after}'
     elif any(errors.get('after', {}).values()):
         title += f'.\nNRMSE {after}'
-    _title_and_legend(figure, title, handles, texts)
-    return _save(figure, directory, name)
+    return title
+
+
+#: Share of a record the fit figure's zoom shows.
+ZOOM_SHARE = 0.02
+
+
+def zoom_window(item: dict, outputs: Sequence[str], share: float = ZOOM_SHARE) -> slice:
+    """
+    Return the stretch of a record where the base and the final model differ most.
+
+    The squared difference of the two simulations, each channel scaled by the spread of its
+    measurement, summed over a window of ``share`` of the record (at least 20 samples); the
+    window with the largest sum.
+    """
+    n = len(item['time'])
+    width = min(n, max(20, int(round(share * n))))
+    gap = np.zeros(n)
+    for channel in outputs:
+        spread = float(np.std(item['measured'][channel])) or 1.0
+        difference = (np.asarray(item['before'][channel][:n], dtype=float)
+                      - np.asarray(item['after'][channel][:n], dtype=float)) / spread
+        gap += np.where(np.isfinite(difference), difference, 0.0) ** 2
+    total = np.concatenate([[0.0], np.cumsum(gap)])
+    start = int(np.argmax(total[width:] - total[:-width]))
+    return slice(start, start + width)
 
 
 def _title_and_legend(figure: Figure, title: str, handles: list, texts: list[str]) -> None:

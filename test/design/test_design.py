@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import re
 
 import control
 from matplotlib.image import imread
@@ -188,6 +189,14 @@ def test_cli_design_writes_json_report_and_exports(tmp_path, capsys):
     for name in ('design.html', 'design_steps.png', 'design_bode.png'):
         assert os.path.getsize(tmp_path / 'report' / name) > 1000
     assert imread(str(tmp_path / 'report' / 'design_bode.png')).shape[1] >= 800
+    # the robustness table fits the page: headings in words that wrap, and a box that scrolls
+    page = (tmp_path / 'report' / 'design.html').read_text()
+    table = page[page.index('<h2>Robustness'):]
+    assert table.index('<div class="wide"><table>') < table.index('</table></div>')
+    assert '.wide{max-width:100%;overflow-x:auto}' in page
+    headings = re.findall(r'<th>([^<]*)</th>', table[:table.index('</tr>')])
+    assert 'speed phase margin [deg]' in headings
+    assert max(len(word) for heading in headings for word in heading.split()) <= 12
     for name in ('model_statespace.json', 'sim_motor.yaml', 'urdf_dynamics.xml'):
         assert (tmp_path / 'export' / name).exists()
 
@@ -247,3 +256,34 @@ def test_unreachable_phase_margin_is_a_design_error():
     with pytest.raises(DesignError, match='phase'):
         design(motor, DesignOptions(current_bandwidth_hz=30.0, speed_bandwidth_hz=25.0,
                                     phase_margin_deg=89.0))
+
+
+def test_a_bandwidth_no_pi_reaches_is_refused_with_the_reachable_range(tmp_path, capsys):
+    # Paper motor 2 with 60 deg: below about 1.4 Hz the plant has too little phase lag for a
+    # PI; the search used to stop at that edge and return a 1.38 Hz loop for 1 Hz asked.
+    motor = motor_from_result(result_of('paper2'))
+    with pytest.raises(DesignError) as refused:
+        design(motor, DesignOptions(speed_bandwidth_hz=1.0))
+    message = str(refused.value)
+    assert '--speed-bandwidth 1 Hz: no PI meets it' in message
+    low, high = (float(text) for text in re.search(
+        r'a PI reaches ([\d.]+) to ([\d.]+) Hz', message).groups())
+    assert 1.0 < low < 1.6 < 10.0 < high
+    reached, _ = design(motor, DesignOptions(speed_bandwidth_hz=low * 1.02))
+    assert reached['nominal']['speed']['bandwidth_hz'] == pytest.approx(low * 1.02, rel=1e-3)
+    path = tmp_path / 'result.json'
+    path.write_text(json.dumps(result_of('paper2')))
+    assert main(['design', str(path), '--speed-bandwidth', '1']) == 2
+    err = capsys.readouterr().err
+    assert 'no PI meets it' in err and 'Traceback' not in err
+
+
+def test_a_slow_speed_loop_designs_without_scipy_warnings():
+    # 41 BadCoefficients warnings from the closed loop's poles reached the user at 1.4 Hz
+    from scipy.signal import BadCoefficients
+    import warnings
+    motor = motor_from_result(result_of('paper2'))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', BadCoefficients)
+        made, _ = design(motor, DesignOptions(speed_bandwidth_hz=1.45))
+    assert made['nominal']['speed']['bandwidth_hz'] == pytest.approx(1.45, rel=1e-6)

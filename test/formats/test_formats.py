@@ -279,3 +279,18 @@ def test_blocks_join_exactly_and_bad_cells_are_located(tmp_path, si_record, monk
     open(path, 'w', encoding='utf-8').write('\n'.join(text) + '\n')
     with pytest.raises(Exception, match='line 52'):
         read_record(path)
+
+
+def test_input_units_say_from_what_each_channel_was_converted():
+    units = ReadOptions(speed_unit='rpm', current_unit='mA', gear_ratio=10.0,
+                        negated=('position',)).input_units()
+    assert units['current'] == {'given': 'mA', 'si': 'A', 'factor': 1e-3}
+    assert units['speed'] == {'given': 'rpm at the output of a 10:1 gear', 'si': 'rad/s',
+                              'factor': pytest.approx(10 * math.pi / 30)}
+    assert units['position']['negated'] is True and units['position']['factor'] == 10.0
+    assert units['voltage'] == {'given': 'V', 'si': 'V', 'factor': 1.0}
+    duty = ReadOptions(bus_voltage=24.0, duty_full_scale=255.0).input_units()['voltage']
+    assert duty['given'] == 'duty (full scale 255) on a 24 V bus'
+    assert duty['factor'] == pytest.approx(24.0 / 255.0)
+    counts = ReadOptions(speed_counts_per_rev=2048.0).input_units()['speed']
+    assert counts['factor'] is None and '2048 per rev' in counts['given']

@@ -176,3 +176,62 @@ def test_the_structure_choice_is_said_whether_covered_or_not():
     assert '<td>b</td><td>4</td><td>8</td><td>9</td>' in page and '<td>J</td>' not in page
     skipped = {**result, 'structure_uncertainty': {'skipped': 'discovery is off'}}
     assert 'Not covered: discovery is off' in ''.join(structure_parts(skipped))
+
+
+def test_the_zoom_is_where_the_base_and_final_models_differ_most(tmp_path):
+    from dcmotor_id.reports.identification_plots import plot_fit, zoom_window
+
+    t = np.arange(5000) * DT
+    measured = {'current': np.sin(t), 'speed': 10 * np.cos(t)}
+    after = {channel: values.copy() for channel, values in measured.items()}
+    before = {channel: values.copy() for channel, values in measured.items()}
+    before['speed'][3000:3060] += 0.5  # the effect acts here only
+    before['current'] += 0.001  # a small offset everywhere weighs less than the bump
+    item = {'time': t, 'stop': 3500, 'measured': measured, 'before': before, 'after': after}
+    window = zoom_window(item, ['current', 'speed'])
+    assert window.start <= 3000 and 3060 <= window.stop and window.stop - window.start == 100
+    # the fit figure gets a zoom row per channel when the models differ, none when one model
+    plot_fit([item], ['current', 'speed'], str(tmp_path), {'before': {}, 'after': {}})
+    one = dict(item, before=after)
+    plot_fit([one], ['current', 'speed'], str(tmp_path), {'before': {}, 'after': {}},
+             name='one.png')
+    assert imread(str(tmp_path / 'fit.png')).shape[0] > \
+        1.6 * imread(str(tmp_path / 'one.png')).shape[0]
+
+
+def test_the_report_says_from_which_units_the_input_was_converted(tmp_path):
+    csv = tmp_path / 'run.csv'
+    assert cli_main(['simulate', '--excitation', 'sine', '--duration', '3', '--sample-period',
+                     '1e-3', '--noise', '0.005', '--out', str(csv)]) == 0
+    header, *rows = csv.read_text().strip().split('\n')
+    names = header.split(',')
+    scaled = tmp_path / 'rpm_ma.csv'
+    scale = {'speed': 30 / np.pi, 'current': 1000.0}
+    lines = [header]
+    for row in rows:
+        values = [float(value) * scale.get(name, 1.0) for name, value in
+                  zip(names, row.split(','))]
+        lines.append(','.join(repr(value) for value in values))
+    scaled.write_text('\n'.join(lines) + '\n')
+    out, report = tmp_path / 'result.json', tmp_path / 'report'
+    assert cli_main(['identify', str(scaled), '--speed-unit', 'rpm', '--current-unit', 'mA',
+                     '--no-discover', '--json', str(out), '--report', str(report)]) == 0
+    units = json.loads(out.read_text())['input_units']
+    assert units['speed'] == {'given': 'rpm', 'si': 'rad/s', 'factor': np.pi / 30}
+    assert units['current'] == {'given': 'mA', 'si': 'A', 'factor': 1e-3}
+    page = (report / 'index.html').read_text(encoding='utf-8')
+    assert ('converted on reading: current from mA to A, x 0.001; speed from rpm to rad/s, '
+            'x 0.10472; read as given: voltage in V') in page
+    # validate reads the same way and says so too
+    checked = tmp_path / 'validation.json'
+    assert cli_main(['validate', str(out), str(scaled), '--speed-unit', 'rpm', '--current-unit',
+                     'mA', '--json', str(checked), '--report', str(tmp_path / 'val')]) == 0
+    assert json.loads(checked.read_text())['input_units']['speed']['given'] == 'rpm'
+    page = (tmp_path / 'val' / 'validation.html').read_text(encoding='utf-8')
+    assert 'speed from rpm to rad/s, x 0.10472' in page
+    # SI as given: said so
+    assert cli_main(['identify', str(csv), '--no-discover', '--report',
+                     str(tmp_path / 'si')]) == 0
+    page = (tmp_path / 'si' / 'index.html').read_text(encoding='utf-8')
+    assert 'the file gave voltage in V, current in A, speed in rad/s (SI, nothing converted)' \
+        in page
