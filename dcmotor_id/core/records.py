@@ -55,6 +55,10 @@ class Record:
         The speed was derived from the position (not measured): the fit's ``auto`` criterion
         then compares the position instead
         (:mod:`dcmotor_id.identification.error_model.criterion`).
+    segment : numpy.ndarray or None
+        The tests of the record, as logged (``--segment-column``): a value > 0 marks a
+        test's samples (a change of value starts another test), 0 the samples between tests
+        (:mod:`dcmotor_id.identification.pipeline.segments`).
 
     """
 
@@ -65,6 +69,7 @@ class Record:
     position: Optional[np.ndarray] = None
     source: str = ''
     speed_derived: bool = False
+    segment: Optional[np.ndarray] = None
 
     @property
     def sample_period_s(self) -> float:
@@ -84,7 +89,8 @@ class Record:
         def cut(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
             return None if values is None else values[start:stop]
         return Record(self.time_s[start:stop], cut(self.current), cut(self.voltage),
-                      cut(self.speed), cut(self.position), self.source, self.speed_derived)
+                      cut(self.speed), cut(self.position), self.source, self.speed_derived,
+                      cut(self.segment))
 
     def columns(self) -> dict[str, np.ndarray]:
         """Return the present columns as a dict name -> array (``t`` first)."""
@@ -284,8 +290,11 @@ def resample_uniform(record: Record, sample_period_s: float) -> Record:
 
     def interp(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
         return None if values is None else np.interp(grid, t, values)
+    # a test's mark is not interpolated: each grid point takes the mark of the sample before
+    segment = None if record.segment is None else record.segment[
+        np.clip(np.searchsorted(t, grid, side='right') - 1, 0, len(t) - 1)]
     return Record(grid, interp(record.current), interp(record.voltage), interp(record.speed),
-                  interp(record.position), record.source)
+                  interp(record.position), record.source, segment=segment)
 
 
 def record_names(records: Sequence[Record]) -> str | None:

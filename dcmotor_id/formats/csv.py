@@ -193,8 +193,8 @@ def _column_index(path: PathLike, header: list[str], options: ReadOptions) -> di
         if positions:
             index[channel] = positions[0]
         elif channel in options.columns:
-            raise InputDataError(f'{path}: --column {channel}={name}: no column {name!r} in '
-                                 f'the header; it has {", ".join(header)}')
+            raise InputDataError(f'{path}: {column_option(channel, name)}: no column {name!r} '
+                                 f'in the header; it has {", ".join(header)}')
     standard = {channel: number for channel, number in index.items() if channel in COLUMNS}
     _check_names(path, header, standard)
     if 't' not in index and options.sample_period_s is None:
@@ -268,8 +268,10 @@ def _parse_slowly(path: PathLike, stream: IO[str], header_line: int,
                 values[name].append(float(cell.replace(',', '.') if decimal_comma else cell))
             except (IndexError, ValueError):
                 cell = row[column] if column < len(row) else '(missing)'
+                what = ('the segment column (--segment-column: > 0 in a test, 0 between '
+                        'tests)') if name == 'segment' else f'column {name!r}'
                 raise InputDataError(
-                    f'{path}: line {row_number}, column {name!r}: {cell!r} is not a number; '
+                    f'{path}: line {row_number}, {what}: {cell!r} is not a number; '
                     'fix or remove that line') from None
     if not any(values.values()):
         raise InputDataError(f'{path}: the file has a header but no samples; record or '
