@@ -317,7 +317,8 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
                             'reversed; repeatable')
     group.add_argument('--joint', metavar='NAME',
                        help='bags with control_msgs/msg/DynamicJointState or '
-                            'sensor_msgs/msg/JointState: the joint (default: the only one)')
+                            'sensor_msgs/msg/JointState: the joint (default: the only one); '
+                            'SysId drivetrain JSON files: left (default) or right')
     group.add_argument('--interface', action='append', metavar='CHANNEL=NAME',
                        help='bags with DynamicJointState: the interface of a channel (default '
                             'voltage, current, velocity as speed, position); with JointState: '

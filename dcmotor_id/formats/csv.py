@@ -10,7 +10,8 @@ Large files are parsed in blocks by numpy's C reader, only the needed columns, e
 one array: a 10-million-row file needs little more memory than its numbers
 (bench/csv_memory_results.md). A file that is not text (binary data, UTF-16 without a byte
 order mark) is refused with a message instead of a decoding traceback; UTF-16 with a byte
-order mark is read.
+order mark is read.  A JSON object (a file starting with ``{``) is read as a WPILib SysId data
+file (:mod:`~dcmotor_id.formats.sysid_json`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import COLUMNS, PathLike, Record
 from dcmotor_id.formats.mapping import (build_record, column_option, DEFAULT_OPTIONS,
                                         looks_like, note, ReadOptions)
+from dcmotor_id.formats.sysid_json import is_sysid_json, read_sysid_json
 
 #: Rows parsed per block (the block's array is the only temporary copy).
 BLOCK_ROWS = 1 << 18
@@ -136,6 +138,8 @@ def read_csv(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     """
     if not os.path.isfile(path):
         raise InputDataError(f'{path}: no such file; give the path of a CSV file or a bag')
+    if is_sysid_json(path):  # no format claims .json: result files are JSON too
+        return read_sysid_json(path, options)
     encoding = _encoding(path)
     if encoding != 'utf-16':
         _refuse_nul(path)
