@@ -60,6 +60,7 @@ from dcmotor_id.core.blas import single_threaded
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.estimators.base import Estimator
+from dcmotor_id.identification.estimators.voltage_speed import one_magnitude
 from dcmotor_id.identification.pipeline.base_fit import METHODS
 from dcmotor_id.identification.pipeline.current_limited import JACKKNIFE_GROUPS
 from dcmotor_id.identification.pipeline.discovery import (HOPELESS_DISCOVERY_S,
@@ -161,7 +162,8 @@ def _voltage_speed_tests(records: Sequence[Record], discover: bool) -> Identific
     """Identify kS, kV, kA from the tests a segment column marks (the records as they are else)."""
     tests = split_tests(records)
     result = identify_voltage_speed(list(tests.records), discover)
-    return replace(result, warnings=[tests.note] + result.warnings) if tests.note else result
+    said = [text for text in (tests.note, one_magnitude(tests.records)) if text]
+    return replace(result, warnings=said + result.warnings) if said else result
 
 
 def _bootstrapped(request: Request, criterion: str, max_time_s: float | None,
