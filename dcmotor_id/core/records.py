@@ -253,6 +253,8 @@ def check_magnitudes(record: Record) -> None:
 
 #: A step this many median periods long is a gap (samples missing), not a jittered stamp.
 GAP_PERIODS = 3.0
+#: A median step this long [s] may be milliseconds read as seconds: the refusal says so.
+MILLISECOND_HINT_S = 1.0
 
 
 def irregular_sampling(name: str, steps: np.ndarray, period: float) -> str:
@@ -276,10 +278,12 @@ def irregular_sampling(name: str, steps: np.ndarray, period: float) -> str:
                 'missing). Split the record at the gaps into files of their own (each is '
                 'fitted from its own initial state), or pass --resample to interpolate across '
                 'them (it invents the samples in between)')
+    millis = (f' (stamps {period:.6g} s apart: if the time column is in milliseconds, that '
+              f'is --sample-period {period / 1000.0:.6g})') if period >= MILLISECOND_HINT_S else ''
     return (f'{text}: the stamps jitter between {float(np.min(steps)):.6g} and '
             f'{float(np.max(steps)):.6g} s. If the samples were taken at a fixed rate and only '
             f'the stamps jitter (a logger stamping on arrival), give --sample-period '
-            f'{period:.6g} (the time column is then not used); else pass --resample to '
+            f'{period:.6g}{millis} (the time column is then not used); else pass --resample to '
             'interpolate onto a uniform grid')
 
 

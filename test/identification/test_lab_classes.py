@@ -111,3 +111,17 @@ def test_the_wheel_motor_with_its_current_signed_is_identified():
     truth = scenario.truth
     assert result.parameters['b'] == pytest.approx(truth.b, rel=0.1)
     assert result.parameters['Mc'] == pytest.approx(truth.Mc, rel=0.1)
+
+
+def test_stamps_in_milliseconds_are_named_in_the_refusal(tmp_path, capsys):
+    # The wheel log's stamps are in ms: the refusal told --sample-period 30.64, a period in
+    # seconds 1000 times too long.
+    scenario = lab_scenarios.wheel_speed_steps_current_magnitude(signed=True)
+    record = scenario.records[0]
+    stamps_ms = 1000.0 * record.time_s + np.random.default_rng(0).uniform(-3, 3, len(record))
+    path = tmp_path / 'wheel_ms.csv'
+    np.savetxt(path, np.column_stack([stamps_ms, record.current, record.speed]),
+               delimiter=',', header='t,current,speed', comments='')
+    assert main(['identify', str(path), '--torque-constant', '0.0514', '--quiet']) == 2
+    err = capsys.readouterr().err
+    assert 'if the time column is in milliseconds, that is --sample-period 0.029' in err
