@@ -12,10 +12,12 @@ import json
 
 import numpy as np
 import pytest
+from support import motor_samples
 
 from dcmotor_id.cli.main import main
 from dcmotor_id.core.records import Record, resample_uniform
 from dcmotor_id.formats import read_record, ReadOptions
+from dcmotor_id.formats.bag import write_bag
 from dcmotor_id.identification.pipeline.segments import marked_tests, split_tests
 from dcmotor_id.simulation import lab_scenarios
 
@@ -127,3 +129,12 @@ def test_resampling_keeps_each_sample_s_mark():
     record = Record(np.array([0.0, 0.01, 0.03, 0.04]), voltage=np.ones(4), speed=np.ones(4),
                     segment=np.array([0.0, 1.0, 1.0, 2.0]))
     assert resample_uniform(record, 0.01).segment.tolist() == [0.0, 1.0, 1.0, 1.0, 2.0]
+
+
+def test_a_bag_carries_no_segment_column_and_the_option_is_refused(tmp_path, capsys):
+    stamps, channels = motor_samples(2.0)
+    write_bag(tmp_path / 'bag', stamps, channels)
+    assert main(['identify', str(tmp_path / 'bag'), '--segment-column', 'test', '--quiet']) == 2
+    err = capsys.readouterr().err
+    assert "--segment-column test: this file's format carries no such column" in err
+    assert 'Traceback' not in err
