@@ -28,6 +28,19 @@ files (``DATA_EMPS.mat``, ``DATA_EMPS_PULSES.mat``)::
     git clone https://github.com/malik-robert/HSM150-data && git -C HSM150-data checkout 35c3b1b
     git clone https://github.com/brucecui97/mech467 && git -C mech467 checkout 36dde45
 
+Round 3 (issue 29) adds a WPILib SysId log, a robot's wheel motors and a QUBE-Servo 2 teaching
+rig, each given to the default ``identify`` as it comes, with the model-free regression of the
+tool (``pipeline/floor.py``; without a current, the voltage-to-speed regression start) on the
+same records as the peer::
+
+    git clone https://github.com/calcmogul/SysIdOpt && git -C SysIdOpt checkout f8c2183
+    git clone https://github.com/BrOleg5/research-wheel-slippage && \
+        git -C research-wheel-slippage checkout 59fc082  # the file is gone from later commits
+    git clone https://github.com/JackDelcaro/ACL_LABisca && git -C ACL_LABisca checkout 092cd65
+
+    .venv/bin/python bench/bench_real.py --sysidopt SysIdOpt --wheels research-wheel-slippage \
+        --qube ACL_LABisca --out bench/real_results_round3.md
+
 Each repository path may be a work tree or a bare clone (``git clone --bare``; its files are
 then read at the named commit with ``git show``).  Run from the repository root (one command;
 ``--quick`` for a subset, ``--only hsm150|mech467|emps``; progress on stderr)::
@@ -974,10 +987,10 @@ def goal_lines(rows: list[dict[str, Any]]) -> list[str]:
     return lines + ['']
 
 
-def finding_lines(data_sets: list[DataSet]) -> list[str]:
+def finding_lines(data_sets: list[DataSet], more: list[dict[str, Any]] = ()) -> list[str]:
     """Return the table of the reading attempts (files read as recorded, or the hand work)."""
     cells = [[f['data'], f['file'], f['attempt'], str(f['exit']), f['message']]
-             for ds in data_sets for f in ds.findings]
+             for f in [f for ds in data_sets for f in ds.findings] + list(more)]
     return (['## Reading the files as recorded', ''] + markdown(
         ('data', 'file', 'reading options tried', 'exit', 'message'), cells) + [''])
 
@@ -1018,6 +1031,289 @@ def data_set_lines(ds: DataSet, rows: list[dict[str, Any]]) -> list[str]:
     return lines + ['', '### Refusals and warnings, text', ''] + text_lines(rows) + ['']
 
 
+# --- Round 3 (issue 29): a SysId log, a robot's wheel motors, a QUBE-Servo 2 teaching rig ----
+
+SYSIDOPT_COMMIT = 'f8c2183'
+WHEELS_COMMIT = '59fc082'
+QUBE_COMMIT = '092cd65'
+#: github BrOleg5/research-wheel-slippage, scripts/dc_motor_kalman_filter/scripts/
+#: motor_parameters_without_integral.m: datasheet k_t (24 V, 0.86 A, 3600 rpm motor) and the
+#: authors' greyest values (J common; b and the constant torque T_0 per motor).
+WHEELS_K = 0.0514
+WHEELS_REFS = {'1st': {'J': 1.1407e-6, 'b': 2.3685e-5, 'Mc': 0.0081312},
+               '2nd': {'J': 1.1407e-6, 'b': 2.0285e-5, 'Mc': 0.0069712},
+               '3rd': {'J': 1.1407e-6, 'b': 2.3637e-5, 'Mc': 0.0080917}}
+WHEELS_FILE = 'scripts/dc_motor_kalman_filter/data/data_for_identification_without_integral.csv'
+WHEELS_PERIOD_S = 0.03064
+#: QUBE-Servo 2 (Quanser datasheet, in the repository's Simulation/Params/m0405_params.m):
+#: Rm 8.4 Ohm, km = kt 0.042, rotor Jm 4e-6 kg m^2, hub Jh 6e-7 (the authors: 8.009e-6 for
+#: both together).  kV = km + Rm b/km is at least km; kA = Rm J/km.
+QUBE_KM = 0.042
+QUBE_REFS = {'kV': QUBE_KM, 'kA': 8.4 * (4e-6 + 6e-7) / QUBE_KM}
+QUBE_KA_AUTHORS = 8.4 * 8.009e-6 / QUBE_KM
+QUBE_FILES = ('20220304_1224_no_pendulum_1V_squarewave_0p2Hz',
+              '20220314_1509_no_pendulum_1V_exp01',
+              '20220314_1526_no_pendulum_varin_exp02',
+              '20220314_1536_no_pendulum_sweepsine_exp02')
+QUBE_READING = ['--column', 't=time', '--column', 'voltage=voltage', '--column',
+                'position=theta']
+
+
+@dataclass
+class Run3:
+    """One default ``identify`` of a round-3 record: what the user ran and the references."""
+
+    data: str
+    label: str
+    args: list[str]
+    refs: dict[str, float]
+    peer: Any
+    note: str = ''
+
+
+def sysid_ols(path: str, threshold: float = 0.1) -> dict[str, float]:
+    """
+    Return kS, kV, kA of SysId's least squares on a SysId JSON file (the authors' own method).
+
+    As ``solve_eigen_sysid_ols`` of calcmogul/SysIdOpt ``src/main.cpp``: the acceleration
+    ``(v[k+1] - v[k]) / T`` regressed on ``v[k]``, ``u[k]``, ``sgn v[k]`` over the samples moving
+    faster than 0.1 units/s, ``T`` the mean step of those samples.
+    """
+    with open(path) as stream:
+        data = json.load(stream)
+    tests = [np.asarray(data[name], dtype=float) for name in
+             ('fast-backward', 'fast-forward', 'slow-backward', 'slow-forward')]
+    moving = [np.abs(test[:-1, 3]) >= threshold for test in tests]
+    step = float(np.mean(np.concatenate([np.diff(test[:, 0])[m]
+                                         for test, m in zip(tests, moving)])))
+    rows = np.vstack([np.column_stack([test[:-1, 3], test[:-1, 1], np.sign(test[:-1, 3])])[m]
+                      for test, m in zip(tests, moving)])
+    accel = np.concatenate([(np.diff(test[:, 3]) / step)[m] for test, m in zip(tests, moving)])
+    alpha, beta, gamma = np.linalg.lstsq(rows, accel, rcond=None)[0]
+    return {'kS': -gamma / beta, 'kV': -alpha / beta, 'kA': 1.0 / beta}
+
+
+def regression_peer(paths: list[str], options: dict[str, Any],
+                    torque_constant: Optional[float]) -> dict[str, Any]:
+    """
+    Return the model-free regression on the records as the tool reads and prepares them.
+
+    With a current: the regression floor of both equations (``pipeline/floor.py``) over the
+    tests; without: the voltage-to-speed regression start (``estimators/voltage_speed.py``).
+    """
+    sys.path.insert(0, ROOT)
+    from dcmotor_id.formats import read_records, ReadOptions
+    from dcmotor_id.identification.estimators.voltage_speed import regression_start
+    from dcmotor_id.identification.identify import prepare_records
+    from dcmotor_id.identification.pipeline.floor import regression_floor
+    from dcmotor_id.identification.pipeline.segments import split_tests
+    try:
+        records = read_records(paths, options=ReadOptions(**options),
+                               mechanical_only=torque_constant is not None)
+        tests = list(split_tests(prepare_records(records, torque_constant)).records)
+        if torque_constant is None and all(rec.current is None for rec in tests):
+            values = regression_start(tests)
+            return {'values': values, 'usable': values['kV'] > 1e-6 and values['kA'] > 0}
+        floor = regression_floor(tests, torque_constant)
+    except Exception as error:  # the peer's failure is a finding, not a crash of the bench
+        return {'values': {}, 'usable': False, 'error': f'{type(error).__name__}: {error}'}
+    if floor is None:
+        return {'values': {}, 'usable': False, 'error': 'too short'}
+    positive = all(floor.parameters[key] > 0 for key in ('J', 'b') if key in floor.parameters)
+    return {'values': dict(floor.parameters), 'usable': bool(floor.usable) and positive}
+
+
+def sysidopt_runs(path: str, cache: str) -> list[Run3]:
+    """calcmogul/SysIdOpt ``sysid_data.json``: given to ``identify`` as it comes."""
+    repo = Repository(path, SYSIDOPT_COMMIT, os.path.join(cache, 'SysIdOpt'))
+    file = repo.local('sysid_data.json')
+    refs = sysid_ols(file)
+    return [Run3('SysIdOpt', 'sysid_data.json (4 tests)', [file], refs,
+                 lambda: regression_peer([file], {}, None),
+                 note=f'github calcmogul/SysIdOpt at {repo.revision()}, `sysid_data.json`: a '
+                      'WPILib SysId routine of a mechanism (Simple, Radians), 5 ms samples, '
+                      "voltage and velocity, no current.  References: the authors' own SysId "
+                      'least squares on the file (`solve_eigen_sysid_ols` of `src/main.cpp`, '
+                      'recomputed here: kS {kS:.4g} V, kV {kV:.4g} V s/rad, kA {kA:.4g} V s^2/'
+                      'rad).'.format(**refs))]
+
+
+def _wheels_csv(repo: 'Repository', cache: str) -> tuple[str, str, str]:
+    """Write the log as recorded, without its unit rows, and with the authors' signed current."""
+    original = repo.local(WHEELS_FILE)
+    with open(original) as stream:
+        lines = stream.read().splitlines()
+    clean = os.path.join(cache, 'wheels_without_unit_rows.csv')
+    with open(clean, 'w') as stream:
+        stream.write('\n'.join([lines[0]] + lines[3:]) + '\n')
+    header = lines[0].rstrip(';').split(';')
+    rows = np.array([line.rstrip(';').split(';') for line in lines[3:]], dtype=float)
+    for number in ('1st', '2nd', '3rd'):
+        speed = rows[:, header.index(f'{number} motor velocity')]
+        rows[:, header.index(f'{number} motor current')] *= np.sign(speed)
+    signed = os.path.join(cache, 'wheels_signed_current.csv')
+    np.savetxt(signed, rows, delimiter=';', header=';'.join(header), comments='', fmt='%.9g')
+    return original, clean, signed
+
+
+def wheels_runs(path: str, cache: str) -> tuple[list[Run3], list[dict[str, Any]]]:
+    """BrOleg5/research-wheel-slippage: the three wheel motors of an omni robot, one log."""
+    repo = Repository(path, WHEELS_COMMIT, os.path.join(cache, 'wheels'))
+    original, clean, signed = _wheels_csv(repo, os.path.join(cache, 'wheels'))
+    note = (f'github BrOleg5/research-wheel-slippage at {repo.revision()}, `{WHEELS_FILE}`: '
+            'the three wheel motors of an omnidirectional robot, speed steps both ways under '
+            'their speed loops, 30.6 ms samples (stamps in ms), speed [rad/s] and current [A, '
+            "logged as a magnitude], no voltage.  `--torque-constant 0.0514` (the motor's "
+            "datasheet k_t).  References: the authors' greyest values "
+            '(`scripts/dc_motor_kalman_filter/scripts/motor_parameters_without_integral.m`): '
+            'J 1.1407e-6 kg m^2, b 2.3685e-5 / 2.0285e-5 / 2.3637e-5 N m s/rad and a constant '
+            'torque T_0 (as Mc) 0.00813 / 0.00697 / 0.00809 N m.  The authors give the current '
+            'the sign of the speed before fitting (`process_identification_dataset.m`): rows '
+            '"sign of speed" do the same.  The speed reaches each new set-point within one '
+            '30 ms sample (0 to 17-20 rad/s from one sample to the next), so no J is '
+            "determined by this log: neither the authors' nor the tool's (whose 17-20 % "
+            "standard error on J does not say so), nor the regression's.")
+    runs = []
+    for number in ('1st', '2nd', '3rd'):
+        columns = {'speed': f'{number} motor velocity', 'current': f'{number} motor current'}
+        mapping = [item for channel, name in columns.items()
+                   for item in ('--column', f'{channel}={name}')]
+        args = ['--sample-period', f'{WHEELS_PERIOD_S:g}', *mapping,
+                '--torque-constant', f'{WHEELS_K:g}']
+        options = {'columns': columns, 'sample_period_s': WHEELS_PERIOD_S}
+        for label, file in (('as logged', clean), ('sign of speed', signed)):
+            runs.append(Run3('wheels', f'motor {number[0]}, {label}', [file, *args],
+                             WHEELS_REFS[number],
+                             (lambda f=file, o=options: regression_peer([f], o, WHEELS_K)),
+                             note=note))
+    findings = []
+    timed = ['--column', 't=Time']
+    for label, file, extra in (('original CSV', original, timed),
+                               ('its two unit rows removed', clean, timed),
+                               ('unit rows removed, as the refusal tells', clean,
+                                ['--sample-period', f'{WHEELS_PERIOD_S:g}'])):
+        run = run_cli(['identify', file, '--column', 'speed=1st motor velocity', '--column',
+                       'current=1st motor current', '--torque-constant', f'{WHEELS_K:g}',
+                       *extra, '--json', os.path.join(cache, 'finding.json')])
+        findings.append({'data': 'wheels', 'file': os.path.basename(WHEELS_FILE),
+                         'attempt': f'{label} ' + ' '.join(extra), 'exit': run['rc'],
+                         'message': run['message'] or 'read'})
+    return runs, findings
+
+
+def qube_runs(path: str, cache: str) -> list[Run3]:
+    """JackDelcaro/ACL_LABisca: a QUBE-Servo 2 without its pendulum, voltage and angle."""
+    repo = Repository(path, QUBE_COMMIT, os.path.join(cache, 'qube'))
+    note = (f'github JackDelcaro/ACL_LABisca at {repo.revision()}, `Data/Parsed_Data/*.mat`: a '
+            'Quanser QUBE-Servo 2 teaching rig without its pendulum, 500 Hz, `voltage` [V] and '
+            'the motor angle `theta` [rad], no current (voltage-to-speed model).  References: '
+            'the datasheet (in `Simulation/Params/m0405_params.m`): km 0.042 V s/rad, so kV = '
+            'km + Rm b/km >= 0.042 (b small: about 0.042); kA = Rm (Jm + Jh)/km = '
+            f'{QUBE_REFS["kA"]:.3g} V s^2/rad with the datasheet rotor and hub inertias, '
+            f"{QUBE_KA_AUTHORS:.3g} with the authors' identified 8.009e-6 kg m^2.  The "
+            'record `1V_exp01` is one 1 V step from rest: it crashed the fit before '
+            '(ZeroDivisionError); its regression gave kV 1e-9 (its lower clip), and both are '
+            'now refused naming why.')
+    runs = []
+    for stem in QUBE_FILES:
+        file = repo.local(f'Data/Parsed_Data/{stem}.mat')
+        options = {'columns': {'t': 'time', 'voltage': 'voltage', 'position': 'theta'}}
+        runs.append(Run3('QUBE-Servo 2', stem[14:], [file, *QUBE_READING], QUBE_REFS,
+                         (lambda f=file, o=options: regression_peer([f], o, None)), note=note))
+    return runs
+
+
+def evaluate3(run: Run3, work: str) -> dict[str, Any]:
+    """Run the default ``identify`` of one round-3 record and its peer; return the row."""
+    out = os.path.join(work, 'r3_' + re.sub(r'[^A-Za-z0-9.]+', '_', run.data + run.label)
+                       + '.json')
+    cli = run_cli(['identify', *run.args, '--json', out])
+    result = None
+    if cli['rc'] == 0 and os.path.isfile(out):
+        with open(out) as stream:
+            result = json.load(stream)
+    peer = run.peer()
+    log(f'{run.data} {run.label}: exit {cli["rc"]} in {cli["wall"]:.1f} s '
+        f'(CPU {cli["cpu"]:.1f} s){", " + cli["message"][:80] if cli["message"] else ""}')
+    return {'run': run, 'cli': cli, 'result': result, 'peer': peer}
+
+
+def _cell(values: dict[str, Any], key: str, ref: Optional[float]) -> str:
+    """Format a value and its error against a reference."""
+    value = values.get(key)
+    return with_error(None if value is None else float(value), ref)
+
+
+def round3_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """Return the section of the round-3 records: the tool and its regression, side by side."""
+    lines = []
+    for data in dict.fromkeys(row['run'].data for row in rows):
+        group = [row for row in rows if row['run'].data == data]
+        keys = [key for key in ('Ra', 'CPhi', 'J', 'b', 'Mc', 'kS', 'kV', 'kA')
+                if any(key in row['run'].refs for row in group)]
+        lines += [f'## {data}', '', group[0]['run'].note, '']
+        cells = []
+        for row in group:
+            refs, result, cli = row['run'].refs, row['result'], row['cli']
+            tool = (result or {}).get('parameters') or {}
+            head = [row['run'].label,
+                    '0' if result else f'{cli["rc"]}: {cli["message"][:140]}']
+            peer = row['peer']
+            peer_text = ('plausible' if peer['usable'] else 'not plausible'
+                         ) + (f' ({peer["error"][:60]})' if peer.get('error') else '')
+            cells.append(head + [_cell(tool, key, refs.get(key)) for key in keys]
+                         + [_cell(peer['values'], key, refs.get(key)) for key in keys]
+                         + [peer_text, warnings_short(result),
+                            f'{cli["wall"]:.1f} ({cli["cpu"]:.1f})'])
+        header = (('record', 'exit') + tuple(f'{key} (tool)' for key in keys)
+                  + tuple(f'{key} (regression)' for key in keys)
+                  + ('regression', 'warnings', 'wall s (CPU)'))
+        lines += markdown(header, cells) + ['']
+    return lines
+
+
+#: The warning every voltage-to-speed result carries (it says nothing of the values).
+STANDARD_WARNING = 'no current in the records'
+
+
+def _farther(row: dict[str, Any]) -> list[str]:
+    """Parameters the tool has farther from their reference than the regression has."""
+    tool = (row['result'] or {}).get('parameters') or {}
+    peer = row['peer']['values']
+    out = []
+    for key, ref in row['run'].refs.items():
+        mine, theirs = error_pct(tool.get(key), ref), error_pct(peer.get(key), ref)
+        if mine is not None and theirs is not None and abs(mine) > abs(theirs) + 5.0:
+            out.append(f'{key} {mine:+.0f} % against {theirs:+.0f} %')
+    return out
+
+
+def goal_round3(rows: list[dict[str, Any]]) -> list[str]:
+    """
+    Return the goals of issue 29 on the round-3 records, met or not, per record.
+
+    No refusal where the regression is plausible; no answer farther from a reference than the
+    regression's (by more than 5 points) without a warning beyond the standard one.
+    """
+    refused = [f'{row["run"].data} {row["run"].label}' for row in rows
+               if row['result'] is None and row['peer']['usable']]
+    silent, said = [], []
+    for row in rows:
+        farther = _farther(row) if row['result'] else []
+        if farther:
+            kinds = [text for text in row['result'].get('warnings') or []
+                     if not text.startswith(STANDARD_WARNING)]
+            (said if kinds else silent).append(
+                f'{row["run"].data} {row["run"].label} ({", ".join(farther)})')
+    return ['## Goals of issue 29 on the round-3 records', '',
+            '- refusals where the regression gives a plausible answer: '
+            + ('none' if not refused else f'{len(refused)}: ' + '; '.join(refused)),
+            "- answers farther from a reference than the regression's, without a warning: "
+            + ('none' if not silent else f'{len(silent)}: ' + '; '.join(silent)),
+            '- (the same with a warning: ' + ('none' if not said else '; '.join(said)) + ')',
+            '']
+
+
 def cpu_seconds() -> float:
     """Return the CPU seconds of this process and of the processes it ran."""
     return sum(usage.ru_utime + usage.ru_stime for usage in (
@@ -1041,6 +1337,9 @@ def public_command(args: argparse.Namespace) -> str:
     parts = ['.venv/bin/python', 'bench/bench_real.py']
     for option, value in (('--hsm150', 'HSM150-data' if args.hsm150 else None),
                           ('--mech467', 'mech467' if args.mech467 else None),
+                          ('--sysidopt', 'SysIdOpt' if args.sysidopt else None),
+                          ('--wheels', 'research-wheel-slippage' if args.wheels else None),
+                          ('--qube', 'ACL_LABisca' if args.qube else None),
                           ('--emps', '../shared/data/emps' if args.emps else None),
                           ('--only', args.only), ('--out', args.out)):
         if value:
@@ -1062,7 +1361,14 @@ def parse(argv: Optional[list[str]]) -> argparse.Namespace:
     parser.add_argument('--mech467', metavar='DIR', help='mech467 (work tree or bare clone)')
     parser.add_argument('--emps', metavar='DIR', default=os.environ.get('EMPS_DATA_DIR'),
                         help='directory of DATA_EMPS.mat (default $EMPS_DATA_DIR)')
-    parser.add_argument('--only', choices=('hsm150', 'mech467', 'emps'))
+    parser.add_argument('--sysidopt', metavar='DIR', help='calcmogul/SysIdOpt (work tree or '
+                        'bare clone): its SysId JSON log')
+    parser.add_argument('--wheels', metavar='DIR', help='BrOleg5/research-wheel-slippage (work '
+                        'tree or bare clone): the wheel motors of a robot')
+    parser.add_argument('--qube', metavar='DIR', help='JackDelcaro/ACL_LABisca (work tree or '
+                        'bare clone): a QUBE-Servo 2 without its pendulum')
+    parser.add_argument('--only', choices=('hsm150', 'mech467', 'emps', 'sysidopt', 'wheels',
+                                           'qube'))
     parser.add_argument('--quick', action='store_true', help='a subset of the fits')
     parser.add_argument('--out', metavar='FILE.md', help='also write the report here')
     parser.add_argument('--label', default=DEFAULT_LABEL, help='what this run is, for the title')
@@ -1088,9 +1394,33 @@ def data_sets(args: argparse.Namespace, work: str) -> tuple[list[DataSet], list[
     return built, skipped
 
 
+def round3_runs(args: argparse.Namespace, work: str,
+                skipped: list[str]) -> tuple[list[Run3], list[dict[str, Any]]]:
+    """Build the round-3 records asked for; return them and the findings of reading them."""
+    runs: list[Run3] = []
+    findings: list[dict[str, Any]] = []
+    for name, given in (('sysidopt', args.sysidopt), ('wheels', args.wheels),
+                        ('qube', args.qube)):
+        if args.only and args.only != name:
+            continue
+        if not given:
+            skipped.append(f'{name}: not run (pass --{name} DIR)')
+            continue
+        log(f'{name}: reading the records')
+        if name == 'sysidopt':
+            runs += sysidopt_runs(given, work)
+        elif name == 'wheels':
+            more, found = wheels_runs(given, work)
+            runs, findings = runs + more, findings + found
+        else:
+            runs += qube_runs(given, work)
+    return runs, findings
+
+
 def report(args: argparse.Namespace, sets: list[DataSet], rows: list[dict[str, Any]],
-           skipped: list[str], load: tuple[float, ...], setup: dict[str, Any]) -> str:
-    """Return the whole markdown report."""
+           skipped: list[str], load: tuple[float, ...], setup: dict[str, Any],
+           round3: tuple[list, list] = ([], [])) -> str:
+    """Return the whole markdown report; ``round3`` holds its rows and reading findings."""
     import numpy
     import scipy
     end = os.getloadavg()
@@ -1106,10 +1436,11 @@ def report(args: argparse.Namespace, sets: list[DataSet], rows: list[dict[str, A
              f'installs), exit {setup["rc"]}, {setup["wall"]:.0f} s wall clock, '
              f'{setup["cpu"]:.0f} s CPU (in no row)', '']
     lines += [f'- {text}' for text in skipped] + ([''] if skipped else [])
-    lines += goal_lines(rows) + finding_lines(sets) + [LEGEND, '']
+    lines += goal_lines(rows) + (goal_round3(round3[0]) if round3[0] else [])
+    lines += finding_lines(sets, round3[1]) + [LEGEND, '']
     for ds in sets:
         lines += data_set_lines(ds, [row for row in rows if row['ds'] is ds])
-    return '\n'.join(lines)
+    return '\n'.join(lines + round3_lines(round3[0]))
 
 
 def main(argv: Optional[list[str]] = None) -> int:
@@ -1119,13 +1450,15 @@ def main(argv: Optional[list[str]] = None) -> int:
     work = args.work or tempfile.mkdtemp(prefix='bench_real_')
     try:
         sets, skipped = data_sets(args, work)
+        runs3, findings3 = round3_runs(args, work, skipped)
         setup = warm_up()
         rows = []
         for ds in sets:
             for number, job in enumerate(ds.jobs, 1):
                 log(f'{ds.name} {number}/{len(ds.jobs)}: {job.label}')
                 rows.append(evaluate(ds, job, work))
-        text = report(args, sets, rows, skipped, load, setup)
+        rows3 = [evaluate3(run, work) for run in runs3]
+        text = report(args, sets, rows, skipped, load, setup, (rows3, findings3))
     finally:
         if not args.work:
             shutil.rmtree(work, ignore_errors=True)

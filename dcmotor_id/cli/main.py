@@ -129,6 +129,18 @@ def _check_outputs(args: argparse.Namespace, inputs: Sequence[str]) -> None:
                           writes=REPORT_FILES)
 
 
+def _check_segments(args: argparse.Namespace, records: Sequence[Record]) -> None:
+    """Refuse a ``--segment-column`` that a file's format did not carry (bags, DataLogs)."""
+    if not args.segment_column:
+        return
+    for path, record in zip(args.files, records):
+        if record.segment is None:
+            raise InputDataError(
+                f"{path}: --segment-column {args.segment_column}: this file's format carries "
+                'no such column (the segment column is read from CSV, .mat and Parquet '
+                'files); drop the option, or export the record with its segment column')
+
+
 def _cmd_identify(args):
     # Every output place is checked first: a fit of minutes is never lost to a typo.
     _check_outputs(args, args.files)
@@ -137,6 +149,7 @@ def _cmd_identify(args):
     options = reading_options(args)
     loaded, loss = load_records_reporting_loss(args.files, topics, options,
                                                args.torque_constant is not None)
+    _check_segments(args, loaded)
     records, repairs = repair_all(prepare_records(loaded, args.torque_constant, args.resample,
                                                   args.speed_cutoff))
     _check_report_for(args, records)
@@ -257,8 +270,11 @@ def _unit_flag_warnings(options: ReadOptions, parameters: Mapping[str, Any],
 def reading_options(args: argparse.Namespace) -> ReadOptions:
     """Return the :class:`ReadOptions` of the reading options (identify, validate)."""
     set_memory_budget(args.memory_budget * 1e9)
+    columns = parse_assignments(args.column, '--column')
+    if getattr(args, 'segment_column', None):
+        columns['segment'] = args.segment_column
     return ReadOptions(
-        columns=parse_assignments(args.column, '--column'), current_unit=args.current_unit,
+        columns=columns, current_unit=args.current_unit,
         speed_unit=args.speed_unit, speed_counts_per_rev=args.speed_counts_per_rev,
         position_unit=args.position_unit, position_counts_per_rev=args.position_counts_per_rev,
         gear_ratio=args.gear_ratio, bus_voltage=args.voltage_from_duty,
@@ -302,7 +318,8 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
                             'reversed; repeatable')
     group.add_argument('--joint', metavar='NAME',
                        help='bags with control_msgs/msg/DynamicJointState or '
-                            'sensor_msgs/msg/JointState: the joint (default: the only one)')
+                            'sensor_msgs/msg/JointState: the joint (default: the only one); '
+                            'SysId drivetrain JSON files: left (default) or right')
     group.add_argument('--interface', action='append', metavar='CHANNEL=NAME',
                        help='bags with DynamicJointState: the interface of a channel (default '
                             'voltage, current, velocity as speed, position); with JointState: '
@@ -553,6 +570,11 @@ def _add_identify_command(commands: Any) -> None:
                        help='interpolate irregularly sampled data onto a uniform grid')
     ident.add_argument('--speed-cutoff', type=positive, metavar='HZ',
                        help='cut-off of the filter deriving speed from position [Hz]')
+    ident.add_argument('--segment-column', metavar='NAME',
+                       help='the column NAME marks the tests of a record (values > 0: a '
+                            'test, a change of value the next one; 0: between tests): each '
+                            'test is fitted as a record of its own, named in the output '
+                            '(default: idle or braked stretches are found from the data)')
     for channel, kind in (('voltage', 'Float64'), ('current', 'Float64'),
                           ('speed', 'Float64'), ('samples', 'batched Float64MultiArray')):
         ident.add_argument(f'--{channel}-topic', default=BAG_TOPICS[channel], metavar='TOPIC',

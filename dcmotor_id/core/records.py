@@ -55,6 +55,10 @@ class Record:
         The speed was derived from the position (not measured): the fit's ``auto`` criterion
         then compares the position instead
         (:mod:`dcmotor_id.identification.error_model.criterion`).
+    segment : numpy.ndarray or None
+        The tests of the record, as logged (``--segment-column``): a value > 0 marks a
+        test's samples (a change of value starts another test), 0 the samples between tests
+        (:mod:`dcmotor_id.identification.pipeline.segments`).
 
     """
 
@@ -65,6 +69,7 @@ class Record:
     position: Optional[np.ndarray] = None
     source: str = ''
     speed_derived: bool = False
+    segment: Optional[np.ndarray] = None
 
     @property
     def sample_period_s(self) -> float:
@@ -84,7 +89,8 @@ class Record:
         def cut(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
             return None if values is None else values[start:stop]
         return Record(self.time_s[start:stop], cut(self.current), cut(self.voltage),
-                      cut(self.speed), cut(self.position), self.source, self.speed_derived)
+                      cut(self.speed), cut(self.position), self.source, self.speed_derived,
+                      cut(self.segment))
 
     def columns(self) -> dict[str, np.ndarray]:
         """Return the present columns as a dict name -> array (``t`` first)."""
@@ -247,6 +253,8 @@ def check_magnitudes(record: Record) -> None:
 
 #: A step this many median periods long is a gap (samples missing), not a jittered stamp.
 GAP_PERIODS = 3.0
+#: A median step this long [s] may be milliseconds read as seconds: the refusal says so.
+MILLISECOND_HINT_S = 1.0
 
 
 def irregular_sampling(name: str, steps: np.ndarray, period: float) -> str:
@@ -270,10 +278,12 @@ def irregular_sampling(name: str, steps: np.ndarray, period: float) -> str:
                 'missing). Split the record at the gaps into files of their own (each is '
                 'fitted from its own initial state), or pass --resample to interpolate across '
                 'them (it invents the samples in between)')
+    millis = (f' (stamps {period:.6g} s apart: if the time column is in milliseconds, that '
+              f'is --sample-period {period / 1000.0:.6g})') if period >= MILLISECOND_HINT_S else ''
     return (f'{text}: the stamps jitter between {float(np.min(steps)):.6g} and '
             f'{float(np.max(steps)):.6g} s. If the samples were taken at a fixed rate and only '
             f'the stamps jitter (a logger stamping on arrival), give --sample-period '
-            f'{period:.6g} (the time column is then not used); else pass --resample to '
+            f'{period:.6g}{millis} (the time column is then not used); else pass --resample to '
             'interpolate onto a uniform grid')
 
 
@@ -284,8 +294,11 @@ def resample_uniform(record: Record, sample_period_s: float) -> Record:
 
     def interp(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
         return None if values is None else np.interp(grid, t, values)
+    # a test's mark is not interpolated: each grid point takes the mark of the sample before
+    segment = None if record.segment is None else record.segment[
+        np.clip(np.searchsorted(t, grid, side='right') - 1, 0, len(t) - 1)]
     return Record(grid, interp(record.current), interp(record.voltage), interp(record.speed),
-                  interp(record.position), record.source)
+                  interp(record.position), record.source, segment=segment)
 
 
 def record_names(records: Sequence[Record]) -> str | None:

@@ -10,7 +10,8 @@ Large files are parsed in blocks by numpy's C reader, only the needed columns, e
 one array: a 10-million-row file needs little more memory than its numbers
 (bench/csv_memory_results.md). A file that is not text (binary data, UTF-16 without a byte
 order mark) is refused with a message instead of a decoding traceback; UTF-16 with a byte
-order mark is read.
+order mark is read.  A JSON object (a file starting with ``{``) is read as a WPILib SysId data
+file (:mod:`~dcmotor_id.formats.sysid_json`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import COLUMNS, PathLike, Record
 from dcmotor_id.formats.mapping import (build_record, column_option, DEFAULT_OPTIONS,
                                         looks_like, note, ReadOptions)
+from dcmotor_id.formats.sysid_json import is_sysid_json, read_sysid_json
 
 #: Rows parsed per block (the block's array is the only temporary copy).
 BLOCK_ROWS = 1 << 18
@@ -136,6 +138,8 @@ def read_csv(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     """
     if not os.path.isfile(path):
         raise InputDataError(f'{path}: no such file; give the path of a CSV file or a bag')
+    if is_sysid_json(path):  # no format claims .json: result files are JSON too
+        return read_sysid_json(path, options)
     encoding = _encoding(path)
     if encoding != 'utf-16':
         _refuse_nul(path)
@@ -193,8 +197,8 @@ def _column_index(path: PathLike, header: list[str], options: ReadOptions) -> di
         if positions:
             index[channel] = positions[0]
         elif channel in options.columns:
-            raise InputDataError(f'{path}: --column {channel}={name}: no column {name!r} in '
-                                 f'the header; it has {", ".join(header)}')
+            raise InputDataError(f'{path}: {column_option(channel, name)}: no column {name!r} '
+                                 f'in the header; it has {", ".join(header)}')
     standard = {channel: number for channel, number in index.items() if channel in COLUMNS}
     _check_names(path, header, standard)
     if 't' not in index and options.sample_period_s is None:
@@ -268,8 +272,10 @@ def _parse_slowly(path: PathLike, stream: IO[str], header_line: int,
                 values[name].append(float(cell.replace(',', '.') if decimal_comma else cell))
             except (IndexError, ValueError):
                 cell = row[column] if column < len(row) else '(missing)'
+                what = ('the segment column (--segment-column: > 0 in a test, 0 between '
+                        'tests)') if name == 'segment' else f'column {name!r}'
                 raise InputDataError(
-                    f'{path}: line {row_number}, column {name!r}: {cell!r} is not a number; '
+                    f'{path}: line {row_number}, {what}: {cell!r} is not a number; '
                     'fix or remove that line') from None
     if not any(values.values()):
         raise InputDataError(f'{path}: the file has a header but no samples; record or '

@@ -24,8 +24,9 @@ import numpy as np
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import Record
 
-#: Channels a column can be mapped to (``duty`` and ``direction`` make the voltage).
-CHANNELS = ('t', 'voltage', 'current', 'speed', 'position', 'duty', 'direction')
+#: Channels a column can be mapped to (``duty`` and ``direction`` make the voltage;
+#: ``segment`` marks the tests of a record, read only when mapped: ``--segment-column``).
+CHANNELS = ('t', 'voltage', 'current', 'speed', 'position', 'duty', 'direction', 'segment')
 #: Channels whose sign ``--negate`` flips.
 SIGNED_CHANNELS = ('voltage', 'current', 'speed', 'position')
 #: Current units -> factor to A.
@@ -61,6 +62,8 @@ def bare_name(column: str) -> str:
 
 def column_option(channel: str, column: str) -> str:
     """Return the ``--column`` option that maps ``column`` to ``channel``, quoted for a shell."""
+    if channel == 'segment':
+        return '--segment-column ' + shlex.quote(column)
     return '--column ' + shlex.quote(f'{channel}={column}')
 
 
@@ -179,6 +182,8 @@ class ReadOptions:
     def wanted(self) -> list[str]:
         """Channels to look for in the file, in :data:`CHANNELS` order."""
         skip = set() if self.bus_voltage is not None else {'duty', 'direction'}
+        if 'segment' not in self.columns:
+            skip.add('segment')
         return [channel for channel in CHANNELS if channel not in skip]
 
     def input_units(self) -> dict[str, dict[str, Any]]:
@@ -293,7 +298,7 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
     Raises
     ------
     InputDataError
-        A duty column asked for but absent, or out of its range.
+        A duty column absent or out of its range, a segment value that is not a number.
 
     """
     def scaled(name: str, factor: float) -> Optional[np.ndarray]:
@@ -331,8 +336,23 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
             factor = SPEED_UNITS[options.speed_unit]
         speed = scaled('speed', factor * options.gear_ratio * sign('speed'))
     position = scaled('position', options.position_factor * sign('position'))
-    return Record(np.asarray(time_s, dtype=float), current=current, voltage=voltage,
-                  speed=speed, position=position, source=source)
+    return Record(np.asarray(time_s, dtype=float), current, voltage, speed, position, source,
+                  segment=_segment(columns.get('segment'), options, source))
+
+
+def _segment(values: Optional[np.ndarray], options: ReadOptions,
+             source: str) -> Optional[np.ndarray]:
+    """Return the segment column (values > 0 mark tests, 0 idle), refusing non-finite values."""
+    if values is None:
+        return None
+    values = np.asarray(values, dtype=float)
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise InputDataError(
+            f'{source}: {column_option("segment", options.column("segment"))}: sample '
+            f'{int(bad[0]) + 1} is {values[bad[0]]}, not a number; the segment column must '
+            'hold numbers (> 0 in a test, 0 between tests)')
+    return values
 
 
 def _voltage_from_duty(columns: Mapping[str, np.ndarray], options: ReadOptions,

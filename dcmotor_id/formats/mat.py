@@ -266,7 +266,7 @@ def read_mat(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
                     raise InputDataError(
                         f'{path}: no variable {options.column(channel).partition(":")[0]!r} for '
                         f'{channel}; the file has {", ".join(get.names)}'  # type: ignore
-                        f'. Map it with --column {channel}=NAME (or NAME:COLUMN, or '
+                        f'. Map it with {column_option(channel, "NAME")} (or NAME:COLUMN, or '
                         'STRUCT.FIELD)' + (', or give the sample period with --sample-period '
                                            'S' if channel == 't' else '')
                         + _suggestion(get.names, options))  # type: ignore[attr-defined]

@@ -14,7 +14,7 @@ import numpy as np
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
 from dcmotor_id.formats.budget import check_budget
-from dcmotor_id.formats.mapping import build_record, DEFAULT_OPTIONS, ReadOptions
+from dcmotor_id.formats.mapping import build_record, column_option, DEFAULT_OPTIONS, ReadOptions
 
 #: File name endings of Parquet files.
 PARQUET_SUFFIXES = ('.parquet', '.pq')
@@ -58,7 +58,7 @@ def read_parquet(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Reco
         if channel in wanted and channel not in present:
             raise InputDataError(
                 f'{path}: no column {wanted[channel]!r} for {channel}; the file has '
-                f'{", ".join(names)}. Map it with --column {channel}=NAME')
+                f'{", ".join(names)}. Map it with {column_option(channel, "NAME")}')
     try:
         rows = pq.ParquetFile(path).metadata.num_rows
     except (pyarrow.ArrowException, OSError) as error:

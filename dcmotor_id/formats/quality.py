@@ -14,18 +14,21 @@ Three ways a channel carries no usable information although it holds numbers:
   instant it was applied, the motor starting from rest, satisfies the balance and is kept.
 
 :func:`check_channels` raises :class:`~dcmotor_id.core.errors.InputDataError` with a message that
-names the channel, what was seen and what to do.
+names the channel, what was seen and what to do.  A current that never reads below zero while
+the speed reverses (:func:`magnitude_current`: a magnitude, its sign lost) is said in a note.
 """
 
 from __future__ import annotations
 
 from typing import Optional
+import warnings
 
 import numpy as np
 
 from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import Record
+from dcmotor_id.formats.mapping import ReadingNote
 
 #: Fraction of the driven samples exactly zero between non-zero neighbours: PWM-sampled.
 PWM_ZERO_FRACTION = 0.1
@@ -240,6 +243,37 @@ def command_voltage(record: Record) -> Optional[str]:
             'used)')
 
 
+#: Share of the moving samples in each direction that makes a speed reverse (not a blip).
+REVERSING_SHARE = 0.05
+
+
+def magnitude_current(record: Record) -> Optional[str]:
+    """
+    Say when the current never reads below zero while the speed runs both ways, or None.
+
+    A motor controller's output current is often a magnitude (a Spark MAX's
+    ``OutputCurrent``, a wheel robot's current sensor): its sign is lost, and a fit of it
+    reads a braking as a drive.  Only a load can turn a motor the other way with a current of
+    one sign (gravity lowering an arm), so this is said in a note, not refused.
+    """
+    if record.current is None or record.speed is None or len(record) < MIN_CHECK_SAMPLES:
+        return None
+    current, speed = np.asarray(record.current), np.asarray(record.speed)
+    if float(np.min(current)) < 0.0 or not float(np.max(current)) > 0.0:
+        return None
+    moving = np.abs(speed) > 0.1 * float(np.max(np.abs(speed)))
+    share = max(int(np.count_nonzero(moving)), 1)
+    if min(np.count_nonzero(speed[moving] > 0), np.count_nonzero(speed[moving] < 0)) \
+            < REVERSING_SHARE * share:
+        return None
+    return (f'{record.source}: the current never reads below 0 while the speed runs both '
+            f'ways ({float(np.min(speed)):.4g} to {float(np.max(speed)):.4g} rad/s): if it is '
+            "a magnitude (a motor controller's output current), give it the sign of the torque "
+            'before fitting (where the drive never brakes, the sign of the speed; docs/'
+            'formats.md, "The current as a magnitude"); fitted as it is, a braking reads as '
+            'a drive')
+
+
 #: The checks in the order they are applied.
 CHECKS = (pwm_sampled_current, quantised_speed, command_voltage)
 
@@ -277,6 +311,9 @@ def check_channels(record: Record, mechanical_only: bool = False) -> Record:
     problems = channel_problems(record, mechanical_only)
     if problems:
         raise InputDataError('; '.join(problems))
+    said = magnitude_current(record)
+    if said:
+        warnings.warn(said, ReadingNote, stacklevel=2)
     return record
 
 
@@ -286,5 +323,7 @@ register(Check('quantised_speed', 'read', 'record', quantised_speed,
                'a speed quantised to a few levels (refused)'))
 register(Check('command_voltage', 'read', 'record', command_voltage,
                'a voltage that is a command never reaching the motor (refused)'))
+register(Check('magnitude_current', 'read', 'record', magnitude_current,
+               'a current that never reads below 0 while the speed reverses (said in a note)'))
 register(Check('coarse_speed', 'before_fit', 'record', coarse_speed,
                'a coarse speed kept, said in a warning'))

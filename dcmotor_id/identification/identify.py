@@ -53,12 +53,14 @@ The names callers import from here stay importable from here (``__all__``).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.blas import single_threaded
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.estimators.base import Estimator
+from dcmotor_id.identification.estimators.voltage_speed import one_magnitude
 from dcmotor_id.identification.pipeline.base_fit import METHODS
 from dcmotor_id.identification.pipeline.current_limited import JACKKNIFE_GROUPS
 from dcmotor_id.identification.pipeline.discovery import (HOPELESS_DISCOVERY_S,
@@ -67,6 +69,7 @@ from dcmotor_id.identification.pipeline.discovery import (HOPELESS_DISCOVERY_S,
 from dcmotor_id.identification.pipeline.fit_outcome import NO_FIT_NRMSE_PCT, simulation_errors
 from dcmotor_id.identification.pipeline.floor import identify_above_floor
 from dcmotor_id.identification.pipeline.heldout import HELDOUT_CHOICE, record_errors
+from dcmotor_id.identification.pipeline.segments import split_tests
 from dcmotor_id.identification.pipeline.state import Request
 from dcmotor_id.identification.pipeline.voltage_speed import identify_voltage_speed
 from dcmotor_id.identification.prepare import (check_excitation, common_period,
@@ -147,12 +150,20 @@ def identify(records: Sequence[Record], method: str = 'refined',
     """
     _check_choices(method, initial_state)
     if is_voltage_speed(records, torque_constant):  # no current: kS, kV, kA
-        return identify_voltage_speed(records, discover)
+        return _voltage_speed_tests(records, discover)
     request = Request(records, method, torque_constant, discover, estimator, vocabulary,
                       progress if progress is not None else Progress(max_time_s), initial_state)
     if structure_bootstrap:
         return _bootstrapped(request, criterion, max_time_s, progress, structure_bootstrap)
     return identify_above_floor(criterion, request)
+
+
+def _voltage_speed_tests(records: Sequence[Record], discover: bool) -> IdentificationResult:
+    """Identify kS, kV, kA from the tests a segment column marks (the records as they are else)."""
+    tests = split_tests(records)
+    result = identify_voltage_speed(list(tests.records), discover)
+    said = [text for text in (tests.note, one_magnitude(tests.records)) if text]
+    return replace(result, warnings=said + result.warnings) if said else result
 
 
 def _bootstrapped(request: Request, criterion: str, max_time_s: float | None,

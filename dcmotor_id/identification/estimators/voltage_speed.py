@@ -117,9 +117,13 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
     Raises
     ------
     NotIdentifiableError
-        When the regressors are (nearly) dependent (a motor at one speed).
+        When the regressors are (nearly) dependent (a motor at one speed, or one voltage step:
+        :func:`one_level_step`).
 
     """
+    one_step = one_level_step(records)
+    if one_step:
+        raise NotIdentifiableError(one_step)
     rows, targets = [], []
     for record in records:
         dt = record.sample_period_s
@@ -140,6 +144,62 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
     kv = max(float(solution[1]), 1e-9)
     ka = float(solution[2]) if solution[2] > 0 else 0.05 * kv
     return {'kS': max(float(solution[0]), 0.0), 'kV': kv, 'kA': ka}
+
+
+#: Spread of the voltage while moving, relative to its size, below which it holds one level.
+ONE_LEVEL_SPREAD = 0.01
+
+
+def _levels(records: Sequence[Record]) -> tuple[np.ndarray, np.ndarray]:
+    """Return the voltage and the speed's sign over the samples where the motor moves."""
+    voltages, signs = [], []
+    for record in records:
+        voltage, speed = channels(record)
+        moving = np.abs(speed) > 3.0 * noise_std(speed)
+        voltages.append(voltage[moving])
+        signs.append(np.sign(speed[moving]))
+    return np.concatenate(voltages), np.concatenate(signs)
+
+
+def one_level_step(records: Sequence[Record]) -> str:
+    """
+    Say why one voltage level in one direction cannot give kS, kV, kA ('' when it is not so).
+
+    The speed's response to one step is a first-order lag: its final speed and its time
+    constant are two numbers for three unknowns, and ``kS + kV w = u`` at the final speed ties
+    kS to kV (the regressors ``sgn w``, ``w`` and ``dw/dt`` are dependent).
+    """
+    voltage, signs = _levels(records)
+    if voltage.size == 0 or np.unique(signs).size > 1:
+        return ''
+    size = float(np.max(np.abs(voltage)))
+    if size == 0.0 or float(np.std(voltage)) > ONE_LEVEL_SPREAD * size:
+        return ''
+    return (f'the voltage holds one level ({float(np.median(voltage)):.4g} V) in one direction '
+            "while the motor moves: the speed's response to one step gives its final speed and "
+            'its time constant, two numbers for kS, kV and kA, and kS + kV w = u at the final '
+            'speed ties kS to kV; record steps of two or more voltage levels, or both '
+            'directions (a SysId routine: ramps and steps both ways)')
+
+
+def one_magnitude(records: Sequence[Record]) -> str:
+    """
+    Say when the voltage holds one magnitude in both directions ('' when it does not).
+
+    The steady states then give one equation ``kS + kV w = |u|``: only the reversals, where
+    ``sgn w`` changes within the response, separate kS from kV, and the two trade against
+    each other beyond what their standard errors say.
+    """
+    voltage, signs = _levels(records)
+    if voltage.size == 0 or np.unique(signs).size < 2:
+        return ''
+    size = float(np.max(np.abs(voltage)))
+    if size == 0.0 or float(np.std(np.abs(voltage))) > ONE_LEVEL_SPREAD * size:
+        return ''
+    return (f'the voltage takes one magnitude ({size:.4g} V) in both directions: the steady '
+            'states give only kS + kV w = |u|, and kS and kV are separated by the reversals '
+            'alone, so they trade against each other beyond their standard errors; record two '
+            'or more voltage levels to separate them')
 
 
 def _first_order(theta: np.ndarray, record: Record, initial_speed: float) -> np.ndarray:

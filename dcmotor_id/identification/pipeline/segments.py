@@ -8,7 +8,10 @@ the whole record is pulled off by them.  :func:`find_tests` finds those stretche
 and current both exactly 0 for at least :data:`IDLE_MIN_SAMPLES` samples while the speed
 changes beyond its noise: the model would keep the motor coasting on its friction alone, so
 a braking it cannot explain shows a drive that is not in the log) and :func:`split_tests` cuts
-the records into their tests, each fitted as a record of its own.
+the records into their tests, each fitted as a record of its own.  A record that carries its
+tests as logged (``--segment-column NAME``: :attr:`~dcmotor_id.core.records.Record.segment`,
+values > 0 in a test, 0 between tests, a change of value starting another test) is cut where
+the column says instead (:func:`marked_tests`), and not searched.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import MIN_SAMPLES
 from dcmotor_id.signals.filters import noise_std
 
@@ -66,12 +70,29 @@ def idle_samples(record: Record) -> np.ndarray | None:
     return idle if braked else None
 
 
-def _cut(record: Record, tests: np.ndarray, index: int) -> tuple[list, list[str]]:
-    """Cut one record at its non-test samples; return the pieces and their names."""
+def marked_tests(segment: np.ndarray) -> list[tuple[int, int]]:
+    """
+    Return the ``(start, stop)`` of every test a segment column marks.
+
+    A test is a run of samples with one value > 0; a change of value starts the next one
+    (tests logged back to back with their numbers), 0 or less is between tests.
+    """
+    values = np.asarray(segment, dtype=float)
+    runs = []
+    for start, stop in _runs(values > 0.0):
+        changes = np.flatnonzero(np.diff(values[start:stop])) + start + 1
+        bounds = [start, *changes.tolist(), stop]
+        runs += [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    return runs
+
+
+def _cut(record: Record, tests: np.ndarray | list[tuple[int, int]],
+         index: int) -> tuple[list, list[str]]:
+    """Cut one record into its tests (a mask or their runs); return the pieces and names."""
     pieces: list = []
     names: list[str] = []
     time_s = np.asarray(record.time_s, dtype=float)
-    for start, stop in _runs(tests):
+    for start, stop in (_runs(tests) if isinstance(tests, np.ndarray) else tests):
         if stop - start < MIN_SAMPLES:
             continue
         name = (f'{record.source or f"record {index + 1}"} [test {len(pieces) + 1}: '
@@ -82,7 +103,15 @@ def _cut(record: Record, tests: np.ndarray, index: int) -> tuple[list, list[str]
 
 
 def split_tests(records: Sequence[Record]) -> Tests:
-    """Cut every record that has idle or braked stretches (:func:`idle_samples`) into its tests."""
+    """
+    Cut every record into its tests: as its segment column marks them, else as found.
+
+    A record with a segment column (:func:`marked_tests`) is cut where it says (a record whose
+    column marks one test spanning it is left whole); one without is cut at its idle or braked
+    stretches (:func:`idle_samples`).
+    """
+    if any(record.segment is not None for record in records):
+        return _split_marked(records)
     out: list = []
     named: list[str] = []
     for index, record in enumerate(records):
@@ -97,3 +126,30 @@ def split_tests(records: Sequence[Record]) -> Tests:
         'disabled or braking with its windings shorted, which the log does not show) lie '
         f'between tests: fitted as {len(named)} separate records (tests of fewer than '
         f'{MIN_SAMPLES} samples left out): ' + '; '.join(named)))
+
+
+def _split_marked(records: Sequence[Record]) -> Tests:
+    """Cut the records with a segment column where it says; the others stay whole."""
+    out: list = []
+    named: list[str] = []
+    for index, record in enumerate(records):
+        if record.segment is None:
+            out.append(record)
+            continue
+        runs = marked_tests(record.segment)
+        if runs == [(0, len(record))]:
+            out.append(record)
+            continue
+        pieces, names = _cut(record, runs, index)
+        if not pieces:
+            raise InputDataError(
+                f'{record.source or f"record {index + 1}"}: the segment column marks no test '
+                f'of {MIN_SAMPLES} samples or more (values > 0 mark a test, 0 the samples '
+                'between tests); check the column given with --segment-column')
+        out += pieces
+        named += names
+    if not named:
+        return Tests(tuple(out), '')
+    return Tests(tuple(out), (
+        f'the segment column marks the tests: fitted as {len(named)} separate records (tests '
+        f'of fewer than {MIN_SAMPLES} samples left out): ' + '; '.join(named)))
