@@ -39,7 +39,7 @@ same records as the peer::
     git clone https://github.com/JackDelcaro/ACL_LABisca && git -C ACL_LABisca checkout 092cd65
 
     .venv/bin/python bench/bench_real.py --sysidopt SysIdOpt --wheels research-wheel-slippage \
-        --qube ACL_LABisca --out bench/real_results_round3.md
+        --qube ACL_LABisca --out bench/real_results_robot_logs.md
 
 Each repository path may be a work tree or a bare clone (``git clone --bare``; its files are
 then read at the named commit with ``git show``).  Run from the repository root (one command;
@@ -1244,7 +1244,7 @@ def _cell(values: dict[str, Any], key: str, ref: Optional[float]) -> str:
     return with_error(None if value is None else float(value), ref)
 
 
-def round3_lines(rows: list[dict[str, Any]]) -> list[str]:
+def robot_log_lines(rows: list[dict[str, Any]]) -> list[str]:
     """Return the section of the round-3 records: the tool and its regression, side by side."""
     lines = []
     for data in dict.fromkeys(row['run'].data for row in rows):
@@ -1288,7 +1288,7 @@ def _farther(row: dict[str, Any]) -> list[str]:
     return out
 
 
-def goal_round3(rows: list[dict[str, Any]]) -> list[str]:
+def goal_robot_logs(rows: list[dict[str, Any]]) -> list[str]:
     """
     Return the goals of issue 29 on the round-3 records, met or not, per record.
 
@@ -1394,9 +1394,9 @@ def data_sets(args: argparse.Namespace, work: str) -> tuple[list[DataSet], list[
     return built, skipped
 
 
-def round3_runs(args: argparse.Namespace, work: str,
-                skipped: list[str]) -> tuple[list[Run3], list[dict[str, Any]]]:
-    """Build the round-3 records asked for; return them and the findings of reading them."""
+def robot_log_runs(args: argparse.Namespace, work: str,
+                   skipped: list[str]) -> tuple[list[Run3], list[dict[str, Any]]]:
+    """Build the robot and lab log records asked for; return them and the findings of reading them."""
     runs: list[Run3] = []
     findings: list[dict[str, Any]] = []
     for name, given in (('sysidopt', args.sysidopt), ('wheels', args.wheels),
@@ -1419,8 +1419,8 @@ def round3_runs(args: argparse.Namespace, work: str,
 
 def report(args: argparse.Namespace, sets: list[DataSet], rows: list[dict[str, Any]],
            skipped: list[str], load: tuple[float, ...], setup: dict[str, Any],
-           round3: tuple[list, list] = ([], [])) -> str:
-    """Return the whole markdown report; ``round3`` holds its rows and reading findings."""
+           robot_logs: tuple[list, list] = ([], [])) -> str:
+    """Return the whole markdown report; ``robot_logs`` holds its rows and reading findings."""
     import numpy
     import scipy
     end = os.getloadavg()
@@ -1436,11 +1436,11 @@ def report(args: argparse.Namespace, sets: list[DataSet], rows: list[dict[str, A
              f'installs), exit {setup["rc"]}, {setup["wall"]:.0f} s wall clock, '
              f'{setup["cpu"]:.0f} s CPU (in no row)', '']
     lines += [f'- {text}' for text in skipped] + ([''] if skipped else [])
-    lines += goal_lines(rows) + (goal_round3(round3[0]) if round3[0] else [])
-    lines += finding_lines(sets, round3[1]) + [LEGEND, '']
+    lines += goal_lines(rows) + (goal_robot_logs(robot_logs[0]) if robot_logs[0] else [])
+    lines += finding_lines(sets, robot_logs[1]) + [LEGEND, '']
     for ds in sets:
         lines += data_set_lines(ds, [row for row in rows if row['ds'] is ds])
-    return '\n'.join(lines + round3_lines(round3[0]))
+    return '\n'.join(lines + robot_log_lines(robot_logs[0]))
 
 
 def main(argv: Optional[list[str]] = None) -> int:
@@ -1450,15 +1450,15 @@ def main(argv: Optional[list[str]] = None) -> int:
     work = args.work or tempfile.mkdtemp(prefix='bench_real_')
     try:
         sets, skipped = data_sets(args, work)
-        runs3, findings3 = round3_runs(args, work, skipped)
+        robot_runs, robot_findings = robot_log_runs(args, work, skipped)
         setup = warm_up()
         rows = []
         for ds in sets:
             for number, job in enumerate(ds.jobs, 1):
                 log(f'{ds.name} {number}/{len(ds.jobs)}: {job.label}')
                 rows.append(evaluate(ds, job, work))
-        rows3 = [evaluate3(run, work) for run in runs3]
-        text = report(args, sets, rows, skipped, load, setup, (rows3, findings3))
+        rows3 = [evaluate3(run, work) for run in robot_runs]
+        text = report(args, sets, rows, skipped, load, setup, (rows3, robot_findings))
     finally:
         if not args.work:
             shutil.rmtree(work, ignore_errors=True)
