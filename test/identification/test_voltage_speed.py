@@ -25,6 +25,7 @@ from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.json_file import with_schema_version
 from dcmotor_id.identification.estimators.voltage_speed import fit_voltage_speed
 from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.identification.validate import model_from_dict, validate
 from dcmotor_id.simulation import simulate_motor
 from dcmotor_id.simulation.excitation import make_excitation
 
@@ -146,16 +147,19 @@ def test_design_takes_the_result_for_feedforward_and_speed_loop():
     assert geared.values['kS'] == result['parameters']['kS']
 
 
-def test_cli_identify_design_validate(tmp_path, capsys):
+def test_cli_identify_report_design_validate(tmp_path, capsys):
     motor = PAPER_MOTORS['paper2']
     record = noisy_record(motor, sysid_voltage())
     csv = str(tmp_path / 'sysid.csv')
     write_csv(csv, record)
     out = str(tmp_path / 'result.json')
-    assert main(['identify', csv, '--quiet', '--report', str(tmp_path / 'report')]) == 2
-    assert 'no HTML report yet' in capsys.readouterr().err
-    assert main(['identify', csv, '--quiet', '--json', out]) == 0
+    report = tmp_path / 'report'
+    assert main(['identify', csv, '--quiet', '--json', out, '--report', str(report)]) == 0
     result = json.loads(open(out, encoding='utf-8').read())
+    page = (report / 'index.html').read_text(encoding='utf-8')
+    assert 'voltage-to-speed model' in page and 'not separable without the current' in page
+    assert '<td>acceleration_gain</td>' in page and 'Ra J / CPhi' in page
+    assert (report / 'fit.png').exists() and (report / 'residuals.png').exists()
     for name in ('kS', 'kV'):
         assert result['parameters'][name] == pytest.approx(combinations(motor)[name], rel=0.02)
     capsys.readouterr()
@@ -168,8 +172,14 @@ def test_cli_identify_design_validate(tmp_path, capsys):
     assert not (tmp_path / 'export' / 'urdf_dynamics.xml').exists()
     assert main(['design', out, '--current-bandwidth', '100']) == 2
     assert 'no current loop to design' in capsys.readouterr().err
-    assert main(['validate', out, csv]) == 2
-    assert 'voltage-to-speed model' in capsys.readouterr().err
+    capsys.readouterr()
+    validation = str(tmp_path / 'validation.json')
+    assert main(['validate', out, csv, '--json', validation,
+                 '--report', str(tmp_path / 'validation')]) == 0
+    validate_schema(json.loads(open(validation, encoding='utf-8').read()), 'validation')
+    scores = json.loads(open(validation, encoding='utf-8').read())['records'][0]
+    assert scores['current_nrmse_pct'] is None and scores['speed_nrmse_pct'] < 2.0
+    assert (tmp_path / 'validation' / 'validation.html').exists()
 
 
 def test_ramps_and_steps_fix_the_acceleration_gain_and_say_ka_is_loose():
@@ -236,3 +246,18 @@ def test_cli_max_time_and_structure_bootstrap_on_voltage_speed(tmp_path, capsys)
     assert main(['identify', csv, '--quiet', '--structure-bootstrap', '3', '--json', out]) == 0
     warnings = json.loads(open(out, encoding='utf-8').read())['warnings']
     assert any('--structure-bootstrap 3 ignored' in text for text in warnings)
+
+
+def test_validate_simulates_the_speed_with_the_armature_lag(tmp_path):
+    """validate: kS, kV, kA and the lag from the JSON give the speed within the noise."""
+    motor = PAPER_MOTORS['paper2']
+    result = identify(prepare_records([noisy_record(motor, prbs_voltage())])).as_dict()
+    other = prepare_records([noisy_record(motor, prbs_voltage(), seed=7)])
+    scores = validate(model_from_dict(result), other).as_dict()['records'][0]
+    # 1 % noise of the speed's standard deviation: NRMSE 1 % when the model is right
+    assert scores['speed_nrmse_pct'] < 1.1 and scores['current_nrmse_pct'] is None
+    first_order = dict(result, model=dict(result['model'], armature_lag=None))
+    worse = validate(model_from_dict(first_order), other).as_dict()['records'][0]
+    assert worse['speed_nrmse_pct'] > 3.0 * scores['speed_nrmse_pct']
+    with pytest.raises(InputDataError, match='parameter kA is'):
+        model_from_dict({'model': dict(result['model'], parameters={'kS': 1.0, 'kV': 1.0})})

@@ -176,7 +176,8 @@ def motor_of(theta: np.ndarray) -> MotorParameters:
 
 
 def simulate_speed(values: Mapping[str, float], voltage: np.ndarray, sample_period_s: float,
-                   initial_speed: float, lag: tuple[float, float] | None = None) -> np.ndarray:
+                   initial_speed: float, lag: tuple[float, float] | None = None,
+                   initial_drop: float | None = None) -> np.ndarray:
     """
     Return the speed [rad/s] of a reported voltage-to-speed model under ``voltage`` [V].
 
@@ -192,7 +193,10 @@ def simulate_speed(values: Mapping[str, float], voltage: np.ndarray, sample_peri
         Speed at the first sample [rad/s].
     lag : tuple of float, optional
         The armature lag as reported: ``(Ta [s], kA + Ta Ra b/CPhi [V s^2/rad])``; the exact
-        second-order model then (its current starts at the quasi-static ``u - CPhi w``).
+        second-order model then.
+    initial_drop : float, optional
+        With the lag: the armature current times ``Ra`` at the first sample [V]; None: the
+        quasi-static ``u - CPhi w`` (the current settled).
 
     """
     ka, kv, ks = float(values['kA']), float(values['kV']), float(values['kS'])
@@ -204,7 +208,8 @@ def simulate_speed(values: Mapping[str, float], voltage: np.ndarray, sample_peri
     theta = np.array([math.log(ka), math.log(kv), ks, math.log(ta * kv / ka),
                       min(max(share, 1e-3), 1.0)])
     motor = motor_of(theta)
-    current = float(voltage[0]) - motor.CPhi * initial_speed if voltage.size else 0.0
+    current = initial_drop if initial_drop is not None else (  # at Ra = 1 Ohm
+        float(voltage[0]) - motor.CPhi * initial_speed if voltage.size else 0.0)
     return simulate_motor(motor, voltage, sample_period_s, (current, initial_speed))[1]
 
 
