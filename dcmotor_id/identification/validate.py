@@ -105,10 +105,10 @@ def lag_block(result: Mapping[str, Any]) -> Optional[dict[str, float]]:
     if not all(isinstance(entry, Mapping) for entry in entries):
         return None
     values = [entry.get('value') for entry in entries if isinstance(entry, Mapping)]
-    if not all(isinstance(value, (int, float)) and np.isfinite(value) and value > 0
-               for value in values):
+    numbers = [float(value) for value in values if isinstance(value, (int, float))]
+    if len(numbers) != 2 or not all(np.isfinite(value) and value > 0 for value in numbers):
         return None
-    return {'time_constant_s': float(values[0]), 'acceleration_gain': float(values[1])}
+    return {'time_constant_s': numbers[0], 'acceleration_gain': numbers[1]}
 
 
 #: Share of a record's samples outside the model's operating range that earns a warning.
@@ -255,8 +255,24 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
     effects = list(block.get('effects') or [])
     for effect in effects:
         _check_effect(effect, source)
+    if mode == 'voltage_speed':
+        _check_lag(block.get('armature_lag'), source)
     return Model(parameters, mode, None if constant is None else float(constant), effects,
                  block.get('sample_period_s'), dict(block))
+
+
+def _check_lag(lag: Any, source: str) -> None:
+    """Refuse an ``armature_lag`` that is not None or two positive finite numbers."""
+    if lag is None:
+        return
+    values = [lag.get(key) for key in ('time_constant_s', 'acceleration_gain')] \
+        if isinstance(lag, Mapping) else [None]
+    if not all(isinstance(value, (int, float)) and not isinstance(value, bool)
+               and np.isfinite(value) and value > 0 for value in values):
+        raise InputDataError(
+            f'{source}: model.armature_lag is {json.dumps(lag)[:120]}: null or '
+            '{"time_constant_s": Ta [s], "acceleration_gain": kA + Ta Ra b/CPhi [V s^2/rad]}, '
+            'both positive, is expected (as identify --json writes it)')
 
 
 def _top_level(data: Mapping[str, Any], source: str) -> dict[str, Any]:

@@ -261,3 +261,6 @@ def test_validate_simulates_the_speed_with_the_armature_lag(tmp_path):
     assert worse['speed_nrmse_pct'] > 3.0 * scores['speed_nrmse_pct']
     with pytest.raises(InputDataError, match='parameter kA is'):
         model_from_dict({'model': dict(result['model'], parameters={'kS': 1.0, 'kV': 1.0})})
+    for lag in ('fast', {'time_constant_s': -1.0, 'acceleration_gain': 0.07}, {}):
+        with pytest.raises(InputDataError, match='model.armature_lag is'):
+            model_from_dict({'model': dict(result['model'], armature_lag=lag)})
