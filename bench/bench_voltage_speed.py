@@ -220,8 +220,8 @@ def shortcut_rows():
     from dcmotor_id.simulation import simulate_motor_effects
     motor = PAPER_MOTORS['paper2']
     truth = combinations(motor)
-    cases = {'none': [], 'load torque 0.5 N m (1.14 V)': [make_effect('load_torque',
-                                                                     torque_Nm=0.5)]}
+    load = make_effect('load_torque', torque_Nm=0.5)
+    cases = {'none': [], 'load torque 0.5 N m (1.14 V)': [load]}
     for label, effects in cases.items():
         for experiment, make in EXPERIMENTS.items():
             voltage = make()
