@@ -615,6 +615,18 @@ def _simulate_checked(model: Model, record: Record, init_samples: int
         'time column of the record (seconds)')
 
 
+def _check_channels(model: Model, record: Record) -> None:
+    """Refuse a record without the input of the model, or (full model) without its current."""
+    if not model.mechanical_only and record.voltage is None:
+        raise InputDataError(f'{record.source}: no voltage column: the model ({model.mode}) '
+                             'takes the voltage as its input')
+    if model.mode == 'full' and record.current is None:
+        raise InputDataError(f'{record.source}: no current column: the model (mode full) is '
+                             'scored on the current and the speed; validate it on records with '
+                             'the current, or identify records of voltage and speed alone for '
+                             'the voltage-to-speed model (kS, kV, kA) and validate that')
+
+
 def validate_record(model: Model, record: Record, init_samples: int = INIT_SAMPLES,
                     position_scale: float = 1.0) -> RecordValidation:
     """
@@ -639,9 +651,7 @@ def validate_record(model: Model, record: Record, init_samples: int = INIT_SAMPL
         raise InputDataError(f'{record.source}: {len(record)} samples, not more than the '
                              f'{init_samples} initial samples; give a longer record or a '
                              'smaller --init-samples')
-    if not model.mechanical_only and record.voltage is None:
-        raise InputDataError(f'{record.source}: no voltage column: the model is a full motor '
-                             'model and needs the voltage as its input')
+    _check_channels(model, record)
     check_delays(model, record, init_samples)
     state, simulated = _simulate_checked(model, record, init_samples)
     scored = slice(init_samples, None)

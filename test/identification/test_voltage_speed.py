@@ -267,3 +267,19 @@ def test_validate_simulates_the_speed_with_the_armature_lag(tmp_path):
     for lag in ('fast', {'time_constant_s': -1.0, 'acceleration_gain': 0.07}, {}):
         with pytest.raises(InputDataError, match='model.armature_lag is'):
             model_from_dict({'model': dict(result['model'], armature_lag=lag)})
+
+
+def test_a_full_model_on_a_record_without_current_is_refused(tmp_path, capsys):
+    """validate: a full model needs the current of the record (an internal error before)."""
+    motor = PAPER_MOTORS['paper2']
+    voltage = prbs_voltage()
+    current, speed = simulate_motor(motor, voltage, DT)
+    full, bare = str(tmp_path / 'full.csv'), str(tmp_path / 'bare.csv')
+    write_csv(full, Record(np.arange(voltage.size) * DT, current, voltage, speed))
+    write_csv(bare, Record(np.arange(voltage.size) * DT, voltage=voltage, speed=speed))
+    model = str(tmp_path / 'full.json')
+    assert main(['identify', full, '--quiet', '--no-discover', '--json', model]) == 0
+    capsys.readouterr()
+    assert main(['validate', model, bare]) == 2
+    err = capsys.readouterr().err
+    assert 'no current column' in err and 'internal error' not in err
