@@ -11,6 +11,7 @@ take such a result; the fit runs under the time budget and in the progress line.
 """
 
 from dataclasses import replace
+import itertools
 import json
 
 import numpy as np
@@ -18,6 +19,7 @@ import pytest
 from schema_check import validate as validate_schema
 
 from dcmotor_id.cli.main import main
+from dcmotor_id.core import progress as progress_module
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
@@ -283,3 +285,18 @@ def test_a_full_model_on_a_record_without_current_is_refused(tmp_path, capsys):
     assert main(['validate', model, bare]) == 2
     err = capsys.readouterr().err
     assert 'no current column' in err and 'internal error' not in err
+
+
+def test_cli_progress_of_the_voltage_speed_fit_in_a_pipe(tmp_path, capsys, monkeypatch):
+    """In a pipe: plain lines naming the fit (each evaluation 0.2 s of a fake clock)."""
+    csv = str(tmp_path / 'sysid.csv')
+    write_csv(csv, noisy_record(PAPER_MOTORS['paper2'], sysid_voltage()))
+    ticks = itertools.count(0.0, 0.2)
+    monkeypatch.setattr(progress_module.time, 'monotonic', lambda: next(ticks))
+    assert main(['identify', csv]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if 'voltage-speed fit' in line]
+    assert len(lines) >= 2 and '\r' not in err
+    assert any('armature lag' in line for line in lines)
+    assert main(['identify', csv, '--quiet']) == 0
+    assert 'voltage-speed fit' not in capsys.readouterr().err
