@@ -37,7 +37,6 @@ from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, pars
 from dcmotor_id.identification.error_model.criterion import CRITERIA
 from dcmotor_id.identification.identify import (DEFAULT_MAX_TIME_S, identify, INITIAL_STATES,
                                                 METHODS, prepare_records)
-from dcmotor_id.identification.prepare import is_voltage_speed
 from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
 from dcmotor_id.simulation.excitation import (add_sensor_noise, EXCITATION_KINDS, make_excitation,
                                               quantise)
@@ -152,7 +151,6 @@ def _cmd_identify(args):
     _check_segments(args, loaded)
     records, repairs = repair_all(prepare_records(loaded, args.torque_constant, args.resample,
                                                   args.speed_cutoff))
-    _check_report_for(args, records)
     for note in repairs + ignored_flags(args, records):
         print(f'dcmotor-id: warning: {note}', file=sys.stderr)
     vocabulary = EXTENDED_VOCABULARY if args.extended_vocabulary else None
@@ -201,15 +199,6 @@ def _cmd_identify(args):
     for failure in failures:
         print(f'dcmotor-id: error: {failure} (the result is printed above)', file=sys.stderr)
     return 2 if failures else 0
-
-
-def _check_report_for(args: argparse.Namespace, records: Sequence[Record]) -> None:
-    """Refuse ``--report`` for records without a current before the fit (no such report)."""
-    if args.report and is_voltage_speed(records, args.torque_constant):
-        raise InputDataError(f'--report {args.report}: the records have no current, so the '
-                             'result is the voltage-to-speed model (kS, kV, kA), which has no '
-                             'HTML report yet; leave --report out (the table and --json hold '
-                             'the result)')
 
 
 def ignored_flags(args: argparse.Namespace, records: Sequence[Record]) -> list[str]:

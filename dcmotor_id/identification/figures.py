@@ -14,8 +14,6 @@ from typing import Any, Mapping, Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from dcmotor_id.simulation import simulate_mechanical
-
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
@@ -32,14 +30,9 @@ def simulated_channels(result: Mapping[str, Any], record: Record,
     """
     Return the identified model's channels simulated over ``record`` (an identify JSON).
 
-    The voltage-to-speed model from the JSON alone is simulated as its first-order part (the
-    armature lag, when one was found, left out).
+    The voltage-to-speed model is simulated with its armature lag when one was found (the
+    ``model`` block's ``armature_lag``, its current starting quasi-static).
     """
-    if result.get('mode') == 'voltage_speed':
-        p = result['parameters']
-        voltage = np.asarray(record.voltage, dtype=float)
-        return {'speed': simulate_mechanical(p['kA'], p['kV'], p['kS'], voltage,
-                                             record.sample_period_s, float(initial_state[0]))}
     from dcmotor_id.identification.validate import model_from_dict, simulate
     return simulate(model_from_dict(result), record, initial_state)
 
@@ -89,8 +82,6 @@ def result_figures(result: Mapping[str, Any], records: Sequence[Record],
     for axes in (axes_fit[-1], axes_res[-1]):
         axes.set_xlabel('t [s]')
     title = f"{result.get('method')} ({result.get('mode')})"
-    if result.get('mode') == 'voltage_speed' and speeds is None:
-        title += ': first-order model simulated (kS, kV, kA; armature lag left out)'
     fit.suptitle(f'measured and simulated, {title}', fontsize=10)
     residual.suptitle(f'measured minus simulated, {title}', fontsize=10)
     return [fit, residual]

@@ -113,8 +113,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
     method : str
         ``refined`` (default) or ``paper``.
     torque_constant : float, optional
-        Mechanical-only mode with this torque constant [N m/A]; without it, records with no
-        current give ``kS, kV, kA`` (:mod:`~dcmotor_id.identification.pipeline.voltage_speed`).
+        Mechanical-only mode with this torque constant [N m/A]; without both: ``kS, kV, kA``.
     discover : bool
         Run the discovery loop (:mod:`~dcmotor_id.identification.discovery`) after an
         estimator that :func:`supports_discovery`.
@@ -149,19 +148,21 @@ def identify(records: Sequence[Record], method: str = 'refined',
 
     """
     _check_choices(method, initial_state)
+    budget = progress if progress is not None else Progress(max_time_s)
     if is_voltage_speed(records, torque_constant):  # no current: kS, kV, kA
-        return _voltage_speed_tests(records, discover)
+        return _voltage_speed_tests(records, discover, budget, structure_bootstrap)
     request = Request(records, method, torque_constant, discover, estimator, vocabulary,
-                      progress if progress is not None else Progress(max_time_s), initial_state)
+                      budget, initial_state)
     if structure_bootstrap:
         return _bootstrapped(request, criterion, max_time_s, progress, structure_bootstrap)
     return identify_above_floor(criterion, request)
 
 
-def _voltage_speed_tests(records: Sequence[Record], discover: bool) -> IdentificationResult:
+def _voltage_speed_tests(records: Sequence[Record], discover: bool, budget: Progress,
+                         structure_bootstrap: int) -> IdentificationResult:
     """Identify kS, kV, kA from the tests a segment column marks (the records as they are else)."""
     tests = split_tests(records)
-    result = identify_voltage_speed(list(tests.records), discover)
+    result = identify_voltage_speed(list(tests.records), discover, budget, structure_bootstrap)
     said = [text for text in (tests.note, one_magnitude(tests.records)) if text]
     return replace(result, warnings=said + result.warnings) if said else result
 

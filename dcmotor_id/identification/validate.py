@@ -25,7 +25,8 @@ from dcmotor_id.core.model import MECHANICAL_NAMES, MotorParameters, PARAMETER_N
 from dcmotor_id.core.records import COLUMNS, Record
 from dcmotor_id.formats.json_file import load_json
 from dcmotor_id.identification.effects import make_effect
-from dcmotor_id.identification.estimators.voltage_speed import NAMES as VOLTAGE_SPEED_NAMES
+from dcmotor_id.identification.estimators.voltage_speed import (NAMES as VOLTAGE_SPEED_NAMES,
+                                                                simulate_speed)
 from dcmotor_id.simulation import simulate_mechanical_effects, simulate_motor_effects
 
 #: Samples at the start of a record used for the initial state (and not scored), by default.
@@ -34,6 +35,9 @@ INIT_SAMPLES = 20
 MODEL_FORMAT = 'dcmotor_id.core.model/1'
 #: Sub-steps per sample for state-dependent effects (as the fit's state terms).
 OVERSAMPLE = 10
+#: The base parameters of each mode.
+MODE_NAMES = {'full': PARAMETER_NAMES, 'mechanical': MECHANICAL_NAMES,
+              'voltage_speed': VOLTAGE_SPEED_NAMES}
 
 
 def model_block(result: Mapping[str, Any]) -> dict[str, Any]:
@@ -53,8 +57,7 @@ def model_block(result: Mapping[str, Any]) -> dict[str, Any]:
 
     """
     mode = result.get('mode', 'full')
-    names = {'mechanical': MECHANICAL_NAMES,
-             'voltage_speed': VOLTAGE_SPEED_NAMES}.get(mode, PARAMETER_NAMES)
+    names = MODE_NAMES.get(mode, PARAMETER_NAMES)
     parameters = result.get('parameters', {})
     if not isinstance(parameters, Mapping):
         raise InputDataError(f'"parameters" is {json.dumps(parameters)[:80]}, not a mapping of '
@@ -85,7 +88,27 @@ def model_block(result: Mapping[str, Any]) -> dict[str, Any]:
         'sample_period_s': result.get('sample_period_s'),
         'channel_units': dict(COLUMNS),
         'operating_range': result.get('operating_range'),
+        **({'armature_lag': lag_block(result)} if mode == 'voltage_speed' else {}),
     }
+
+
+def lag_block(result: Mapping[str, Any]) -> Optional[dict[str, float]]:
+    """
+    Return the armature lag of a voltage-to-speed result for the ``model`` block, or None.
+
+    ``time_constant_s`` (``Ta``) and ``acceleration_gain`` (``kA + Ta Ra b/CPhi``), from
+    ``combined``: with ``kS, kV, kA`` they give the exact second-order model the fit chose.
+    """
+    combined = result.get('combined')
+    combined = combined if isinstance(combined, Mapping) else {}
+    entries = [combined.get(key) for key in ('armature_time_constant_s', 'acceleration_gain')]
+    if not all(isinstance(entry, Mapping) for entry in entries):
+        return None
+    values = [entry.get('value') for entry in entries if isinstance(entry, Mapping)]
+    numbers = [float(value) for value in values if isinstance(value, (int, float))]
+    if len(numbers) != 2 or not all(np.isfinite(value) and value > 0 for value in numbers):
+        return None
+    return {'time_constant_s': numbers[0], 'acceleration_gain': numbers[1]}
 
 
 #: Share of a record's samples outside the model's operating range that earns a warning.
@@ -166,7 +189,8 @@ class Model:
     parameters : dict
         Base parameters by name (SI).
     mode : str
-        ``full`` or ``mechanical``.
+        ``full``, ``mechanical`` or ``voltage_speed`` (``kS, kV, kA``: the voltage to the
+        speed, no current).
     torque_constant : float or None
         Torque constant of the mechanical mode [N m/A].
     effects : list of dict
@@ -190,6 +214,11 @@ class Model:
         """Whether the current is the input (mechanical-only mode)."""
         return self.mode == 'mechanical'
 
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        """Return the measured channels the model simulates (besides the position)."""
+        return ('current', 'speed') if self.mode == 'full' else ('speed',)
+
 
 def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
     """
@@ -208,19 +237,15 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
         check_one_model(data, source)
     block: Mapping[str, Any] = given if isinstance(given, Mapping) else _top_level(data, source)
     mode = block.get('mode', 'full')
-    if mode == 'voltage_speed':
-        raise InputDataError(f'{source}: a voltage-to-speed model (kS, kV, kA, identified '
-                             'without a current) cannot be validated here: validate simulates '
-                             'the current too; use dcmotor-id design for its feedforward')
-    if mode not in ('full', 'mechanical'):
-        raise InputDataError(f'{source}: unknown mode {mode!r} (full or mechanical)')
-    names = MECHANICAL_NAMES if mode == 'mechanical' else PARAMETER_NAMES
+    if mode not in MODE_NAMES:
+        raise InputDataError(f'{source}: unknown mode {mode!r} (full, mechanical or '
+                             'voltage_speed)')
     parameters = {}
-    for name in names:
+    for name in MODE_NAMES[mode]:
         value = (block.get('parameters') or {}).get(name)
         if not isinstance(value, (int, float)) or isinstance(value, bool) or \
                 not np.isfinite(value) or value < 0 or (
-                value == 0 and name not in ('b', 'Mc')):
+                value == 0 and name not in ('b', 'Mc', 'kS')):
             raise InputDataError(f'{source}: parameter {name} is {value!r}; a model written by '
                                  'dcmotor-id identify --json is expected')
         parameters[name] = float(value)
@@ -230,8 +255,24 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
     effects = list(block.get('effects') or [])
     for effect in effects:
         _check_effect(effect, source)
+    if mode == 'voltage_speed':
+        _check_lag(block.get('armature_lag'), source)
     return Model(parameters, mode, None if constant is None else float(constant), effects,
                  block.get('sample_period_s'), dict(block))
+
+
+def _check_lag(lag: Any, source: str) -> None:
+    """Refuse an ``armature_lag`` that is not None or two positive finite numbers."""
+    if lag is None:
+        return
+    values = [lag.get(key) for key in ('time_constant_s', 'acceleration_gain')] \
+        if isinstance(lag, Mapping) else [None]
+    if not all(isinstance(value, (int, float)) and not isinstance(value, bool)
+               and np.isfinite(value) and value > 0 for value in values):
+        raise InputDataError(
+            f'{source}: model.armature_lag is {json.dumps(lag)[:120]}: null or '
+            '{"time_constant_s": Ta [s], "acceleration_gain": kA + Ta Ra b/CPhi [V s^2/rad]}, '
+            'both positive, is expected (as identify --json writes it)')
 
 
 def _top_level(data: Mapping[str, Any], source: str) -> dict[str, Any]:
@@ -426,6 +467,14 @@ def simulate(model: Model, record: Record,
     start_angle = float(record.position[0]) if record.position is not None else 0.0
     p = model.parameters
     out: dict[str, np.ndarray] = {}
+    if model.mode == 'voltage_speed':
+        lag = model.description.get('armature_lag')
+        speed = simulate_speed(p, np.asarray(record.voltage, dtype=float), dt,
+                               float(initial_state[0]), None if not lag else (
+                                   lag['time_constant_s'], lag['acceleration_gain']),
+                               *[float(value) for value in initial_state[1:2]])
+        return {'speed': speed, 'position': start_angle + np.concatenate(
+            [[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1])) * dt])}
     if model.mechanical_only:
         current = np.asarray(record.current, dtype=float)
         held = np.append(0.5 * (current[:-1] + current[1:]), current[-1])
@@ -455,7 +504,7 @@ def estimate_initial_state(model: Model, record: Record, samples: int = INIT_SAM
     channel scaled by its spread over the record), started from a straight-line fit of each
     channel at the first sample; one sample gives the first measured values.
     """
-    channels = ['speed'] if model.mechanical_only else ['current', 'speed']
+    channels = list(model.outputs)
     n = int(max(1, min(samples, len(record))))
     measured = {channel: np.asarray(getattr(record, channel), dtype=float) for channel in
                 channels}
@@ -471,11 +520,16 @@ def estimate_initial_state(model: Model, record: Record, samples: int = INIT_SAM
         return np.array(start)
     part = record.slice(0, n)
     scales = [max(float(np.std(measured[channel])), 1e-12) for channel in channels]
+    if model.description.get('armature_lag') and model.mode == 'voltage_speed':
+        # the lag's state too (its current times Ra [V]): a record may start on a step
+        voltage = np.asarray(record.voltage, dtype=float)
+        start.append(float(voltage[0]) - model.parameters['kV'] * start[0])
+        scales.append(max(float(np.std(voltage)), 1e-12))
 
     def residual(state: np.ndarray) -> np.ndarray:
         simulated = simulate(model, part, state)
         return np.concatenate([(simulated[channel] - measured[channel][:n]) / scale
-                               for channel, scale in zip(channels, scales)])
+                               for channel, scale in zip(channels, scales[:len(channels)])])
     from scipy.optimize import least_squares  # lazily: identify imports this module too
     x_scale = np.array(scales)
     fitted = least_squares(residual, np.array(start), x_scale=x_scale, max_nfev=60)
@@ -528,6 +582,10 @@ class RecordValidation:
 def time_constants(model: Model) -> dict[str, float]:
     """Return the model's electrical ``La/Ra`` and mechanical time constants [s]."""
     p = model.parameters
+    if model.mode == 'voltage_speed':
+        lag = model.description.get('armature_lag') or {}
+        return {'mechanical': p['kA'] / p['kV'],
+                **({'lag': lag['time_constant_s']} if lag else {})}
     if model.mechanical_only:
         return {'mechanical': p['J'] / p['b'] if p['b'] > 0 else float('inf')}
     damping = p['b'] + p['CPhi'] ** 2 / p['Ra']
@@ -557,6 +615,18 @@ def _simulate_checked(model: Model, record: Record, init_samples: int
         'time column of the record (seconds)')
 
 
+def _check_channels(model: Model, record: Record) -> None:
+    """Refuse a record without the input of the model, or (full model) without its current."""
+    if not model.mechanical_only and record.voltage is None:
+        raise InputDataError(f'{record.source}: no voltage column: the model ({model.mode}) '
+                             'takes the voltage as its input')
+    if model.mode == 'full' and record.current is None:
+        raise InputDataError(f'{record.source}: no current column: the model (mode full) is '
+                             'scored on the current and the speed; validate it on records with '
+                             'the current, or identify records of voltage and speed alone for '
+                             'the voltage-to-speed model (kS, kV, kA) and validate that')
+
+
 def validate_record(model: Model, record: Record, init_samples: int = INIT_SAMPLES,
                     position_scale: float = 1.0) -> RecordValidation:
     """
@@ -581,13 +651,11 @@ def validate_record(model: Model, record: Record, init_samples: int = INIT_SAMPL
         raise InputDataError(f'{record.source}: {len(record)} samples, not more than the '
                              f'{init_samples} initial samples; give a longer record or a '
                              'smaller --init-samples')
-    if not model.mechanical_only and record.voltage is None:
-        raise InputDataError(f'{record.source}: no voltage column: the model is a full motor '
-                             'model and needs the voltage as its input')
+    _check_channels(model, record)
     check_delays(model, record, init_samples)
     state, simulated = _simulate_checked(model, record, init_samples)
     scored = slice(init_samples, None)
-    channels = [('current', None if model.mechanical_only else record.current),
+    channels = [('current', record.current if 'current' in model.outputs else None),
                 ('speed', record.speed),
                 ('position', record.position)]
     fits: dict[str, Optional[float]] = {}
@@ -646,7 +714,7 @@ def validate(model: Model, records: Sequence[Record], init_samples: int = INIT_S
     validated = [validate_record(model, record, init_samples, position_scale)
                  for record in records]
     for item in validated:
-        notes += reversed_warnings(item, model.mechanical_only)
+        notes += reversed_warnings(item, model.mechanical_only, model.mode == 'voltage_speed')
     return Validation(validated, model, notes)
 
 
@@ -654,7 +722,8 @@ def validate(model: Model, records: Sequence[Record], init_samples: int = INIT_S
 REVERSED_RATIO = 0.5
 
 
-def reversed_warnings(item: RecordValidation, mechanical_only: bool) -> list[str]:
+def reversed_warnings(item: RecordValidation, mechanical_only: bool,
+                      voltage_speed: bool = False) -> list[str]:
     """
     Say when a record's outputs match the model with their sign flipped (a reversed channel).
 
@@ -666,8 +735,7 @@ def reversed_warnings(item: RecordValidation, mechanical_only: bool) -> list[str
     record, scored = item.record, slice(item.init_samples, None)
     flipped = []
     for channel in ('current', 'speed', 'position'):
-        measured = None if mechanical_only and channel == 'current' else \
-            getattr(record, channel)
+        measured = None if channel not in item.simulated else getattr(record, channel)
         if measured is None:
             continue
         values = np.asarray(measured, dtype=float)[scored]
@@ -679,9 +747,9 @@ def reversed_warnings(item: RecordValidation, mechanical_only: bool) -> list[str
     if not flipped:
         return []
     names = {name for name, _, _ in flipped}
-    if mechanical_only:
-        culprit, option = 'speed (or the current, the input: they cannot be told apart)', \
-            flipped[0][0]
+    if mechanical_only or voltage_speed:
+        culprit, option = (f'speed (or the {"voltage" if voltage_speed else "current"}, the '
+                           'input: they cannot be told apart)'), flipped[0][0]
     elif {'current', 'speed'} <= names:
         culprit, option = 'voltage (the input: every output is reversed)', 'voltage'
     else:

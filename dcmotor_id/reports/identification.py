@@ -244,6 +244,10 @@ def write_report(directory: str, result: dict[str, Any], found: DiscoveryResult 
         its table and figures are added.
 
     """
+    if result.get('mode') == 'voltage_speed':  # kS, kV, kA: a page of its own
+        from dcmotor_id.reports.voltage_speed import write_voltage_speed_report
+        return write_voltage_speed_report(directory, result, records or [],
+                                          validation=validation)
     os.makedirs(directory, exist_ok=True)
     units = dict(CHANNEL_UNITS, **(channel_units or {}))
     series, outputs = fit_series(found, records, result)
@@ -460,7 +464,7 @@ def _errors_text(errors):
 
 def _validation_series(validation: Validation) -> tuple[list[dict], list[str]]:
     """Series of a validation (measured vs simulated over the scored samples)."""
-    outputs = ['speed'] if validation.model.mechanical_only else ['current', 'speed']
+    outputs = list(validation.model.outputs)  # (a voltage-to-speed model: the speed alone)
     if all(item.record.position is not None for item in validation.records):
         outputs.append('position')
     series = []

@@ -36,12 +36,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
-from typing import Sequence, TYPE_CHECKING
+from typing import Mapping, Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from dcmotor_id.core.errors import FitError, NotIdentifiableError
 from dcmotor_id.core.model import MotorParameters
+from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.signals.filters import central_differences, low_pass, noise_std
 from dcmotor_id.simulation import simulate_mechanical, simulate_motor
 
@@ -59,6 +60,10 @@ NOT_SEPARABLE = ('not separable without the current: voltage and speed determine
                  'armature current to identify the motor parameters')
 #: The second-order (armature lag) model must lower the BIC by this much to be kept.
 BIC_MARGIN = 10.0
+#: Said when the time budget ran out during the armature-lag fit.
+BUDGET_NOTE = ('the time budget (--max-time) ran out during the armature-lag fit: the '
+               'first-order model is kept (kA may hold an armature or drive lag as inertia); '
+               'give more time to fit the lag')
 #: Cut-off of the zero-phase filter of the regression start, as a fraction of the sample rate.
 START_CUTOFF = 0.05
 
@@ -84,6 +89,11 @@ class VoltageSpeedFit:
         ``Ta = La/Ra`` when the second-order model was kept, else None.
     armature_stderr_s : float or None
         Its standard error.
+    acceleration_gain, acceleration_gain_stderr : float or None
+        With the armature lag: ``kA + Ta Ra b/CPhi`` [V s^2/rad], the coefficient of
+        ``dw/dt`` in the voltage (:func:`acceleration_gain`), and its standard error.
+    notes : tuple of str
+        What the fit left out (the armature-lag fit, when the time budget ran out).
     correlation_factor : float
         The factor the Gauss-Newton standard errors were scaled by.
     speeds : list of numpy.ndarray
@@ -102,6 +112,9 @@ class VoltageSpeedFit:
     armature_stderr_s: float | None = None
     correlation_factor: float = 1.0
     speeds: list[np.ndarray] = field(default_factory=list, repr=False)
+    acceleration_gain: float | None = None
+    acceleration_gain_stderr: float | None = None
+    notes: tuple[str, ...] = ()
 
 
 def channels(record: Record) -> tuple[np.ndarray, np.ndarray]:
@@ -222,6 +235,44 @@ def motor_of(theta: np.ndarray) -> MotorParameters:
     return MotorParameters(1.0, ta, cphi, ka * cphi, (kv - cphi) * cphi, ks * cphi)
 
 
+def simulate_speed(values: Mapping[str, float], voltage: np.ndarray, sample_period_s: float,
+                   initial_speed: float, lag: tuple[float, float] | None = None,
+                   initial_drop: float | None = None) -> np.ndarray:
+    """
+    Return the speed [rad/s] of a reported voltage-to-speed model under ``voltage`` [V].
+
+    Parameters
+    ----------
+    values : mapping
+        ``kS`` [V], ``kV`` [V s/rad], ``kA`` [V s^2/rad].
+    voltage : numpy.ndarray
+        Zero-order-held voltage, one value per sample.
+    sample_period_s : float
+        Sample period [s].
+    initial_speed : float
+        Speed at the first sample [rad/s].
+    lag : tuple of float, optional
+        The armature lag as reported: ``(Ta [s], kA + Ta Ra b/CPhi [V s^2/rad])``; the exact
+        second-order model then.
+    initial_drop : float, optional
+        With the lag: the armature current times ``Ra`` at the first sample [V]; None: the
+        quasi-static ``u - CPhi w`` (the current settled).
+
+    """
+    ka, kv, ks = float(values['kA']), float(values['kV']), float(values['kS'])
+    voltage = np.asarray(voltage, dtype=float)
+    if lag is None:
+        return simulate_mechanical(ka, kv, ks, voltage, sample_period_s, initial_speed)
+    ta, gain = lag
+    share = 1.0 - (gain - ka) / (ta * kv)  # CPhi/kV
+    theta = np.array([math.log(ka), math.log(kv), ks, math.log(ta * kv / ka),
+                      min(max(share, 1e-3), 1.0)])
+    motor = motor_of(theta)
+    current = initial_drop if initial_drop is not None else (  # at Ra = 1 Ohm
+        float(voltage[0]) - motor.CPhi * initial_speed if voltage.size else 0.0)
+    return simulate_motor(motor, voltage, sample_period_s, (current, initial_speed))[1]
+
+
 def _second_order(theta: np.ndarray, record: Record, initial: np.ndarray) -> np.ndarray:
     """Speed of the exact motor with the armature lag (see :func:`motor_of`)."""
     motor = motor_of(theta)
@@ -252,8 +303,9 @@ def _residual(model, records: Sequence[Record], size: int):
     return residual
 
 
-def _fit(model, records: Sequence[Record], theta: np.ndarray, lower: list, upper: list):
-    """Run the output-error fit; return scipy's result."""
+def _fit(model, records: Sequence[Record], theta: np.ndarray, lower: list, upper: list,
+         progress: Progress | None = None):
+    """Run the output-error fit, reporting each evaluation to ``progress``; return scipy's."""
     from scipy.optimize import least_squares  # lazily: the command line's start stays light
     states = STATES[model]
     initial = [[float(channels(rec)[1][0])] + [0.0] * (states - 1) for rec in records]
@@ -261,9 +313,15 @@ def _fit(model, records: Sequence[Record], theta: np.ndarray, lower: list, upper
     bounds = (np.array(lower + [-np.inf] * x0[theta.size:].size),
               np.array(upper + [np.inf] * x0[theta.size:].size))
     x0 = np.clip(x0, bounds[0] + 1e-12, bounds[1] - 1e-12)
-    return least_squares(_residual(model, records, theta.size), x0, bounds=bounds,
-                         x_scale='jac', method='trf', xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                         max_nfev=400)
+    residual = _residual(model, records, theta.size)
+
+    def reported(x: np.ndarray) -> np.ndarray:
+        values = residual(x)
+        if progress is not None:  # raises TimeBudgetExceeded past the deadline
+            progress.update(cost=0.5 * float(values @ values))
+        return values
+    return least_squares(reported, x0, bounds=bounds, x_scale='jac', method='trf',
+                         xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=400)
 
 
 def correlation_factor(residual: np.ndarray, lags: int = 200) -> float:
@@ -315,9 +373,46 @@ def _nrmse_pct(records: Sequence[Record], residual: np.ndarray) -> float:
     return 100.0 * math.sqrt(float(np.mean(residual ** 2))) / scale
 
 
-def fit_voltage_speed(records: Sequence[Record]) -> VoltageSpeedFit:
+def acceleration_gain(theta: np.ndarray, covariance: np.ndarray) -> tuple[float, float]:
+    """
+    Return ``kA + Ta Ra b/CPhi`` and its standard error from the second-order parameters.
+
+    The exact motor's voltage is ``u = kS sgn w + kV w + (kA + Ta Ra b/CPhi) dw/dt + Ta kA
+    d2w/dt2`` (and the friction's reversals through the lag): the speed's linear response
+    fixes the coefficients of ``w``, ``dw/dt`` and ``d2w/dt2``, so this gain is well
+    determined, while ``kA`` and ``Ta Ra b/CPhi = Ta (kV - CPhi)`` come apart only where the
+    friction, acting behind the armature, reverses or breaks away.  It is the acceleration
+    gain of a feedforward that neglects the jerk, and what a first-order fit tends to.
+    """
+    lag = math.exp(theta[3]) * (1.0 - theta[4])  # Ta Ra b/CPhi over kA (Ta kV/kA (1 - c))
+    gain = math.exp(theta[0]) * (1.0 + lag)
+    slope = np.array([1.0, 0.0, 0.0, lag / (1.0 + lag),
+                      -math.exp(theta[3]) / (1.0 + lag)])  # of log gain
+    return gain, gain * math.sqrt(max(float(slope @ covariance[:5, :5] @ slope), 0.0))
+
+
+def _second_fit(records: Sequence[Record], first, progress: Progress | None):
+    """Run the armature-lag fit from the first-order one; None when the time budget ran out."""
+    dt = records[0].sample_period_s
+    share = max(0.1, 2.0 * dt / math.exp(first.x[0] - first.x[1]))
+    try:
+        if progress is not None:
+            progress.set_stage('voltage-speed fit: armature lag')
+        return _fit(_second_order, records,
+                    np.concatenate([first.x[:3], [math.log(min(share, 0.5)), 0.5]]),
+                    [-np.inf, -np.inf, 0.0, -15.0, 1e-3], [np.inf, np.inf, np.inf, 0.0, 1.0],
+                    progress)
+    except TimeBudgetExceeded:
+        return None
+
+
+def fit_voltage_speed(records: Sequence[Record],
+                      progress: Progress | None = None) -> VoltageSpeedFit:
     """
     Fit ``kS, kV, kA`` to records of voltage and speed (no current).
+
+    ``progress`` names the two fits and bounds them in time: past its deadline during the
+    armature-lag fit, the first-order model is kept (``notes`` says so).
 
     Raises
     ------
@@ -325,38 +420,43 @@ def fit_voltage_speed(records: Sequence[Record]) -> VoltageSpeedFit:
         Data that do not determine the combinations (see :func:`regression_start`).
     FitError
         The output-error fit does not converge to finite values.
+    TimeBudgetExceeded
+        The deadline passed before the first-order fit ended.
 
     """
     start = regression_start(records)
     theta = np.array([math.log(start['kA']), math.log(start['kV']), start['kS']])
     start_residual = _residual(_first_order_state, records, 3)(
         np.concatenate([theta, [float(channels(rec)[1][0]) for rec in records]]))
+    if progress is not None:
+        progress.set_stage('voltage-speed fit: first order')
     first = _fit(_first_order_state, records, theta, [-np.inf, -np.inf, 0.0],
-                 [np.inf, np.inf, np.inf])
+                 [np.inf, np.inf, np.inf], progress)
     if not np.all(np.isfinite(first.x)):
         raise FitError('the voltage-to-speed fit did not converge; check that the voltage and '
                        'the speed are in SI units (V, rad/s) and of one sign convention')
-    chosen, size, lag = first, 3, None
-    dt = records[0].sample_period_s
-    share = max(0.1, 2.0 * dt / math.exp(first.x[0] - first.x[1]))
-    second = _fit(_second_order, records,
-                  np.concatenate([first.x[:3], [math.log(min(share, 0.5)), 0.5]]),
-                  [-np.inf, -np.inf, 0.0, -15.0, 1e-3], [np.inf, np.inf, np.inf, 0.0, 1.0])
-    if (np.all(np.isfinite(second.x))
+    second = _second_fit(records, first, progress)
+    chosen, size, extra, notes = first, 3, {}, []
+    if second is None:
+        notes.append(BUDGET_NOTE)
+    elif (np.all(np.isfinite(second.x))
             and _bic(second.fun, second.x.size) < _bic(first.fun, first.x.size) - BIC_MARGIN):
-        covariance, _ = _covariance(second, second.fun)
         chosen, size = second, 5
-        ta = math.exp(second.x[3] + second.x[0] - second.x[1])
-        slope = np.array([1.0, -1.0, 0.0, 1.0, 0.0])  # of log Ta
-        lag = (ta, ta * math.sqrt(max(float(slope @ covariance[:5, :5] @ slope), 0.0)))
     covariance, factor = _covariance(chosen, chosen.fun)
+    if size == 5:
+        ta = math.exp(chosen.x[3] + chosen.x[0] - chosen.x[1])
+        slope = np.array([1.0, -1.0, 0.0, 1.0, 0.0])  # of log Ta
+        gain = acceleration_gain(chosen.x, covariance)
+        extra = {'armature_time_constant_s': ta,
+                 'armature_stderr_s': ta * math.sqrt(max(float(
+                     slope @ covariance[:5, :5] @ slope), 0.0)),
+                 'acceleration_gain': gain[0], 'acceleration_gain_stderr': gain[1]}
     values, stderr = _combinations(chosen.x[:size], covariance)
     model = _first_order_state if size == 3 else _second_order
-    states = STATES[model]
-    initial = chosen.x[size:].reshape(len(records), states)
-    speeds = [model(chosen.x[:size], rec, initial[k]) for k, rec in enumerate(records)]
+    initial = chosen.x[size:].reshape(len(records), STATES[model])
     return VoltageSpeedFit(
         values, stderr, start, [float(state[0]) for state in initial],
         _nrmse_pct(records, start_residual), _nrmse_pct(records, chosen.fun),
-        float(np.std(chosen.fun)), None if lag is None else lag[0],
-        None if lag is None else lag[1], factor, speeds)
+        float(np.std(chosen.fun)), correlation_factor=factor,
+        speeds=[model(chosen.x[:size], rec, initial[k]) for k, rec in enumerate(records)],
+        notes=tuple(notes), **extra)

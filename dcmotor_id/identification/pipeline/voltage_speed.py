@@ -18,11 +18,13 @@ from dcmotor_id.formats.held import restore_held
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.estimators.voltage_speed import (COMBINATIONS,
                                                                 fit_voltage_speed,
-                                                                NOT_SEPARABLE, UNITS)
+                                                                NOT_SEPARABLE, UNITS,
+                                                                VoltageSpeedFit)
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.identification.validate import operating_range
 
 if TYPE_CHECKING:
+    from dcmotor_id.core.progress import Progress
     from dcmotor_id.core.records import Record
 
 #: The mode of the result (JSON ``mode``).
@@ -32,12 +34,18 @@ MODE = 'voltage_speed'
 NO_CURRENT_COLUMN = ('no current in the records: the voltage-to-speed model (kS, kV, kA) was '
                      'fitted; if the current was recorded, name its column current (or give '
                      '--column current=NAME) to identify Ra, La, CPhi, J, b, Mc')
+#: What ``combined.acceleration_gain`` is made of.
+ACCELERATION_GAIN_OF = 'Ra J / CPhi + (La / Ra) Ra b / CPhi'
+#: kA's relative standard error above which (and above twice the acceleration gain's) the
+#: result says that the lag and the inertia are split loosely.
+LOOSE_KA = 0.02
 NO_DISCOVERY = ('the effect vocabulary is written for the motor with its current; on voltage '
                 'and speed alone only kS, kV, kA are fitted')
 
 
-def identify_voltage_speed(records: Sequence[Record],
-                           discover: bool = True) -> IdentificationResult:
+def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
+                           progress: Progress | None = None,
+                           structure_bootstrap: int = 0) -> IdentificationResult:
     """
     Identify ``kS, kV, kA`` from records of voltage and speed (no current).
 
@@ -47,28 +55,30 @@ def identify_voltage_speed(records: Sequence[Record],
         Prepared records with a voltage and a speed and no current.
     discover : bool
         Whether discovery was asked for (it is skipped; ``discovery`` says why).
+    progress : Progress, optional
+        Progress line and time budget (``--max-time``); past the deadline during the
+        armature-lag fit the first-order model is kept with a warning.
+    structure_bootstrap : int
+        The resamples asked for; they rerun discovery, which does not run here (a warning
+        says so).
 
     Returns
     -------
     IdentificationResult
-        Of mode ``voltage_speed`` (method ``voltage_speed``).
+        Of mode ``voltage_speed`` (method ``voltage_speed``); ``TimeBudgetExceeded`` is
+        raised when the budget runs out before the first-order fit ends.
 
     """
     began = time.monotonic()
     # A speed sensor refreshing slower than the log: fit on its real updates (as stage 1).
     records, held = restore_held(list(records))
-    fit = fit_voltage_speed(records)
+    fit = fit_voltage_speed(records, progress)
     combined = {name: {'value': fit.values[name], 'stderr': fit.stderr[name],
                        'of': COMBINATIONS[name], 'unit': UNITS[name]} for name in COMBINATIONS}
-    warnings = [NO_CURRENT_COLUMN] + held
-    if fit.armature_time_constant_s is not None:
-        combined['armature_time_constant_s'] = {
-            'value': fit.armature_time_constant_s, 'stderr': fit.armature_stderr_s,
-            'of': 'La / Ra', 'unit': 's'}
-        warnings.append(f'a second, faster lag shapes the speed (Ta = '
-                        f'{fit.armature_time_constant_s:.3g} s: the armature La/Ra, or a lag '
-                        'of the drive or the speed sensor): kA was fitted with it (a '
-                        'first-order model would read it as inertia)')
+    combined.update(_lag_entries(fit))
+    warnings = [NO_CURRENT_COLUMN] + held + list(fit.notes) + _lag_warnings(fit) + [
+        f'--structure-bootstrap {structure_bootstrap} ignored: it reruns the effect discovery, '
+        'which does not run on voltage and speed alone'] * bool(structure_bootstrap)
     note = ('Gauss-Newton of the output-error fit on the speed, scaled by the residual '
             f'correlation (factor {fit.correlation_factor:.3g})')
     result = IdentificationResult(
@@ -92,3 +102,37 @@ def identify_voltage_speed(records: Sequence[Record],
                           {'simulated_speeds': fit.speeds, 'start': fit.start}))
     result.elapsed_s = time.monotonic() - began
     return result
+
+
+def _lag_entries(fit: VoltageSpeedFit) -> dict[str, dict]:
+    """Return the ``combined`` entries of the armature lag (none without it)."""
+    if fit.armature_time_constant_s is None:
+        return {}
+    return {'armature_time_constant_s': {
+                'value': fit.armature_time_constant_s, 'stderr': fit.armature_stderr_s,
+                'of': 'La / Ra', 'unit': 's'},
+            'acceleration_gain': {
+                'value': fit.acceleration_gain, 'stderr': fit.acceleration_gain_stderr,
+                'of': ACCELERATION_GAIN_OF, 'unit': UNITS['kA']}}
+
+
+def _lag_warnings(fit: VoltageSpeedFit) -> list[str]:
+    """Return the warnings of the second lag: that it was fitted, that kA is loose."""
+    lag = fit.armature_time_constant_s
+    if lag is None or fit.acceleration_gain is None or fit.acceleration_gain_stderr is None:
+        return []
+    out = [f'a second, faster lag shapes the speed (Ta = {lag:.3g} s: the armature La/Ra, or '
+           'a lag of the drive or the speed sensor): kA was fitted with it (a first-order '
+           'model would read it as inertia)']
+    spread = fit.stderr['kA'] / fit.values['kA']
+    gain_spread = fit.acceleration_gain_stderr / fit.acceleration_gain
+    if spread > LOOSE_KA and spread > 2.0 * gain_spread:
+        out.append(
+            f'kA is split from the lag only to +-{100 * spread:.2g} % (one standard error): the '
+            "speed's response fixes kA + Ta Ra b/CPhi = "
+            f'{fit.acceleration_gain:.4g} V s^2/rad (+-{100 * gain_spread:.2g} %, combined '
+            'acceleration_gain, the acceleration gain of a feedforward that neglects the '
+            "jerk), and only the friction's reversals tell kA from Ta Ra b/CPhi; for a "
+            'tighter kA record the motor reversing while it runs (a PRBS, or steps from one '
+            'direction to the other)')
+    return out
