@@ -26,6 +26,8 @@ arrays for plotting; none modifies its inputs.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import cached_property
 import math
 from statistics import NormalDist
 from typing import Any, Mapping, Protocol, Sequence
@@ -164,6 +166,42 @@ def model_errors(model: SimulatedModel, values: Mapping[str, float],
             _joined([out.pop(channel) for out in simulated]),
             _joined([getattr(rec, channel) for rec in model.records]))
     return errors
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """
+    A fitted model simulated over its records once, for every stage that measures it.
+
+    ``model``: the model on the records (with the effect terms of the fitted structure);
+    ``outputs``: its simulated channels per record (:func:`simulate_records`).
+    """
+
+    model: SimulatedModel
+    outputs: list[dict[str, FloatArray]]
+
+    @cached_property
+    def errors(self) -> ChannelErrors:
+        """Return the simulation error per channel, as :func:`model_errors` gives it."""
+        errors: ChannelErrors = {error_key(channel): None for channel in ERROR_CHANNELS}
+        for channel in self.model.outputs:
+            errors[error_key(channel)] = simulation_error_pct(
+                _joined([out[channel] for out in self.outputs]),
+                _joined([getattr(rec, channel) for rec in self.model.records]))
+        return errors
+
+    def residual_rms(self, channels: Sequence[str]) -> dict[str, float]:
+        """Return the RMS of each channel's simulation residual over all records."""
+        return {channel: float(np.sqrt(np.mean(np.concatenate(
+            [out[channel] - getattr(rec, channel)
+             for out, rec in zip(self.outputs, self.model.records)]) ** 2)))
+            for channel in channels}
+
+
+def simulated(model: SimulatedModel, values: Mapping[str, float],
+              initial_states: Sequence[Sequence[float]]) -> Simulation:
+    """Return the :class:`Simulation` of a fitted model over its records."""
+    return Simulation(model, simulate_records(model, values, initial_states))
 
 
 def _joined(arrays: Sequence[FloatArray]) -> FloatArray:

@@ -170,13 +170,13 @@ def on_the_position(request: Request, criterion: str) -> IdentificationResult:
     run comes first, and the white run is finished from its state only when that one
     disagrees too.  A white result that disagrees (or fails) runs the adaptive model; the
     result closer to the evidence is kept.  The runs share the further starts of the base
-    (the first run's account, ``earlier``); the status line names each run after the first.
+    (the first run's account, ``earlier``); the status line names each run after the first
+    (``RunOn.name``).
     """
-    progress = request.progress
     try:
         begun = _attempt(begin, request, RunOn(criterion, 'white'))
         earlier = begun.fit.starts if isinstance(begun, Begun) else None
-        adaptive = RunOn(criterion, 'adaptive', earlier)
+        adaptive = RunOn(criterion, 'adaptive', earlier, ADAPTIVE_RUN)
         if isinstance(begun, Begun):
             inputs = begun.inputs
             left = white_base_far(begun.fit.estimate.parameters, inputs.records,
@@ -185,28 +185,30 @@ def on_the_position(request: Request, criterion: str) -> IdentificationResult:
                 return _adaptive_first(request, adaptive, begun, left)
         white = _attempt(finish, begun) if isinstance(begun, Begun) else begun
         if isinstance(white, DcMotorIdError):
-            progress.set_run(ADAPTIVE_RUN)
             return adaptive_after_white_failed(identify_with(request, adaptive), white)
         kept = white_if_agreeing(white)
         if kept is not None:
             return kept
-        progress.set_run(ADAPTIVE_RUN)
         return after_a_far_white(white, _attempt(identify_with, request, adaptive,
                                                  budget_too=True))
     finally:
-        progress.set_run('')  # a later identification on the same Progress starts unnamed
+        request.progress.set_run('')  # a later identification on the Progress starts unnamed
 
 
 def _adaptive_first(request: Request, adaptive: RunOn, white: Begun, left) -> Any:
     """Run the adaptive model after a white base that disagrees; finish the white if needed."""
-    request.progress.set_run(ADAPTIVE_RUN)
     found = _attempt(identify_with, request, adaptive, budget_too=True)
     found = found if isinstance(found, IdentificationResult) else None
     agreeing = adaptive_agreeing(found, left)
     if agreeing is not None:
         return agreeing
-    request.progress.set_run(WHITE_RUN_RESUMED)
-    return after_a_far_white_base(found, _attempt(finish, white))
+    return after_a_far_white_base(found, _attempt(resume, white, WHITE_RUN_RESUMED))
+
+
+def resume(begun: Begun, name: str) -> IdentificationResult:
+    """Finish a run left after its start check (stages 5-12), the status line naming it."""
+    begun.inputs.progress.set_run(name)
+    return finish(begun)
 
 
 def _attempt(stage: Callable[..., Any], *arguments: Any, budget_too: bool = False) -> Any:
