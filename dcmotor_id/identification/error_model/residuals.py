@@ -466,26 +466,36 @@ def one_step_error(values: Mapping[str, float], record: Any,
         ad, gamma = zoh_matrices(a_matrix, dt)
     channels = ('speed',) if torque_constant is not None else ('current', 'speed')
     out = {channel: np.empty(max(n - 1, 0)) for channel in channels}
+    extras = {'voltage': voltage_extra, 'torque': torque_extra,
+              'current_offset': current_offset, 'speed_offset': speed_offset,
+              'coulomb_delta': coulomb_delta}
     # Blocks of samples (each block overlapping the next by one): the temporaries stay a few
     # MB whatever the record's length; every element is computed as over the whole record.
     for first in range(0, max(n - 1, 0), ONE_STEP_BLOCK):
         last = min(first + ONE_STEP_BLOCK, n - 1) + 1
-        block = _one_step_block(values, record, torque_constant, ad, gamma, first, last,
-                                voltage_extra, torque_extra, current_offset, speed_offset,
-                                coulomb_delta)
+        block = _one_step_block(values, record, torque_constant, (ad, gamma), (first, last),
+                                extras)
         for channel in channels:
             out[channel][first:last - 1] = block[channel]
     return out
 
 
-def _one_step_block(values, record, torque_constant, ad, gamma, first, last, voltage_extra,
-                    torque_extra, current_offset, speed_offset, coulomb_delta):
-    """One-step errors of samples ``first..last - 2`` (:func:`one_step_error` on a block)."""
+def _one_step_block(values, record, torque_constant, zoh, span, extras):
+    """
+    One-step errors of samples ``first..last - 2`` (:func:`one_step_error` on a block).
+
+    ``zoh``: the ZOH matrices ``(ad, gamma)``; ``span``: ``(first, last)``; ``extras``: the
+    effect contributions by name (``voltage``, ``torque``, ``current_offset``,
+    ``speed_offset``, ``coulomb_delta``), as :func:`one_step_error` takes them.
+    """
+    (ad, gamma), (first, last) = zoh, span
+    coulomb_delta = extras['coulomb_delta']
+
     def part(values_or_none):
         return None if values_or_none is None else \
             np.asarray(values_or_none, dtype=float)[first:last]
     zeros = np.zeros(last - first)
-    torque_extra, speed_offset = part(torque_extra), part(speed_offset)
+    torque_extra, speed_offset = part(extras['torque']), part(extras['speed_offset'])
     torque = zeros if torque_extra is None else torque_extra
     speed_meas = record.speed[first:last] - (zeros if speed_offset is None else speed_offset)
     sign = np.sign(speed_meas)
@@ -495,7 +505,7 @@ def _one_step_block(values, record, torque_constant, ad, gamma, first, last, vol
         drive = (torque_constant * record.current[first:last] + torque - friction) / values['J']
         predicted = ad[0, 0] * speed_meas[:-1] + gamma[0, 0] * drive[:-1]
         return {'speed': predicted - speed_meas[1:]}
-    current_offset, voltage_extra = part(current_offset), part(voltage_extra)
+    current_offset, voltage_extra = part(extras['current_offset']), part(extras['voltage'])
     current_meas = record.current[first:last] - \
         (zeros if current_offset is None else current_offset)
     voltage = record.voltage[first:last] + (zeros if voltage_extra is None else voltage_extra)
