@@ -5,9 +5,8 @@ A check says what it looks at and when it runs; the registry holds every check o
 by name, in the order the checks were registered.  The registry lives on the ground floor so
 that every layer can register its own checks where they are written (a layer imports only
 downward): the reading layer its read-time checks, ``identification`` those before and after
-the fit, ``streaming`` those of a node's incoming batches.  Nothing here runs a check: each
-stays a plain function called by the code that runs at its time; the registry is where a
-reader (and ``test/test_checks_registry.py``) finds them all, with their time and home.
+the fit, ``streaming`` those of a node's incoming batches.  The registry is where a reader
+(and ``test/test_checks_registry.py``) finds them all, with their time and home.
 
 When a check runs (:data:`WHEN`):
 
@@ -24,10 +23,19 @@ When a check runs (:data:`WHEN`):
 
 What it looks at (:data:`LOOKS_AT`): ``record`` (one record), ``records`` (all the records of
 an identification), ``batch`` (a node's incoming message), ``fit`` (an estimate with the
-records it was fitted on).
+records it was fitted on), ``answer`` (the final fit as the identification reports it).
 
-A new check: one function in the home of its time (the modules above), and one line beside it,
-``register(Check('name', 'when', 'looks at', function, 'what it says'))``.
+Checks of one time and subject that share a calling convention are run from here, in their
+order of registration (:func:`registered`): the ``before_fit`` checks of one ``record``
+(``record -> warning or None``) by the pipeline's first stage, the ``after_fit`` checks of the
+``answer`` (``FinalFit -> list of warnings``,
+:mod:`dcmotor_id.identification.checks.answer`) by its identifiability stage.  The others are
+catalogued here and called by the code that uses their answer (a refusal, repaired records,
+a routing, the values not identifiable).
+
+A new check: one function in the home of its time (the modules above), and one line,
+``register(Check('name', 'when', 'looks at', function, 'what it says'))`` (for a check of the
+answer, in :mod:`dcmotor_id.identification.checks`, where their order is written).
 """
 
 from __future__ import annotations
@@ -38,7 +46,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 #: When a check runs, in the order a record meets them.
 WHEN = ('read', 'before_fit', 'after_fit')
 #: What a check looks at.
-LOOKS_AT = ('record', 'records', 'batch', 'fit')
+LOOKS_AT = ('record', 'records', 'batch', 'fit', 'answer')
 
 
 @runtime_checkable

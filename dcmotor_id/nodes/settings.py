@@ -7,6 +7,7 @@ import math
 from typing import Any, Optional, Sequence
 
 from dcmotor_id.identification.identify import METHODS
+from dcmotor_id.streaming.online.base import METHODS as ONLINE_METHODS
 
 INPUTS = ('float64', 'batch', 'joint_state', 'dynamic_joint_state')
 
@@ -113,7 +114,7 @@ class IdentifierSettings:
     # --- online estimator (window or rls) and condition monitoring (issue 12)
     online_method: str = parameter('window', 'window: exact output-error refits of a sliding '
                                    'window (noise-consistent); rls: the old recursive least '
-                                   'squares (biased by noise)', choices=('window', 'rls'))
+                                   'squares (biased by noise)', choices=ONLINE_METHODS)
     online_window_s: float = parameter(30.0, 'longest window of the online refits (it grows '
                                        'from the start up to this) [s]', 0.1)
     online_refit_interval_s: float = parameter(2.0, 'data time between online refits [s]', 0.01)

@@ -9,19 +9,20 @@ from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.records import Record, record_names
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.pipeline import armature, fit_outcome
+from dcmotor_id.identification.pipeline.state import Models
 
 VALUES = {'Ra': 1.0, 'La': 1e-3, 'CPhi': 0.1, 'J': 1e-4, 'b': 1e-5, 'Mc': 1e-3}
 
 
 def test_physical_errors_refuse_before_simulating_and_measure_once(monkeypatch):
     calls = []
-    monkeypatch.setattr(fit_outcome, 'simulation_errors',
+    monkeypatch.setattr(fit_outcome, 'model_errors',
                         lambda *args, **kwargs: calls.append(args) or {'speed_nrmse_pct': 1.0})
     bad = Estimate('refined', {**VALUES, 'J': -1e-4}, {})
     with pytest.raises(FitError, match='non-physical'):
-        fit_outcome.physical_errors(bad, [])
+        fit_outcome.physical_errors(bad, None)
     assert not calls
-    assert fit_outcome.physical_errors(Estimate('refined', VALUES, {}), []) == {
+    assert fit_outcome.physical_errors(Estimate('refined', VALUES, {}), None) == {
         'speed_nrmse_pct': 1.0}
     assert len(calls) == 1
 
@@ -29,18 +30,20 @@ def test_physical_errors_refuse_before_simulating_and_measure_once(monkeypatch):
 def test_the_quasi_static_refit_gives_its_errors_with_it(monkeypatch):
     measured = []
 
-    def errors(estimate, records, torque_constant, quasi_static=False):
-        measured.append(estimate)
+    def errors(model, values, initial_states):
+        measured.append((model, values))
         return {'current_nrmse_pct': 1.0, 'speed_nrmse_pct': 2.0}
     quasi = Estimate('refined', VALUES, {})
-    monkeypatch.setattr(armature, 'simulation_errors', errors)
+    monkeypatch.setattr(armature, 'model_errors', errors)
     monkeypatch.setattr(armature, 'RefinedEstimator',
                         lambda **options: SimpleNamespace(fit=lambda records: quasi))
     progress = SimpleNamespace(set_stage=lambda *args: None)
-    refit = armature.quasi_static_refit(quasi, [], {'current_nrmse_pct': 1.0}, 'estimate',
+    models = Models([], None, True, 'speed')
+    refit = armature.quasi_static_refit(quasi, {'current_nrmse_pct': 1.0}, models, 'estimate',
                                         progress)
     assert refit == (quasi, {'current_nrmse_pct': 1.0, 'speed_nrmse_pct': 2.0})
-    assert measured == [quasi]  # measured once, carried to the stage's fit
+    # measured once on the run's quasi-static base model, carried to the stage's fit
+    assert measured == [(models.measured, VALUES)]
 
 
 def test_records_are_named_for_the_progress_line():

@@ -16,6 +16,7 @@ from dcmotor_id.identification.pipeline.further_starts import (ambiguity_warning
                                                                MAX_STARTS, NOT_CHOSEN_EARLIER,
                                                                several_starts, SIMILAR_BIC,
                                                                with_starts)
+from dcmotor_id.identification.pipeline.state import Models
 from dcmotor_id.simulation.lab_scenarios import (servo_collapsed_start, servo_opposite_steps,
                                                  servo_torque_steps)
 
@@ -35,7 +36,7 @@ def test_a_further_start_escapes_the_basin_of_the_default_start(collapsed):
     # back from there) and J to hundreds of times the truth.
     assert base.parameters['J'] > 100 * truth.J, base.parameters
     assert base.parameters['b'] < 1e-3 * truth.b, base.parameters
-    best, account = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    best, account = several_starts(base, Models(records, scenario.torque_constant), Progress())
     assert account is not None and account['chosen'] != 'default', account
     scores = {entry['name']: entry['bic'] for entry in account['starts'] if 'bic' in entry}
     assert scores[account['chosen']] < scores['default'] - 10, scores
@@ -68,7 +69,7 @@ def test_a_sound_fit_gets_no_further_starts():
     scenario = servo_torque_steps()
     records = prepare_records(scenario.records, torque_constant=scenario.torque_constant)
     base = RefinedEstimator().fit(records, torque_constant=scenario.torque_constant)
-    best, account = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    best, account = several_starts(base, Models(records, scenario.torque_constant), Progress())
     assert account is None and best is base
     check = identify(records, torque_constant=scenario.torque_constant).as_dict()['start_check']
     assert check['chosen'] == 'first start' and 'starts' not in check, check
@@ -80,7 +81,7 @@ def test_no_spread_when_the_regression_start_leads_back_to_the_default_fit():
     scenario = servo_opposite_steps(seed=0)
     records = prepare_records(scenario.records, torque_constant=scenario.torque_constant)
     base = RefinedEstimator().fit(records, torque_constant=scenario.torque_constant)
-    best, account = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    best, account = several_starts(base, Models(records, scenario.torque_constant), Progress())
     assert [entry['name'] for entry in account['starts']] == ['default', 'regression'], account
     assert account['chosen'] == 'default' and best is base, account
     assert not account['ambiguous']
@@ -89,7 +90,7 @@ def test_no_spread_when_the_regression_start_leads_back_to_the_default_fit():
 def test_the_further_starts_respect_the_time_budget(collapsed):
     scenario, records, base = collapsed
     progress = Progress(max_time_s=1e-9)
-    best, account = several_starts(records, scenario.torque_constant, False, progress, base)
+    best, account = several_starts(base, Models(records, scenario.torque_constant), progress)
     assert best is base and account['chosen'] == 'default', account
     failed = [entry for entry in account['starts'] if 'failed' in entry]
     assert len(failed) == 1 and failed[0]['failed'].startswith('time budget'), account
@@ -156,11 +157,11 @@ def test_a_later_run_of_one_identification_fits_only_the_start_the_first_chose(
     """
     scenario, records, base = collapsed
     fitted = _counting_fits(monkeypatch)
-    first_best, first = several_starts(records, scenario.torque_constant, False,
-                                       Progress(), base)
+    first_best, first = several_starts(base, Models(records, scenario.torque_constant),
+                                       Progress())
     assert len(fitted) >= 2 and first['chosen'] != 'default', first
     fitted.clear()
-    best, later = several_starts(records, scenario.torque_constant, False, Progress(), base,
+    best, later = several_starts(base, Models(records, scenario.torque_constant), Progress(),
                                  earlier=first)
     assert fitted == [first['chosen']]
     assert later['chosen'] == first['chosen']
@@ -170,7 +171,7 @@ def test_a_later_run_of_one_identification_fits_only_the_start_the_first_chose(
     skipped = [entry for entry in later['starts'][1:] if entry['name'] != first['chosen']]
     assert skipped and all(entry['skipped'] == NOT_CHOSEN_EARLIER for entry in skipped)
     fitted.clear()
-    several_starts(records, scenario.torque_constant, False, Progress(), base)
+    several_starts(base, Models(records, scenario.torque_constant), Progress())
     assert len(fitted) >= 2  # a new identification
 
 
@@ -180,9 +181,9 @@ def test_a_later_run_whose_first_kept_its_default_fits_no_further_start(monkeypa
     records = prepare_records(scenario.records, torque_constant=scenario.torque_constant)
     base = RefinedEstimator().fit(records, torque_constant=scenario.torque_constant)
     fitted = _counting_fits(monkeypatch)
-    _, first = several_starts(records, scenario.torque_constant, False, Progress(), base)
+    _, first = several_starts(base, Models(records, scenario.torque_constant), Progress())
     assert fitted == ['regression']
-    best, later = several_starts(records, scenario.torque_constant, False, Progress(), base,
+    best, later = several_starts(base, Models(records, scenario.torque_constant), Progress(),
                                  earlier=first)
     assert fitted == ['regression'] and best is base
     assert later['chosen'] == 'default' and later['reasons'], later

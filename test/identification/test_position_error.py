@@ -12,6 +12,7 @@ from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.pipeline.position_error import AGREEMENT_FACTOR, disagreement
 from dcmotor_id.identification.pipeline.second_start import check_start
+from dcmotor_id.identification.pipeline.state import Fit, Inputs, Models, RunOn
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.simulation.lab_scenarios import ball_screw_sine
 
@@ -83,7 +84,7 @@ def _choose(monkeypatch, outcomes, white_base=None, reference=None):
     from types import SimpleNamespace
 
     from dcmotor_id.identification.pipeline import run as pipeline
-    from dcmotor_id.identification.pipeline.state import Fit, Inputs, Request, RunOn
+    from dcmotor_id.identification.pipeline.state import Fit, Inputs, Models, Request, RunOn
 
     reference = reference or next(value for value in outcomes.values()
                                   if isinstance(value, IdentificationResult))
@@ -101,7 +102,8 @@ def _choose(monkeypatch, outcomes, white_base=None, reference=None):
         if on.position_error == 'white' and white_base is not None:
             inputs = Inputs(records, 'refined', constant, True, None, [], Progress(None),
                             'estimate', on, None)
-            return pipeline.Begun(inputs, Fit(SimpleNamespace(parameters=white_base), {}))
+            return pipeline.Begun(inputs, Fit(SimpleNamespace(parameters=white_base), {},
+                                              Models(records, constant)))
         return outcome(on.position_error)
 
     def finish(begun):
@@ -187,8 +189,10 @@ def test_the_second_start_fits_the_run_s_criterion():
         records, torque_constant=constant)
     wrong = replace(fitted, parameters={**fitted.parameters, 'J': 20 * truth.J,
                                         'b': 20 * truth.b})
-    _, estimate, _, check = check_start(records, constant, False, False, (), Progress(None),
-                                        wrong, None, None, criterion='position')
+    inputs = Inputs(records, 'refined', constant, False, None, [], Progress(None), 'estimate',
+                    RunOn('position'), None)
+    models = Models(records, constant, criterion='position')
+    _, estimate, _, check = check_start(inputs, Fit(wrong, {}, models))
     assert check['doubts'], check
     assert check['chosen'] != 'first start'
     # The position's initial state is part of the second start's fit.

@@ -13,16 +13,20 @@ model misfit far above the sensor noise, a current that sits at an amplifier's l
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from dcmotor_id.core.checks import Check, register
+from dcmotor_id.core.errors import NotIdentifiableError
 from dcmotor_id.core.model import UNITS
 from dcmotor_id.identification.checks.input_noise import input_noise_warning
 from dcmotor_id.identification.effects.base import torque_spread
 from dcmotor_id.identification.error_model.criterion import noise_level
 from dcmotor_id.signals.filters import low_pass, noise_std
+
+if TYPE_CHECKING:
+    from dcmotor_id.identification.checks.answer import FinalFit
 
 #: Relative standard error above which a parameter counts as not identified.
 IDENTIFIABLE_REL_STDERR = 0.5
@@ -279,6 +283,25 @@ def input_noise_misfit(estimate: Any, records: Sequence[Any], outputs: Sequence[
                                residual_rms['speed'], bad['speed'])
 
 
+def correlation_check(fit: FinalFit) -> list[str]:
+    """Check the answer (:mod:`~.answer`): say which parameters are strongly correlated."""
+    return correlated_pairs(fit.estimate, skip=fit.skip)
+
+
+def initial_states_check(fit: FinalFit) -> list[str]:
+    """Check the answer: fitted initial states far from the records' first samples."""
+    if fit.initial_state != 'estimate':
+        return []
+    return initial_state_warnings(fit.estimate, fit.fitted_records, fit.outputs)
+
+
+def misfit_check(fit: FinalFit) -> list[str]:
+    """Check the answer: a fit that misses the data far above their noise."""
+    misfit = misfit_warning(fit.estimate, fit.fitted_records, fit.outputs,
+                            dict(fit.residual_rms), fit.torque_constant)
+    return [misfit] if misfit else []
+
+
 def misfit_warning(estimate: Any, records: Sequence[Any], outputs: Sequence[str],
                    residual_rms: dict[str, float],
                    torque_constant: float | None = None) -> str | None:
@@ -355,15 +378,20 @@ def useful(parameters: Sequence[str], not_identifiable: dict[str, str],
     return any(name in parameters and name not in not_identifiable for name in key)
 
 
+def useful_check(fit: FinalFit) -> list[str]:
+    """Check the answer (:mod:`~.answer`): refuse it when nothing useful is identified."""
+    if not useful(fit.names, dict(fit.said), fit.mechanical_only):
+        raise NotIdentifiableError(
+            'nothing useful is identifiable from these data: '
+            + '; '.join(f'{name}: {reason}' for name, reason in fit.said.items())
+            + '. Use a richer excitation (faster changes for La, larger speed changes for J) '
+            'or a longer record.')
+    return []
+
+
 register(Check('current_limit', 'before_fit', 'records', limited_samples,
                "samples at an amplifier's current limit (their own path)"))
 register(Check('at_bound', 'after_fit', 'fit', at_bound,
                'parameters at a bound of the fit: not identifiable'))
 register(Check('loose', 'after_fit', 'fit', loose,
                'parameters the data do not determine (standard error beyond the value)'))
-register(Check('correlated_pairs', 'after_fit', 'fit', correlated_pairs,
-               'parameters whose estimates are strongly correlated (a warning)'))
-register(Check('initial_states', 'after_fit', 'fit', initial_state_warnings,
-               'fitted initial states far from the measured ones (a warning)'))
-register(Check('misfit', 'after_fit', 'fit', misfit_warning,
-               'a fit that misses the data by more than their noise (a warning)'))

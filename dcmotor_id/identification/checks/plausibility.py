@@ -15,14 +15,16 @@ The scales are RMS values of the measured signals, so the checks are invariant t
 
 from __future__ import annotations
 
-from typing import Mapping, Optional, Sequence
+from typing import Mapping, Optional, Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import UNITS
 from dcmotor_id.core.records import Record
+
+if TYPE_CHECKING:
+    from dcmotor_id.identification.checks.answer import FinalFit
 
 #: A value further than this factor from the scale the data imply is refused.
 SCALE_FACTOR = 1e5
@@ -166,5 +168,12 @@ def _degenerate_warnings(values: Mapping[str, float], stderr: Mapping[str, float
     return warnings
 
 
-register(Check('plausibility', 'after_fit', 'fit', check_plausibility,
-               'the answer against the scales the data imply (refused, or warnings)'))
+def plausibility_check(fit: FinalFit) -> list[str]:
+    """
+    Check the answer (:mod:`~.answer`): :func:`check_plausibility` on the records identified.
+
+    A warning on a parameter already said not to be identifiable is not repeated.
+    """
+    return [text for text in check_plausibility(fit.estimate.parameters, fit.estimate.stderr,
+                                                fit.records, fit.torque_constant)
+            if not any(text.startswith(f'{name} = ') for name in fit.said)]

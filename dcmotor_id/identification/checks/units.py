@@ -14,12 +14,14 @@ model-free regression's Ra, CPhi and J, for the refusal.
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from dcmotor_id.core.checks import Check, register
 from dcmotor_id.identification.checks.start import regression_evidence
+
+if TYPE_CHECKING:
+    from dcmotor_id.identification.checks.answer import FinalFit
 
 #: Longest electrical time constant La/Ra of a DC motor armature [s] (large motors: 0.1 s).
 MAX_ELECTRICAL_S = 1.0
@@ -122,5 +124,6 @@ def _consistent_when_negated(records: Sequence[Any], torque_constant: float | No
     return all(evidence[name] > 0 for name in names)
 
 
-register(Check('units', 'after_fit', 'fit', unit_warnings,
-               "a channel off by 1000, named by the answer's physics"))
+def units_check(fit: FinalFit) -> list[str]:
+    """Check the answer (:mod:`~.answer`): :func:`unit_warnings` on the records identified."""
+    return unit_warnings(fit.estimate.parameters, fit.records, fit.mechanical_only)

@@ -26,6 +26,8 @@ arrays for plotting; none modifies its inputs.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import cached_property
 import math
 from statistics import NormalDist
 from typing import Any, Mapping, Protocol, Sequence
@@ -164,6 +166,42 @@ def model_errors(model: SimulatedModel, values: Mapping[str, float],
             _joined([out.pop(channel) for out in simulated]),
             _joined([getattr(rec, channel) for rec in model.records]))
     return errors
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """
+    A fitted model simulated over its records once, for every stage that measures it.
+
+    ``model``: the model on the records (with the effect terms of the fitted structure);
+    ``outputs``: its simulated channels per record (:func:`simulate_records`).
+    """
+
+    model: SimulatedModel
+    outputs: list[dict[str, FloatArray]]
+
+    @cached_property
+    def errors(self) -> ChannelErrors:
+        """Return the simulation error per channel, as :func:`model_errors` gives it."""
+        errors: ChannelErrors = {error_key(channel): None for channel in ERROR_CHANNELS}
+        for channel in self.model.outputs:
+            errors[error_key(channel)] = simulation_error_pct(
+                _joined([out[channel] for out in self.outputs]),
+                _joined([getattr(rec, channel) for rec in self.model.records]))
+        return errors
+
+    def residual_rms(self, channels: Sequence[str]) -> dict[str, float]:
+        """Return the RMS of each channel's simulation residual over all records."""
+        return {channel: float(np.sqrt(np.mean(np.concatenate(
+            [out[channel] - getattr(rec, channel)
+             for out, rec in zip(self.outputs, self.model.records)]) ** 2)))
+            for channel in channels}
+
+
+def simulated(model: SimulatedModel, values: Mapping[str, float],
+              initial_states: Sequence[Sequence[float]]) -> Simulation:
+    """Return the :class:`Simulation` of a fitted model over its records."""
+    return Simulation(model, simulate_records(model, values, initial_states))
 
 
 def _joined(arrays: Sequence[FloatArray]) -> FloatArray:
@@ -428,26 +466,36 @@ def one_step_error(values: Mapping[str, float], record: Any,
         ad, gamma = zoh_matrices(a_matrix, dt)
     channels = ('speed',) if torque_constant is not None else ('current', 'speed')
     out = {channel: np.empty(max(n - 1, 0)) for channel in channels}
+    extras = {'voltage': voltage_extra, 'torque': torque_extra,
+              'current_offset': current_offset, 'speed_offset': speed_offset,
+              'coulomb_delta': coulomb_delta}
     # Blocks of samples (each block overlapping the next by one): the temporaries stay a few
     # MB whatever the record's length; every element is computed as over the whole record.
     for first in range(0, max(n - 1, 0), ONE_STEP_BLOCK):
         last = min(first + ONE_STEP_BLOCK, n - 1) + 1
-        block = _one_step_block(values, record, torque_constant, ad, gamma, first, last,
-                                voltage_extra, torque_extra, current_offset, speed_offset,
-                                coulomb_delta)
+        block = _one_step_block(values, record, torque_constant, (ad, gamma), (first, last),
+                                extras)
         for channel in channels:
             out[channel][first:last - 1] = block[channel]
     return out
 
 
-def _one_step_block(values, record, torque_constant, ad, gamma, first, last, voltage_extra,
-                    torque_extra, current_offset, speed_offset, coulomb_delta):
-    """One-step errors of samples ``first..last - 2`` (:func:`one_step_error` on a block)."""
+def _one_step_block(values, record, torque_constant, zoh, span, extras):
+    """
+    One-step errors of samples ``first..last - 2`` (:func:`one_step_error` on a block).
+
+    ``zoh``: the ZOH matrices ``(ad, gamma)``; ``span``: ``(first, last)``; ``extras``: the
+    effect contributions by name (``voltage``, ``torque``, ``current_offset``,
+    ``speed_offset``, ``coulomb_delta``), as :func:`one_step_error` takes them.
+    """
+    (ad, gamma), (first, last) = zoh, span
+    coulomb_delta = extras['coulomb_delta']
+
     def part(values_or_none):
         return None if values_or_none is None else \
             np.asarray(values_or_none, dtype=float)[first:last]
     zeros = np.zeros(last - first)
-    torque_extra, speed_offset = part(torque_extra), part(speed_offset)
+    torque_extra, speed_offset = part(extras['torque']), part(extras['speed_offset'])
     torque = zeros if torque_extra is None else torque_extra
     speed_meas = record.speed[first:last] - (zeros if speed_offset is None else speed_offset)
     sign = np.sign(speed_meas)
@@ -457,7 +505,7 @@ def _one_step_block(values, record, torque_constant, ad, gamma, first, last, vol
         drive = (torque_constant * record.current[first:last] + torque - friction) / values['J']
         predicted = ad[0, 0] * speed_meas[:-1] + gamma[0, 0] * drive[:-1]
         return {'speed': predicted - speed_meas[1:]}
-    current_offset, voltage_extra = part(current_offset), part(voltage_extra)
+    current_offset, voltage_extra = part(extras['current_offset']), part(extras['voltage'])
     current_meas = record.current[first:last] - \
         (zeros if current_offset is None else current_offset)
     voltage = record.voltage[first:last] + (zeros if voltage_extra is None else voltage_extra)

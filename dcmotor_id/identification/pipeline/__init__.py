@@ -2,9 +2,11 @@
 The stages of :func:`~dcmotor_id.identification.identify.identify`, one module each.
 
 Every stage is a function from the run's frozen state (:mod:`.state`: :class:`.state.Inputs`,
-:class:`.state.Fit`, :class:`.state.Answer`) to a new one; :mod:`.run` calls them in order and
+:class:`.state.Fit`, :class:`.state.Answer`) to a new one; :mod:`.run` calls stages 1-4 and
 holds the only branches (the current-limited path, the criterion's fallback to the speed, the
-choice of the position error's model)::
+choice of the position error's model), :mod:`.stages` calls stages 5-12 in order.  The base
+model on the records (:class:`.state.Models`) and the final fit's simulation travel in the
+state, built once::
 
     Request, RunOn
       -> prepare             1  held samples, coarse channels, excitation   (prepare)
@@ -18,8 +20,9 @@ choice of the position error's model)::
       -> check_final_start   6  where discovery led, checked the same way    (start_check)
       -> final_fit           7  refused when it does not reproduce the data  (final_fit)
       -> uncertainty         8  data-based standard errors, La bound          (final_fit)
-      -> identifiability     9  what the data do not determine                (identifiability)
-      -> fit_warnings       10  correlations, initial states, misfit, shift   (fit_warnings)
+      -> identifiability     9  what the data do not determine; the checks    (identifiability)
+                                of the answer, from the registry
+      -> fit_warnings       10  how far the effects moved the base            (fit_warnings)
       -> heldout            11  per-record errors, whole and held out         (heldout)
       -> result             12  the IdentificationResult (the JSON contract)  (result)
 

@@ -11,7 +11,7 @@ estimate gives La by its upper bound (:func:`with_la_bound`) with the reason
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Sequence, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,13 +19,12 @@ from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import derived_values, parameter_names
 from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.checks.identifiability import IDENTIFIABLE_REL_STDERR
+from dcmotor_id.identification.error_model.residuals import model_errors
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
-from dcmotor_id.identification.pipeline.fit_outcome import simulation_errors
-from dcmotor_id.identification.pipeline.state import Fit, Inputs
+from dcmotor_id.identification.pipeline.state import Fit, Inputs, Models
 
 if TYPE_CHECKING:
-    from dcmotor_id.core.records import Record
     from dcmotor_id.identification.error_model.residuals import ChannelErrors
     from dcmotor_id.identification.estimators.base import Estimate
 
@@ -45,13 +44,14 @@ def armature(inputs: Inputs, fit: Fit) -> Fit:
     fit = replace(fit, full_la=full_la)
     if not la_unresolved(*full_la, dt):
         return fit
-    refit = quasi_static_refit(fit.estimate, inputs.records, fit.errors, inputs.initial_state,
-                               inputs.progress, inputs.criterion, inputs.on.position_error)
+    models = replace(fit.models, quasi_static=True)
+    refit = quasi_static_refit(fit.estimate, fit.errors, models, inputs.initial_state,
+                               inputs.progress, inputs.on.position_error)
     if refit is None:
         return replace(fit, not_identifiable={**fit.not_identifiable,
                                               'La': la_reason(*full_la, dt, None)})
     estimate, errors = refit
-    return replace(fit, estimate=estimate, quasi=True, errors=errors)
+    return replace(fit, estimate=estimate, quasi=True, errors=errors, models=models)
 
 
 def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
@@ -59,9 +59,8 @@ def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
     return bool(la / ra < dt or la_stderr > IDENTIFIABLE_REL_STDERR * la)
 
 
-def quasi_static_refit(estimate: Estimate, records: Sequence[Record], errors: ChannelErrors,
+def quasi_static_refit(estimate: Estimate, errors: ChannelErrors, models: Models,
                        initial_state: str, progress: Progress,
-                       criterion: str = 'speed',
                        position_error: str = 'adaptive'
                        ) -> tuple[Estimate, ChannelErrors] | None:
     """
@@ -69,6 +68,7 @@ def quasi_static_refit(estimate: Estimate, records: Sequence[Record], errors: Ch
 
     The refit is kept when its current simulation error is at most 25 % (and 0.5 points)
     worse than the full model's: the full model's La then adds nothing the data resolve.
+    ``models``: the quasi-static base model on the records (the refit's criterion is theirs);
     ``position_error``: the model of the position error of the refit.
     """
     values = estimate.parameters
@@ -76,9 +76,10 @@ def quasi_static_refit(estimate: Estimate, records: Sequence[Record], errors: Ch
     progress.set_stage('quasi-static armature refit')
     try:
         quasi = RefinedEstimator(initial=start, quasi_static=True, initial_state=initial_state,
-                                 progress=progress, criterion=criterion,
-                                 position_error=position_error).fit(records)
-        quasi_errors = simulation_errors(quasi, records, None, quasi_static=True)
+                                 progress=progress, criterion=models.criterion,
+                                 position_error=position_error).fit(models.records)
+        quasi_errors = model_errors(models.measured, dict(quasi.parameters),
+                                    quasi.initial_states)
     except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
         return None
     full_current = errors.get('current_nrmse_pct') or 0.0

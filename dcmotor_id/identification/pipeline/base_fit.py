@@ -19,7 +19,7 @@ from dcmotor_id.identification.estimators.base import Estimate, Estimator
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.pipeline.fit_outcome import physical_errors
-from dcmotor_id.identification.pipeline.state import Fit, Inputs
+from dcmotor_id.identification.pipeline.state import Fit, Inputs, Models
 from dcmotor_id.identification.prepare import one_level_reason, single_current_level
 
 #: Estimators by the name the CLI's ``--method`` takes.
@@ -54,8 +54,8 @@ def base_fit(inputs: Inputs) -> tuple[Inputs, Fit]:
         raise FitError(f'no fit finished within the time budget '
                        f'({inputs.progress.max_time_s:g} s): give more time with --max-time, '
                        'or shorten or decimate the records') from None
-    errors = physical_errors(estimate, inputs.records, inputs.torque_constant)
-    return inputs, Fit(estimate, errors, warnings)
+    models = Models(inputs.records, inputs.torque_constant, False, inputs.criterion)
+    return inputs, Fit(estimate, physical_errors(estimate, models.measured), models, warnings)
 
 
 def make_estimator(method: str, initial_state: str, progress: Progress,

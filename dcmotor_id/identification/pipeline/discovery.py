@@ -10,7 +10,7 @@ failures turned into a reason; :func:`time_warnings` says when the budget ran ou
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any, Sequence, TYPE_CHECKING
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
@@ -21,9 +21,7 @@ from dcmotor_id.identification.pipeline.fit_outcome import check_physical, NO_FI
 from dcmotor_id.identification.pipeline.state import Fit, Inputs
 
 if TYPE_CHECKING:
-    from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import Structure
-    from dcmotor_id.identification.effects import Effect
     from dcmotor_id.identification.estimators.base import Estimate
 
 #: Simulation error of the base model above which effect discovery is not tried (percent).
@@ -57,10 +55,7 @@ def discovery(inputs: Inputs, fit: Fit) -> Fit:
         progress.deadline = min(deadline if deadline is not None else np.inf,
                                 progress.now() + HOPELESS_DISCOVERY_S)
     try:
-        found, info = run_discovery(inputs.records, inputs.torque_constant, inputs.estimator,
-                                    inputs.vocabulary, progress, inputs.initial_state,
-                                    fit.quasi, fit.estimate, inputs.criterion,
-                                    position_error=inputs.on.position_error)
+        found, info = run_discovery(inputs, fit.quasi, fit.estimate)
     finally:
         progress.deadline = deadline
     return replace(fit, found=found, discovery_info=info,
@@ -92,27 +87,27 @@ def supports_discovery(estimator: Any) -> bool:
     return bool(getattr(estimator, 'supports_terms', False))
 
 
-def run_discovery(records: Sequence[Record], torque_constant: float | None, estimator: Any,
-                  vocabulary: Sequence[type[Effect]], progress: Progress, initial_state: str,
-                  quasi_static: bool = False, estimate: Estimate | None = None,
-                  criterion: str = 'speed', structure: Structure | None = None,
-                  position_error: str = 'adaptive'
+def run_discovery(inputs: Inputs, quasi_static: bool, estimate: Estimate,
+                  structure: Structure | None = None, initial_state: str | None = None
                   ) -> tuple[DiscoveryResult | None, dict[str, Any]]:
     """
     Run the loop; return ``(DiscoveryResult or None, JSON summary or skip reason)``.
 
-    ``structure``: effects the loop's base holds from the start (``DiscoveryLoop.run``);
-    ``position_error``: the model of the position error of its fits.
+    The loop starts from ``estimate`` on the run's records, vocabulary, criterion and position
+    error's model.  ``structure``: effects the loop's base holds from the start
+    (``DiscoveryLoop.run``); ``initial_state``: its fits' (default: the run's).
     """
+    estimator, progress = inputs.estimator, inputs.progress
     if not supports_discovery(estimator):
         return None, {'skipped': f'effect discovery needs the refined method (the '
                                  f'{getattr(estimator, "name", "given")} method has no effect '
                                  'terms)'}
     try:
-        found = DiscoveryLoop(records, torque_constant, vocabulary=vocabulary,
-                              progress=progress, initial_state=initial_state,
-                              quasi_static=quasi_static, criterion=criterion,
-                              position_error=position_error).run(estimate, structure)
+        found = DiscoveryLoop(inputs.records, inputs.torque_constant,
+                              vocabulary=inputs.vocabulary, progress=progress,
+                              initial_state=initial_state or inputs.initial_state,
+                              quasi_static=quasi_static, criterion=inputs.criterion,
+                              position_error=inputs.on.position_error).run(estimate, structure)
         check_physical(found.estimate)
     except TimeBudgetExceeded:
         return None, {'skipped': f'the time budget ({progress.max_time_s:g} s) ran out '

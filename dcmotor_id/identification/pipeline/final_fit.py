@@ -15,19 +15,25 @@ import numpy as np
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import DERIVED_NAMES, MECHANICAL_NAMES, PARAMETER_NAMES
+from dcmotor_id.identification.error_model.residuals import simulated
 from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
 from dcmotor_id.identification.pipeline.armature import la_reason, with_la_bound
-from dcmotor_id.identification.pipeline.fit_outcome import NO_FIT_NRMSE_PCT, simulation_errors
-from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
+from dcmotor_id.identification.pipeline.fit_outcome import NO_FIT_NRMSE_PCT
+from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs, Models
 
 
 def final_fit(inputs: Inputs, fit: Fit) -> Answer:
-    """Return the final fit (the loop's, else the base); refuse it when it does not fit."""
+    """
+    Return the final fit (the loop's, else the base); refuse it when it does not fit.
+
+    Its simulation over the records travels in the answer: the later stages measure it there.
+    """
     final, terms, fitted_records = fit.estimate, (), list(inputs.records)
     if fit.found is not None:
         final, terms, fitted_records = fit.found.estimate, fit.found.terms, fit.found.records
-    in_sample = simulation_errors(final, fitted_records, inputs.torque_constant, terms,
-                                  fit.quasi)
+    model = Models(fitted_records, inputs.torque_constant, fit.quasi, terms=tuple(terms))
+    simulation = simulated(model.measured, final.parameters, final.initial_states)
+    in_sample = simulation.errors
     worst = max(value for value in in_sample.values() if value is not None) \
         if any(value is not None for value in in_sample.values()) else float('inf')
     if not np.isfinite(worst) or worst > NO_FIT_NRMSE_PCT:
@@ -35,7 +41,8 @@ def final_fit(inputs: Inputs, fit: Fit) -> Answer:
             f'the identified model does not reproduce the data (simulation error {worst:.3g} % '
             'of the signal spread). Check that the columns are what their names say (units, '
             'signs) and that the data come from a DC motor drive.')
-    return Answer(final, terms, fitted_records, fit.warnings, dict(fit.not_identifiable))
+    return Answer(final, terms, fitted_records, fit.warnings, dict(fit.not_identifiable),
+                  simulation=simulation)
 
 
 def uncertainty(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:

@@ -13,7 +13,8 @@ from typing import Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import inadmissible, UNITS
-from dcmotor_id.identification.error_model.residuals import ChannelErrors, model_errors
+from dcmotor_id.identification.error_model.residuals import (ChannelErrors, model_errors,
+                                                             SimulatedModel)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 
 if TYPE_CHECKING:
@@ -39,12 +40,14 @@ def simulation_errors(estimate: Estimate, records: Sequence[Record],
     return model_errors(model, dict(estimate.parameters), estimate.initial_states)
 
 
-def physical_errors(estimate: Estimate, records: Sequence[Record],
-                    torque_constant: float | None = None, terms: Sequence = (),
-                    quasi_static: bool = False) -> ChannelErrors:
-    """Refuse a non-physical estimate (:func:`check_physical`); return its simulation errors."""
+def physical_errors(estimate: Estimate, model: SimulatedModel) -> ChannelErrors:
+    """
+    Refuse a non-physical estimate (:func:`check_physical`); return its simulation errors.
+
+    ``model``: the model on the records the estimate was fitted on.
+    """
     check_physical(estimate)
-    return simulation_errors(estimate, records, torque_constant, terms, quasi_static)
+    return model_errors(model, dict(estimate.parameters), estimate.initial_states)
 
 
 def check_physical(estimate: Estimate) -> None:

@@ -1,32 +1,26 @@
 """
-Stage 10: the final fit's warnings (correlations, initial states, misfit) and the effects' pull.
+Stage 10: what the effects found did to the base, and the spread between records.
 
 How far the effects found moved the base parameters, when beyond their standard errors
-(:func:`structure_shift`), and the spread between records.
+(:func:`structure_shift`), and the spread between records.  (The final fit's correlations,
+initial states and misfit are checks of the answer, run from the registry by stage 9.)
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Sequence
 
 import numpy as np
 
-from dcmotor_id.identification.checks.identifiability import (correlated_pairs,
-                                                              initial_state_warnings,
-                                                              misfit_warning)
-from dcmotor_id.identification.error_model.residuals import output_channels, simulate_records
 from dcmotor_id.identification.estimators.base import Estimate
-from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.estimators.uncertainty import between_record_warnings
 from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
 
 
 def fit_warnings(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
-    """Return the answer with the final fit's warnings and how far the effects moved the base."""
-    outputs = output_channels(inputs.mechanical_only)
-    warnings = answer.warnings + tuple(result_warnings(
-        answer.final, answer.fitted_records, answer.terms, outputs, inputs.torque_constant,
-        fit.quasi, list(answer.bound) + list(answer.upper_bounds), inputs.initial_state))
+    """Return the answer with how far the effects moved the base, and the records' spread."""
+    warnings = answer.warnings
     if fit.found is not None and fit.found.effects:
         shift = structure_shift(fit.found.base_estimate, answer.parameters, answer.stderr)
         if shift:
@@ -35,27 +29,10 @@ def fit_warnings(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
     return replace(answer, warnings=warnings)
 
 
-def result_warnings(estimate, records, terms, outputs, torque_constant, quasi, skip,
-                    initial_state):
-    """Warnings of the final fit: correlations, initial states, misfit, current limit."""
-    warnings = correlated_pairs(estimate, skip=skip)
-    if initial_state == 'estimate':
-        warnings += initial_state_warnings(estimate, records, outputs)
-    rms = residual_rms(estimate, records, terms, outputs, torque_constant, quasi)
-    misfit = misfit_warning(estimate, records, outputs, rms, torque_constant)
-    if misfit:
-        warnings.append(misfit)
-    return warnings
-
-
-def residual_rms(estimate: Estimate, records, terms, outputs, torque_constant,
-                 quasi: bool) -> dict[str, float]:
-    """Return the RMS of each output channel's simulation residual over all records."""
-    model = OutputErrorModel(records, torque_constant, terms, quasi)
-    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
-    return {channel: float(np.sqrt(np.mean(np.concatenate(
-        [out[channel] - getattr(rec, channel) for out, rec in zip(simulated, records)]) ** 2)))
-        for channel in outputs}
+def final_rms(answer: Answer, outputs: Sequence[str]) -> dict[str, float]:
+    """Return the RMS of each output channel's simulation residual of the final fit."""
+    assert answer.simulation is not None, 'the final fit stage simulates the final fit'
+    return answer.simulation.residual_rms(outputs)
 
 
 def structure_shift(base: Estimate, parameters: dict[str, float],

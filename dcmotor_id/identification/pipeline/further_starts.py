@@ -44,9 +44,9 @@ from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, kn
                                                     regression_start, start_doubts)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.pipeline.fit_outcome import check_physical
+from dcmotor_id.identification.pipeline.state import Models
 
 if TYPE_CHECKING:
-    from dcmotor_id.core.records import Record
     from dcmotor_id.identification.estimators.base import Estimate
 
 #: Most further starts (base fits) after the default one.
@@ -89,8 +89,7 @@ def further_starts(evidence: dict[str, float] | None, fitted: dict[str, float],
 NOT_CHOSEN_EARLIER = 'not chosen in an earlier run of this identification (fitted there)'
 
 
-def several_starts(records: Sequence[Record], torque_constant: float | None, quasi: bool,
-                   progress: Progress, estimate: Estimate, criterion: str = 'speed',
+def several_starts(estimate: Estimate, models: Models, progress: Progress,
                    evidence: dict[str, float] | None | str = FROM_RECORDS,
                    earlier: dict[str, Any] | None = None, position_error: str = 'adaptive'
                    ) -> tuple[Estimate, dict[str, Any] | None]:
@@ -102,13 +101,15 @@ def several_starts(records: Sequence[Record], torque_constant: float | None, qua
     ``b``, its ``bic``, or why it ``failed`` or was ``skipped``, and ``chosen``; the default's
     entry has the ``effective_samples``), ``chosen`` (the name), ``ambiguous``
     (:func:`ambiguous_starts`) and ``cpu_s`` (the cost of the further starts on the budget's
-    clock).  ``evidence``: the model-free regression on the records when the caller has it
+    clock).  ``models``: the base model on the records (quasi-static or not) and the run's
+    criterion, whose ``compared`` model scores the fits.  ``evidence``: the model-free
+    regression on the records when the caller has it
     (:func:`~dcmotor_id.identification.checks.start.known_evidence`).  ``earlier``: the
     account of an earlier run of the same identification (the records and the regression
     the same), whose chosen start alone is fitted again.  ``position_error``: the model of
     the position error of the fits.
     """
-    model = OutputErrorModel(records, torque_constant, (), quasi, criterion)
+    records, torque_constant, model = models.records, models.torque_constant, models.compared
     evidence = known_evidence(records, torque_constant, evidence)
     reasons = start_doubts(estimate, records, model, evidence).further_starts
     if not reasons:
@@ -121,7 +122,7 @@ def several_starts(records: Sequence[Record], torque_constant: float | None, qua
     share = None if deadline is None else began + BUDGET_SHARE * max(deadline - began, 0.0)
     try:
         progress.deadline = share
-        _fit_starts(records, torque_constant, quasi, progress, (criterion, position_error),
+        _fit_starts(models, progress, position_error,
                     _starts_of(evidence, estimate, model, earlier), entries, fits)
     finally:
         progress.deadline = deadline
@@ -149,7 +150,7 @@ def _starts_of(evidence: dict[str, float] | None, estimate: Estimate, model: Out
             for entry in earlier['starts'][1:]]
 
 
-def _fit_starts(records, torque_constant, quasi, progress, fit_on, starts, entries, fits):
+def _fit_starts(models, progress, position_error, starts, entries, fits):
     """Fit the base model from each start in turn (appending to ``entries`` and ``fits``)."""
     estimate = fits[0]
     for name, start, fitted in starts:
@@ -162,8 +163,7 @@ def _fit_starts(records, torque_constant, quasi, progress, fit_on, starts, entri
             entries[-1]['skipped'] = 'the default start (not fitted again)'
             fits.append(None)
             continue
-        fits.append(_fit_from(records, torque_constant, quasi, progress, start, fit_on,
-                              entries[-1]))
+        fits.append(_fit_from(models, progress, position_error, start, entries[-1]))
         if fits[-1] is None and entries[-1].get('failed', '').startswith('time budget'):
             break
         if name == 'regression' and fits[-1] is not None and _same_point(fits[-1], estimate):
@@ -184,19 +184,20 @@ def _same_point(one: Estimate, other: Estimate) -> bool:
                for name, value in one.parameters.items() if name in START_NAMES)
 
 
-def _fit_from(records, torque_constant, quasi, progress, start, fit_on, entry):
+def _fit_from(models, progress, position_error, start, entry):
     """
     Fit the base model from ``start``; None (and ``entry['failed']``) when it fails.
 
-    ``fit_on``: the criterion and the model of the position error.
+    ``models``: the records, the quasi-static armature or not and the criterion of the fit;
+    ``position_error``: the model of its position error.
     """
-    criterion, position_error = fit_on
     try:
         progress.set_stage(f'base fit from a further start ({entry["name"]})',
-                           record_names(records))
-        fit = RefinedEstimator(initial=start, quasi_static=quasi, progress=progress,
-                               criterion=criterion, position_error=position_error).fit(
-            records, torque_constant=torque_constant)
+                           record_names(models.records))
+        fit = RefinedEstimator(initial=start, quasi_static=models.quasi_static,
+                               progress=progress, criterion=models.criterion,
+                               position_error=position_error).fit(
+            models.records, torque_constant=models.torque_constant)
         check_physical(fit)
     except TimeBudgetExceeded:
         entry['failed'] = 'time budget: the further starts may take ' \

@@ -1,22 +1,22 @@
 """
-Stage 9: what the data do not determine, and the answer against the data's own scales.
+Stage 9: what the data do not determine, and the registered checks of the answer.
 
 One direction only, parameters at a bound, loose ones
-(:mod:`~dcmotor_id.identification.checks.identifiability`); plausibility
-(:mod:`~dcmotor_id.identification.checks.plausibility`) and units
-(:mod:`~dcmotor_id.identification.checks.units`); refused when nothing useful is left.
+(:mod:`~dcmotor_id.identification.checks.identifiability`); then every check of the answer
+in the registry (:func:`~dcmotor_id.identification.checks.answer.answer_warnings`: the
+answer against the data's own scales, units, refused when nothing useful is left,
+correlations, initial states, misfit).
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
-from dcmotor_id.core.errors import NotIdentifiableError
 from dcmotor_id.core.model import POSITIVE_NAMES
+from dcmotor_id.identification.checks.answer import answer_warnings, FinalFit
 from dcmotor_id.identification.checks.identifiability import (at_bound, loose,
-                                                              one_direction_note, useful)
-from dcmotor_id.identification.checks.plausibility import check_plausibility
-from dcmotor_id.identification.checks.units import unit_warnings
+                                                              one_direction_note)
+from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.pipeline.state import Answer, Inputs
 
 
@@ -41,18 +41,11 @@ def identifiability(inputs: Inputs, answer: Answer) -> Answer:
                answer.upper_bounds and name not in ('Ka',)]
     not_identifiable.update(loose(final, [name for name in checked if name in POSITIVE_NAMES
                                           or name == 'Ta']))
-    # Orders of magnitude against the data's own scales: refused there, else warnings (the
-    # parameters already said to be at a bound are not repeated).
-    warnings = answer.warnings + tuple(
-        text for text in check_plausibility(final.parameters, final.stderr, inputs.records,
-                                            inputs.torque_constant)
-        if not any(text.startswith(f'{name} = ') for name in not_identifiable))
-    warnings += tuple(unit_warnings(final.parameters, inputs.records, inputs.mechanical_only))
-    if not useful(list(parameters), not_identifiable, inputs.mechanical_only):
-        raise NotIdentifiableError(
-            'nothing useful is identifiable from these data: '
-            + '; '.join(f'{name}: {reason}' for name, reason in not_identifiable.items())
-            + '. Use a richer excitation (faster changes for La, larger speed changes for J) '
-            'or a longer record.')
+    assert answer.simulation is not None, 'the final fit stage simulates the final fit'
+    warnings = answer.warnings + answer_warnings(FinalFit(
+        final, inputs.records, answer.fitted_records, inputs.torque_constant,
+        inputs.initial_state, answer.simulation.residual_rms(output_channels(
+            inputs.mechanical_only)), not_identifiable, list(bound) + list(answer.upper_bounds),
+        list(parameters)))
     return replace(answer, bound=bound, not_identifiable=not_identifiable, stderr=stderr,
                    combined=combined, warnings=warnings)

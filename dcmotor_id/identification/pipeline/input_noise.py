@@ -25,7 +25,7 @@ from dcmotor_id.core.errors import FitError
 from dcmotor_id.identification.checks.identifiability import input_noise_misfit
 from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
-from dcmotor_id.identification.pipeline.fit_warnings import residual_rms
+from dcmotor_id.identification.pipeline.fit_warnings import final_rms
 from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
 from dcmotor_id.signals.filters import noise_std
 
@@ -53,8 +53,7 @@ def input_noise_stderr(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
         return answer
     outputs = output_channels(True)
     records = answer.fitted_records
-    rms = residual_rms(answer.final, records, answer.terms, outputs, inputs.torque_constant,
-                       fit.quasi)
+    rms = final_rms(answer, outputs)
     if input_noise_misfit(answer.final, records, outputs, rms, inputs.torque_constant) is None:
         return answer
     spread, draws = resampled_spread(inputs, fit, answer)

@@ -3,11 +3,11 @@ The pipeline's control flow: the stages in order, the criterion, the position er
 
 :func:`identify_checked` runs one identification: on the resolved criterion
 (:func:`~dcmotor_id.identification.error_model.criterion.resolve_criterion`), falling back to the
-speed
-when the fit on the position fails under ``--criterion auto``; a refusal names a channel that
-looks reversed.  One run (:func:`identify_with`) is :func:`begin` (stages 1-4, or the
-current-limited path) then :func:`finish` (stages 5-12), each stage a function of the frozen
-state (:mod:`~dcmotor_id.identification.pipeline.state`).  On the position the white and the
+speed when the fit on the position fails under ``--criterion auto``; a refusal names a channel
+that looks reversed.  One run (:func:`identify_with`) is :func:`begin` (stages 1-4, or the
+current-limited path) then :func:`~dcmotor_id.identification.pipeline.stages.finish` (stages
+5-12), each stage a function of the frozen state
+(:mod:`~dcmotor_id.identification.pipeline.state`).  On the position the white and the
 adaptive (AR(1)) model of the position error are chosen between as data and branches
 (:func:`on_the_position`), the decisions in
 :mod:`~dcmotor_id.identification.pipeline.position_error`.
@@ -15,25 +15,16 @@ adaptive (AR(1)) model of the position error are chosen between as data and bran
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Any, Callable
-
-import numpy as np
+from dataclasses import replace
+from typing import Any
 
 from dcmotor_id.core.errors import DcMotorIdError, FitError, InputDataError, NotIdentifiableError
-from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.identification.checks.units import sign_problem
 from dcmotor_id.identification.error_model.criterion import resolve_criterion
 from dcmotor_id.identification.pipeline.armature import armature
 from dcmotor_id.identification.pipeline.base_fit import base_fit
 from dcmotor_id.identification.pipeline.current_limited import (electrical_part,
                                                                 with_electrical_part)
-from dcmotor_id.identification.pipeline.discovery import discovery
-from dcmotor_id.identification.pipeline.final_fit import final_fit, uncertainty
-from dcmotor_id.identification.pipeline.fit_warnings import fit_warnings
-from dcmotor_id.identification.pipeline.heldout import heldout
-from dcmotor_id.identification.pipeline.identifiability import identifiability
-from dcmotor_id.identification.pipeline.input_noise import input_noise_stderr
 from dcmotor_id.identification.pipeline.position_error import (adaptive_after_white_failed,
                                                                adaptive_agreeing, ADAPTIVE_RUN,
                                                                after_a_far_white,
@@ -41,18 +32,10 @@ from dcmotor_id.identification.pipeline.position_error import (adaptive_after_wh
                                                                white_base_far, white_if_agreeing,
                                                                WHITE_RUN_RESUMED)
 from dcmotor_id.identification.pipeline.prepare import current_limit, prepare
-from dcmotor_id.identification.pipeline.result import result
-from dcmotor_id.identification.pipeline.start_check import check_base_start, check_final_start
-from dcmotor_id.identification.pipeline.state import Fit, Inputs, Request, RunOn
+from dcmotor_id.identification.pipeline.stages import attempt as _attempt, Begun, finish
+from dcmotor_id.identification.pipeline.start_check import check_base_start
+from dcmotor_id.identification.pipeline.state import Request, RunOn
 from dcmotor_id.identification.result import IdentificationResult
-
-
-@dataclass(frozen=True)
-class Begun:
-    """A run up to its base's start check (stages 1-4): what :func:`finish` goes on from."""
-
-    inputs: Inputs
-    fit: Fit
 
 
 def identify_checked(criterion: str, request: Request) -> IdentificationResult:
@@ -123,42 +106,26 @@ def begin(request: Request, on: RunOn) -> Begun | IdentificationResult:
     Run stages 1-4: prepare, base fit, armature, start check.
 
     A drive at an amplifier's current limit takes its own path to a result
-    (:func:`_current_limited`).
+    (:mod:`~dcmotor_id.identification.pipeline.current_limited`: the electrical part off the
+    limit, :func:`~dcmotor_id.identification.pipeline.current_limited.electrical_part`; the
+    mechanical part identified as in the mechanical-only mode;
+    :func:`~dcmotor_id.identification.pipeline.current_limited.with_electrical_part`).
     """
     inputs = prepare(request, on)
     limited = current_limit(inputs)
     if limited is not None:
-        return replace(_current_limited(inputs, limited), criterion='speed')
+        # The model has no current limit: the electrical part off the limit, then the
+        # mechanical part as in the mechanical-only mode, with the measured current and that
+        # CPhi as the torque constant.
+        values, robust = electrical_part(inputs.records, limited)
+        mechanical = identify_checked('auto', Request(
+            inputs.records, 'refined', values['CPhi'], inputs.discover, None,
+            inputs.vocabulary, inputs.progress, inputs.initial_state))
+        return replace(with_electrical_part(mechanical, values, robust, inputs.records,
+                                            inputs.progress), criterion='speed')
     inputs, fit = base_fit(inputs)
     fit = armature(inputs, fit)
     return Begun(inputs, check_base_start(inputs, fit))
-
-
-def finish(begun: Begun) -> IdentificationResult:
-    """Run stages 5-12: discovery to the result (a white run left after its base resumes here)."""
-    inputs = begun.inputs
-    fit = check_final_start(inputs, discovery(inputs, begun.fit))
-    answer = uncertainty(inputs, fit, final_fit(inputs, fit))
-    answer = fit_warnings(inputs, fit, identifiability(inputs, answer))
-    answer = input_noise_stderr(inputs, fit, answer)
-    return result(inputs, fit, heldout(inputs, fit, answer))
-
-
-def _current_limited(inputs: Inputs, limited: list[np.ndarray]) -> IdentificationResult:
-    """
-    Identify a drive whose amplifier limits the current (the model has no limit).
-
-    The electrical part off the limit
-    (:func:`~dcmotor_id.identification.pipeline.current_limited.electrical_part`), then the
-    mechanical part as in the mechanical-only mode with the measured current and that CPhi as
-    the torque constant, completed by
-    :func:`~dcmotor_id.identification.pipeline.current_limited.with_electrical_part`.
-    """
-    values, robust = electrical_part(inputs.records, limited)
-    mechanical = identify_checked('auto', Request(
-        inputs.records, 'refined', values['CPhi'], inputs.discover, None, inputs.vocabulary,
-        inputs.progress, inputs.initial_state))
-    return with_electrical_part(mechanical, values, robust, inputs.records, inputs.progress)
 
 
 def on_the_position(request: Request, criterion: str) -> IdentificationResult:
@@ -170,13 +137,13 @@ def on_the_position(request: Request, criterion: str) -> IdentificationResult:
     run comes first, and the white run is finished from its state only when that one
     disagrees too.  A white result that disagrees (or fails) runs the adaptive model; the
     result closer to the evidence is kept.  The runs share the further starts of the base
-    (the first run's account, ``earlier``); the status line names each run after the first.
+    (the first run's account, ``earlier``); the status line names each run after the first
+    (``RunOn.name``).
     """
-    progress = request.progress
     try:
         begun = _attempt(begin, request, RunOn(criterion, 'white'))
         earlier = begun.fit.starts if isinstance(begun, Begun) else None
-        adaptive = RunOn(criterion, 'adaptive', earlier)
+        adaptive = RunOn(criterion, 'adaptive', earlier, ADAPTIVE_RUN)
         if isinstance(begun, Begun):
             inputs = begun.inputs
             left = white_base_far(begun.fit.estimate.parameters, inputs.records,
@@ -185,44 +152,22 @@ def on_the_position(request: Request, criterion: str) -> IdentificationResult:
                 return _adaptive_first(request, adaptive, begun, left)
         white = _attempt(finish, begun) if isinstance(begun, Begun) else begun
         if isinstance(white, DcMotorIdError):
-            progress.set_run(ADAPTIVE_RUN)
             return adaptive_after_white_failed(identify_with(request, adaptive), white)
         kept = white_if_agreeing(white)
         if kept is not None:
             return kept
-        progress.set_run(ADAPTIVE_RUN)
         return after_a_far_white(white, _attempt(identify_with, request, adaptive,
                                                  budget_too=True))
     finally:
-        progress.set_run('')  # a later identification on the same Progress starts unnamed
+        request.progress.set_run('')  # a later identification on the Progress starts unnamed
 
 
 def _adaptive_first(request: Request, adaptive: RunOn, white: Begun, left) -> Any:
     """Run the adaptive model after a white base that disagrees; finish the white if needed."""
-    request.progress.set_run(ADAPTIVE_RUN)
     found = _attempt(identify_with, request, adaptive, budget_too=True)
     found = found if isinstance(found, IdentificationResult) else None
     agreeing = adaptive_agreeing(found, left)
     if agreeing is not None:
         return agreeing
-    request.progress.set_run(WHITE_RUN_RESUMED)
-    return after_a_far_white_base(found, _attempt(finish, white))
-
-
-def _attempt(stage: Callable[..., Any], *arguments: Any, budget_too: bool = False) -> Any:
-    """
-    Return what ``stage(*arguments)`` returns, or the refusal it raised.
-
-    A refusal for lack of time is raised (the budget is spent for every run), unless
-    ``budget_too``.
-    """
-    try:
-        return stage(*arguments)
-    except TimeBudgetExceeded as error:
-        if budget_too:
-            return error
-        raise
-    except (FitError, NotIdentifiableError) as error:
-        if 'time budget' in str(error) and not budget_too:
-            raise
-        return error
+    return after_a_far_white_base(found, _attempt(finish, replace(white,
+                                                                  name=WHITE_RUN_RESUMED)))

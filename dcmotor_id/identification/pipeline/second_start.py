@@ -23,58 +23,52 @@ import numpy as np
 
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
-from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
+from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.core.records import record_names
-from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, known_evidence,
+from dcmotor_id.identification.checks.start import (bic_scores,
                                                     offset_supported, regression_start,
                                                     start_doubts)
 from dcmotor_id.identification.discovery import refit_all_data, refit_start, Structure
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.pipeline.discovery import run_discovery
 from dcmotor_id.identification.pipeline.fit_outcome import check_physical
+from dcmotor_id.identification.pipeline.state import Fit, Inputs, Models
 
 if TYPE_CHECKING:
-    from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import DiscoveryResult
     from dcmotor_id.identification.effects import Effect
     from dcmotor_id.identification.estimators.base import Estimate
 
 
-def check_start(
-        records: Sequence[Record], torque_constant: float | None, quasi: bool, discover: bool,
-        vocabulary: Sequence[type[Effect]], progress: Progress, estimate: Estimate,
-        found: DiscoveryResult | None, discovery_info: dict[str, Any] | None,
-        criterion: str = 'speed', evidence: dict[str, float] | None | str = FROM_RECORDS,
-        position_error: str = 'adaptive'
-) -> tuple[DiscoveryResult | None, Estimate, dict[str, Any] | None, dict[str, Any]]:
+def check_start(inputs: Inputs, fit: Fit
+                ) -> tuple[DiscoveryResult | None, Estimate, dict[str, Any] | None,
+                           dict[str, Any]]:
     """
     Check the fit against model-free evidence; when doubted, try a second start, keep the best.
 
-    Returns ``(found, base estimate, discovery summary, start_check)``, the first three
-    replaced by the second start's when it explains all of the data better (lower BIC).
+    The fit checked is the discovery loop's (``fit.found``) when it ran, else the base
+    (``fit.estimate``).  Returns ``(found, base estimate, discovery summary, start_check)``,
+    the fit's own unless the second start explains all of the data better (lower BIC).
     ``start_check`` is the JSON account (:mod:`dcmotor_id.identification.checks.start`).
-    Every fit and score of the check is on the run's ``criterion`` (the channels compared).
-    ``evidence``: the model-free regression on ``records``
-    (:func:`~dcmotor_id.identification.checks.start.regression_evidence`) when the caller
-    has it (computed once per run); computed here by default.  ``position_error``: the
-    model of the position error of every fit of the check.
+    Every fit and score of the check is on the run's criterion (the channels compared), its
+    position error's model, against the run's model-free regression (``inputs.evidence``).
     """
-    evidence = known_evidence(records, torque_constant, evidence)
+    found, estimate, discovery_info = fit.found, fit.estimate, fit.discovery_info
+    evidence = inputs.evidence
     first = found.estimate if found is not None else estimate
-    first_records = found.records if found is not None else list(records)
-    first_terms = found.terms if found is not None else ()
-    model = OutputErrorModel(first_records, torque_constant, first_terms, quasi, criterion)
+    first_records = found.records if found is not None else list(inputs.records)
+    model = fit.models.compared if found is None else Models(
+        found.records, inputs.torque_constant, fit.quasi, inputs.criterion,
+        tuple(found.terms)).compared
     doubts = start_doubts(first, first_records, model, evidence).second_start
     check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
     if not doubts:
         return found, estimate, discovery_info, check
-    seed = evidence_structure(evidence, vocabulary) if discover else Structure()
-    pinned, seed = _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence,
-                               check, seed, (criterion, position_error))
+    seed = evidence_structure(evidence, inputs.vocabulary) if inputs.discover else Structure()
+    pinned, seed = _pinned_fit(inputs, fit, check, seed)
     if pinned is None:
         return found, estimate, discovery_info, check
-    second = _second_start(records, torque_constant, quasi, discover, vocabulary, progress,
-                           pinned, check, seed, (criterion, position_error))
+    second = _second_start(inputs, fit, pinned, check, seed)
     if second.found is None and len(second.structure):
         # The loop did not finish from the seeded base: its effects have no result to go in.
         check['second_start'] = f'failed: {(second.info or {}).get("skipped", "no result")}'
@@ -120,19 +114,22 @@ def evidence_structure(evidence: dict[str, float] | None,
     return Structure()
 
 
-def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, check, seed,
-                fit_on):
+def _pinned_fit(inputs: Inputs, fit: Fit, check: dict[str, Any],
+                seed: Structure) -> tuple[Estimate | None, Structure]:
     """
     Fit from the regression's values with the initial states pinned; return it and its structure.
 
     The effects of ``seed`` (:func:`evidence_structure`) are in the fit, their coefficients
     started from the regression (the offset); when that fit fails, the base model is tried.
-    The fit is None when it fails.  ``fit_on``: the criterion and the position error's model.
+    The fit is None when it fails.  Each fit is on the run's criterion and position error's
+    model.
     """
-    criterion, position_error = fit_on
+    records, torque_constant, progress = inputs.records, inputs.torque_constant, inputs.progress
+    quasi, evidence = fit.quasi, inputs.evidence
+    criterion, position_error = inputs.criterion, inputs.on.position_error
     names = [name for name in parameter_names(torque_constant is not None)
              if not (quasi and name == 'La')]
-    start = regression_start(evidence, estimate.parameters, names)
+    start = regression_start(evidence, fit.estimate.parameters, names)
     progress.set_stage('second start (initial states pinned)', record_names(records))
     if len(seed) and evidence is not None:
         values = {**start, **{cls.term_name('torque_Nm'): evidence['offset']
@@ -159,26 +156,24 @@ def _pinned_fit(records, torque_constant, quasi, progress, estimate, evidence, c
     return pinned, Structure()
 
 
-def _second_start(records, torque_constant, quasi, discover, vocabulary, progress, pinned,
-                  check, seed, fit_on):
+def _second_start(inputs: Inputs, fit: Fit, pinned: Estimate, check: dict[str, Any],
+                  seed: Structure) -> _SecondStart:
     """Search the effects from the pinned fit (its structure ``seed``), then free the states."""
-    criterion, position_error = fit_on
+    records, torque_constant, progress = inputs.records, inputs.torque_constant, inputs.progress
+    quasi, criterion, position_error = fit.quasi, inputs.criterion, inputs.on.position_error
     found, info, structure = None, None, seed
     values, states = pinned.parameters, pinned.initial_states
-    if discover:
-        found, info = run_discovery(
-            records, torque_constant, RefinedEstimator(criterion=criterion), vocabulary,
-            progress, 'measured', quasi, pinned, criterion, structure=structure,
-            position_error=position_error)
+    if inputs.discover:
+        found, info = run_discovery(inputs, quasi, pinned, structure=structure,
+                                    initial_state='measured')
         if found is not None:
             structure = found.final.structure
             values, states = found.estimate.parameters, found.estimate.initial_states
     second_records = structure.transformed(records)
     second = _SecondStart(found, info, structure,
                           found.estimate if found is not None else pinned, second_records,
-                          OutputErrorModel(second_records, torque_constant,
-                                           found.terms if found is not None else (), quasi,
-                                           criterion))
+                          Models(second_records, torque_constant, quasi, criterion,
+                                 tuple(found.terms) if found is not None else ()).compared)
     try:
         freed = refit_all_data(structure, records, torque_constant, values,
                                refit_start(values, records, torque_constant), progress=progress,

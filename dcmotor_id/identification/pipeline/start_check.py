@@ -14,8 +14,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from dcmotor_id.identification.error_model.residuals import model_errors
 from dcmotor_id.identification.pipeline.discovery import time_warnings
-from dcmotor_id.identification.pipeline.fit_outcome import simulation_errors
 from dcmotor_id.identification.pipeline.further_starts import (ambiguity_warning,
                                                                several_starts, with_starts)
 from dcmotor_id.identification.pipeline.second_start import check_start, start_warning
@@ -26,37 +26,32 @@ def check_base_start(inputs: Inputs, fit: Fit) -> Fit:
     """Return the fit with its base checked against model-free evidence before the loop."""
     if not inputs.checkable:
         return fit
-    records, constant, progress = inputs.records, inputs.torque_constant, inputs.progress
-    estimate, starts = several_starts(records, constant, fit.quasi, progress, fit.estimate,
-                                      inputs.criterion, inputs.evidence, inputs.on.earlier,
+    estimate, starts = several_starts(fit.estimate, fit.models, inputs.progress,
+                                      inputs.evidence, inputs.on.earlier,
                                       inputs.on.position_error)
     started = estimate
-    found, estimate, info, check = check_start(
-        records, constant, fit.quasi, inputs.discover, inputs.vocabulary, progress, estimate,
-        None, None, inputs.criterion, inputs.evidence, inputs.on.position_error)
+    found, estimate, info, check = check_start(inputs, replace(fit, estimate=estimate))
     first = check['chosen'] == 'first start'
     # The errors of the base the loop starts from, measured once: the second start's, or the
     # further starts' when one of them won, or the base fit's as they were.
     errors = fit.errors
     if not first or (starts is not None and starts['chosen'] != 'default'):
-        errors = simulation_errors(started if first else estimate, records, constant,
-                                   quasi_static=fit.quasi)
+        chosen = started if first else estimate
+        errors = model_errors(fit.models.measured, dict(chosen.parameters),
+                              chosen.initial_states)
     fit = replace(fit, estimate=estimate, starts=starts, errors=errors, found=found,
                   discovery_info=info)
     if first:
         return replace(fit, start_check=None if not check['doubts'] else check)
     return replace(fit, start_check=check,
-                   warnings=fit.warnings + time_warnings(found, info, progress))
+                   warnings=fit.warnings + time_warnings(found, info, inputs.progress))
 
 
 def check_final_start(inputs: Inputs, fit: Fit) -> Fit:
     """Return the fit with where discovery led checked (when the base looked sound), said."""
     warnings = fit.warnings
     if inputs.checkable and fit.start_check is None:
-        found, estimate, info, start_check = check_start(
-            inputs.records, inputs.torque_constant, fit.quasi, inputs.discover,
-            inputs.vocabulary, inputs.progress, fit.estimate, fit.found, fit.discovery_info,
-            inputs.criterion, inputs.evidence, inputs.on.position_error)
+        found, estimate, info, start_check = check_start(inputs, fit)
         if found is not fit.found:  # the second start's own loop
             warnings += time_warnings(found, info, inputs.progress)
         fit = replace(fit, found=found, estimate=estimate, discovery_info=info,

@@ -20,13 +20,13 @@ from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.checks.identifiability import Excitation
 from dcmotor_id.identification.checks.start import regression_evidence
 from dcmotor_id.identification.estimators.base import Estimator
-from dcmotor_id.identification.estimators.refined import RefinedEstimator
+from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import DiscoveryResult
     from dcmotor_id.identification.effects import Effect
-    from dcmotor_id.identification.error_model.residuals import ChannelErrors
+    from dcmotor_id.identification.error_model.residuals import ChannelErrors, Simulation
     from dcmotor_id.identification.estimators.base import Estimate
 
 
@@ -53,12 +53,14 @@ class RunOn:
     (:func:`~dcmotor_id.identification.error_model.criterion.check_position_error_model`);
     ``earlier``:
     the further starts' account of an earlier run of the same identification
-    (:func:`~dcmotor_id.identification.pipeline.further_starts.several_starts`).
+    (:func:`~dcmotor_id.identification.pipeline.further_starts.several_starts`); ``name``:
+    what the status line calls the run when it starts (none: the first run, unnamed).
     """
 
     criterion: str
     position_error: str = 'adaptive'
     earlier: dict[str, Any] | None = None
+    name: str = ''
 
 
 @dataclass(frozen=True)
@@ -99,16 +101,49 @@ class Inputs:
 
 
 @dataclass(frozen=True)
+class Models:
+    """
+    A fit's model on its records, built once for every stage that measures or scores the fit.
+
+    ``measured``: the model whose simulation errors the stages report (current and speed);
+    ``compared``: the model on the run's criterion, which the start check scores.  Each is
+    built when first asked for.  ``terms``: the effect terms of a structure (none: the base
+    model).
+    """
+
+    records: Sequence[Record]
+    torque_constant: float | None
+    quasi_static: bool = False
+    criterion: str = 'speed'
+    terms: tuple = ()
+
+    @cached_property
+    def measured(self) -> OutputErrorModel:
+        """Return the model on the current and speed."""
+        return OutputErrorModel(self.records, self.torque_constant, self.terms,
+                                self.quasi_static)
+
+    @cached_property
+    def compared(self) -> OutputErrorModel:
+        """Return the model on the run's criterion."""
+        return OutputErrorModel(self.records, self.torque_constant, self.terms,
+                                self.quasi_static, self.criterion)
+
+
+@dataclass(frozen=True)
 class Fit:
     """
     The base fit on all data and what the stages up to discovery made of it.
 
     ``estimate``: the base fit (replaced by the quasi-static refit, a further start or the
-    second start); ``found``: the discovery loop's result, if it ran.
+    second start); ``errors``: its simulation errors (``models.measured``'s); ``models``: the
+    base model on the records (quasi-static when ``quasi``); ``found``: the discovery loop's
+    result, if it ran.
     """
 
     estimate: Estimate
     errors: ChannelErrors
+    models: Models
     warnings: tuple[str, ...] = ()
     not_identifiable: dict[str, str] = field(default_factory=dict)
     quasi: bool = False  # the quasi-static armature (La -> 0) is the model
@@ -136,3 +171,4 @@ class Answer:
     combined: dict[str, Any] = field(default_factory=dict)
     bound: dict[str, str] = field(default_factory=dict)
     errors_detail: dict[str, Any] = field(default_factory=dict)
+    simulation: Simulation | None = None  # the final fit over its records (stage 7's)
