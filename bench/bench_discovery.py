@@ -31,7 +31,8 @@ from dcmotor_id.identification.discovery.state import ACCEPTANCE_RULES, DEFAULT_
 from dcmotor_id.identification.effects import make_effect, VOCABULARY
 from dcmotor_id.identification.identify import identify
 from dcmotor_id.identification.prepare import prepare_records
-from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
+from dcmotor_id.simulation import (simulate_mechanical_effects, simulate_motor,
+                                   simulate_motor_effects)
 from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
 
 from common import judged_by  # noqa: I100  (bench/common.py, beside this script)
@@ -112,8 +113,9 @@ def measured(mode, t, current, voltage, speed, angle, noise, rng, motor):
     ``current-speed``: current and speed with sensor noise (the loop alone, as before);
     ``position``: current with sensor noise and an encoder's angle (:data:`ENCODER_COUNTS`
     per revolution, the speed derived from it, the position criterion); ``mechanical``: the
-    same angle with the current as the input through the torque constant, the drive's
-    current command as EMPS logs it (exact); ``mechanical-input-noise``: the same with the
+    angle of the shaft driven by the current as a command held over each sample (the drive's
+    current loop follows it), that command as the input through the torque constant, as EMPS
+    logs it (exact); ``mechanical-input-noise``: the same with the
     current's sensor noise on the input (errors in variables: the model is not the data's).
     """
     if mode == 'current-speed':
@@ -143,6 +145,11 @@ def run_case(name, magnitude, noise, rng, mode='current-speed'):
     effects = [] if name is None else [effect_for(name, MAGNITUDES[magnitude], motor, voltage,
                                                   rng)]
     current, speed, angle = simulate_motor_effects(motor, voltage, DT, effects)
+    if mode.startswith('mechanical'):
+        # The drive's current command, held over each sample (as its current loop follows
+        # it), drives the shaft: the mechanical-only model is the data's.
+        speed, angle = simulate_mechanical_effects(motor.J, motor.b, motor.Mc,
+                                                   motor.CPhi * current, DT, effects)
     records, torque_constant = measured(mode, t, current, voltage, speed, angle, noise, rng,
                                         motor)
     accepted = ACCEPTED.get(name, (name,))
@@ -278,8 +285,9 @@ def main(argv=None):
         'rule on the same data.  Modes: current-speed = current and speed logged with noise, '
         'the loop alone (`discover`); position = current and a 4096-count encoder angle, the '
         'speed derived from it, the default `identify` (position criterion); mechanical = the '
-        'same angle with the current as the input through the torque constant (`identify '
-        '--torque-constant`, the EMPS setting: the current command is exact); '
+        'angle of the shaft driven by that current as a command held over each sample, the '
+        'command as the input through the torque constant (`identify --torque-constant`, the '
+        'EMPS setting: the command is exact); '
         'mechanical-input-noise = the same with the sensor noise on the input current (errors '
         'in variables, not the model of the fit); the position modes run the rows of the '
         'mechanical effects (sensor delays left out).', '']
