@@ -253,13 +253,13 @@ def innovation_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, flo
     A misfit the model integrates (the position of a model lacking a force) drifts: its
     held-out samples are worth a handful of independent ones, and :func:`heldout_t` on them
     cannot resolve a candidate that removes most of the drift.  The error model of each
-    output channel is an AR(1) sequence (:func:`residual_ar`, fitted on the current
-    structure's held-out residual, the null hypothesis's: white noise gives 0, a drift
-    nearly 1, where the innovations are the residual's increments); both fits' held-out
-    residuals are whitened by it (the first held-out innovation from the last training
-    sample) and scaled by the current structure's innovation variance.  The drop of their
-    squares is the held-out log-likelihood ratio of the two structures under that error
-    model; its t counts the samples over the integrated correlation time of the whitened
+    output channel is an AR(1) sequence, one per structure (:func:`residual_ar`, fitted on
+    its held-out residual: white noise gives 0, a drift nearly 1, where the innovations are
+    the residual's increments; each structure with its own, so that a bias the candidate
+    removes is not taken for a drift of both); each fit's held-out residual is whitened by
+    its own (the first held-out innovation from the last training sample), both scaled by
+    the current structure's innovation variance.  The drop of their squares compares the
+    two structures' held-out one-step predictions under their error models; its t counts the samples over the integrated correlation time of the whitened
     residual (and of the drop's chance part), as :func:`heldout_t` does, and the channels'
     variances add (Welch-Satterthwaite).  Returns ``(t, effective samples)``.
     """
@@ -268,7 +268,8 @@ def innovation_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, flo
     total, variances, dofs = 0.0, [], []
     for channel in loop.outputs:
         rho, scale = residual_ar(current, channel)
-        pairs = [_innovations(current, fitted, index, channel, rho)
+        rhos = (rho, residual_ar(fitted, channel)[0])
+        pairs = [_innovations(current, fitted, index, channel, rhos)
                  for index in range(len(current.stops))]
         before = np.concatenate([pair[0] for pair in pairs])
         after = np.concatenate([pair[1] for pair in pairs])
@@ -318,10 +319,10 @@ def residual_ar(fit: Fit, channel: str) -> tuple[float, float]:
 
 
 def _innovations(current: Fit, fitted: Fit, index: int, channel: str,
-                 rho: float) -> tuple[np.ndarray, np.ndarray]:
-    """Held-out innovations of one record under ``rho``: the current fit's, the candidate's."""
+                 rhos: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out innovations of one record: the current fit's, the candidate's (each its rho)."""
     out = []
-    for fit in (current, fitted):
+    for fit, rho in zip((current, fitted), rhos):
         error = fit.simulated[index][channel] - getattr(fit.records[index], channel)
         innovations = error[1:] - rho * error[:-1]
         out.append(innovations[max(fit.stops[index] - 1, 0):])
