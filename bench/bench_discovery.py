@@ -278,9 +278,9 @@ def main(argv=None):
         f'{DEFAULT_RULE}).  Rules (dcmotor_id/identification/discovery/judging.py): '
         'heldout-t = the held-out drop significant on its effective samples (Student t, '
         "one-sided 0.13 %, the residual's correlation time) and spread over blocks; "
-        'innovation-t = the same test on the innovations of an AR(1) error model of the '
-        "current structure's training residual (the held-out log-likelihood ratio; a drifting "
-        "position residual is judged on its increments), on the whitened series' effective "
+        'innovation-t = the same test on the innovations of an AR(1) error model of each '
+        "structure's held-out residual (a drifting position residual is judged on its "
+        "increments), on the whitened series' effective "
         'samples; noise-level = the former rules '
         "(an effect's own part of the outputs above the per-sample noise, a cogging ripple "
         'above the Coulomb friction needing twice the evidence).  Each case is judged by every '

@@ -263,8 +263,9 @@ def main() -> int:
             'candidates refitted; in-sample: training part, held-out: the last 30 % of the '
             'motion, open-loop simulation; an effect is added when its held-out drop is '
             'significant by the default rule, the held-out t test on the innovations of an '
-            "AR(1) error model of the current structure's held-out residual (a drifting "
-            'position residual judged on its increments), `discovery/judging.py`):', '', rounds_text(products), '',
+            "AR(1) error model of each structure's held-out residual (a drifting "
+            'position residual judged on its increments), `discovery/judging.py`):', '',
+            rounds_text(products), '',
             '## The study (studies/emps.py)', '',
             format_score(score), '', difference_text(score), '',
             f'The force pulses: {pulses["pulses"]} onsets of `pulses_N` (height '

@@ -6,10 +6,10 @@ chosen (:func:`choose`) if it has earned its place (:func:`unearned`), else the 
 considered (:func:`decide`).  The loop never ends worse than its base model
 (:func:`never_worse`).
 
-Earned (rule ``heldout-t``, the default): the held-out drop is significant on the samples it
-is worth (:func:`heldout_t`, the residual's correlation time) and spread over the held-out
-part (:func:`gain_t`).  Rule ``innovation-t``: the same on the innovations of an AR(1)
-error model of the current structure's held-out residual (:func:`innovation_t`): a drifting
+Earned (rule ``heldout-t``): the held-out drop is significant on the samples it is worth
+(:func:`heldout_t`, the residual's correlation time) and spread over the held-out part
+(:func:`gain_t`).  Rule ``innovation-t`` (the default): the same on the innovations of an
+AR(1) error model of each structure's held-out residual (:func:`innovation_t`): a drifting
 residual (a position the model integrates) is judged on its increments, which are worth
 many samples where the drift is worth a handful.  The former rules (``noise-level``: an
 effect's own part of the outputs against the per-sample noise, :func:`own_part`, and a
@@ -259,9 +259,10 @@ def innovation_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, flo
     removes is not taken for a drift of both); each fit's held-out residual is whitened by
     its own (the first held-out innovation from the last training sample), both scaled by
     the current structure's innovation variance.  The drop of their squares compares the
-    two structures' held-out one-step predictions under their error models; its t counts the samples over the integrated correlation time of the whitened
-    residual (and of the drop's chance part), as :func:`heldout_t` does, and the channels'
-    variances add (Welch-Satterthwaite).  Returns ``(t, effective samples)``.
+    two structures' held-out one-step predictions under their error models; its t counts
+    the samples over the integrated correlation time of the whitened residual (and of the
+    drop's chance part), as :func:`heldout_t` does, and the channels' variances add
+    (Welch-Satterthwaite).  Returns ``(t, effective samples)``.
     """
     from dcmotor_id.identification.checks.start import correlation_time
 
@@ -336,9 +337,9 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     Why a winning candidate has not earned its place on held-out data, or None.
 
     By the loop's rule (``loop.acceptance``, one of
-    :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``
-    (default): :func:`unearned_heldout_t`; ``innovation-t``: the same on the innovations of
-    the residual's AR(1) error model (:func:`innovation_t`); ``noise-level`` (the former
+    :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``:
+    :func:`unearned_heldout_t`; ``innovation-t`` (default): the same on the innovations of
+    the residuals' AR(1) error models (:func:`innovation_t`); ``noise-level`` (the former
     rules, kept to measure against): :func:`unearned_noise_level`.
     """
     if loop.acceptance == 'noise-level':
