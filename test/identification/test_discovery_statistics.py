@@ -114,3 +114,19 @@ def test_the_error_model_is_fitted_on_the_held_out_residual_of_the_current_struc
     assert rho > 0.9
     rho, _ = residual_ar(_drift_fit(sensor, stop), 'position')
     assert rho < 0.1
+
+
+def test_a_bias_the_candidate_removes_is_not_taken_for_a_drift_of_both():
+    # A base whose residual is a bias of 3 noise levels (an offset it lacks) looks persistent
+    # (lag-1 correlation 0.9); the candidate's residual is the white noise.  Each structure is
+    # whitened by its own error model: the candidate's innovations are its white residual,
+    # and the drop is about 0.9 noise variances per sample (t about 36 on 6000).  Whitened
+    # by the base's model both would keep the persistence: a drop of 0.09, t about 9.
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0, 1, 20000)
+    stop = 14000
+    current, fitted = _drift_fit(3.0 + noise, stop), _drift_fit(noise.copy(), stop)
+    assert residual_ar(current, 'position')[0] == pytest.approx(0.9, abs=0.02)
+    assert residual_ar(fitted, 'position')[0] < 0.05
+    t, effective = innovation_t(_loop(), current, fitted)
+    assert t > 20 and effective > 5000, (t, effective)
