@@ -29,8 +29,13 @@ from dcmotor_id.core.records import Record
 from dcmotor_id.identification.discovery import discover
 from dcmotor_id.identification.discovery.state import ACCEPTANCE_RULES, DEFAULT_ACCEPTANCE
 from dcmotor_id.identification.effects import make_effect, VOCABULARY
-from dcmotor_id.simulation import simulate_motor, simulate_motor_effects
+from dcmotor_id.identification.identify import identify
+from dcmotor_id.identification.prepare import prepare_records
+from dcmotor_id.simulation import (simulate_mechanical_effects, simulate_motor,
+                                   simulate_motor_effects)
 from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
+
+from common import judged_by  # noqa: I100  (bench/common.py, beside this script)
 
 DT = 1e-3
 DURATION_S = 6.0
@@ -40,6 +45,10 @@ MAGNITUDES = {'small': 0.4, 'large': 1.0}
 ACCEPTED = {'coulomb_asymmetry': ('coulomb_asymmetry', 'load_torque')}
 #: The rule the loop uses by default; the others are measured beside it (a column each).
 DEFAULT_RULE = DEFAULT_ACCEPTANCE
+#: Ways the motor is logged (:func:`measured`).
+MODES = ('current-speed', 'position', 'mechanical', 'mechanical-input-noise')
+#: Counts per revolution of the simulated encoder of the position modes.
+ENCODER_COUNTS = 4096
 
 
 def random_motor(rng):
@@ -94,27 +103,69 @@ def effect_for(name, scale, motor, voltage, rng):
 
 def core_error_pct(parameters, motor):
     return max(abs(parameters[name] - getattr(motor, name)) / getattr(motor, name) * 100.0
-               for name in PARAMETER_NAMES)
+               for name in PARAMETER_NAMES if name in parameters)
 
 
-def run_case(name, magnitude, noise, rng):
+def measured(mode, t, current, voltage, speed, angle, noise, rng, motor):
+    """
+    Return the records of a mode as a user logs them, and the torque constant (or None).
+
+    ``current-speed``: current and speed with sensor noise (the loop alone, as before);
+    ``position``: current with sensor noise and an encoder's angle (:data:`ENCODER_COUNTS`
+    per revolution, the speed derived from it, the position criterion); ``mechanical``: the
+    angle of the shaft driven by the current as a command held over each sample (the drive's
+    current loop follows it), that command as the input through the torque constant, as EMPS
+    logs it (exact); ``mechanical-input-noise``: the same with the
+    current's sensor noise on the input (errors in variables: the model is not the data's).
+    """
+    if mode == 'current-speed':
+        return [Record(t, add_sensor_noise(current, noise, rng), voltage,
+                       add_sensor_noise(speed, noise, rng), source='sim')], None
+    step = 2.0 * np.pi / ENCODER_COUNTS
+    position = np.round(angle / step) * step
+    logged = current if mode == 'mechanical' else add_sensor_noise(current, noise, rng)
+    if mode == 'position':
+        return prepare_records([Record(t, logged, voltage, None, position, source='sim')]), None
+    records = [Record(t, logged, None, None, position, source='sim')]
+    return prepare_records(records, torque_constant=motor.CPhi), motor.CPhi
+
+
+def found_by(rule, mode, records, torque_constant):
+    """Run the loop on ``records`` under ``rule``: alone, or in ``identify`` for the modes."""
+    if mode == 'current-speed':
+        return discover(records, acceptance=rule)
+    with judged_by(rule):
+        result = identify(records, torque_constant=torque_constant)
+    return result.discovery_result
+
+
+def run_case(name, magnitude, noise, rng, mode='current-speed'):
     motor = random_motor(rng)
     kind, amplitude, t, voltage = random_excitation(rng)
     effects = [] if name is None else [effect_for(name, MAGNITUDES[magnitude], motor, voltage,
                                                   rng)]
-    current, speed, _ = simulate_motor_effects(motor, voltage, DT, effects)
-    record = Record(t, add_sensor_noise(current, noise, rng), voltage,
-                    add_sensor_noise(speed, noise, rng), source=kind)
+    current, speed, angle = simulate_motor_effects(motor, voltage, DT, effects)
+    if mode.startswith('mechanical'):
+        # The drive's current command, held over each sample (as its current loop follows
+        # it), drives the shaft: the mechanical-only model is the data's.
+        speed, angle = simulate_mechanical_effects(motor.J, motor.b, motor.Mc,
+                                                   motor.CPhi * current, DT, effects)
+    records, torque_constant = measured(mode, t, current, voltage, speed, angle, noise, rng,
+                                        motor)
     accepted = ACCEPTED.get(name, (name,))
     by_rule = {}
     for rule in ACCEPTANCE_RULES:  # the same data judged by every rule (paired)
         start = time.perf_counter()
         try:
-            found = discover([record], acceptance=rule)
+            found = found_by(rule, mode, records, torque_constant)
         except DcMotorIdError:
             return None  # the base model has no fit (counted apart, by every rule alike)
+        if found is None:
+            return None  # identify ran no loop (it says why): counted with the failures
         elapsed = time.perf_counter() - start
-        names = [effect.name for effect in found.effects]
+        # The effects the loop added, in order (identify's start check may seed the base with
+        # a load torque the regression sees, the same for every rule: not counted).
+        names = [step['added']['name'] for step in found.steps if step.get('added')]
         by_rule[rule] = {'detected': bool(names) and names[0] in accepted,
                          'wrong': any(item not in accepted for item in names)}
         if rule == DEFAULT_RULE:
@@ -150,6 +201,25 @@ def summarise(rows):
     }
 
 
+def cases_of(mode, effects):
+    """Return the rows ``(effect name or None, magnitude)`` of a mode, those of ``effects``."""
+    mechanical = [cls for cls in VOCABULARY if cls.applies(True) and not cls.TRANSFORM]
+    cases = [(None, 'none')] + [(cls.name, magnitude) for cls in
+                                (VOCABULARY if mode == MODES[0] else mechanical)
+                                for magnitude in MAGNITUDES]
+    return [case for case in cases if not effects or (case[0] or 'none') in effects]
+
+
+def table_row(mode, name, magnitude, noise, s):
+    """Return one row of the table (a mode, effect, magnitude and noise level summarised)."""
+    cells = ''.join(('- | ' if name is None else f"{s[f'detected {rule}']:.0f} % | ")
+                    + f"{s[f'wrong {rule}']:.0f} % | " for rule in ACCEPTANCE_RULES)
+    return (f"| {mode} | {name or 'none (clean)'} | {magnitude} | {noise * 100:g} % | "
+            f"{s['n']} | {cells}{s['unexplained']:.0f} % | "
+            f"{s['before']:.3g} % -> {s['after']:.3g} % | {s['core_before']:.3g} % -> "
+            f"{s['core_after']:.3g} % | {s['seconds']:.1f} s |")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--trials', type=int, default=4,
@@ -160,41 +230,36 @@ def main(argv=None):
                              'clean records (default: every row)')
     parser.add_argument('--out', default=os.path.join(os.path.dirname(__file__),
                                                       'discovery_results.md'))
+    parser.add_argument('--modes', nargs='+', choices=MODES, default=[MODES[0]],
+                        help='how the motor is logged (default current-speed): position and '
+                             'mechanical run the rows of the mechanical effects through '
+                             'identify (the encoder angle, the position criterion)')
     args = parser.parse_args(argv)
     rng = np.random.default_rng(args.seed)
     rule_columns = ''.join(f'detected ({rule}) | wrong effect added ({rule}) | '
                            for rule in ACCEPTANCE_RULES)
-    lines = ['| true effect | magnitude | noise | trials | ' + rule_columns
+    lines = ['| mode | true effect | magnitude | noise | trials | ' + rule_columns
              + 'unexplained | held-out error before -> after (sum of channels, median) | '
-             'core-parameter error before -> after (max of six, median) | loop time (median) |',
-             '|---|---|---|---|' + '---|---|' * len(ACCEPTANCE_RULES) + '---|---|---|---|']
-    cases = [(None, 'none')] + [(cls.name, magnitude) for cls in VOCABULARY
-                                for magnitude in MAGNITUDES]
-    if args.effects:
-        cases = [case for case in cases if (case[0] or 'none') in args.effects]
+             'core-parameter error before -> after (max of the fitted ones, median) | '
+             'loop time (median) |',
+             '|---|---|---|---|---|' + '---|---|' * len(ACCEPTANCE_RULES) + '---|---|---|---|']
     started = time.perf_counter()
     failed = 0
-    for name, magnitude in cases:
-        for noise in (0.005, 0.01):
-            trials = args.trials * (3 if name is None else 1)
-            rows = [run_case(name, magnitude, noise, rng) for _ in range(trials)]
-            failed += sum(row is None for row in rows)
-            rows = [row for row in rows if row is not None]
-            if not rows:
-                continue
-            s = summarise(rows)
-            cells = ''.join(('- | ' if name is None else f"{s[f'detected {rule}']:.0f} % | ")
-                            + f"{s[f'wrong {rule}']:.0f} % | " for rule in ACCEPTANCE_RULES)
-            lines.append(
-                f"| {name or 'none (clean)'} | {magnitude} | {noise * 100:g} % | {s['n']} | "
-                f"{cells}{s['unexplained']:.0f} % | "
-                f"{s['before']:.3g} % -> {s['after']:.3g} % | {s['core_before']:.3g} % -> "
-                f"{s['core_after']:.3g} % | {s['seconds']:.1f} s |")
-            print(lines[-1], flush=True)
+    for mode in args.modes:
+        for name, magnitude in cases_of(mode, args.effects):
+            for noise in (0.005, 0.01):
+                trials = args.trials * (3 if name is None else 1)
+                rows = [run_case(name, magnitude, noise, rng, mode) for _ in range(trials)]
+                failed += sum(row is None for row in rows)
+                rows = [row for row in rows if row is not None]
+                if rows:
+                    lines.append(table_row(mode, name, magnitude, noise, summarise(rows)))
+                    print(lines[-1], flush=True)
     header = [
         '# Discovery loop benchmark', '',
         f'Generated by `python bench/bench_discovery.py --trials {args.trials} --seed '
-        f'{args.seed}{" --effects " + " ".join(args.effects) if args.effects else ""}` in '
+        f'{args.seed}{" --effects " + " ".join(args.effects) if args.effects else ""}'
+        f'{" --modes " + " ".join(args.modes) if args.modes != [MODES[0]] else ""}` in '
         f'{time.perf_counter() - started:.0f} s; {failed} case(s) whose base '
         'model had no fit (a FitError before any rule) left out of the rows.', '',
         'Random motors (paper1/paper2 with every parameter scaled by 0.7..1.4), random '
@@ -205,18 +270,31 @@ def main(argv=None):
         'current spread, sensor delay 3 samples, resistance drift +15 % over the record, '
         'cogging 0.5 Mc with 3..8 cycles/rev, viscous asymmetry 0.4 b; small = 0.4 times that '
         '(delay 1 sample).  '
-        '"detected": the true effect is the first one added (for coulomb_asymmetry its '
+        '"detected": the true effect is the first one the loop added (for coulomb_asymmetry its '
         'exact equivalent load_torque counts); "wrong effect added": any other effect added; '
         'the clean rows give the false-positive rate.  Core-parameter error: largest relative '
         'error over Ra, La, CPhi, J, b, Mc of the base model (no effect) and of the final '
         'model, both refitted on all the data (by the default rule, '
         f'{DEFAULT_RULE}).  Rules (dcmotor_id/identification/discovery/judging.py): '
         'heldout-t = the held-out drop significant on its effective samples (Student t, '
-        'one-sided 0.13 %, the '
-        "residual's correlation time) and spread over blocks; noise-level = the former rules "
+        "one-sided 0.13 %, the residual's correlation time) and spread over blocks; "
+        'innovation-t = the same test on the innovations of an AR(1) error model of each '
+        "structure's held-out residual (a drifting position residual is judged on its "
+        "increments), on the whitened series' effective "
+        'samples; noise-level = the former rules '
         "(an effect's own part of the outputs above the per-sample noise, a cogging ripple "
-        'above the Coulomb friction needing twice the evidence).  Each case is judged by both '
-        'rules on the same data.', '']
+        'above the Coulomb friction needing twice the evidence).  Each case is judged by every '
+        'rule on the same data.  Modes: current-speed = current and speed logged with noise, '
+        'the loop alone (`discover`); position = current and a 4096-count encoder angle, the '
+        'speed derived from it, the default `identify` (position criterion); mechanical = the '
+        'angle of the shaft driven by that current as a command held over each sample, the '
+        'command as the input through the torque constant (`identify --torque-constant`, the '
+        'EMPS setting: the command is exact); '
+        'mechanical-input-noise = the same with the sensor noise on the input current (errors '
+        'in variables, not the model of the fit); the position modes run the rows of the '
+        'mechanical effects (sensor delays left out); there the base may hold a load torque '
+        "from identify's start check (the model-free regression sees an offset; the same for "
+        'every rule), which is not counted as added.', '']
     text = '\n'.join(header + lines) + '\n'
     with open(args.out, 'w', encoding='utf-8') as stream:
         stream.write(text)

@@ -6,8 +6,8 @@ steps, the UBC MECH 467 ball screw's Part B and C records, EMPS's two records), 
 ``dcmotor-id identify`` (in process, with the scorecard's reading options and torque constant)
 is run once per rule of :data:`dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`, and
 the effects it adds are listed. The references name the effects each set is known to have
-(HSM150 and EMPS: a constant load torque, the offset of their references); any other effect
-counts as a false one.
+(HSM150 and EMPS: a constant load torque, the offset of their references; EMPS also the
+direction-dependent friction of its published model); any other effect counts as a false one.
 
 Run from the repository root (the data fetched as for ``bench/bench_real.py``)::
 
@@ -22,7 +22,6 @@ import os
 import sys
 import tempfile
 import time
-from unittest import mock
 import warnings
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -30,12 +29,15 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_real  # noqa: E402  (the scorecard's data sets)
 
 from dcmotor_id.cli.main import main as cli_main  # noqa: E402
-from dcmotor_id.identification.discovery.state import (ACCEPTANCE_RULES,  # noqa: E402
-                                                       LoopState)
+from dcmotor_id.identification.discovery.state import ACCEPTANCE_RULES  # noqa: E402
 
-#: Effects each data set is known to have (its references' offset); others are false.
+from common import judged_by  # noqa: E402,I100
+
+#: Effects each data set is known to have (its references' offset; EMPS's published
+#: direction-dependent friction, Fv+ 166.7 / Fv- 240.4 N s/m, Fc+ 20.1 / Fc- 20.6 N, and its
+#: own account of asymmetric friction); others are false.
 KNOWN = {'hsm150': ('load_torque', 'coulomb_asymmetry'),
-         'emps': ('load_torque', 'coulomb_asymmetry'), 'mech467': ()}
+         'emps': ('load_torque', 'coulomb_asymmetry', 'viscous_asymmetry'), 'mech467': ()}
 
 
 def effects_of(files, data_set, directory):
@@ -69,21 +71,6 @@ def data_sets(args, cache):
     if args.emps:
         sets.append(bench_real.emps_set(args.emps, args.quick))
     return sets
-
-
-def judged_by(rule):
-    """
-    Judge the discovery loops that ``identify`` runs in this scope by ``rule``.
-
-    The product has no switch for this (every identification uses the default rule); the
-    benchmark compares the rules on the same records, so it gives each loop the rule here.
-    """
-    original = LoopState.__init__
-
-    def init(self, *args, **kwargs):
-        kwargs.setdefault('acceptance', rule)
-        original(self, *args, **kwargs)
-    return mock.patch.object(LoopState, '__init__', init)
 
 
 def main(argv=None):
@@ -127,7 +114,8 @@ def main(argv=None):
         '(HSM150, MECH 467 and EMPS as for bench/bench_real.py) in '
         f'{time.perf_counter() - started:.0f} s.  Known effects: HSM150 and EMPS a constant '
         'load torque (or its equivalent, coulomb_asymmetry), the offset of their references; '
-        'MECH 467 none documented.  ' + summary + '.', ''] + lines) + '\n'
+        'EMPS also viscous_asymmetry (its published direction-dependent friction, Fv+ 166.7 / '
+        'Fv- 240.4 N s/m); MECH 467 none documented.  ' + summary + '.', ''] + lines) + '\n'
     with open(args.out, 'w', encoding='utf-8') as stream:
         stream.write(text)
     print(summary)

@@ -262,8 +262,10 @@ def main() -> int:
             product_table(products, score), '', 'The loop, round by round (gains of the '
             'candidates refitted; in-sample: training part, held-out: the last 30 % of the '
             'motion, open-loop simulation; an effect is added when its held-out drop is '
-            'significant by the held-out t test on the samples the residual is worth, '
-            '`discovery/judging.py`):', '', rounds_text(products), '',
+            'significant by the default rule, the held-out t test on the innovations of an '
+            "AR(1) error model of each structure's held-out residual (a drifting "
+            'position residual judged on its increments), `discovery/judging.py`):', '',
+            rounds_text(products), '',
             '## The study (studies/emps.py)', '',
             format_score(score), '', difference_text(score), '',
             f'The force pulses: {pulses["pulses"]} onsets of `pulses_N` (height '

@@ -10,12 +10,14 @@ import datetime
 import os
 import platform
 import sys
+from unittest import mock
 
 import numba
 import numpy as np
 import scipy
 
 from dcmotor_id.core.model import relative_errors_pct
+from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.simulation.scenarios import paper_records
@@ -101,3 +103,18 @@ def environment():
 def command_line():
     """Return the command that produced the output, for the report."""
     return ' '.join(['.venv/bin/python'] + [os.path.relpath(sys.argv[0])] + sys.argv[1:])
+
+
+def judged_by(rule):
+    """
+    Judge the discovery loops that ``identify`` runs in this scope by ``rule``.
+
+    The product has no switch for this (every identification uses the default rule); the
+    benchmark compares the rules on the same records, so it gives each loop the rule here.
+    """
+    original = LoopState.__init__
+
+    def init(self, *args, **kwargs):
+        kwargs.setdefault('acceptance', rule)
+        original(self, *args, **kwargs)
+    return mock.patch.object(LoopState, '__init__', init)

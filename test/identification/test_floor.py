@@ -127,3 +127,42 @@ def test_a_record_where_the_motor_never_moves_is_refused_as_before_not_by_the_fl
                     0.01 * rng.standard_normal(t.size))
     with pytest.raises(NotIdentifiableError, match='never moves'):
         identify(prepare_records([record]))
+
+
+def test_a_fit_with_effects_is_compared_with_the_regression_too():
+    # Issue 29: the elaborate fit must beat the floor on the held-out part to replace it; an
+    # effect that spoils the prediction (here a load torque the motor does not have) gives way
+    # to the regression, which has none, and the effect is not reported.
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from dcmotor_id.identification.discovery import Structure
+    from dcmotor_id.identification.effects import VOCABULARY
+    from dcmotor_id.identification.pipeline.floor import with_floor
+
+    scenario = lab_scenarios.coloured_disturbance()
+    records = prepare_records(scenario.records)
+    result = identify(records, discover=False)
+    floor = regression_floor(result.input_records)
+    load = next(cls for cls in VOCABULARY if cls.name == 'load_torque')
+    values = dict(result.estimate.parameters)
+
+    def with_load(torque_nm):
+        coefficients = {**values, 'load_torque.torque_Nm': torque_nm}
+        terms = Structure([(load, {})]).terms(result.input_records, coefficients, None,
+                                              coefficients)
+        return replace(result, effects=[{'name': 'load_torque',
+                                         'parameters': {'torque_Nm': torque_nm}}],
+                       estimate=replace(result.estimate, parameters=coefficients),
+                       discovery_result=SimpleNamespace(terms=terms,
+                                                        records=result.input_records))
+
+    kept = with_floor(with_load(0.0), floor, result.input_records)
+    assert [effect['name'] for effect in kept.effects] == ['load_torque']
+    assert kept.parameters == result.parameters
+    spoiled = with_floor(with_load(2.0 * scenario.truth.Mc), floor, result.input_records)
+    assert spoiled.effects == []
+    assert 'load_torque.torque_Nm' not in spoiled.estimate.parameters
+    assert any('predicts the held-out part worse' in text and 'load_torque' in text
+               for text in spoiled.warnings), spoiled.warnings
+    assert spoiled.uncertainty_method == floor_module.FLOOR_UNCERTAINTY

@@ -57,29 +57,32 @@ def test_output_error_and_idim_each_win_on_their_own_criterion(study):
         assert oe['parameters'][name] == pytest.approx(published[name], rel=0.15), name
 
 
-def test_loop_finds_direction_dependent_viscous_friction(study):
+def test_loop_on_the_speed_leaves_the_asymmetry_unproven(study):
     """
-    The default vocabulary explains the offset by direction-dependent viscous friction.
+    On the speed (``--criterion speed``) the default rule adds no effect, and says why.
 
-    The benchmark's own asymmetric model (Fv+ 166.7, Fv- 240.4 N s/m) points the same way; a
-    constant load torque (the IDIM-LS offset) is the weaker explanation of the same asymmetry.
+    The base's open-loop speed drifts over the held-out end; direction-dependent viscous
+    friction (the benchmark's own asymmetric model, Fv+ 166.7, Fv- 240.4 N s/m) removes
+    98.6 % of that held-out error, but judged on the innovations of each structure's AR(1)
+    error model (the speed's increments, which the derived speed's noise dominates) its drop
+    is not significant (t 2.2 where 3.0 is needed; the t test on the residual itself,
+    ``heldout-t``, gives 22 on 15 effective samples and added it).  The position criterion,
+    the documented path, finds it (``test_emps_product.py``).
     """
     loop = study['loop']
     result = loop['result']
     assert result['mode'] == 'mechanical'
+    assert result['effects'] == []
     first = result['discovery']['steps'][0]
-    assert first['added']['name'] == 'viscous_asymmetry'
-    assert [effect['name'] for effect in result['effects']] == ['viscous_asymmetry']
-    parameters = result['effects'][0]['parameters']
-    assert parameters['b_pos_Nm_s'] < parameters['b_neg_Nm_s']
-    assert parameters['b_pos_Nm_s'] == pytest.approx(166.7061, rel=0.15)
-    assert parameters['b_neg_Nm_s'] == pytest.approx(240.4236, rel=0.15)
-    # Real data: structure remains (flexibility, record-to-record friction), and the report
-    # says so.
+    assert first['added'] is None
+    best = max((candidate for candidate in first['candidates']
+                if candidate['heldout_gain_pct'] is not None),
+               key=lambda candidate: candidate['heldout_gain_pct'])
+    assert best['name'] == 'viscous_asymmetry' and best['heldout_gain_pct'] > 90
+    assert 'not significant' in best['rejected'] and 'effective innovations' in best['rejected']
+    # Real data: structure remains (the offset, the asymmetry, the flexibility), and the
+    # report says so.
     assert result['unexplained'] is True
-    for errors in (loop['estimation'], loop['validation'],
-                   {'before': result['error_before'], 'after': result['error_after']}):
-        assert errors['after']['speed_nrmse_pct'] < 0.5 * errors['before']['speed_nrmse_pct']
 
 
 def test_extended_vocabulary_gives_the_default_answer(study):

@@ -6,18 +6,21 @@ chosen (:func:`choose`) if it has earned its place (:func:`unearned`), else the 
 considered (:func:`decide`).  The loop never ends worse than its base model
 (:func:`never_worse`).
 
-Earned (rule ``heldout-t``, the default): the held-out drop is significant on the samples it
-is worth (:func:`heldout_t`, the residual's correlation time) and spread over the held-out
-part (:func:`gain_t`).  The former rules (``noise-level``: an effect's own part of the outputs
-against the per-sample noise, :func:`own_part`, and a cogging ripple above the Coulomb
-friction needing twice the evidence) are kept to be measured against
-(``bench/bench_discovery.py``, a column per rule).
+Earned (rule ``heldout-t``): the held-out drop is significant on the samples it is worth
+(:func:`heldout_t`, the residual's correlation time) and spread over the held-out part
+(:func:`gain_t`).  Rule ``innovation-t`` (the default): the same on the innovations of an
+AR(1) error model of each structure's held-out residual (:func:`innovation_t`): a drifting
+residual (a position the model integrates) is judged on its increments, which are worth
+many samples where the drift is worth a handful.  The former rules (``noise-level``: an
+effect's own part of the outputs against the per-sample noise, :func:`own_part`, and a
+cogging ripple above the Coulomb friction needing twice the evidence) are kept to be
+measured against (``bench/bench_discovery.py``, a column per rule).
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any, cast, Sequence
+from typing import Any, Callable, cast, Sequence
 
 import numpy as np
 
@@ -243,31 +246,123 @@ def heldout_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]
     return float(t), float(worth)
 
 
+def innovation_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]:
+    """
+    Student t of the held-out drop in the innovations of the residual's error model.
+
+    A misfit the model integrates (the position of a model lacking a force) drifts: its
+    held-out samples are worth a handful of independent ones, and :func:`heldout_t` on them
+    cannot resolve a candidate that removes most of the drift.  The error model of each
+    output channel is an AR(1) sequence, one per structure (:func:`residual_ar`, fitted on
+    its held-out residual: white noise gives 0, a drift nearly 1, where the innovations are
+    the residual's increments; each structure with its own, so that a bias the candidate
+    removes is not taken for a drift of both); each fit's held-out residual is whitened by
+    its own (the first held-out innovation from the last training sample), both scaled by
+    the current structure's innovation variance.  The drop of their squares compares the
+    two structures' held-out one-step predictions under their error models; its t counts
+    the samples over the integrated correlation time of the whitened residual (and of the
+    drop's chance part), as :func:`heldout_t` does, and the channels' variances add
+    (Welch-Satterthwaite).  Returns ``(t, effective samples)``.
+    """
+    from dcmotor_id.identification.checks.start import correlation_time
+
+    total, variances, dofs = 0.0, [], []
+    for channel in loop.outputs:
+        rho, scale = residual_ar(current, channel)
+        rhos = (rho, residual_ar(fitted, channel)[0])
+        pairs = [_innovations(current, fitted, index, channel, rhos)
+                 for index in range(len(current.stops))]
+        before = np.concatenate([pair[0] for pair in pairs])
+        after = np.concatenate([pair[1] for pair in pairs])
+        drop = (before ** 2 - after ** 2) / scale
+        chance = 2.0 * after * (after - before) / scale
+        if drop.shape[0] < 3 or not (np.all(np.isfinite(drop)) and np.all(np.isfinite(chance))):
+            return 0.0, 0.0
+        effective = max(drop.shape[0] / max(correlation_time(after), correlation_time(chance)),
+                        2.0)
+        total += float(np.mean(drop))
+        variances.append(float(np.var(chance, ddof=1)) / effective)
+        dofs.append(effective - 1.0)
+    variance = float(sum(variances))
+    if not variances or not variance > 0:
+        return (np.inf if total > 0 else 0.0), float(sum(dofs) + len(dofs))
+    worth = 1.0 + variance ** 2 / max(sum(v ** 2 / d for v, d in zip(variances, dofs)),
+                                      1e-300)
+    return float(total / np.sqrt(variance)), float(worth)
+
+
+def residual_ar(fit: Fit, channel: str) -> tuple[float, float]:
+    """
+    AR(1) error model of a fit's held-out residual on one channel: ``(rho, innovation var)``.
+
+    ``rho`` is the lag-1 autocorrelation over the records' held-out parts, in ``[0, 1)``
+    (:data:`~dcmotor_id.identification.error_model.criterion.MAX_POSITION_AR`); the variance
+    is that of the whitened residual (at least a tiny positive number).  The held-out part,
+    not the training one: a fit absorbs much of a drift where it is fitted (its parameters
+    and initial states), and the drift it extrapolates (an input's noise integrated twice
+    into the position) shows where it was not.
+    """
+    from dcmotor_id.identification.error_model.criterion import MAX_POSITION_AR, whiten
+
+    lagged = products = 0.0
+    pieces = []
+    for rec, sim, stop in zip(fit.records, fit.simulated, fit.stops):
+        error = np.asarray(sim[channel][stop:] - getattr(rec, channel)[stop:], dtype=float)
+        error = error[np.isfinite(error)]
+        if error.shape[0] >= 2:
+            lagged += float(error[:-1] @ error[:-1])
+            products += float(error[1:] @ error[:-1])
+            pieces.append(error)
+    rho = float(np.clip(products / lagged, 0.0, MAX_POSITION_AR)) if lagged > 0 else 0.0
+    whitened = [whiten(piece, rho)[1:] for piece in pieces]
+    variance = float(np.mean(np.concatenate(whitened) ** 2)) if whitened else 0.0
+    return rho, max(variance, 1e-300)
+
+
+def _innovations(current: Fit, fitted: Fit, index: int, channel: str,
+                 rhos: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out innovations of one record: the current fit's, the candidate's (each its rho)."""
+    out = []
+    for fit, rho in zip((current, fitted), rhos):
+        error = fit.simulated[index][channel] - getattr(fit.records[index], channel)
+        innovations = error[1:] - rho * error[:-1]
+        out.append(innovations[max(fit.stops[index] - 1, 0):])
+    # A data effect (a sensor delay) shifts the records by a few samples: the common end.
+    common = min(out[0].shape[0], out[1].shape[0])
+    return out[0][out[0].shape[0] - common:], out[1][out[1].shape[0] - common:]
+
+
 def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     """
     Why a winning candidate has not earned its place on held-out data, or None.
 
     By the loop's rule (``loop.acceptance``, one of
-    :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``
-    (default): :func:`unearned_heldout_t`; ``noise-level`` (the former rules, kept to measure
-    against): :func:`unearned_noise_level`.
+    :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``:
+    :func:`unearned_heldout_t`; ``innovation-t`` (default): the same on the innovations of
+    the residuals' AR(1) error models (:func:`innovation_t`); ``noise-level`` (the former
+    rules, kept to measure against): :func:`unearned_noise_level`.
     """
     if loop.acceptance == 'noise-level':
         return unearned_noise_level(loop, current, candidate)
+    if loop.acceptance == 'innovation-t':
+        return unearned_heldout_t(loop, current, candidate, innovation_t)
     return unearned_heldout_t(loop, current, candidate)
 
 
-def unearned_heldout_t(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
+def unearned_heldout_t(loop: LoopState, current: Fit, candidate: Candidate,
+                       test: Callable[[LoopState, Fit, Fit], tuple[float, float]] | None = None
+                       ) -> str | None:
     """
     Why a winning candidate's held-out gain is not significant, or None.
 
     Its held-out drop must have a t of at least :func:`heldout_t_threshold` on the samples it
-    is worth (:func:`heldout_t`), the gain must be spread over the held-out part
+    is worth (``test``: :func:`heldout_t` by default, :func:`innovation_t` for the rule
+    ``innovation-t``), the gain must be spread over the held-out part
     (:func:`gain_t` over blocks at least :data:`GAIN_T`: not one stretch traded for another)
     and at least the loop's least gain.  No size rule: a per-sample amplitude below the
     per-sample noise is what many samples resolve.
     """
-    t, effective = heldout_t(loop, current, candidate.fitted)
+    t, effective = (test or heldout_t)(loop, current, candidate.fitted)
     achieved = float(candidate.gain or 0.0)
     required = heldout_t_threshold(effective)
     if t >= required and achieved >= loop.min_gain:
@@ -276,8 +371,9 @@ def unearned_heldout_t(loop: LoopState, current: Fit, candidate: Candidate) -> s
             return None
         return (f'its held-out gain ({100 * achieved:.3g} %) is carried by a few stretches '
                 f'(t = {blocks:.2g} over {GAIN_BLOCKS} blocks per record, {GAIN_T:g} needed)')
+    what = 'effective samples' if test in (None, heldout_t) else 'effective innovations'
     return (f'its held-out gain ({100 * achieved:.3g} %, t = {t:.2g} on {effective:.0f} '
-            f'effective samples) is not significant (t >= {required:.3g} needed)')
+            f'{what}) is not significant (t >= {required:.3g} needed)')
 
 
 def heldout_t_threshold(effective: float) -> float:

@@ -40,7 +40,7 @@ from dcmotor_id.identification.checks.start import (both_directions, correlation
                                                     regression_rows)
 from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.error_model.residuals import output_channels
-from dcmotor_id.identification.estimators.base import Estimate
+from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.pipeline.fit_outcome import simulation_errors
 from dcmotor_id.identification.pipeline.run import identify_checked
@@ -354,15 +354,16 @@ def first_states(records: Sequence[Record], mechanical_only: bool) -> list[list[
 
 def heldout_error(parameters: dict[str, float], initial_states: Sequence[Sequence[float]],
                   records: Sequence[Record], torque_constant: float | None,
-                  quasi_static: bool) -> float:
+                  quasi_static: bool, terms: Sequence[ExogenousTerm] = ()) -> float:
     """
     Worst channel's NRMSE [%] over the held-out ends of the records (whole record's spread).
 
     The held-out end is the one the discovery loop holds out
     (:func:`~dcmotor_id.identification.discovery.parts.excited_stop`); inf when the
-    simulation does not stay finite.
+    simulation does not stay finite.  ``terms``: the effect terms of a fit with effects (its
+    ``records`` then those the terms were built on: data effects applied).
     """
-    model = OutputErrorModel(records, torque_constant, (), quasi_static)
+    model = OutputErrorModel(records, torque_constant, tuple(terms), quasi_static)
     worst = 0.0
     for channel in model.outputs:
         squares, spread, count = 0.0, 0.0, 0
@@ -383,6 +384,14 @@ def heldout_error(parameters: dict[str, float], initial_states: Sequence[Sequenc
 
 
 @dataclass(frozen=True)
+class FitEffects:
+    """The effects of a fit, for its held-out error: their terms, the records they are on."""
+
+    terms: tuple
+    records: list
+
+
+@dataclass(frozen=True)
 class FloorChoice:
     """Which answer is kept, the two held-out errors, and the warning when it is the floor."""
 
@@ -394,20 +403,26 @@ class FloorChoice:
 
 def floor_choice(floor: RegressionFloor, fit_parameters: dict[str, float],
                  fit_states: Sequence[Sequence[float]], records: Sequence[Record],
-                 torque_constant: float | None, quasi_static: bool) -> FloorChoice:
+                 torque_constant: float | None, quasi_static: bool,
+                 effects: FitEffects | None = None) -> FloorChoice:
     """
     Keep the output-error fit unless the regression predicts the held-out parts better.
 
-    Both are simulated with the base model (no effect terms): the fit from its own initial
-    states, the regression from the records' first samples.  The regression replaces the fit
+    The fit is simulated from its own initial states with its effects (``effects``: their
+    terms and the records they were built on; none: the base model), the regression (which
+    has no effects) with the base model from the records' first samples.  The regression
+    replaces the fit
     when its held-out error is lower by more than :data:`FLOOR_MARGIN_PCT` points and below
     :data:`FLOOR_RATIO` of the fit's (a structure both lack, e.g. held samples, moves both
     errors by some per cent; the fit's values were then the better ones).
     """
     mechanical_only = torque_constant is not None
-    fit = heldout_error(fit_parameters, fit_states, records, torque_constant, quasi_static)
-    values = {**fit_parameters, **{name: floor.parameters[name] for name in fit_parameters
-                                   if name in floor.parameters}}
+    fit = heldout_error(fit_parameters, fit_states,
+                        records if effects is None else effects.records, torque_constant,
+                        quasi_static, () if effects is None else effects.terms)
+    values = {**{name: value for name, value in fit_parameters.items() if '.' not in name},
+              **{name: floor.parameters[name] for name in fit_parameters
+                 if name in floor.parameters}}
     values['b'], values['Mc'] = max(values['b'], 0.0), max(values['Mc'], 0.0)
     own = heldout_error(values, first_states(records, mechanical_only), records,
                         torque_constant, quasi_static or floor.static_electrical)
@@ -465,14 +480,18 @@ def with_floor(result: IdentificationResult, floor: RegressionFloor | None,
     """
     Keep ``result`` unless the regression predicts the held-out parts better (then its values).
 
-    A result with effects is kept (the regression has none to compare with).
+    A result with effects is compared with its effects (the loop's all-data structure,
+    :class:`FitEffects`): the regression has none, and replaces it (the effects dropped, said
+    so) only where it predicts the held-out parts better all the same.
     """
     estimate = result.estimate
     if floor is None or estimate is None or not floor.usable:
         return result
     result = _tighter_la(result, floor)
-    if result.effects or not all(name in estimate.parameters for name in result.parameters):
-        return result  # effects, or a result assembled from two fits (a current limit)
+    found = result.discovery_result
+    if (result.effects and found is None) or not all(name in estimate.parameters
+                                                     for name in result.parameters):
+        return result  # effects not simulated here, or a result assembled from two fits
     torque_constant = result.torque_constant
     used = result.input_records or list(records)
     if len(used) != len(records) or any(a is not b for a, b in zip(used, records)):
@@ -483,11 +502,21 @@ def with_floor(result: IdentificationResult, floor: RegressionFloor | None,
             return result
     base = {name: float(estimate.parameters[name]) for name in result.parameters
             if name in estimate.parameters}
+    effects = None
+    if result.effects and found is not None:
+        effects = FitEffects(tuple(found.terms), list(found.records))
+        base.update({name: float(value) for name, value in estimate.parameters.items()
+                     if '.' in name})
     choice = floor_choice(floor, base, estimate.initial_states, records, torque_constant,
-                          bool(estimate.info.get('quasi_static')))
+                          bool(estimate.info.get('quasi_static')), effects)
     if not choice.use_floor:
         return result
-    return _as_floor(result, floor, records, choice.warning or '')
+    warning = choice.warning or ''
+    if result.effects:
+        warning += ('; the effects the loop found (' + ', '.join(
+            str(effect['name']) for effect in result.effects) + ') did not make the fit '
+            'predict better than the regression without them, and are not reported')
+    return _as_floor(replace(result, effects=[]), floor, records, warning)
 
 
 def _tighter_la(result: IdentificationResult, floor: RegressionFloor) -> IdentificationResult:
@@ -530,7 +559,8 @@ def _as_floor(result: IdentificationResult, floor: RegressionFloor, records: Seq
     states = first_states(records, result.torque_constant is not None)
     estimate = result.estimate
     if estimate is not None:
-        estimate = replace(estimate, parameters={**estimate.parameters, **values},
+        kept = {name: value for name, value in estimate.parameters.items() if '.' not in name}
+        estimate = replace(estimate, parameters={**kept, **values},
                            stderr={**estimate.stderr, **stderr}, initial_states=states,
                            info={**estimate.info, 'quasi_static': floor.static_electrical})
     bounds = dict(result.upper_bounds)
