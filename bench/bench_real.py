@@ -1396,7 +1396,7 @@ def data_sets(args: argparse.Namespace, work: str) -> tuple[list[DataSet], list[
 
 def robot_log_runs(args: argparse.Namespace, work: str,
                    skipped: list[str]) -> tuple[list[Run3], list[dict[str, Any]]]:
-    """Build the robot and lab log records asked for; return them and the findings of reading them."""
+    """Build the robot and lab log records asked for; return them and what reading them found."""
     runs: list[Run3] = []
     findings: list[dict[str, Any]] = []
     for name, given in (('sysidopt', args.sysidopt), ('wheels', args.wheels),
