@@ -42,8 +42,8 @@ from dcmotor_id.identification.estimators.least_squares import (FitProblem,
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.signals.filters import low_pass, noise_std
-from dcmotor_id.simulation import (combine_contributions, EXACT_FIELDS, HybridSystem,
-                                   motor_forcing, MotorEffects, simulate_mechanical,
+from dcmotor_id.simulation import (combine_contributions, EXACT_FIELDS, held_input,
+                                   HybridSystem, motor_forcing, MotorEffects, simulate_mechanical,
                                    simulate_mechanical_effects, simulate_motor_effects)
 
 __all__ = ['OutputErrorModel', 'RefinedEstimator', 'StateTerm', 'STATE_OVERSAMPLE']
@@ -115,10 +115,10 @@ class OutputErrorModel:
         # The period is a median over the record: computed once, not at every simulation.
         self.sample_periods_s = [rec.sample_period_s for rec in self.records]
         # Mechanical-only mode: the sampled current is the input.  It varies within a sample,
-        # so the torque held over [t_k, t_k+1) is its trapezoidal mean (i[k] + i[k+1]) / 2;
-        # holding i[k] instead biases J by O(dT) (0.5 % at 1 kHz for motor 2, bench/README.md).
-        self.held_currents = [np.append(0.5 * (rec.current[:-1] + rec.current[1:]),
-                                        rec.current[-1]) if self.mechanical_only else None
+        # so the torque held over [t_k, t_k+1) is its trapezoidal mean (i[k] + i[k+1]) / 2
+        # (held_input); holding i[k] instead biases J by O(dT) (0.5 % at 1 kHz for motor 2,
+        # bench/README.md).
+        self.held_currents = [held_input(rec.current) if self.mechanical_only else None
                               for rec in self.records]
 
     def _state_effects(self, values: Mapping[str, float]) -> tuple[MotorEffects, bool]:
