@@ -27,7 +27,8 @@ from dcmotor_id.formats.json_file import load_json
 from dcmotor_id.identification.effects import make_effect
 from dcmotor_id.identification.estimators.voltage_speed import (NAMES as VOLTAGE_SPEED_NAMES,
                                                                 simulate_speed)
-from dcmotor_id.simulation import simulate_mechanical_effects, simulate_motor_effects
+from dcmotor_id.simulation import (held_input, simulate_mechanical_effects,
+                                   simulate_motor_effects)
 
 #: Samples at the start of a record used for the initial state (and not scored), by default.
 INIT_SAMPLES = 20
@@ -477,7 +478,7 @@ def simulate(model: Model, record: Record,
             [[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1])) * dt])}
     if model.mechanical_only:
         current = np.asarray(record.current, dtype=float)
-        held = np.append(0.5 * (current[:-1] + current[1:]), current[-1])
+        held = held_input(current)
         speed, angle = simulate_mechanical_effects(
             p['J'], p['b'], p['Mc'], float(model.torque_constant or 0.0) * held, dt, effects,
             float(initial_state[0]), oversample=OVERSAMPLE if effects else 1,

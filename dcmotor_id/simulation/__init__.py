@@ -14,13 +14,14 @@ importable from here.
 from dcmotor_id.simulation.coefficients import (ADD, combine_contributions, combine_effects,
                                                 EXACT_FIELDS, MotorEffects, REPLACE, SENSOR_FIELDS,
                                                 set_fields)
-from dcmotor_id.simulation.motor import (HybridSystem, motor_forcing, motor_system, MotorStepper,
-                                         simulate_mechanical, simulate_mechanical_effects,
+from dcmotor_id.simulation.motor import (held_input, HybridSystem, motor_forcing, motor_system,
+                                         MotorStepper, simulate_mechanical,
+                                         simulate_mechanical_effects,
                                          simulate_motor, simulate_motor_effects, zoh_matrices)
 
 __all__ = [
-    'ADD', 'combine_contributions', 'combine_effects', 'EXACT_FIELDS', 'HybridSystem',
-    'motor_forcing', 'motor_system', 'MotorEffects', 'MotorStepper', 'REPLACE',
+    'ADD', 'combine_contributions', 'combine_effects', 'EXACT_FIELDS', 'held_input',
+    'HybridSystem', 'motor_forcing', 'motor_system', 'MotorEffects', 'MotorStepper', 'REPLACE',
     'SENSOR_FIELDS', 'set_fields', 'simulate_mechanical', 'simulate_mechanical_effects',
     'simulate_motor', 'simulate_motor_effects', 'zoh_matrices',
 ]

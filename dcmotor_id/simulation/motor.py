@@ -124,6 +124,31 @@ def simulate_motor(params: MotorParameters, voltage: ArrayLike, sample_period_s:
     return states[:-1, 0].copy(), states[:-1, 1].copy()
 
 
+def held_input(samples: ArrayLike) -> np.ndarray:
+    """
+    Return the mechanical-only model's input held over each sample: the mean of its two ends.
+
+    The sampled current of the mechanical-only model (``--torque-constant``) varies within a
+    sample; the torque held over ``[t_k, t_k+1)`` is the trapezoidal mean
+    ``(i[k] + i[k+1]) / 2`` (the last sample held as it is).  The fit, the validation and the
+    simulated records of the benchmarks take this one definition, so that a record simulated
+    with the true parameters is the fit's model exactly.
+
+    Parameters
+    ----------
+    samples : array_like
+        The input at the sample instants (a current [A] or a torque [N m]).
+
+    Returns
+    -------
+    numpy.ndarray
+        The value held over each sample, same length.
+
+    """
+    samples = np.asarray(samples, dtype=float)
+    return np.append(0.5 * (samples[:-1] + samples[1:]), samples[-1:])
+
+
 def simulate_mechanical(inertia: float, viscous: float, coulomb: float, torque: ArrayLike,
                         sample_period_s: float, initial_speed: float = 0.0,
                         coulomb_neg: float | None = None) -> np.ndarray:

@@ -141,7 +141,7 @@ def test_clean_mechanical_records_with_a_noisy_input_current_get_no_effect(name)
     # gets an effect.
     from dcmotor_id.identification.identify import identify
     from dcmotor_id.identification.prepare import prepare_records
-    from dcmotor_id.simulation import simulate_mechanical_effects, simulate_motor
+    from dcmotor_id.simulation import held_input, simulate_mechanical_effects, simulate_motor
 
     dt, step = 1e-3, 2 * np.pi / 4096
     motor = PAPER_MOTORS[name]
@@ -151,8 +151,9 @@ def test_clean_mechanical_records_with_a_noisy_input_current_get_no_effect(name)
         rng = np.random.default_rng(7)
         t, voltage = make_excitation(kind, 6.0, dt, amplitude_v=60.0, seed=7, **options)
         current, _ = simulate_motor(motor, voltage, dt)
+        # The shaft driven by the current as the fit holds it (the mean of its two samples).
         _, angle = simulate_mechanical_effects(motor.J, motor.b, motor.Mc,
-                                               motor.CPhi * current, dt, [])
+                                               motor.CPhi * held_input(current), dt, [])
         records = prepare_records([Record(t, add_sensor_noise(current, 0.01, rng), None, None,
                                           np.round(angle / step) * step, source=kind)],
                                   torque_constant=motor.CPhi)
