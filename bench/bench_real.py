@@ -1384,14 +1384,20 @@ def data_sets(args: argparse.Namespace, work: str) -> tuple[list[DataSet], list[
               ('mech467', args.mech467, lambda: mech467_set(args.mech467, work, args.quick)),
               ('emps', args.emps, lambda: emps_set(args.emps, args.quick)))
     for name, given, make in makers:
-        if args.only and args.only != name:
-            continue
-        if not given:
-            skipped.append(f'{name}: not run (pass --{name} DIR)')
-            continue
-        log(f'{name}: reading the records')
-        built.append(make())
+        if asked(args, name, given, skipped):
+            built.append(make())
     return built, skipped
+
+
+def asked(args: argparse.Namespace, name: str, given: str | None, skipped: list[str]) -> bool:
+    """Whether the data set ``name`` is to be run (else the reason goes into ``skipped``)."""
+    if args.only and args.only != name:
+        return False
+    if not given:
+        skipped.append(f'{name}: not run (pass --{name} DIR)')
+        return False
+    log(f'{name}: reading the records')
+    return True
 
 
 def robot_log_runs(args: argparse.Namespace, work: str,
@@ -1401,12 +1407,8 @@ def robot_log_runs(args: argparse.Namespace, work: str,
     findings: list[dict[str, Any]] = []
     for name, given in (('sysidopt', args.sysidopt), ('wheels', args.wheels),
                         ('qube', args.qube)):
-        if args.only and args.only != name:
+        if not asked(args, name, given, skipped):
             continue
-        if not given:
-            skipped.append(f'{name}: not run (pass --{name} DIR)')
-            continue
-        log(f'{name}: reading the records')
         if name == 'sysidopt':
             runs += sysidopt_runs(given, work)
         elif name == 'wheels':
