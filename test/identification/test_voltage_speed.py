@@ -140,8 +140,11 @@ def test_design_takes_the_result_for_feedforward_and_speed_loop():
     plant = motor_from_result(result)
     assert plant.mode == 'voltage_speed'
     made, _ = design(plant, DesignOptions(speed_bandwidth_hz=5.0, sample_period_s=DT))
-    for name in ('kS', 'kV', 'kA'):
+    for name in ('kS', 'kV'):
         assert made['feedforward'][name] == result['parameters'][name]
+    # the armature lag was fitted: kA is the acceleration gain (test/design/
+    # test_acceleration_gain.py)
+    assert made['feedforward']['kA'] == result['combined']['acceleration_gain']['value']
     assert 'current_loop' not in made
     assert made['speed_loop']['units']['kp'] == 'V s/rad'
     assert made['nominal']['speed']['bandwidth_hz'] == pytest.approx(5.0, rel=1e-3)
