@@ -213,6 +213,36 @@ def _figure_caption(sessions: Mapping[str, Session]) -> str:
     return '\n' + '\n'.join(wrap(text, 96)).replace('\n  ', '\n') + '\n\n'
 
 
+def bench_lines(name: str, pattern: str) -> list[str]:
+    """Return group 1 of every line of a committed results file that ``pattern`` matches."""
+    lines = [m.group(1) for m in re.finditer(pattern, read_bench(name), re.MULTILINE)]
+    if not lines:
+        raise RuntimeError(f'bench/{name}: no line matches {pattern!r}')
+    return lines
+
+
+def _online_alarms_block(sessions: Mapping[str, Session]) -> str:
+    alarms = bench_lines('online_results.md', r'^- paper2, `[^`]*`: (.*)$')[:3]
+    return code([
+        'sim_motor --ros-args -p transport:=batch \\',
+        "    -p schedule:='Ra:+25%:ramp:30:90;b:+50%:step:120;load_torque:+0.5:step:160'",
+        'identifier --ros-args -p input:=batch -p record:=false',
+        'ros2 topic echo /diagnostics    # identifier: condition; the first alarms of paper',
+        '# motor 2 in bench/online_results.md (each change a run of its own, from 40 s):']
+        + [f'# {line}' for line in alarms])
+
+
+def _fleet_block(sessions: Mapping[str, Session]) -> str:
+    progress = bench_lines('fleet_results.md', r'^- progress .*/ `(fleet .*)`$')[0]
+    output = bench_lines('fleet_results.md', r'^- command output: `(.*)`$')[0]
+    return code([
+        'dcmotor-id fleet /data/bags --history /data/fleet_history --workers 2',
+        '# (the fleet of bench/fleet_results.md, on two workers:)', f'# {progress}',
+        *comment('\n'.join(wrap(output, 96))),
+        'dcmotor-id fleet /data/bags --history /data/fleet_history     # tomorrow: only new bags',
+        'dcmotor-id fleet-report /data/fleet_history --out fleet_report/'])
+
+
 #: Block name -> (page, how the block is made from the sessions).
 BLOCKS: dict[str, tuple[str, Callable[[Mapping[str, Session]], str]]] = {
     'readme': ('README.md', _readme_block),
@@ -224,6 +254,9 @@ BLOCKS: dict[str, tuple[str, Callable[[Mapping[str, Session]], str]]] = {
     'design-example': ('docs/control_design.md', _design_block),
     'design-refused': ('docs/control_design.md', _refused_block),
     'design-stribeck': ('docs/control_design.md', _stribeck_design_block),
+    # from the committed benchmark results (their live runs take minutes)
+    'online-alarms': ('docs/online.md', _online_alarms_block),
+    'fleet-example': ('docs/fleet.md', _fleet_block),
 }
 
 
@@ -256,6 +289,178 @@ def figure_numbers(result: Mapping) -> dict[str, str]:
     return {'before': text(result['error_before']), 'after': text(result['error_after'])}
 
 
+# ----------------------------------------------------------------------------- bench numbers
+
+#: A number of the prose quoted from a committed benchmark table: ``<!-- from: SPEC -->text
+#: <!-- /from -->``, SPEC being ``key: value`` pairs joined by ``;`` (:func:`quoted_value`).
+QUOTED = re.compile(r'<!-- from: (?P<spec>.*?) -->(?P<body>.*?)<!-- /from -->', re.DOTALL)
+BENCH = os.path.join(ROOT, 'bench')
+#: The pages whose quoted numbers are filled in (every page of the manual and the README).
+QUOTING_PAGES = ('README.md', 'docs/*.md', 'docs/*.rst')
+#: A number in a text (a sign only where it does not follow a digit: ``0.7-0.9`` is two).
+NUMBER = re.compile(r'(?<![\d.])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|(?:\d+\.?\d*|\.\d+)')
+#: Printed numbers that differ by at most this relative amount, or by one unit of their last
+#: printed decimal, are taken as the same (a fit on another CPU may round the other way).
+RELATIVE_TOLERANCE = 1e-3
+
+
+@dataclass
+class Table:
+    """A markdown table of a benchmark's results: the heading above it, its header and rows."""
+
+    heading: str
+    header: list[str]
+    rows: list[list[str]]
+
+
+def bench_tables(text: str) -> list[Table]:
+    """Return the markdown tables of a results file, each with the heading above it."""
+    tables: list[Table] = []
+    heading, inside = '', False
+    for line in text.split('\n'):
+        if line.startswith('#'):
+            heading, inside = line.lstrip('#').strip(), False
+        elif line.startswith('|') and not inside:
+            tables.append(Table(heading, _cells(line), []))
+            inside = True
+        elif line.startswith('|') and not set(line) <= set('|-: '):
+            tables[-1].rows.append(_cells(line))
+        elif not line.startswith('|'):
+            inside = False
+    return tables
+
+
+def _cells(line: str) -> list[str]:
+    return [cell.strip() for cell in line.strip().strip('|').split(' | ')]
+
+
+def _spec(text: str) -> dict[str, str]:
+    """Return the ``key: value`` pairs of a quoted number's SPEC."""
+    pairs = [part.split(':', 1) for part in text.split(';') if part.strip()]
+    if any(len(pair) != 2 for pair in pairs):
+        raise RuntimeError(f'quoted number {text!r}: the spec is "key: value; key: value"')
+    return {key.strip(): value.strip() for key, value in pairs}
+
+
+def _one(found: list, what: str, spec: Mapping[str, str]) -> object:
+    nth = int(spec.get('nth', '0'))
+    if nth:
+        if len(found) < nth:
+            raise RuntimeError(f'{dict(spec)}: fewer than {nth} {what}')
+        return found[nth - 1]
+    if len(found) != 1:
+        raise RuntimeError(f'{dict(spec)}: {len(found)} {what} (one expected; give nth: N)')
+    return found[0]
+
+
+def _selected(table: Table, spec: Mapping[str, str]) -> list[list[str]]:
+    """Return the rows meeting the spec's ``row`` conditions (``COL = TEXT``, ``COL ~ PART``)."""
+    rows = table.rows
+    for condition in filter(None, (part.strip() for part in spec.get('row', '').split('&'))):
+        column, operator, wanted = re.fullmatch(r'(.*?)\s*(!=|[=~])\s*(.*)',
+                                                condition).groups()
+        index = table.header.index(column)
+        rows = [row for row in rows if {'=': row[index] == wanted, '!=': row[index] != wanted,
+                                        '~': wanted in row[index]}[operator]]
+    if not rows:
+        raise RuntimeError(f'{dict(spec)}: no row of table {table.heading!r} matches')
+    return rows
+
+
+def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
+    """
+    Return the text of a number quoted from a benchmark's results file.
+
+    ``bench``: the file under bench/; either ``match``: a regular expression whose group 1 (of
+    its only match, or the ``nth``) is the text, or ``table``: a part of the heading above the
+    table (``nth`` among several), ``row``: conditions joined by ``&`` (``COL = TEXT`` or
+    ``COL != TEXT``, ``COL ~ PART``), ``column``: its header (several, joined by ``,``, for
+    ``max`` and ``min``); ``nth: 1,2``: the rows of several such tables together; ``value``:
+    ``cell`` (the default: the text of the one row; ``part: N`` its N-th number), or ``max``,
+    ``min``, ``range`` (``min-max``) of the ``part``-th number (default the first) of the
+    cells that have one, written with ``format`` (default ``g``).
+    """
+    text = read(spec['bench'])
+    if 'match' in spec:
+        return str(_one([m.group(1) for m in re.finditer(spec['match'], text)], 'matches',
+                        spec))
+    tables = [t for t in bench_tables(text) if spec['table'] in t.heading]
+    if ',' in spec.get('nth', ''):  # several tables of the same layout: their rows together
+        tables = [tables[int(n) - 1] for n in spec['nth'].split(',')]
+        tables = [Table(tables[0].heading, tables[0].header, sum((t.rows for t in tables), []))]
+        spec = {key: value for key, value in spec.items() if key != 'nth'}
+    table = _one(tables, 'tables', spec)
+    assert isinstance(table, Table)
+    rows = _selected(table, spec)
+    names = ([spec['column']] if spec['column'] in table.header
+             else [name.strip() for name in spec['column'].split(',')])
+    missing = [name for name in names if name not in table.header]
+    if missing:
+        raise RuntimeError(f'{dict(spec)}: no column {missing} in {table.header}')
+    columns = [table.header.index(name) for name in names]
+    how, part = spec.get('value', 'cell'), int(spec.get('part', '1')) - 1
+    if how == 'cell':
+        cell = str(_one([row[columns[0]] for row in rows], 'rows', spec))
+        return NUMBER.findall(cell)[part] if 'part' in spec else cell
+    numbers = [float(found[part]) for row in rows for index in columns
+               for found in [NUMBER.findall(row[index])] if len(found) > part]
+    form = spec.get('format', 'g')
+    low, high = format(min(numbers), form), format(max(numbers), form)
+    return {'max': high, 'min': low, 'range': low if low == high else f'{low}-{high}'}[how]
+
+
+def fill_quoted(text: str, read: Callable[[str], str]) -> str:
+    """Return a page with every quoted number replaced by what its benchmark table says now."""
+    return QUOTED.sub(lambda m: m.group(0).replace(
+        f'-->{m.group("body")}<!--', f'-->{quoted_value(_spec(m.group("spec")), read)}<!--', 1),
+        text)
+
+
+def read_bench(name: str) -> str:
+    """Return a committed results file of bench/."""
+    with open(os.path.join(BENCH, name), encoding='utf-8') as stream:
+        return stream.read()
+
+
+def quoting_pages() -> list[str]:
+    """Return the absolute paths of the pages whose quoted numbers are filled in."""
+    import glob
+    return sorted(path for pattern in QUOTING_PAGES
+                  for path in glob.glob(os.path.join(ROOT, pattern)))
+
+
+def _last_unit(text: str) -> float:
+    """Return one unit of the last printed decimal of a number (0 for an integer)."""
+    mantissa, _, exponent = text.lower().partition('e')
+    if '.' not in mantissa or mantissa.endswith('.'):
+        return 0.0
+    return 10.0 ** (int(exponent or 0) - len(mantissa.split('.')[1]))
+
+
+def same_numbers(before: str, after: str) -> bool:
+    """
+    Return whether two texts are the same but for the last digit of some decimal numbers.
+
+    The text between numbers must be identical, and so must integers; two decimal numbers
+    match within :data:`RELATIVE_TOLERANCE` of their size or one unit of their last printed
+    decimal (``0.995`` and ``0.996``, not ``0.995`` and ``0.998``).
+    """
+    if before == after:
+        return True
+    old, new = NUMBER.split(before), NUMBER.split(after)
+    if old != new:
+        return False
+    for one, other in zip(NUMBER.findall(before), NUMBER.findall(after)):
+        if one == other:
+            continue
+        a, b = float(one), float(other)
+        allowed = max(RELATIVE_TOLERANCE * max(abs(a), abs(b)), _last_unit(one),
+                      _last_unit(other)) * (1.0 + 1e-9)
+        if not (_last_unit(one) or _last_unit(other)) or abs(a - b) > allowed:
+            return False
+    return True
+
+
 def regenerate_pages(sessions: Mapping[str, Session]) -> dict[str, tuple[str, str]]:
     """Return, per page with generated blocks, its text now and its text regenerated."""
     pages: dict[str, tuple[str, str]] = {}
@@ -272,6 +477,12 @@ def regenerate_pages(sessions: Mapping[str, Session]) -> dict[str, tuple[str, st
         match = found[0]
         text = text[:match.start('body')] + make(sessions) + text[match.end('body'):]
         pages[path] = (before, text)
+    for path in quoting_pages():
+        if path not in pages:
+            with open(path, encoding='utf-8') as stream:
+                text = stream.read()
+            pages[path] = (text, text)
+        pages[path] = (pages[path][0], fill_quoted(pages[path][1], read_bench))
     for path, (before, text) in pages.items():
         unknown = {match.group('name') for match in BLOCK.finditer(text)} - set(BLOCKS)
         if unknown:
@@ -324,7 +535,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sessions = run_all(directory, figures=not args.check)
         stale = []
         for path, (before, text) in regenerate_pages(sessions).items():
-            if before != text:
+            if not same_numbers(before, text) or (before != text and not args.check):
                 stale.append(os.path.relpath(path, ROOT))
                 if not args.check:
                     with open(path, 'w', encoding='utf-8') as stream:
