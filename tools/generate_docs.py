@@ -377,8 +377,8 @@ def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
     ``COL != TEXT``, ``COL ~ PART``), ``column``: its header (several, joined by ``,``, for
     ``max`` and ``min``); ``nth: 1,2``: the rows of several such tables together; ``value``:
     ``cell`` (the default: the text of the one row; ``part: N`` its N-th number), or ``max``,
-    ``min``, ``range`` (``min-max``) of the ``part``-th number (default the first) of the
-    cells that have one, written with ``format`` (default ``g``).
+    ``min``, ``abs`` (the largest size), ``range`` (``min-max``) of the ``part``-th number
+    (default the first) of the cells that have one, written with ``format`` (default ``g``).
     """
     text = read(spec['bench'])
     if 'match' in spec:
@@ -406,7 +406,9 @@ def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
                for found in [NUMBER.findall(row[index])] if len(found) > part]
     form = spec.get('format', 'g')
     low, high = format(min(numbers), form), format(max(numbers), form)
-    return {'max': high, 'min': low, 'range': low if low == high else f'{low}-{high}'}[how]
+    size = format(max(abs(number) for number in numbers), form)
+    return {'max': high, 'min': low, 'abs': size,
+            'range': low if low == high else f'{low}-{high}'}[how]
 
 
 def fill_quoted(text: str, read: Callable[[str], str]) -> str:
