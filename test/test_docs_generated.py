@@ -143,3 +143,10 @@ def test_every_quoted_number_names_a_committed_table():
                     'body'), (path, match.group('spec'))
                 count += 1
     assert count >= 40
+
+
+def test_an_empty_cell_keeps_the_columns_in_place():
+    text = ('## T\n\n| model | criterion | RMSE |\n|---|---|---|\n| a | | **8.41** |\n'
+            '| b | x | 9 |\n')
+    spec = generate_docs._spec('bench: x.md; table: T; row: model = a; column: RMSE; part: 1')
+    assert generate_docs.quoted_value(spec, lambda name: text) == '8.41'
