@@ -150,3 +150,11 @@ def test_an_empty_cell_keeps_the_columns_in_place():
             '| b | x | 9 |\n')
     spec = generate_docs._spec('bench: x.md; table: T; row: model = a; column: RMSE; part: 1')
     assert generate_docs.quoted_value(spec, lambda name: text) == '8.41'
+
+
+def test_a_count_from_percentages_of_trials():
+    text = ('## T\n\n| mode | trials | false |\n|---|---|---|\n| a | 15 | 20 % |\n'
+            '| a | 15 | 0 % |\n| b | 15 | 40 % |\n')
+    spec = generate_docs._spec('bench: x.md; table: T; row: mode = a; column: false; '
+                               'value: sum; per: trials; format: .0f')
+    assert generate_docs.quoted_value(spec, lambda name: text) == '3'

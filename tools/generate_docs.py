@@ -390,6 +390,13 @@ def _selected(table: Table, spec: Mapping[str, str]) -> list[list[str]]:
     return rows
 
 
+def _share(table: Table, row: list[str], spec: Mapping[str, str]) -> float:
+    """Return the factor of a percentage cell's number with ``per``: that column's / 100."""
+    if 'per' not in spec:
+        return 1.0
+    return float(NUMBER.findall(row[table.header.index(spec['per'])])[0]) / 100.0
+
+
 def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
     """
     Return the text of a number quoted from a benchmark's results file.
@@ -401,7 +408,9 @@ def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
     ``max`` and ``min``); ``nth: 1,2``: the rows of several such tables together; ``value``:
     ``cell`` (the default: the text of the one row; ``part: N`` its N-th number), or ``max``,
     ``min``, ``abs`` (the largest size), ``range`` (``min-max``) of the ``part``-th number
-    (default the first) of the cells that have one, written with ``format`` (default ``g``).
+    (default the first) of the cells that have one, or their ``sum`` (with ``per: COLUMN``
+    each a percentage of that column's number: counts from rates), written with ``format``
+    (default ``g``).
     """
     text = read(spec['bench'])
     if 'match' in spec:
@@ -425,9 +434,12 @@ def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
     if how == 'cell':
         cell = str(_one([row[columns[0]] for row in rows], 'rows', spec))
         return NUMBER.findall(cell)[part] if 'part' in spec else cell
-    numbers = [float(found[part]) for row in rows for index in columns
-               for found in [NUMBER.findall(row[index])] if len(found) > part]
+    numbers = [float(found[part]) * _share(table, row, spec) for row in rows
+               for index in columns for found in [NUMBER.findall(row[index])]
+               if len(found) > part]
     form = spec.get('format', 'g')
+    if how == 'sum':
+        return format(sum(numbers), form)
     low, high = format(min(numbers), form), format(max(numbers), form)
     size = format(max(abs(number) for number in numbers), form)
     return {'max': high, 'min': low, 'abs': size,
