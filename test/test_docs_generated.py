@@ -142,7 +142,7 @@ def test_every_quoted_number_names_a_committed_table():
                 assert generate_docs.quoted_value(spec, generate_docs.read_bench) == match.group(
                     'body'), (path, match.group('spec'))
                 count += 1
-    assert count >= 40
+    assert count >= 150  # 162 when written: a page that lost its quoting fails here
 
 
 def test_an_empty_cell_keeps_the_columns_in_place():
