@@ -94,8 +94,9 @@ docs: $(STAMP)
 	$(PY) -m sphinx -b html -W --keep-going docs docs/_build/html
 	@echo "the manual: docs/_build/html/index.html"
 
-# The command output and report figures the manual shows, regenerated from the current code
-# (tools/generate_docs.py; test/test_docs_generated.py fails until they are).
+# The command output, report figures and quoted bench numbers the manual shows, regenerated
+# from the current code and bench tables (tools/generate_docs.py; test/test_docs_generated.py
+# fails until they are).
 docs-regenerate: $(STAMP)
 	$(PY) tools/generate_docs.py
 

@@ -10,6 +10,13 @@ same commands without the figures and fails when a page differs from what they p
 when a figure records other numbers than the current output: the manual never shows stale
 output.
 
+Numbers the prose quotes from a committed benchmark table (``bench/*_results.md``) are written
+``<!-- from: SPEC -->number<!-- /from -->`` (:func:`quoted_value` reads SPEC): the generator
+parses the table and fills them in, so a changed table makes the page stale too.  Output of
+runs lasting minutes (the online alarms, the fleet's progress) is quoted from those runs'
+committed results the same way.  A page differing only in the last printed digit of a decimal
+number (a fit on another CPU) is not stale (:func:`same_numbers`).
+
 ``--check`` reports the stale pages without writing (exit 1 when one is stale).
 """
 
@@ -317,8 +324,9 @@ def figure_numbers(result: Mapping) -> dict[str, str]:
 #: <!-- /from -->``, SPEC being ``key: value`` pairs joined by ``;`` (:func:`quoted_value`).
 QUOTED = re.compile(r'<!-- from: (?P<spec>.*?) -->(?P<body>.*?)<!-- /from -->', re.DOTALL)
 BENCH = os.path.join(ROOT, 'bench')
-#: The pages whose quoted numbers are filled in (every page of the manual and the README).
-QUOTING_PAGES = ('README.md', 'docs/*.md', 'docs/*.rst')
+#: The pages whose quoted numbers are filled in (the README and the Markdown pages; the reST
+#: pages have no HTML comments, and architecture.rst shows the syntax).
+QUOTING_PAGES = ('README.md', 'docs/*.md')
 #: A number in a text (a sign only where it does not follow a digit: ``0.7-0.9`` is two).
 NUMBER = re.compile(r'(?<![\d.])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|(?:\d+\.?\d*|\.\d+)')
 #: Printed numbers that differ by at most this relative amount, or by one unit of their last
