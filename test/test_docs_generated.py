@@ -158,3 +158,17 @@ def test_a_count_from_percentages_of_trials():
     spec = generate_docs._spec('bench: x.md; table: T; row: mode = a; column: false; '
                                'value: sum; per: trials; format: .0f')
     assert generate_docs.quoted_value(spec, lambda name: text) == '3'
+
+
+def test_a_fitted_value_rounded_the_other_way_is_not_stale_a_changed_one_is(sessions):
+    """The design example's kp printed one unit off in its last digit passes, 1 % off fails."""
+    page = os.path.join(ROOT, 'docs', 'control_design.md')
+    before, text = generate_docs.regenerate_pages(sessions)[page]
+    assert generate_docs.same_numbers(before, text)
+    printed = next(line for line in text.split('\n') if line.startswith('    # speed PI  kp = '))
+    kp = generate_docs.NUMBER.findall(printed)[0]
+    digits = len(kp.split('.')[1])
+    for shift, same in ((10.0 ** -digits, True), (0.01 * float(kp), False)):
+        other = f'{float(kp) + shift:.{digits}f}'
+        assert generate_docs.same_numbers(
+            before, text.replace(printed, printed.replace(kp, other, 1))) is same, other
