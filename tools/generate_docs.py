@@ -427,6 +427,8 @@ def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
     tables = [t for t in bench_tables(text) if spec['table'] in t.heading]
     if ',' in spec.get('nth', ''):  # several tables of the same layout: their rows together
         tables = [tables[int(n) - 1] for n in spec['nth'].split(',')]
+        if any(t.header != tables[0].header for t in tables):
+            raise RuntimeError(f'{dict(spec)}: the tables have different columns')
         tables = [Table(tables[0].heading, tables[0].header, sum((t.rows for t in tables), []))]
         spec = {key: value for key, value in spec.items() if key != 'nth'}
     table = _one(tables, 'tables', spec)
