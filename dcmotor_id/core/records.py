@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from functools import cached_property
 import os
 from typing import Any, Optional, Sequence, Union
 
@@ -71,9 +72,9 @@ class Record:
     speed_derived: bool = False
     segment: Optional[np.ndarray] = None
 
-    @property
+    @cached_property
     def sample_period_s(self) -> float:
-        """Median sample period [s]."""
+        """Median sample period [s] (computed on first use and kept: a record is frozen)."""
         return float(np.median(np.diff(self.time_s)))
 
     def __len__(self) -> int:

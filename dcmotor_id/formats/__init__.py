@@ -16,23 +16,39 @@ gear), and every record read passes :func:`~dcmotor_id.formats.quality.check_cha
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+import importlib
 import os
-from typing import Optional
+from typing import Any, Optional
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
-from dcmotor_id.formats import bag, csv, mat, parquet, wpilog
 from dcmotor_id.formats.mapping import DEFAULT_OPTIONS, ReadOptions
 from dcmotor_id.formats.paths import check_input_path, same_content, same_file
 from dcmotor_id.formats.quality import check_channels
-from dcmotor_id.formats.registry import (file_suffixes, FileFormat, format_of, FORMATS, register,
-                                         table_reader)
+from dcmotor_id.formats.registry import (file_suffixes, FileFormat, format_of, FORMATS, Reader,
+                                         register, table_reader)
 
-register(FileFormat('bag', ('.mcap', '.db3'), bag.read_bag, directories=True))
-register(FileFormat('mat', ('.mat',), table_reader(mat.read_mat)))
-register(FileFormat('parquet', parquet.PARQUET_SUFFIXES, table_reader(parquet.read_parquet)))
-register(FileFormat('wpilog', wpilog.WPILOG_SUFFIXES, wpilog.read_wpilog))
-register(FileFormat('csv', ('.csv',), table_reader(csv.read_csv), fallback=True))
+
+def _deferred(module: str, name: str, table: bool = False) -> Reader:
+    """
+    Return the reader ``name`` of the format module ``module``, imported when first called.
+
+    A process reads one or two formats: the others' modules (rosbags' message types, the
+    DataLog's stream alignment) are not imported by ``identify`` on a CSV file or in memory.
+    ``table``: ``name`` is a table format's ``read(path, options)`` (:func:`table_reader`).
+    """
+    def reader(path: PathLike, **keywords: Any) -> Record:
+        read = getattr(importlib.import_module(f'{__name__}.{module}'), name)
+        return (table_reader(read) if table else read)(path, **keywords)
+    return reader
+
+
+register(FileFormat('bag', ('.mcap', '.db3'), _deferred('bag', 'read_bag'), directories=True))
+register(FileFormat('mat', ('.mat',), _deferred('mat', 'read_mat', table=True)))
+register(FileFormat('parquet', ('.parquet', '.pq'), _deferred('parquet', 'read_parquet',
+                                                              table=True)))
+register(FileFormat('wpilog', ('.wpilog',), _deferred('wpilog', 'read_wpilog')))
+register(FileFormat('csv', ('.csv',), _deferred('csv', 'read_csv', table=True), fallback=True))
 
 __all__ = ['detect_format', 'file_suffixes', 'FileFormat', 'FORMATS', 'read_record',
            'read_records', 'ReadOptions', 'register']

@@ -294,3 +294,14 @@ def test_input_units_say_from_what_each_channel_was_converted():
     assert duty['factor'] == pytest.approx(24.0 / 255.0)
     counts = ReadOptions(speed_counts_per_rev=2048.0).input_units()['speed']
     assert counts['factor'] is None and '2048 per rev' in counts['given']
+
+
+def test_a_records_sample_period_is_computed_once_and_a_replaced_time_gets_its_own():
+    # The median step of a long record is asked for dozens of times per identify call.
+    t = np.arange(1000) * 1e-3
+    record = Record(t, current=np.zeros(1000), voltage=np.zeros(1000), speed=np.zeros(1000))
+    assert record.sample_period_s == pytest.approx(1e-3)
+    assert vars(record)['sample_period_s'] == record.sample_period_s
+    slower = record.replace(time_s=2.0 * t)
+    assert slower.sample_period_s == pytest.approx(2e-3)
+    assert record.slice(0, 500).sample_period_s == record.sample_period_s

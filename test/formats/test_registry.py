@@ -81,3 +81,27 @@ def test_the_registry_refuses_an_ending_twice_and_two_fallbacks(toy_format):
     with pytest.raises(ValueError, match='lower case with the dot'):
         register(FileFormat('other', ('.OTHER',), toy_format.read))
     assert 'other' not in FORMATS
+
+
+def test_each_format_module_is_imported_when_its_reader_is_first_called():
+    # The registry names the suffixes the format modules define; the modules themselves are
+    # imported by their first read (identify on a CSV file or in memory loads no rosbags).
+    from dcmotor_id.formats import parquet, wpilog
+    assert FORMATS['parquet'].suffixes == parquet.PARQUET_SUFFIXES
+    assert FORMATS['wpilog'].suffixes == wpilog.WPILOG_SUFFIXES
+    code = ('import sys\n'
+            'from dcmotor_id.formats import FORMATS\n'
+            'late = ["bag", "mat", "parquet", "wpilog", "csv"]\n'
+            'print(all("dcmotor_id.formats." + name not in sys.modules for name in late))\n')
+    assert _run_python(code) == 'True'
+
+
+def _run_python(code):
+    """Run ``code`` in a fresh interpreter with this checkout on the path; return its output."""
+    import os
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    env = {**os.environ, 'PYTHONPATH': root}
+    return subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
+                          text=True, check=True, timeout=120).stdout.strip()

@@ -118,6 +118,34 @@ def test_the_regression_replaces_a_fit_that_predicts_the_held_out_part_worse():
     assert 'predicts the held-out part worse' in replaced.warning
 
 
+def test_the_choice_finds_the_held_out_ends_once_and_simulates_each_record_once(monkeypatch):
+    # The fit's and the regression's held-out errors are on the same held-out ends: found once
+    # per record for both (each search filters the speed), and each parameter set is
+    # simulated once per record for every channel (they were found and simulated per channel).
+    from dcmotor_id.identification.estimators.refined import OutputErrorModel
+
+    scenario = lab_scenarios.coloured_disturbance()
+    records = prepare_records(scenario.records)
+    floor = regression_floor(records)
+    truth, states = scenario.truth.as_dict(), first_states(records, False)
+    expected = floor_choice(floor, truth, states, records, None, False)
+    calls = {'stop': 0, 'simulate': 0}
+    stop, simulate = floor_module.excited_stop, OutputErrorModel.simulate
+
+    def counted_stop(*args, **kwargs):
+        calls['stop'] += 1
+        return stop(*args, **kwargs)
+
+    def counted_simulate(self, *args, **kwargs):
+        calls['simulate'] += 1
+        return simulate(self, *args, **kwargs)
+
+    monkeypatch.setattr(floor_module, 'excited_stop', counted_stop)
+    monkeypatch.setattr(OutputErrorModel, 'simulate', counted_simulate)
+    assert floor_choice(floor, truth, states, records, None, False) == expected
+    assert calls == {'stop': len(records), 'simulate': 2 * len(records)}
+
+
 def test_a_record_where_the_motor_never_moves_is_refused_as_before_not_by_the_floor():
     # Zero voltage and noise only: the regression's residuals are about zero; the floor must
     # not end in a ZeroDivisionError before the pipeline's own refusal says what to record.

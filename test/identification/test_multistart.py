@@ -220,3 +220,32 @@ def test_the_start_doubts_state_both_tests_in_one_place(collapsed, monkeypatch):
     assert moved[0].startswith('the misfit is') and 'initial state' in moved[1]
     both = doubts(high, [], far)
     assert both.further_starts == both.second_start and len(both.second_start) == 2
+
+
+def test_a_run_measures_each_channels_noise_once_for_all_its_start_checks(monkeypatch):
+    # The further starts' check and the second start's check judge the misfit on the same
+    # records: the noise (medians of whole records) is measured once per channel.  A check
+    # on other records measures its own.
+    from dcmotor_id.core.model import PAPER_MOTORS
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.simulation import simulate_motor
+
+    t = np.arange(4000) * 1e-3
+    voltage = 60.0 * np.sign(np.sin(2 * np.pi * 1.5 * t)) + 20.0 * np.sin(2 * np.pi * 7 * t)
+    current, speed = simulate_motor(PAPER_MOTORS['paper2'], voltage, 1e-3)
+    rng = np.random.default_rng(1)
+    records = prepare_records([Record(t, current + 0.01 * rng.standard_normal(t.size), voltage,
+                                      speed + 0.1 * rng.standard_normal(t.size))])
+    measured = []
+    level = start_check.noise_level
+    monkeypatch.setattr(start_check, 'noise_level',
+                        lambda values: measured.append(1) or level(values))
+    identify(records, discover=False)
+    assert len(measured) == 2  # current and speed, once for the two start checks
+    noise = start_check.ChannelNoise(records)
+    first = noise.of(records, 'speed')
+    assert noise.of(records, 'speed') == first == start_check.pooled_noise(records, 'speed')
+    assert len(measured) == 4
+    others = [records[0].slice(0, 2000)]
+    assert noise.of(others, 'speed') == start_check.pooled_noise(others, 'speed')
+    assert len(measured) == 6

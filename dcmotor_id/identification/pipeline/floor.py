@@ -352,25 +352,34 @@ def first_states(records: Sequence[Record], mechanical_only: bool) -> list[list[
              for channel in output_channels(mechanical_only)] for rec in records]
 
 
+def heldout_stops(records: Sequence[Record]) -> list[int]:
+    """Return the first held-out sample of each record (:func:`heldout_error`'s ``stops``)."""
+    return [excited_stop(rec) for rec in records]
+
+
 def heldout_error(parameters: dict[str, float], initial_states: Sequence[Sequence[float]],
                   records: Sequence[Record], torque_constant: float | None,
-                  quasi_static: bool, terms: Sequence[ExogenousTerm] = ()) -> float:
+                  quasi_static: bool, terms: Sequence[ExogenousTerm] = (),
+                  stops: Sequence[int] | None = None) -> float:
     """
     Worst channel's NRMSE [%] over the held-out ends of the records (whole record's spread).
 
     The held-out end is the one the discovery loop holds out
     (:func:`~dcmotor_id.identification.discovery.parts.excited_stop`); inf when the
     simulation does not stay finite.  ``terms``: the effect terms of a fit with effects (its
-    ``records`` then those the terms were built on: data effects applied).
+    ``records`` then those the terms were built on: data effects applied).  ``stops``: the
+    records' :func:`heldout_stops`, when the caller has them (else computed here).  Each
+    record is simulated once and its held-out ends found once, for every channel.
     """
     model = OutputErrorModel(records, torque_constant, tuple(terms), quasi_static)
+    stops = heldout_stops(records) if stops is None else stops
+    with np.errstate(all='ignore'):
+        simulated = [model.simulate(parameters, index, np.array(initial_states[index], float))
+                     for index in range(len(records))]
     worst = 0.0
     for channel in model.outputs:
         squares, spread, count = 0.0, 0.0, 0
-        for index, rec in enumerate(records):
-            stop = excited_stop(rec)
-            with np.errstate(all='ignore'):
-                out = model.simulate(parameters, index, np.array(initial_states[index], float))
+        for rec, out, stop in zip(records, simulated, stops):
             measured = np.asarray(getattr(rec, channel), dtype=float)
             residual = np.asarray(out[channel], dtype=float)[stop:] - measured[stop:]
             squares += float(residual @ residual)
@@ -417,15 +426,17 @@ def floor_choice(floor: RegressionFloor, fit_parameters: dict[str, float],
     errors by some per cent; the fit's values were then the better ones).
     """
     mechanical_only = torque_constant is not None
+    stops = heldout_stops(records)
     fit = heldout_error(fit_parameters, fit_states,
                         records if effects is None else effects.records, torque_constant,
-                        quasi_static, () if effects is None else effects.terms)
+                        quasi_static, () if effects is None else effects.terms,
+                        stops if effects is None else None)
     values = {**{name: value for name, value in fit_parameters.items() if '.' not in name},
               **{name: floor.parameters[name] for name in fit_parameters
                  if name in floor.parameters}}
     values['b'], values['Mc'] = max(values['b'], 0.0), max(values['Mc'], 0.0)
     own = heldout_error(values, first_states(records, mechanical_only), records,
-                        torque_constant, quasi_static or floor.static_electrical)
+                        torque_constant, quasi_static or floor.static_electrical, stops=stops)
     if not floor.usable or not (own + FLOOR_MARGIN_PCT < fit and own < FLOOR_RATIO * fit):
         return FloorChoice(False, fit, own, None)
     return FloorChoice(True, fit, own, (
