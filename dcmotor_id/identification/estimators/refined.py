@@ -38,7 +38,8 @@ from dcmotor_id.identification.error_model.criterion import (AR_PASSES, ar_settl
                                                              noise_level, position_ar)
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.identification.estimators.least_squares import (FitProblem,
-                                                                levenberg_marquardt, MISFIT)
+                                                                levenberg_marquardt, MISFIT,
+                                                                nonnegative_lstsq)
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.signals.filters import low_pass, noise_std
@@ -295,7 +296,8 @@ def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004
                 # LAPACK's least-squares solver never returns on an inf or NaN (overflowed
                 # derivatives of extreme values): skip this start point instead
                 raise np.linalg.LinAlgError('non-finite start-point equations')
-            mech = np.linalg.lstsq(np.vstack(rows_m), np.concatenate(rhs_m), rcond=None)[0]
+            mech = nonnegative_lstsq(np.vstack(rows_m), np.concatenate(rhs_m),
+                                     (True, True, True))[0]
             if mechanical_only:
                 values = {'J': mech[0], 'b': mech[1], 'Mc': mech[2]}
             else:
