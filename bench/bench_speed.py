@@ -195,7 +195,7 @@ def plain_child(path):
     begin = time.perf_counter()
     data = np.load(path)
     record = Record(data['t'], data['current'], data['voltage'], data['speed'])
-    start = RefinedEstimator()._start(OutputErrorModel([record]))
+    start = RefinedEstimator()._starts(OutputErrorModel([record]))[0]
     spread_i, spread_w = np.std(record.current), np.std(record.speed)
     dt = record.sample_period_s
 

@@ -28,7 +28,8 @@ from dcmotor_id.formats.bag import BAG_TOPICS, DamagedBagWarning, TruncatedBagWa
 from dcmotor_id.formats.budget import check_budget, set_memory_budget
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.json_file import with_schema_version, write_json
-from dcmotor_id.formats.mapping import (CURRENT_UNITS, output_shaft, parse_assignments,
+from dcmotor_id.formats.mapping import (CURRENT_SIGN_SOURCES, CURRENT_UNITS, output_shaft,
+                                        parse_assignments,
                                         POSITION_UNITS, ReadingNote, ReadOptions,
                                         SIGNED_CHANNELS, SPEED_UNITS)
 from dcmotor_id.formats.paths import check_input_path, check_output_path, is_bag_dir
@@ -268,7 +269,7 @@ def reading_options(args: argparse.Namespace) -> ReadOptions:
         position_unit=args.position_unit, position_counts_per_rev=args.position_counts_per_rev,
         gear_ratio=args.gear_ratio, bus_voltage=args.voltage_from_duty,
         duty_full_scale=args.duty_full_scale, negated=tuple(args.negate or ()),
-        joint=args.joint,
+        current_sign_from=args.current_sign_from, joint=args.joint,
         interfaces=parse_assignments(args.interface, '--interface'),
         sample_period_s=args.sample_period)
 
@@ -305,6 +306,10 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
                        help='flip the sign of a channel (voltage, current, speed, position): '
                             'an encoder counting the other way, a current sensor mounted '
                             'reversed; repeatable')
+    group.add_argument('--current-sign-from', choices=CURRENT_SIGN_SOURCES, metavar='CHANNEL',
+                       help='the current column is a magnitude (the output current of a motor '
+                            'controller): give it the sign of the voltage (a drive that brakes '
+                            'with 0 V logged) or of the speed (a drive that never brakes)')
     group.add_argument('--joint', metavar='NAME',
                        help='bags with control_msgs/msg/DynamicJointState or '
                             'sensor_msgs/msg/JointState: the joint (default: the only one); '

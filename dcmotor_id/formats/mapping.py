@@ -29,6 +29,8 @@ from dcmotor_id.core.records import Record
 CHANNELS = ('t', 'voltage', 'current', 'speed', 'position', 'duty', 'direction', 'segment')
 #: Channels whose sign ``--negate`` flips.
 SIGNED_CHANNELS = ('voltage', 'current', 'speed', 'position')
+#: Channels whose sign ``--current-sign-from`` gives a current logged as a magnitude.
+CURRENT_SIGN_SOURCES = ('voltage', 'speed')
 #: Current units -> factor to A.
 CURRENT_UNITS = {'A': 1.0, 'mA': 1e-3}
 #: Speed units -> factor to rad/s.
@@ -120,6 +122,9 @@ class ReadOptions:
     negated : tuple of str
         Channels (:data:`SIGNED_CHANNELS`) whose sign is flipped: an encoder counting the
         other way, a current sensor mounted the other way round.
+    current_sign_from : str or None
+        The current column is a magnitude (a motor controller's output current): it gets the
+        sign of this channel (:data:`CURRENT_SIGN_SOURCES`; zero where that channel is zero).
     joint : str or None
         Bags with ``control_msgs/msg/DynamicJointState``: the joint to read.
     interfaces : dict
@@ -142,6 +147,7 @@ class ReadOptions:
     bus_voltage: Optional[float] = None
     duty_full_scale: float = 1.0
     negated: tuple[str, ...] = ()
+    current_sign_from: Optional[str] = None
     joint: Optional[str] = None
     interfaces: Mapping[str, str] = field(default_factory=dict)
     sample_period_s: Optional[float] = None
@@ -156,6 +162,9 @@ class ReadOptions:
             if channel not in SIGNED_CHANNELS:
                 raise InputDataError(f'--negate {channel}: choose one of '
                                      f'{", ".join(SIGNED_CHANNELS)}')
+        if self.current_sign_from not in (None,) + CURRENT_SIGN_SOURCES:
+            raise InputDataError(f'--current-sign-from {self.current_sign_from}: choose one of '
+                                 f'{", ".join(CURRENT_SIGN_SOURCES)}')
         for unit, units, option in ((self.current_unit, CURRENT_UNITS, '--current-unit'),
                                     (self.speed_unit, SPEED_UNITS, '--speed-unit'),
                                     (self.position_unit, POSITION_UNITS, '--position-unit')):
@@ -219,6 +228,8 @@ class ReadOptions:
                 units[channel]['given'] += f' at the output of a {gear:g}:1 gear'
         for channel in self.negated:
             units[channel]['negated'] = True
+        if self.current_sign_from is not None:
+            units['current']['sign_from'] = self.current_sign_from
         return units
 
     @property
@@ -283,8 +294,7 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
     """
     Build a record in SI units at the motor shaft from raw columns by channel.
 
-    The arrays may be modified in place (readers hand over arrays they own, so that a large
-    file is not copied again).
+    The arrays may be modified in place (readers hand over arrays they own).
 
     Parameters
     ----------
@@ -336,8 +346,23 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
             factor = SPEED_UNITS[options.speed_unit]
         speed = scaled('speed', factor * options.gear_ratio * sign('speed'))
     position = scaled('position', options.position_factor * sign('position'))
+    current = _signed_current(current, {'voltage': voltage, 'speed': speed}, options, source)
     return Record(np.asarray(time_s, dtype=float), current, voltage, speed, position, source,
                   segment=_segment(columns.get('segment'), options, source))
+
+
+def _signed_current(current: Optional[np.ndarray], signs: Mapping[str, Optional[np.ndarray]],
+                    options: ReadOptions, source: str) -> Optional[np.ndarray]:
+    """Give a current logged as a magnitude the sign of ``options.current_sign_from``."""
+    channel = options.current_sign_from
+    if channel is None or current is None:
+        return current
+    reference = signs[channel]
+    if reference is None:
+        raise InputDataError(f'{source}: --current-sign-from {channel}: the record has no '
+                             f'{channel} column; map it with --column {channel}=NAME, or take '
+                             f'the sign from the other channel')
+    return np.abs(current) * np.sign(np.asarray(reference, dtype=float))
 
 
 def _segment(values: Optional[np.ndarray], options: ReadOptions,

@@ -269,9 +269,9 @@ def magnitude_current(record: Record) -> Optional[str]:
     return (f'{record.source}: the current never reads below 0 while the speed runs both '
             f'ways ({float(np.min(speed)):.4g} to {float(np.max(speed)):.4g} rad/s): if it is '
             "a magnitude (a motor controller's output current), give it the sign of the torque "
-            'before fitting (where the drive never brakes, the sign of the speed; docs/'
-            'formats.md, "The current as a magnitude"); fitted as it is, a braking reads as '
-            'a drive')
+            'before fitting: --current-sign-from voltage, or --current-sign-from speed where '
+            'the drive never brakes (docs/formats.md, "The current as a magnitude"); fitted as '
+            'it is, a braking reads as a drive')
 
 
 #: The checks in the order they are applied.

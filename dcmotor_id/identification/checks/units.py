@@ -105,11 +105,25 @@ def sign_problem(records: Sequence[Any], torque_constant: float | None = None) -
         return None
     if not _consistent_when_negated(records, torque_constant, reversed_channel):
         return None
+    if reversed_channel == 'current' and _magnitude(records):
+        return (f'the current looks reversed against the other channels ({seen}), and it never '
+                'reads below 0 while the speed runs both ways: it is logged as a magnitude (a '
+                "motor controller's output current), which negating does not mend; give it the "
+                'sign of the voltage with --current-sign-from voltage (or of the speed, '
+                '--current-sign-from speed, where the drive never brakes), or leave the current '
+                'out (voltage and speed alone give kS, kV, kA)')
     speed_note = (' (or --negate position, when the speed is derived from it)'
                   if reversed_channel == 'speed' else '')
     return (f'the {reversed_channel} looks reversed against the other channels: a regression '
             f'on the data gives {seen}, where a motor has them positive; flip its sign with '
             f'--negate {reversed_channel}{speed_note}')
+
+
+def _magnitude(records: Sequence[Any]) -> bool:
+    """Whether the current never reads below zero while the speed runs both ways."""
+    current = np.concatenate([np.asarray(rec.current, dtype=float) for rec in records])
+    speed = np.concatenate([np.asarray(rec.speed, dtype=float) for rec in records])
+    return bool(current.min() >= 0.0 and speed.min() < 0.0 < speed.max())
 
 
 def _consistent_when_negated(records: Sequence[Any], torque_constant: float | None,

@@ -228,11 +228,12 @@ class FitProblem:
                     return result
                 return _numeric_pass(lambda point, only=None: self.residual(point, noise, only),
                                      z, self.model, noise, with_sens, len(self.names))
-        except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError) as error:
+        except (ZeroDivisionError, OverflowError, FloatingPointError, ValueError):
             # A parameter ran to zero or infinity on the way (the simulation kernels raise
-            # on a division by zero): the data do not fit this model.
-            raise FitError(f'the output-error fit diverged ({diverged(error)}): '
-                           + MISFIT) from None
+            # on a division by zero): an infinite cost, which the search rejects as a step
+            # (as scipy's trust-region solvers do with a non-finite trial) and
+            # :func:`levenberg_marquardt` refuses at the start.
+            return _Pass(np.inf)
 
     def estimate(self, method: str, z: np.ndarray, final: Any,
                  noise: list[dict[str, float]], nfev: int) -> Estimate:
@@ -394,6 +395,29 @@ def _numeric_pass(residual, z, model, noise, with_sens, n_shared):
     scores = block_scores(r, jac, [len(rec) for rec in model.records], len(model.outputs))
     return _Pass(cost, jac.T @ jac, jac.T @ r, sums, scores['block_scores'],
                  scores['block_record'], record_normal=scores.get('record_normal_matrices'))
+
+
+def nonnegative_lstsq(matrix: np.ndarray, rhs: np.ndarray,
+                      signed: Sequence[bool]) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Least squares with the ``signed`` coefficients at least zero (physical admissibility).
+
+    Returns ``(solution, held)``: the unconstrained solution where it is admissible (``held``
+    all False), else scipy's bounded ``lsq_linear`` on unit-norm columns with ``held`` marking
+    the coefficients it holds at zero.  An equation-error regression of a single step (one
+    speed level, a spin-up the filtered derivative smears) can put J or b below zero, which
+    taking magnitudes would turn into a start far from the data.
+    """
+    solution = np.linalg.lstsq(matrix, rhs, rcond=None)[0]
+    sign_bound = np.asarray(signed, dtype=bool)
+    if np.all(solution[sign_bound] >= 0.0):
+        return solution, np.zeros(solution.shape[0], dtype=bool)
+    from scipy.optimize import lsq_linear  # lazily: most records never need the bounds
+    norms = np.sqrt(np.einsum('ij,ij->j', matrix, matrix))
+    norms = np.where(norms > 0.0, norms, 1.0)
+    lower = np.where(sign_bound, 0.0, -np.inf)
+    bounded = lsq_linear(matrix / norms, rhs, bounds=(lower, np.inf))
+    return bounded.x / norms, bounded.active_mask != 0
 
 
 def levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8,

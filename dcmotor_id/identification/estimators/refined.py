@@ -38,7 +38,8 @@ from dcmotor_id.identification.error_model.criterion import (AR_PASSES, ar_settl
                                                              noise_level, position_ar)
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm, StateTerm
 from dcmotor_id.identification.estimators.least_squares import (FitProblem,
-                                                                levenberg_marquardt, MISFIT)
+                                                                levenberg_marquardt, MISFIT,
+                                                                nonnegative_lstsq)
 from dcmotor_id.identification.estimators.normal_equations import NormalEquations
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.signals.filters import low_pass, noise_std
@@ -58,6 +59,8 @@ STATE_OVERSAMPLE = 2
 START_SAMPLES = 250_000
 #: Windows per record of the start-point search on long records.
 START_WINDOWS = 5
+#: Start points tried, best first, while the fit from the one before fails (no convergence).
+START_TRIES = 3
 
 
 class OutputErrorModel:
@@ -295,17 +298,22 @@ def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004
                 # LAPACK's least-squares solver never returns on an inf or NaN (overflowed
                 # derivatives of extreme values): skip this start point instead
                 raise np.linalg.LinAlgError('non-finite start-point equations')
-            mech = np.linalg.lstsq(np.vstack(rows_m), np.concatenate(rhs_m), rcond=None)[0]
-            if mechanical_only:
-                values = {'J': mech[0], 'b': mech[1], 'Mc': mech[2]}
-            else:
+            matrix, rhs = np.vstack(rows_m), np.concatenate(rhs_m)
+            free = np.linalg.lstsq(matrix, rhs, rcond=None)[0]
+            # Where the free solution puts J, b or Mc below zero, the bounded one is a
+            # candidate too (taking magnitudes can start far from the data).
+            bounded, held = nonnegative_lstsq(matrix, rhs, (True, True, True))
+            mechs = [free] + ([bounded] if held.any() else [])
+            cphi = 1.0
+            electrical: dict[str, float] = {}
+            if not mechanical_only:
                 la, ra, cphi = np.linalg.lstsq(np.vstack(rows_e), np.concatenate(rhs_e),
                                                rcond=None)[0]
-                values = {'Ra': ra, 'La': la, 'CPhi': cphi, 'J': mech[0] * cphi,
-                          'b': mech[1] * cphi, 'Mc': mech[2] * cphi}
+                electrical = {'Ra': ra, 'La': la, 'CPhi': cphi}
         except np.linalg.LinAlgError:
             continue
-        candidates.append(values)
+        candidates.extend({**electrical, 'J': mech[0] * cphi, 'b': mech[1] * cphi,
+                           'Mc': mech[2] * cphi} for mech in mechs)
     return candidates
 
 
@@ -420,9 +428,17 @@ class RefinedEstimator:
         warm_ar = self.position_ar if position_ar is None else position_ar
         if warm_ar is not None and len(warm_ar) == len(records):
             model.position_ar = [float(value) for value in warm_ar]
-        problem = FitProblem(model, self._start(model), initial_state, self.initial_states,
-                             self.progress, has_analytic_sensitivities(model))
-        z, final, noise, total_nfev = self._passes(problem, max_nfev)
+        failure = None
+        for start in self._starts(model)[:START_TRIES]:
+            problem = FitProblem(model, start, initial_state, self.initial_states,
+                                 self.progress, has_analytic_sensitivities(model))
+            try:
+                z, final, noise, total_nfev = self._passes(problem, max_nfev)
+                break
+            except FitError as error:  # the next start, as a user would try one
+                failure = failure or error
+        else:
+            raise failure or FitError('no start point for the output-error fit: ' + MISFIT)
         values = problem.unpack(z)[0]
         degenerate = [name for name in model.base_names if not np.isfinite(values[name])
                       or (name in POSITIVE_NAMES and not 1e-200 < values[name] < 1e200)]
@@ -483,10 +499,10 @@ class RefinedEstimator:
                            'evaluations is exceeded): ' + MISFIT)
         return z, current, noise, total_nfev
 
-    def _start(self, model):
-        """Pick the start with the lowest simulation error among the candidates."""
+    def _starts(self, model):
+        """Return the admissible start candidates, lowest simulation error first."""
         if self.initial is not None:
-            return {name: float(self.initial[name]) for name in model.base_names}
+            return [{name: float(self.initial[name]) for name in model.base_names}]
         records, constant = model.records, model.torque_constant
         if not model.terms and sum(len(rec) for rec in records) > START_SAMPLES:
             # A start point needs seconds of data, not hours: windows spread over each record
@@ -500,29 +516,33 @@ class RefinedEstimator:
             candidates.append({name: paper[name] for name in model.base_names})
         except (FitError, ZeroDivisionError, FloatingPointError, np.linalg.LinAlgError):
             pass
-        best, best_cost = None, np.inf
         zero_terms = {term.name: term.initial for term in model.terms}
+        scored = []
         for candidate in candidates:
             admissible = make_admissible(candidate)
-            if admissible is None:
-                continue
-            values = {**admissible, **zero_terms}
-            cost = 0.0
-            with np.errstate(all='ignore'):
-                for index, rec in enumerate(records):
-                    state = [float(getattr(rec, channel)[0]) for channel in model.states]
-                    out = model.simulate(values, index, state)
-                    for channel in model.outputs:
-                        measured = getattr(rec, channel)
-                        error = np.mean((out[channel] - measured) ** 2) / max(
-                            np.var(measured), 1e-300)
-                        cost += error if np.isfinite(error) else np.inf
-            if cost < best_cost:
-                best, best_cost = admissible, cost
-        if best is None:
+            if admissible is not None:
+                cost = _start_cost(model, records, {**admissible, **zero_terms})
+                if np.isfinite(cost):
+                    scored.append((cost, len(scored), admissible))
+        if not scored:
             raise FitError('no admissible start point for the output-error fit: the data do '
                            'not look like a DC motor (check signs and units of the columns)')
-        return best
+        return [admissible for _, _, admissible in sorted(scored)]
+
+
+def _start_cost(model: OutputErrorModel, records: Sequence[Any],
+                values: Mapping[str, float]) -> float:
+    """Return a start point's simulation error (sum of the channels' NRMSE squared)."""
+    cost = 0.0
+    with np.errstate(all='ignore'):
+        for index, rec in enumerate(records):
+            state = [float(getattr(rec, channel)[0]) for channel in model.states]
+            out = model.simulate(values, index, state)
+            for channel in model.outputs:
+                measured = getattr(rec, channel)
+                error = np.mean((out[channel] - measured) ** 2) / max(np.var(measured), 1e-300)
+                cost += error if np.isfinite(error) else np.inf
+    return float(cost)
 
 
 def _update_position_ar(model: OutputErrorModel, values: Mapping[str, float],

@@ -41,6 +41,7 @@ from dcmotor_id.identification.checks.start import (both_directions, correlation
 from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm
+from dcmotor_id.identification.estimators.least_squares import nonnegative_lstsq
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.pipeline.fit_outcome import simulation_errors
 from dcmotor_id.identification.pipeline.run import identify_checked
@@ -150,6 +151,33 @@ def _solve(matrix: np.ndarray, rhs: np.ndarray,
     return EquationFit(dict(zip(names, map(float, solution))),
                        dict(zip(names, map(float, stderr))),
                        float(np.sqrt(np.mean(residual ** 2))), float(effective))
+
+
+def _solve_admissible(matrix: np.ndarray, rhs: np.ndarray,
+                      names: Sequence[str]) -> EquationFit | None:
+    """
+    Solve the mechanical equation by least squares with J, b and Mc at least zero.
+
+    Where the unconstrained solution gives one of them below zero (a spin-up the filtered
+    derivative smears, one speed level that cannot separate b from Mc), the bounded problem is
+    solved (:func:`~dcmotor_id.identification.estimators.least_squares.nonnegative_lstsq`) and
+    the columns it holds at zero are left out: the others and their standard errors are the
+    least squares without them, the held ones are 0 with no standard error
+    (:func:`_floor_values` names them).
+    """
+    free = _solve(matrix, rhs, names)
+    signed = [name != 'offset' for name in names]
+    if free is None or all(free.values[name] >= 0.0 for name, sign in zip(names, signed)
+                           if sign):
+        return free
+    held = nonnegative_lstsq(matrix, rhs, signed)[1]
+    keep = [index for index in range(len(names)) if not held[index]]
+    reduced = _solve(matrix[:, keep], rhs, [names[index] for index in keep]) if keep else None
+    if reduced is None:
+        return None
+    values = {name: reduced.values.get(name, 0.0) for name in names}
+    stderr = {name: reduced.stderr.get(name, float('nan')) for name in names}
+    return EquationFit(values, stderr, reduced.residual_rms, reduced.effective_samples)
 
 
 def ramp_samples(records: Sequence[Record]) -> list[np.ndarray]:
@@ -308,7 +336,7 @@ def regression_floor(records: Sequence[Record],
     electrical, static, bound = (None, False, None) if mechanical_only else _electrical(
         rows_e, rhs_e, records[0].sample_period_s)
     names = ('J', 'b', 'Mc') + (('offset',) if offset else ())
-    mechanical = _solve(np.vstack(rows_m), np.concatenate(rhs_m), names)
+    mechanical = _solve_admissible(np.vstack(rows_m), np.concatenate(rhs_m), names)
     if mechanical is None or (not mechanical_only and electrical is None):
         return None
     parameters, stderr = _combined(electrical, mechanical)
@@ -475,9 +503,10 @@ def _floor_values(floor: RegressionFloor, names: Sequence[str]
     stderr = {name: float(floor.stderr.get(name, np.nan)) for name in names}
     reasons: dict[str, str] = {}
     for name in ('b', 'Mc'):
-        if name in values and not values[name] >= 0.0:
-            reasons[name] = (f'the regression gives {name} = {values[name]:.3g} (below zero): '
-                             'the data do not separate it (one direction or one speed level)')
+        if name in values and not values[name] > 0.0:
+            reasons[name] = (f'the regression holds {name} at zero (unconstrained it would '
+                             'fall below zero): the data do not separate it (one direction or '
+                             'one speed level)')
             values[name], stderr[name] = 0.0, float('nan')
     if floor.static_electrical and 'La' in values:
         reasons['La'] = (f'the electrical equation shows no La the data resolve: La < '
