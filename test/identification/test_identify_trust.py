@@ -328,3 +328,19 @@ def test_correlations_stay_within_one_when_a_parameter_sits_at_its_bound():
     healthy = sandwich[:2, :2]
     expected = healthy / np.sqrt(np.outer(np.diag(healthy), np.diag(healthy)))
     assert np.allclose(correlation_of(healthy), expected, atol=1e-12)
+
+
+def test_a_speed_derived_from_the_position_is_not_compared_at_the_first_instant():
+    # A step from rest: the derived speed's filter reads 7.5 rad/s at t = 0 where the motor
+    # stood still; the fitted initial speed 0 was warned as "2539 noise levels" away.
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.checks.identifiability import initial_state_warnings
+    t = np.arange(200) * 2e-3
+    speed = 7.5 + 50.0 * t + np.random.default_rng(1).normal(0.0, 1e-3, t.shape)
+    current = np.full(t.shape, 1.0)
+    estimate = SimpleNamespace(initial_states=[[1.0, 0.0]])
+    measured = Record(t, current=current, voltage=np.full(t.shape, 6.0), speed=speed)
+    derived = measured.replace(position=np.cumsum(speed) * 2e-3, speed_derived=True)
+    assert any('initial speed' in text for text in
+               initial_state_warnings(estimate, [measured], ('current', 'speed')))
+    assert initial_state_warnings(estimate, [derived], ('current', 'speed')) == []

@@ -238,10 +238,17 @@ def correlated_pairs(estimate: Any, skip: Sequence[str] = ()) -> list[str]:
 
 def initial_state_warnings(estimate: Any, records: Sequence[Any],
                            outputs: Sequence[str]) -> list[str]:
-    """Return warnings for estimated initial states far from the records' first samples."""
+    """
+    Return warnings for estimated initial states far from the records' first samples.
+
+    A speed derived from the position is no measurement of the first instant (its filter
+    spreads a step from rest over the first samples): it is not compared.
+    """
     out = []
     for index, (rec, state) in enumerate(zip(records, estimate.initial_states)):
         for channel, value in zip(outputs, state):
+            if channel == 'speed' and getattr(rec, 'speed_derived', False):
+                continue
             measured = np.asarray(getattr(rec, channel), dtype=float)
             noise = max(noise_level(measured), 1e-12)
             first = float(measured[0])
