@@ -61,3 +61,15 @@ def test_a_quantised_speed_at_rest_has_no_transients():
 def test_a_speed_derived_from_a_position_is_not_judged():
     record = _steps(0.0, 0.05).replace(speed_derived=True)
     assert accelerating_decay([record]) is None
+
+
+def test_an_encoders_jitter_up_and_back_is_no_transient():
+    # The HSM150 servo's speed at 1 kHz: a quantised level with a few counts' jitter up and
+    # back over one or two samples (taken for 10-56 transients settling at once before).
+    rng = np.random.default_rng(3)
+    speed = np.full(20000, -231.85) + 0.628 * rng.integers(-1, 2, 20000) * (
+        rng.uniform(size=20000) < 0.3)
+    for start in range(100, 20000, 400):
+        speed[start:start + 2] += 0.628 * np.array([-3.0, 4.0])
+    record = Record(np.arange(20000) * 1e-3, current=np.zeros(20000), speed=speed)
+    assert accelerating_decay([record]) is None

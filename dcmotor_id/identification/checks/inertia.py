@@ -58,7 +58,8 @@ def accelerating_decay(records: Sequence[Record]) -> Decay | None:
     position's noise, not white).  The increments' noise is the speed's
     (:func:`~dcmotor_id.signals.filters.noise_std`) times sqrt(2), at least the speed's
     resolution (its smallest nonzero increment); a peak is a local maximum of the increments'
-    magnitude above :data:`TRANSIENT_SIGMAS` of that noise.
+    magnitude above :data:`TRANSIENT_SIGMAS` of that noise where the speed changes its level
+    too (:func:`_new_level`: an encoder's speed jittering up and back is no transient).
     """
     num = den = noise_sum = 0.0
     peaks = 0
@@ -67,12 +68,14 @@ def accelerating_decay(records: Sequence[Record]) -> Decay | None:
             continue
         speed = np.asarray(record.speed, dtype=float)
         step = np.diff(speed)
-        moved = np.abs(step[step != 0.0])
-        noise = max(math.sqrt(2.0) * noise_std(speed), float(moved.min()) if moved.size else 0.0)
         size = np.abs(step)
+        moved = size[size > 1e-9 * float(size.max())]
+        noise = max(math.sqrt(2.0) * noise_std(speed), float(moved.min()) if moved.size else 0.0)
         inner = size[1:-1]
         peak = np.flatnonzero((inner > TRANSIENT_SIGMAS * noise) & (inner >= size[:-2])
                               & (inner > size[2:])) + 1
+        peak = peak[[_new_level(speed, int(k), TRANSIENT_SIGMAS * noise) for k in peak]] \
+            if peak.size else peak
         num += float(np.sum(step[peak + 1] * step[peak]))
         den += float(np.sum(step[peak] ** 2))
         noise_sum += float(np.sum(noise ** 2 * step[peak] ** 2))
@@ -82,6 +85,18 @@ def accelerating_decay(records: Sequence[Record]) -> Decay | None:
     ratio = num / den
     dt = records[0].sample_period_s
     return Decay(ratio, math.sqrt(noise_sum) / den, _time_constant(ratio, dt), peaks)
+
+
+def _new_level(speed: np.ndarray, k: int, threshold: float) -> bool:
+    """
+    Whether the speed holds a new level after increment ``k``: medians of three samples.
+
+    The median of the three samples after the increment against that of the three up to it
+    (a median of three passes over a one- or two-sample spike).
+    """
+    after = speed[k + 1:k + 4]
+    before = speed[max(k - 2, 0):k + 1]
+    return bool(abs(float(np.median(after)) - float(np.median(before))) > threshold)
 
 
 def _time_constant(ratio: float, dt: float) -> float:
