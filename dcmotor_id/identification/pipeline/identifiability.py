@@ -12,13 +12,12 @@ correlations, initial states, misfit).
 from __future__ import annotations
 
 from dataclasses import replace
-import math
 
 from dcmotor_id.core.model import POSITIVE_NAMES
 from dcmotor_id.identification.checks.answer import answer_warnings, FinalFit
 from dcmotor_id.identification.checks.identifiability import (at_bound, loose,
                                                               one_direction_note)
-from dcmotor_id.identification.checks.inertia import (accelerating_decay, inertia_reason,
+from dcmotor_id.identification.checks.inertia import (inertia_half_range, inertia_reason,
                                                       inertia_unresolved)
 from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.pipeline.state import Answer, Inputs
@@ -63,18 +62,17 @@ def unresolved_inertia(inputs: Inputs, answer: Answer, stderr: dict[str, float])
     """
     Say why J is not determined when the current is the input and the speed settles in a sample.
 
-    J's standard error in ``stderr`` is raised to the half range of the accelerating torque's
-    area the samples leave (NaN when its transients are gone within one sample).  None: the
-    full model (the voltage is the input), no transients, or J resolved.
+    The test of :func:`~dcmotor_id.identification.checks.inertia.inertia_half_range`; J's
+    standard error in ``stderr`` is raised to the half range at its upper bound.  None: the
+    full model (the voltage is the input), no measured speed, or J resolved.
     """
     if not inputs.mechanical_only or not answer.fitted_records:
         return None
-    dt = answer.fitted_records[0].sample_period_s
-    decay = accelerating_decay(answer.fitted_records)
-    half = inertia_unresolved(decay, dt)
-    if decay is None or half is None:
+    constant = inputs.torque_constant or 1.0
+    half = inertia_half_range(answer.fitted_records, answer.parameters['b'] / constant)
+    if half is None or not inertia_unresolved(half):
         return None
     j = answer.parameters['J']
-    spread = half * abs(j) if math.isfinite(half) else float('nan')
-    stderr['J'] = max(stderr['J'], spread) if math.isfinite(spread) else spread
-    return inertia_reason(decay, dt, j, stderr['J'])
+    stderr['J'] = max(stderr['J'], half.upper * abs(j))
+    return inertia_reason(half, answer.fitted_records[0].sample_period_s, constant, j,
+                          stderr['J'])
