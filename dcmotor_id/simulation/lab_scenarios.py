@@ -602,8 +602,31 @@ def amplifier_ramp_step(seed: int = 0, sample_period_s: float = 2e-3, level_v: f
                     note=f'logged voltage constant from t = 0, applied ramp over {ramp_s:g} s')
 
 
+def amplifier_ramp_mid_step(seed: int = 0, sample_period_s: float = 2e-3,
+                            ramp_s: float = 0.036) -> Scenario:
+    """
+    Simulate logged voltage steps of which the middle one reaches the motor as a ramp.
+
+    The motor of :func:`amplifier_ramp_step`; the log reads 4 V from t = 0, 8 V from 0.5 s and
+    -6 V from 1.2 s (2 s).  The first and last steps reach the motor at once; from 0.5 s the
+    amplifier slews to 8 V over ``ramp_s``.
+    """
+    rng = np.random.default_rng(seed)
+    truth = MotorParameters(Ra=9.5, La=2.0e-3, CPhi=0.0634, J=4.0e-5, b=2.0e-6, Mc=1.0e-3)
+    t = np.arange(int(round(2.0 / sample_period_s))) * sample_period_s
+    logged = np.where(t < 0.5, 4.0, np.where(t < 1.2, 8.0, -6.0))
+    applied = np.where((t >= 0.5) & (t < 1.2),
+                       np.minimum(4.0 + 4.0 * (t - 0.5 + sample_period_s) / ramp_s, 8.0), logged)
+    out = simulate_drive(truth, applied, sample_period_s)
+    record = Record(t, current=_noisy(out['current'], 0.002, rng), voltage=logged,
+                    speed=_noisy(out['speed'], 0.3, rng), source='amplifier_ramp_mid_step')
+    return Scenario('amplifier_ramp_mid_step', [record], truth,
+                    note=f'logged steps at 0, 0.5 and 1.2 s; the one at 0.5 s a {ramp_s:g} s ramp')
+
+
 SCENARIOS.update({'small_motor_encoder_500hz': small_motor_encoder_500hz,
-                  'amplifier_ramp_step': amplifier_ramp_step})
+                  'amplifier_ramp_step': amplifier_ramp_step,
+                  'amplifier_ramp_mid_step': amplifier_ramp_mid_step})
 
 
 #: A geared hobby servo's motor seen at the output shaft (gear 1:50 folded into CPhi and J).
