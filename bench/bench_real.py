@@ -1171,8 +1171,10 @@ def wheels_runs(path: str, cache: str) -> tuple[list[Run3], list[dict[str, Any]]
             'the sign of the speed before fitting (`process_identification_dataset.m`): rows '
             '"sign of speed" do the same.  The speed reaches each new set-point within one '
             '30 ms sample (0 to 17-20 rad/s from one sample to the next), so no J is '
-            "determined by this log: neither the authors' nor the tool's (whose 17-20 % "
-            "standard error on J does not say so), nor the regression's.")
+            "determined by this log: neither the authors' nor the regression's, nor the "
+            "tool's, which says so (J not determined: J with the current at the start and at "
+            'the end of each sample differs by 80-115 % (bench/inertia_results.md); its '
+            "standard error that half range's upper bound, 100-160 % of J).")
     runs = []
     for number in ('1st', '2nd', '3rd'):
         columns = {'speed': f'{number} motor velocity', 'current': f'{number} motor current'}

@@ -626,9 +626,32 @@ def small_motor_step_encoder_speed(seed: int = 0, sample_period_s: float = 1e-3,
                     note=f'{level_v:g} V from rest, {counts_per_rev}-count encoder speed')
 
 
+def amplifier_ramp_mid_step(seed: int = 0, sample_period_s: float = 2e-3,
+                            ramp_s: float = 0.036) -> Scenario:
+    """
+    Simulate logged voltage steps of which the middle one reaches the motor as a ramp.
+
+    The motor of :func:`amplifier_ramp_step`; the log reads 4 V from t = 0, 8 V from 0.5 s and
+    -6 V from 1.2 s (2 s).  The first and last steps reach the motor at once; from 0.5 s the
+    amplifier slews to 8 V over ``ramp_s``.
+    """
+    rng = np.random.default_rng(seed)
+    truth = MotorParameters(Ra=9.5, La=2.0e-3, CPhi=0.0634, J=4.0e-5, b=2.0e-6, Mc=1.0e-3)
+    t = np.arange(int(round(2.0 / sample_period_s))) * sample_period_s
+    logged = np.where(t < 0.5, 4.0, np.where(t < 1.2, 8.0, -6.0))
+    applied = np.where((t >= 0.5) & (t < 1.2),
+                       np.minimum(4.0 + 4.0 * (t - 0.5 + sample_period_s) / ramp_s, 8.0), logged)
+    out = simulate_drive(truth, applied, sample_period_s)
+    record = Record(t, current=_noisy(out['current'], 0.002, rng), voltage=logged,
+                    speed=_noisy(out['speed'], 0.3, rng), source='amplifier_ramp_mid_step')
+    return Scenario('amplifier_ramp_mid_step', [record], truth,
+                    note=f'logged steps at 0, 0.5 and 1.2 s; the one at 0.5 s a {ramp_s:g} s ramp')
+
+
 SCENARIOS.update({'small_motor_encoder_500hz': small_motor_encoder_500hz,
                   'small_motor_step_encoder_speed': small_motor_step_encoder_speed,
-                  'amplifier_ramp_step': amplifier_ramp_step})
+                  'amplifier_ramp_step': amplifier_ramp_step,
+                  'amplifier_ramp_mid_step': amplifier_ramp_mid_step})
 
 
 #: A geared hobby servo's motor seen at the output shaft (gear 1:50 folded into CPhi and J).
@@ -744,10 +767,13 @@ def rig_square_wave_no_current(seed: int = 0, sample_period_s: float = 2e-3,
 
 #: A robot's wheel motor (24 V class) with the wheel at its shaft.
 WHEEL_MOTOR = MotorParameters(Ra=5.95, La=8.9e-3, CPhi=0.0514, J=2e-5, b=2.4e-5, Mc=0.008)
+#: The wheel motor's inertia by the log's authors (greyest): the speed settles within 3 ms.
+WHEEL_J_AUTHORS = 1.1407e-6
 
 
 def wheel_speed_steps_current_magnitude(seed: int = 0, sample_period_s: float = 0.03,
-                                        signed: bool = False) -> Scenario:
+                                        signed: bool = False,
+                                        motor: MotorParameters = WHEEL_MOTOR) -> Scenario:
     """
     Simulate a robot's wheel motor under speed steps both ways, the current logged unsigned.
 
@@ -755,18 +781,20 @@ def wheel_speed_steps_current_magnitude(seed: int = 0, sample_period_s: float = 
     as a magnitude every 30 ms (a ``--torque-constant`` record).  The current never reads
     negative while the speed reverses: fitted as logged the model cannot follow it (refused at
     a simulation error of 97-100 %).  ``signed``: the current with its sign, as the authors
-    restore it.
+    restore it.  ``motor``: the motor; with the authors' J (:data:`WHEEL_J_AUTHORS`) the speed
+    settles within one sample as on the log (the default's mechanical time constant is about
+    1.4 samples).
     """
     rng = np.random.default_rng(seed)
     levels = [1.5, -1.5, 3.0, -3.0, 4.5, -4.5, 0.0, 6.0, -6.0, 0.0]
     command = step_levels(levels, 3.0, sample_period_s)
-    out = simulate_drive(WHEEL_MOTOR, command, sample_period_s)
+    out = simulate_drive(motor, command, sample_period_s)
     current = _noisy(out['current'], 0.01, rng)
     record = Record(np.arange(command.shape[0]) * sample_period_s,
                     current=current if signed else np.abs(current),
                     speed=_noisy(out['speed'], 0.5, rng), source='wheel_speed_steps')
-    return Scenario('wheel_speed_steps_current_magnitude', [record], WHEEL_MOTOR,
-                    torque_constant=WHEEL_MOTOR.CPhi,
+    return Scenario('wheel_speed_steps_current_magnitude', [record], motor,
+                    torque_constant=motor.CPhi,
                     note='voltage steps both ways, 30 ms, speed and the current as a magnitude')
 
 

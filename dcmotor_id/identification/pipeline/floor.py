@@ -36,6 +36,8 @@ import numpy as np
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (DERIVED_NAMES, derived_values, MECHANICAL_NAMES,
                                    PARAMETER_NAMES, UNITS)
+from dcmotor_id.identification.checks.identifiability import limited_samples
+from dcmotor_id.identification.checks.ramp import ramp_masks
 from dcmotor_id.identification.checks.start import (both_directions, correlation_time,
                                                     regression_rows)
 from dcmotor_id.identification.discovery.parts import excited_stop
@@ -183,6 +185,22 @@ def _solve_admissible(matrix: np.ndarray, rhs: np.ndarray,
 def ramp_samples(records: Sequence[Record]) -> list[np.ndarray]:
     """
     Per record, the samples after a step where the logged voltage did not reach the motor.
+
+    Those after a step at the record's start (:func:`start_ramp_samples`) and those after any
+    step by the one-step test of the electrical equation
+    (:func:`~dcmotor_id.identification.checks.ramp.ramp_masks`; steps into a current limit
+    are the limit's).
+    """
+    starts = start_ramp_samples(records)
+    limited = limited_samples(records) if all(rec.current is not None for rec in records) \
+        else None
+    after = ramp_masks(records, _step_starts, limited)
+    return [first | later for first, later in zip(starts, after)]
+
+
+def start_ramp_samples(records: Sequence[Record]) -> list[np.ndarray]:
+    """
+    Per record, the samples after a step at its start where the voltage did not reach the motor.
 
     The electrical equation ``u = Ra i + La di/dt + CPhi w`` is fitted on the raw samples
     (twice, the second time without the outliers of the first); a run of at least
@@ -476,24 +494,43 @@ def floor_choice(floor: RegressionFloor, fit_parameters: dict[str, float],
 def trimmed_records(records: Sequence[Record],
                     floor: RegressionFloor | None) -> tuple[list[Record], list[str]]:
     """
-    Cut the left-out samples at the start of a record (a ramp after the first step).
+    Cut the left-out samples out of the records (a ramp after a step).
 
-    Returns the records and a warning naming every left-out stretch (empty when none): those
-    at a record's start are cut for every fit, the others only left out of the regression.
+    Returns the records and a warning naming every left-out stretch (empty when none).  A
+    stretch at a record's start is cut when at least 100 samples remain; one after a later
+    step splits the record in two where both parts keep 100 samples (else it is only left out
+    of the regression).
     """
     if floor is None or not floor.left_out:
         return list(records), []
-    out = []
+    out, split = [], False
     for rec in records:
         first = [item for item in floor.left_out
                  if item.source == rec.source and item.start_sample == 0]
         cut = first[0].end_sample if first else 0
-        out.append(rec.slice(cut, len(rec)) if cut and len(rec) - cut >= 100 else rec)
+        cut = cut if cut and len(rec) - cut >= 100 else 0
+        later = [item for item in floor.left_out
+                 if item.source == rec.source and item.start_sample > 0]
+        pieces = _split_at(rec.slice(cut, len(rec)) if cut else rec, later, cut)
+        split = split or len(pieces) > 1
+        out.extend(pieces)
     return out, [
         'the logged voltage did not reach the motor at once after a step (the residual of the '
         'electrical equation stays far beyond its noise: a ramp or slew of the amplifier, or its '
         f'current limit); left out of the regression: {floor.left_out_text()}; those at the '
-        'start of a record are cut for every fit']
+        'start of a record are cut for every fit' + (
+            ', and the records are split at the later ones' if split else '')]
+
+
+def _split_at(rec: Record, stretches: Sequence[LeftOut], shift: int) -> list[Record]:
+    """Return ``rec`` without the stretches after later steps (parts of 100 samples or more)."""
+    pieces, begin = [], 0
+    for item in sorted(stretches, key=lambda item: item.start_sample):
+        start, stop = item.start_sample - shift, item.end_sample - shift
+        if start - begin >= 100 and len(rec) - stop >= 100:
+            pieces.append(rec.slice(begin, start))
+            begin = stop
+    return pieces + [rec.slice(begin, len(rec)) if begin else rec]
 
 
 def _floor_values(floor: RegressionFloor, names: Sequence[str]

@@ -1,7 +1,8 @@
 """
 Stage 9: what the data do not determine, and the registered checks of the answer.
 
-One direction only, parameters at a bound, loose ones
+One direction only, parameters at a bound, an inertia the samples do not resolve
+(:mod:`~dcmotor_id.identification.checks.inertia`), loose ones
 (:mod:`~dcmotor_id.identification.checks.identifiability`); then every check of the answer
 in the registry (:func:`~dcmotor_id.identification.checks.answer.answer_warnings`: the
 answer against the data's own scales, units, refused when nothing useful is left,
@@ -16,6 +17,8 @@ from dcmotor_id.core.model import POSITIVE_NAMES
 from dcmotor_id.identification.checks.answer import answer_warnings, FinalFit
 from dcmotor_id.identification.checks.identifiability import (at_bound, loose,
                                                               one_direction_note)
+from dcmotor_id.identification.checks.inertia import (inertia_half_range, inertia_reason,
+                                                      inertia_unresolved)
 from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.pipeline.state import Answer, Inputs
 
@@ -37,8 +40,9 @@ def identifiability(inputs: Inputs, answer: Answer) -> Answer:
     for name, reason in bound.items():
         not_identifiable[name] = reason
         stderr[name] = float('nan')
+    inertia = unresolved_inertia(inputs, answer, stderr) if 'J' not in not_identifiable else None
     checked = [name for name in answer.names if name not in not_identifiable and name not in
-               answer.upper_bounds and name not in ('Ka',)]
+               answer.upper_bounds and name not in ('Ka',) and not (name == 'J' and inertia)]
     not_identifiable.update(loose(final, [name for name in checked if name in POSITIVE_NAMES
                                           or name == 'Ta']))
     assert answer.simulation is not None, 'the final fit stage simulates the final fit'
@@ -47,5 +51,28 @@ def identifiability(inputs: Inputs, answer: Answer) -> Answer:
         inputs.initial_state, answer.simulation.residual_rms(output_channels(
             inputs.mechanical_only)), not_identifiable, list(bound) + list(answer.upper_bounds),
         list(parameters)))
+    if inertia is not None:  # b and Mc from the steady speeds stay useful: said after the checks
+        not_identifiable['J'] = inertia
+        warnings += (inertia,)
     return replace(answer, bound=bound, not_identifiable=not_identifiable, stderr=stderr,
                    combined=combined, warnings=warnings)
+
+
+def unresolved_inertia(inputs: Inputs, answer: Answer, stderr: dict[str, float]) -> str | None:
+    """
+    Say why J is not determined when the current is the input and the speed settles in a sample.
+
+    The test of :func:`~dcmotor_id.identification.checks.inertia.inertia_half_range`; J's
+    standard error in ``stderr`` is raised to the half range at its upper bound.  None: the
+    full model (the voltage is the input), no measured speed, or J resolved.
+    """
+    if not inputs.mechanical_only or not answer.fitted_records:
+        return None
+    constant = inputs.torque_constant or 1.0
+    half = inertia_half_range(answer.fitted_records, answer.parameters['b'] / constant)
+    if half is None or not inertia_unresolved(half):
+        return None
+    j = answer.parameters['J']
+    stderr['J'] = max(stderr['J'], half.upper * abs(j))
+    return inertia_reason(half, answer.fitted_records[0].sample_period_s, constant, j,
+                          stderr['J'])

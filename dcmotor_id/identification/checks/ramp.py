@@ -1,0 +1,157 @@
+"""
+A logged voltage step that does not reach the motor at once, anywhere in a record.
+
+An amplifier's ramp, slew limit or soft start applies less than the logged voltage for a
+while after a step: the current then rises more slowly than the electrical equation says.
+The equation sampled with the voltage held over each sample is exactly an ARX model of the
+current, ``i[k+1] = a i[k] + beta u[k] + gamma w[k] + c`` (``a = exp(-dt Ra/La)``), which
+also holds when La/Ra is below the sample period (``a`` near 0) and needs no derivative of the
+current (a derivative smears an armature transient over samples and made such transients look
+like ramps).  It is fitted by least squares on all samples, three times without the samples
+beyond :data:`OUTLIER_SIGMAS` robust noise levels of its one-step residual ``e``.
+
+After each logged step (:func:`~dcmotor_id.identification.pipeline.floor.step_starts` decides
+what a step is) of sign ``s``, the shortfall ``-s e`` is summed over the first ``m`` samples
+(``m`` up to :data:`WINDOW_SAMPLES`, at most half the dwell); its largest standardised sum
+``z = sum / (sigma sqrt(m))`` is compared with the Bonferroni bound of a one-sided 1 % test over
+every window and step of the record (so that a record without a ramp is flagged with a
+probability of at most 1 %).  A ramp also has a size: the summed shortfall in units of the
+step's first-sample current change ``beta |du|`` is the delay, in samples, by which the current
+lags a step reaching the motor at once (half the ramp's length); a ramp is named when it is at
+least :data:`MIN_DELAY_SAMPLES` samples over at least :data:`MIN_RUN_SAMPLES` samples, so that a
+sensor held or delayed by a sample or two, or a slow model error summed over a long window, is
+none.  Steps into an amplifier's current limit
+(:func:`~dcmotor_id.identification.checks.identifiability.limited_samples`, or a current flat
+at the record's peak over the shortfall) are the limit's, not a ramp.  ``bench/bench_ramp.py``
+measures the size and the power.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Callable, Sequence, TYPE_CHECKING
+
+import numpy as np
+from scipy.stats import norm
+
+if TYPE_CHECKING:
+    from dcmotor_id.core.records import Record
+
+#: The test's level per record (one-sided, Bonferroni over its windows and steps).
+RAMP_LEVEL = 0.01
+#: Longest window after a step [samples].
+WINDOW_SAMPLES = 50
+#: Samples beyond this many robust noise levels are left out of the ARX fit.
+OUTLIER_SIGMAS = 5.0
+#: The smallest lag, in samples, of the current behind a step that reaches the motor at once.
+MIN_DELAY_SAMPLES = 1.5
+#: A current within this share of the record's peak over the whole shortfall is at a limit.
+LIMIT_SPREAD = 0.05
+#: The fewest samples of a shortfall (a sensor held or delayed by one or two is none).
+MIN_RUN_SAMPLES = 3
+
+
+@dataclass(frozen=True)
+class Shortfall:
+    """
+    One step's shortfall of the current after a logged voltage step.
+
+    Its first sample, its length, the largest z over the windows, the delay in samples (both
+    at that window), and whether it is named a ramp (its length then runs on to where the
+    shortfall's sum reaches 99 % of its largest).
+    """
+
+    start: int
+    samples: int
+    z: float
+    delay_samples: float
+    ramp: bool
+
+
+def _arx(current: np.ndarray, volts: np.ndarray, speed: np.ndarray
+         ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """Return the ARX coefficients, the one-step residual and its robust noise level."""
+    matrix = np.column_stack([current[:-1], volts[:-1], speed[:-1], np.ones(current.size - 1)])
+    target = current[1:]
+    keep = np.ones(target.size, dtype=bool)
+    solution, residual, sigma = np.zeros(4), target, 0.0
+    for _ in range(3):
+        if np.count_nonzero(keep) < 4 * matrix.shape[1]:
+            return None
+        solution = np.linalg.lstsq(matrix[keep], target[keep], rcond=None)[0]
+        residual = target - matrix @ solution
+        centred = residual[keep] - np.median(residual[keep])
+        sigma = 1.4826 * float(np.median(np.abs(centred)))
+        keep = np.abs(residual) <= OUTLIER_SIGMAS * max(sigma, 1e-12)
+    return solution, residual, max(sigma, 1e-12)
+
+
+def record_shortfalls(record: Record, steps: Sequence[tuple[int, float]],
+                      limited: np.ndarray | None = None) -> list[Shortfall]:
+    """
+    Return the largest shortfall after each logged step of one record (see the module).
+
+    ``steps``: ``(first sample, sign)`` of each logged step; ``limited``: the samples at a
+    current limit (their steps are skipped).
+    """
+    if record.voltage is None or record.current is None or record.speed is None:
+        return []
+    volts = np.asarray(record.voltage, dtype=float)
+    fit = _arx(np.asarray(record.current, dtype=float), volts,
+               np.asarray(record.speed, dtype=float))
+    if fit is None or not steps:
+        return []
+    solution, residual, sigma = fit
+    starts = [first for first, _ in steps] + [volts.size]
+    bound = float(norm.isf(RAMP_LEVEL / (WINDOW_SAMPLES * len(steps))))
+    found = []
+    for (first, sign), following in zip(steps, starts[1:]):
+        width = min(WINDOW_SAMPLES, max((following - first) // 2, 1), residual.size - first)
+        if width < 1 or (limited is not None and limited[first:first + width].any()):
+            continue
+        current = np.abs(np.asarray(record.current, dtype=float))
+        total = np.cumsum(-sign * residual[first:first + width])
+        z = total / (sigma * np.sqrt(np.arange(1, width + 1)))
+        best = int(np.argmax(z))
+        jump = abs(volts[first] - (volts[first - 1] if first > 0 else 0.0))
+        delay = float(total[best]) / max(abs(float(solution[1])) * jump, 1e-300)
+        ramp = bool(z[best] > bound and best + 1 >= MIN_RUN_SAMPLES
+                    and delay >= MIN_DELAY_SAMPLES
+                    and not _at_limit(current[first + 1:first + best + 2], float(current.max())))
+        # a ramp ends where the shortfall's sum reaches 99 % of its largest (not a noisy tail)
+        extent = int(np.argmax(total >= 0.99 * float(np.max(total)))) if ramp else best
+        found.append(Shortfall(first, max(best, extent) + 1, float(z[best]), delay, ramp))
+    return found
+
+
+def _at_limit(run: np.ndarray, peak: float) -> bool:
+    """
+    Whether the current sits flat at the record's peak over a shortfall: a current limit.
+
+    An amplifier's limit holds the current at one level (within :data:`LIMIT_SPREAD` of the
+    peak) while the speed builds up; a ramp's current rises through the shortfall.
+    """
+    return bool(run.size and peak > 0.0 and float(run.min()) >= (1.0 - LIMIT_SPREAD) * peak)
+
+
+def ramp_masks(records: Sequence[Record],
+               step_starts: Callable[[np.ndarray], list[tuple[int, float]]],
+               limited: Sequence[np.ndarray] | None = None) -> list[np.ndarray]:
+    """Return, per record, the samples of the named ramps (from the step over the shortfall)."""
+    masks = []
+    for index, record in enumerate(records):
+        mask = np.zeros(len(record), dtype=bool)
+        if record.voltage is not None:
+            steps = step_starts(np.asarray(record.voltage, dtype=float))
+            for item in record_shortfalls(record, steps,
+                                          None if limited is None else limited[index]):
+                if item.ramp:
+                    mask[item.start:item.start + item.samples + 1] = True
+        masks.append(mask)
+    return masks
+
+
+def bonferroni_bound(steps: int) -> float:
+    """Return the z bound of the test for a record with this many steps."""
+    return float(norm.isf(RAMP_LEVEL / (WINDOW_SAMPLES * max(steps, 1)))) if steps else math.inf
