@@ -54,8 +54,27 @@ def base_fit(inputs: Inputs) -> tuple[Inputs, Fit]:
         raise FitError(f'no fit finished within the time budget '
                        f'({inputs.progress.max_time_s:g} s): give more time with --max-time, '
                        'or shorten or decimate the records') from None
+    _one_level_corner(inputs, estimate)
     models = Models(inputs.records, inputs.torque_constant, False, inputs.criterion)
     return inputs, Fit(estimate, physical_errors(estimate, models.measured), models, warnings)
+
+
+def _one_level_corner(inputs: Inputs, estimate: Estimate) -> None:
+    """
+    Refuse a fit of one constant current that ran to b or Mc = 0.
+
+    One current level shows two numbers in the speed (J/b and the final speed); a fit that
+    ends on the bound of b or Mc took the corner where the three trade off, not an answer
+    the current's fluctuations gave (its standard errors would claim one).
+    """
+    if not inputs.mechanical_only:
+        return
+    level = single_current_level(inputs.records)
+    at_zero = [name for name in ('b', 'Mc') if not estimate.parameters.get(name, 1.0) > 0.0]
+    if level is not None and at_zero:
+        raise NotIdentifiableError(one_level_reason(
+            level, f'it ran to {" and ".join(at_zero)} = 0, a corner where J, b and Mc trade '
+            'off'))
 
 
 def make_estimator(method: str, initial_state: str, progress: Progress,
