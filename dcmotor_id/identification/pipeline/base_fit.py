@@ -61,13 +61,15 @@ def base_fit(inputs: Inputs) -> tuple[Inputs, Fit]:
 
 def _one_level_corner(inputs: Inputs, estimate: Estimate) -> None:
     """
-    Refuse a fit of one constant current that ran to b or Mc = 0.
+    Refuse a fit of one constant current in one direction that ran to b or Mc = 0.
 
     One current level shows two numbers in the speed (J/b and the final speed); a fit that
     ends on the bound of b or Mc took the corner where the three trade off, not an answer
-    the current's fluctuations gave (its standard errors would claim one).
+    the current's fluctuations gave (its standard errors would claim one).  Records that turn
+    both ways at that level (a load driving one of them back) are left to the discovery of
+    the load, which separates them.
     """
-    if not inputs.mechanical_only:
+    if not (inputs.mechanical_only and inputs.excitation.one_direction):
         return
     level = single_current_level(inputs.records)
     at_zero = [name for name in ('b', 'Mc') if not estimate.parameters.get(name, 1.0) > 0.0]
