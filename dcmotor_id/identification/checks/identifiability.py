@@ -388,11 +388,17 @@ def useful(parameters: Sequence[str], not_identifiable: dict[str, str],
 def useful_check(fit: FinalFit) -> list[str]:
     """Check the answer (:mod:`~.answer`): refuse it when nothing useful is identified."""
     if not useful(fit.names, dict(fit.said), fit.mechanical_only):
+        misfit = misfit_ratios(fit.records, fit.outputs, fit.residual_rms)
+        columns = ('' if not misfit else ' The model also misfits the data far beyond their '
+                   'noise (' + ', '.join(f'{channel} {ratio:.3g}x' for channel, ratio
+                                         in misfit.items()) + '): check that the columns are '
+                   'what their names say (units, signs: current and speed positive for a '
+                   'positive voltage).')
         raise NotIdentifiableError(
             'nothing useful is identifiable from these data: '
             + '; '.join(f'{name}: {reason}' for name, reason in fit.said.items())
             + '. Use a richer excitation (faster changes for La, larger speed changes for J) '
-            'or a longer record.')
+            'or a longer record.' + columns)
     return []
 
 
