@@ -332,6 +332,131 @@ def _innovations(current: Fit, fitted: Fit, index: int, channel: str,
     return out[0][out[0].shape[0] - common:], out[1][out[1].shape[0] - common:]
 
 
+def innovation_dm(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, int]:
+    """
+    Diebold-Mariano t of the held-out one-step predictions, and its degrees of freedom.
+
+    Each structure's held-out residual on each output channel gets its own autoregressive
+    error model, the order chosen by BIC (:func:`~dcmotor_id.identification.discovery.
+    comparison.fit_ar`: white noise needs none, a drift one lag, an input's noise integrated
+    twice into a position two or more); the squared one-step prediction errors of the two
+    structures, each channel's scaled by the current structure's innovation variance, are
+    subtracted sample by sample and summed over the channels (:func:`prediction_differential`).
+    The mean of that differential is tested by
+    :func:`~dcmotor_id.identification.discovery.comparison.diebold_mariano`, whose variance
+    and degrees of freedom follow the differential's own correlation, so the size holds where
+    the error models miss it (the test of the rule ``innovation-dm``).  Returns ``(t, degrees
+    of freedom)``.
+    """
+    from dcmotor_id.identification.discovery.comparison import diebold_mariano
+
+    differential = prediction_differential(loop, current, fitted)
+    if differential is None:
+        return 0.0, 0
+    return diebold_mariano(differential)
+
+
+def prediction_differential(loop: LoopState, current: Fit, fitted: Fit) -> np.ndarray | None:
+    """Held-out loss differential of the one-step predictions (:func:`innovation_dm`), or None."""
+    per_record: list[list[np.ndarray]] = [[] for _ in current.stops]
+    for channel in loop.outputs:
+        innovations = [held_out_innovations(loop, fit, channel) for fit in (current, fitted)]
+        scale = float(np.mean(np.concatenate(innovations[0]) ** 2))
+        if not scale > 0:
+            return None
+        for index, (before, after) in enumerate(zip(*innovations)):
+            # A data effect (a sensor delay) shifts the records by a few samples: the common end.
+            common = min(before.shape[0], after.shape[0])
+            per_record[index].append((before[before.shape[0] - common:] ** 2
+                                      - after[after.shape[0] - common:] ** 2) / scale)
+    pieces = []
+    for channels in per_record:
+        common = min(part.shape[0] for part in channels)
+        pieces.append(np.sum([part[part.shape[0] - common:] for part in channels], axis=0))
+    differential = np.concatenate(pieces) if pieces else np.zeros(0)
+    return differential if np.all(np.isfinite(differential)) else None
+
+
+def held_out_innovations(loop: LoopState, fit: Fit, channel: str) -> list[np.ndarray]:
+    """
+    A fit's held-out one-step prediction errors on one channel, per record.
+
+    The position of a mechanical-only fit, whose logged input current carries noise: the
+    Kalman filter of that noise integrated twice
+    (:func:`~dcmotor_id.identification.discovery.comparison.input_noise_innovations`, the
+    current's and the position's noise levels, the fit's J and b).  Otherwise: the residual's
+    autoregressive model, order by BIC
+    (:func:`~dcmotor_id.identification.discovery.comparison.fit_ar`).
+    """
+    from dcmotor_id.identification.discovery.comparison import (ar_innovations, fit_ar,
+                                                                input_noise_innovations,
+                                                                MAX_AR_ORDER)
+    from dcmotor_id.identification.error_model.criterion import noise_level
+
+    errors = [np.asarray(sim[channel] - getattr(rec, channel), dtype=float)
+              for rec, sim in zip(fit.records, fit.simulated)]
+    if channel == 'position' and loop.torque_constant is not None:
+        filtered = [input_noise_innovations(
+            error, float(np.median(np.diff(rec.time_s))), float(fit.values.get('J', 0.0)),
+            float(fit.values.get('b', 0.0)), loop.torque_constant * noise_level(rec.current),
+            noise_level(rec.position)) for error, rec in zip(errors, fit.records)]
+        if all(item is not None for item in filtered):
+            return [cast(np.ndarray, item)[stop:] for item, stop in zip(filtered, fit.stops)]
+    model = fit_ar(list(zip(errors, fit.stops)))
+    return [ar_innovations(error, max(stop, MAX_AR_ORDER), model)
+            for error, stop in zip(errors, fit.stops)]
+
+
+def unearned_dm(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
+    """
+    Why a winning candidate's held-out predictions are not significantly better, or None.
+
+    The Diebold-Mariano t of :func:`innovation_dm` must reach Student's t quantile of its
+    degrees of freedom at the one-sided size :data:`HELDOUT_ALPHA`, and the held-out gain the
+    loop's least gain.  The test compares structures, not fits: when the current structure,
+    refitted from the candidate's values (:func:`restarted`), reaches a lower training cost
+    than the current fit (a better optimum of the same structure; the held-out part is not
+    looked at), the candidate must beat that refit too.  No other rule: the test's size holds
+    whatever the residual's correlation (``bench/bench_discovery.py``,
+    ``test/identification/test_discovery_statistics.py``).
+    """
+    doubt = _dm_doubt(loop, current, candidate, 'its held-out gain')
+    if doubt is not None:
+        return doubt
+    again = restarted(loop, current, candidate.fitted)
+    if again is None or again.train_cost >= current.train_cost:
+        return None
+    return _dm_doubt(loop, again, candidate,
+                     'against the current structure refitted from its values (a better '
+                     'optimum, training cost '
+                     f'{again.train_cost / current.train_cost:.3g} of the first fit), its '
+                     'held-out gain')
+
+
+def _dm_doubt(loop: LoopState, current: Fit, candidate: Candidate, what: str) -> str | None:
+    """Why the Diebold-Mariano test of :func:`unearned_dm` does not pass, or None."""
+    from scipy.stats import t as student
+
+    t, dof = innovation_dm(loop, current, candidate.fitted)
+    achieved = 1.0 - candidate.fitted.heldout_cost / current.heldout_cost
+    required = float(student.ppf(1.0 - HELDOUT_ALPHA, max(dof, 1)))
+    if t >= required and achieved >= loop.min_gain:
+        return None
+    return (f'{what} ({100 * achieved:.3g} %) is not significant in the one-step '
+            f'predictions (Diebold-Mariano t = {t:.2g} on {dof} degrees of freedom, '
+            f't >= {required:.3g} needed)')
+
+
+def restarted(loop: LoopState, current: Fit, fitted: Fit) -> Fit | None:
+    """Return the current structure refitted from a candidate's values (None if it fails)."""
+    from dcmotor_id.identification.discovery.refitting import _try_from, base_start
+
+    initial = {**current.values, **{name: value for name, value in fitted.values.items()
+                                    if name in current.values}}
+    return _try_from(loop, current.structure, base_start(loop, fitted), initial,
+                     fitted.estimate.initial_states)
+
+
 def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     """
     Why a winning candidate has not earned its place on held-out data, or None.
@@ -342,6 +467,8 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     the residuals' AR(1) error models (:func:`innovation_t`); ``noise-level`` (the former
     rules, kept to measure against): :func:`unearned_noise_level`.
     """
+    if loop.acceptance == 'innovation-dm':
+        return unearned_dm(loop, current, candidate)
     if loop.acceptance == 'noise-level':
         return unearned_noise_level(loop, current, candidate)
     if loop.acceptance == 'innovation-t':

@@ -34,9 +34,12 @@ MAX_EFFECTS = 4
 #: (:func:`~dcmotor_id.identification.discovery.judging.unearned`): ``heldout-t``, the held-out
 #: t test on effective samples, ``innovation-t``, the same test on the innovations of the
 #: residual's AR(1) error model (a drifting position residual is worth a handful of samples,
-#: its increments many), and ``noise-level``, the former own-part and cogging-size rules, kept
-#: so that ``bench/bench_discovery.py`` measures them all on the same data.
-ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level')
+#: its increments many), ``innovation-dm``, a Diebold-Mariano test of the one-step predictions
+#: under each structure's AR(p) error model (order by BIC) with a long-run variance that
+#: follows the differential's correlation, and ``noise-level``, the former own-part and
+#: cogging-size rules, kept so that ``bench/bench_discovery.py`` measures them all on the
+#: same data.
+ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'innovation-dm', 'noise-level')
 #: The rule of every identification.
 DEFAULT_ACCEPTANCE = 'innovation-t'
 
