@@ -301,7 +301,13 @@ def main(argv=None):
         'innovation-t = the same test on the innovations of an AR(1) error model of each '
         "structure's held-out residual (a drifting position residual is judged on its "
         "increments), on the whitened series' effective "
-        'samples; noise-level = the former rules '
+        'samples; innovation-dm = a Diebold-Mariano test of the held-out one-step prediction '
+        "errors under each structure's own error model (an AR(p) by BIC; for the position of "
+        "a mechanical-only fit the Kalman filter of the input current's noise integrated twice "
+        'by the shaft), with a cosine (fixed-smoothing) long-run variance whose number of '
+        "terms follows the differential's correlation, one-sided 0.13 %, and the candidate "
+        'also judged against the current structure refitted from its values when that refit '
+        'is a better optimum; noise-level = the former rules '
         "(an effect's own part of the outputs above the per-sample noise, a cogging ripple "
         'above the Coulomb friction needing twice the evidence).  Each case is judged by every '
         'rule on the same data.  Modes: current-speed = current and speed logged with noise, '

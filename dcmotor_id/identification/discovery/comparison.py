@@ -85,7 +85,7 @@ def ar_innovations(error: np.ndarray, start: int, coefficients: np.ndarray) -> n
 
 def cosine_terms(differential: np.ndarray, shortfall: float = SPECTRAL_SHORTFALL) -> int:
     """
-    Number of cosine terms of the long-run variance, chosen from the data (at least 1).
+    Return the number of cosine terms of the long-run variance, from the data (at least 1).
 
     The ``j``-th term estimates the spectral density at frequency ``pi j / T``, not at zero:
     a persistent differential's density falls off within a few terms, and their mean then

@@ -11,7 +11,11 @@ Earned (rule ``heldout-t``): the held-out drop is significant on the samples it 
 (:func:`gain_t`).  Rule ``innovation-t`` (the default): the same on the innovations of an
 AR(1) error model of each structure's held-out residual (:func:`innovation_t`): a drifting
 residual (a position the model integrates) is judged on its increments, which are worth
-many samples where the drift is worth a handful.  The former rules (``noise-level``: an
+many samples where the drift is worth a handful.  Rule ``innovation-dm``: a Diebold-Mariano
+test of the held-out one-step predictions, each structure under its own error model (an AR(p)
+by BIC, or the Kalman filter of a noisy input current integrated into the position), with a
+long-run variance that follows the differential's correlation (:func:`innovation_dm`,
+:mod:`~dcmotor_id.identification.discovery.comparison`).  The former rules (``noise-level``: an
 effect's own part of the outputs against the per-sample noise, :func:`own_part`, and a
 cogging ripple above the Coulomb friction needing twice the evidence) are kept to be
 measured against (``bench/bench_discovery.py``, a column per rule).
@@ -379,7 +383,7 @@ def prediction_differential(loop: LoopState, current: Fit, fitted: Fit) -> np.nd
 
 def held_out_innovations(loop: LoopState, fit: Fit, channel: str) -> list[np.ndarray]:
     """
-    A fit's held-out one-step prediction errors on one channel, per record.
+    Return a fit's held-out one-step prediction errors on one channel, per record.
 
     The position of a mechanical-only fit, whose logged input current carries noise: the
     Kalman filter of that noise integrated twice

@@ -1,0 +1,139 @@
+"""The Diebold-Mariano comparison of held-out predictions (rule ``innovation-dm``, issue 29)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+from scipy.stats import t as student
+
+from dcmotor_id.identification.discovery import DiscoveryLoop
+from dcmotor_id.identification.discovery.comparison import (ar_innovations, cosine_terms,
+                                                            diebold_mariano, fit_ar,
+                                                            input_noise_innovations)
+from dcmotor_id.identification.discovery.judging import HELDOUT_ALPHA, innovation_dm
+
+N = 1500
+
+
+def _rejections(draw, alpha, replications=3000, seed=0):
+    """Share of ``replications`` differentials ``draw(rng)`` whose mean the test rejects."""
+    rng = np.random.default_rng(seed)
+    count = 0
+    for _ in range(replications):
+        t, dof = diebold_mariano(draw(rng))
+        count += t > student.ppf(1.0 - alpha, max(dof, 1))
+    return count / replications
+
+
+@pytest.mark.parametrize('kind', ['white', 'ar 0.9', 'ar 0.99', 'random walk'])
+def test_the_size_holds_whatever_the_differential_s_correlation(kind):
+    # Nominal one-sided 5 %; 3000 replications: a standard error of 0.4 %.
+    draws = {
+        'white': lambda rng: rng.normal(size=N),
+        'ar 0.9': lambda rng: lfilter([1.0], [1.0, -0.9], rng.normal(size=N)),
+        'ar 0.99': lambda rng: lfilter([1.0], [1.0, -0.99], rng.normal(size=N)),
+        'random walk': lambda rng: np.cumsum(rng.normal(size=N)),
+    }
+    assert _rejections(draws[kind], 0.05) < 0.065
+
+
+def test_a_random_walk_differential_is_rejected_far_more_often_with_every_cosine_term():
+    # What the data-chosen number of terms prevents: half the samples' terms (right for
+    # white noise) read a random walk's long-run variance as tiny.
+    rng = np.random.default_rng(1)
+    walks = [np.cumsum(rng.normal(size=N)) for _ in range(300)]
+    assert max(cosine_terms(walk) for walk in walks) <= 3
+    from scipy.fft import dct
+    naive = 0
+    for walk in walks:
+        terms = dct(walk, type=2)[1:N // 2 + 1] * np.sqrt(2.0 / N) / 2.0
+        t = np.mean(walk) * np.sqrt(N) / np.sqrt(np.mean(terms ** 2))
+        naive += t > student.ppf(0.95, N // 2)
+    assert naive / len(walks) > 0.3
+
+
+def test_a_white_differential_with_a_shift_is_rejected_at_the_loop_s_size():
+    # A shift of 0.15 standard deviations over 1500 samples: t about 5.8.
+    assert _rejections(lambda rng: rng.normal(size=N) + 0.15, HELDOUT_ALPHA, 500) > 0.95
+
+
+def test_an_autoregression_s_order_is_chosen_by_bic():
+    rng = np.random.default_rng(2)
+    white = rng.normal(size=4000)
+    assert fit_ar([(white, 1000)]).shape == (0,)
+    second = lfilter([1.0], [1.0, -1.2, 0.5], rng.normal(size=4000))
+    coefficients = fit_ar([(second, 1000)])
+    assert coefficients.shape == (2,)
+    assert coefficients == pytest.approx([1.2, -0.5], abs=0.05)
+    innovations = ar_innovations(second, 1000, coefficients)
+    assert abs(np.corrcoef(innovations[1:], innovations[:-1])[0, 1]) < 0.05
+
+
+def _input_noise_residual(rng, n=6000, dt=1e-3, inertia=2e-3, damping=1e-3, torque=0.02,
+                          sensor=2e-4):
+    """Return a position residual: a torque noise the shaft integrates twice, sensor noise."""
+    from scipy.linalg import expm
+
+    continuous = np.array([[0.0, 1.0, 0.0], [0.0, -damping / inertia, 1.0 / inertia],
+                           [0.0, 0.0, 0.0]])
+    discrete = expm(continuous * dt)
+    state, out = np.zeros(2), np.empty(n)
+    for k, noise in enumerate(rng.normal(0.0, torque, n)):
+        out[k] = state[0]
+        state = discrete[:2, :2] @ state + discrete[:2, 2] * noise
+    return out + rng.normal(0.0, sensor, n)
+
+
+def test_the_input_noise_filter_whitens_a_position_the_shaft_integrates():
+    rng = np.random.default_rng(3)
+    residual = _input_noise_residual(rng)
+    innovations = input_noise_innovations(residual, 1e-3, 2e-3, 1e-3, 0.02, 2e-4)
+    assert innovations is not None
+    tail = innovations[1000:]
+    assert abs(np.corrcoef(tail[1:], tail[:-1])[0, 1]) < 0.05
+    # The residual itself is a drift: its lag-1 correlation is nearly 1.
+    assert np.corrcoef(residual[1:], residual[:-1])[0, 1] > 0.99
+    assert input_noise_innovations(residual, 1e-3, 2e-3, 1e-3, 0.0, 2e-4) is None
+
+
+def _fit(position, stop):
+    """
+    Return a stand-in for a Fit: one position record whose simulation misses by ``position``.
+
+    Its logged current is exact (no noise): the residual's error model is the autoregression.
+    """
+    n = position.shape[0]
+    record = SimpleNamespace(position=np.zeros(n), current=np.zeros(n),
+                             time_s=np.arange(n) * 1e-3)
+    return SimpleNamespace(stops=[stop], records=[record], simulated=[{'position': position}],
+                           values={})
+
+
+def _loop():
+    return DiscoveryLoop([], 1.0, criterion='position', weights={'position': 1.0},
+                         min_gain=0.05, acceptance='innovation-dm')
+
+
+def _drifts(seed, n=20000, dt=1e-3):
+    """Return a missing force's integral (a square wave), a remaining force's, sensor noise."""
+    rng = np.random.default_rng(seed)
+    reversals = np.sign(np.sin(2 * np.pi * 0.4 * np.arange(n) * dt))
+    remaining = np.convolve(rng.normal(0, 1, n), np.ones(200) / 200 ** 0.5, mode='same')
+    return np.cumsum(reversals) * dt, np.cumsum(remaining) * dt, rng.normal(0, 0.002, n)
+
+
+def test_a_candidate_removing_a_missing_force_predicts_significantly_better():
+    missing, remaining, sensor = _drifts(0)
+    t, dof = innovation_dm(_loop(), _fit(missing + remaining + sensor, 14000),
+                           _fit(remaining + sensor, 14000))
+    assert t > student.ppf(1.0 - HELDOUT_ALPHA, dof) and dof >= 30, (t, dof)
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_a_change_unrelated_to_the_drift_does_not_predict_significantly_better(seed):
+    missing, remaining, sensor = _drifts(seed)
+    other = _drifts(seed + 100)[1]
+    t, dof = innovation_dm(_loop(), _fit(missing + remaining + sensor, 14000),
+                           _fit(missing + remaining + 0.3 * other + sensor, 14000))
+    assert t < student.ppf(1.0 - HELDOUT_ALPHA, max(dof, 1)), (t, dof)
