@@ -385,30 +385,54 @@ def held_out_innovations(loop: LoopState, fit: Fit, channel: str) -> list[np.nda
     """
     Return a fit's held-out one-step prediction errors on one channel, per record.
 
-    The position of a mechanical-only fit, whose logged input current carries noise: the
-    Kalman filter of that noise integrated twice
-    (:func:`~dcmotor_id.identification.discovery.comparison.input_noise_innovations`, the
-    current's and the position's noise levels, the fit's J and b).  Otherwise: the residual's
-    autoregressive model, order by BIC
-    (:func:`~dcmotor_id.identification.discovery.comparison.fit_ar`).
+    The residual's autoregressive model, order by BIC
+    (:func:`~dcmotor_id.identification.discovery.comparison.fit_ar`); for the position of a
+    mechanical-only fit, whose logged input current may carry noise, also the Kalman filter
+    of that noise integrated twice by the shaft
+    (:func:`~dcmotor_id.identification.discovery.comparison.input_noise_innovations`: the
+    current's and the position's noise levels, the fit's J and b; no free parameter), and of
+    the two error models the one of lower BIC on the held-out innovations (a misfit the
+    filter's noise levels do not describe, such as a missing force under an exact input, is
+    left to the autoregression).
     """
     from dcmotor_id.identification.discovery.comparison import (ar_innovations, fit_ar,
-                                                                input_noise_innovations,
                                                                 MAX_AR_ORDER)
-    from dcmotor_id.identification.error_model.criterion import noise_level
 
     errors = [np.asarray(sim[channel] - getattr(rec, channel), dtype=float)
               for rec, sim in zip(fit.records, fit.simulated)]
-    if channel == 'position' and loop.torque_constant is not None:
-        filtered = [input_noise_innovations(
-            error, float(np.median(np.diff(rec.time_s))), float(fit.values.get('J', 0.0)),
-            float(fit.values.get('b', 0.0)), loop.torque_constant * noise_level(rec.current),
-            noise_level(rec.position)) for error, rec in zip(errors, fit.records)]
-        if all(item is not None for item in filtered):
-            return [cast(np.ndarray, item)[stop:] for item, stop in zip(filtered, fit.stops)]
+    starts = [max(stop, MAX_AR_ORDER) for stop in fit.stops]
     model = fit_ar(list(zip(errors, fit.stops)))
-    return [ar_innovations(error, max(stop, MAX_AR_ORDER), model)
-            for error, stop in zip(errors, fit.stops)]
+    regressed = [ar_innovations(error, start, model) for error, start in zip(errors, starts)]
+    if channel != 'position' or loop.torque_constant is None:
+        return regressed
+    filtered = _input_noise_filtered(loop, fit, errors, starts)
+    if filtered is None:
+        return regressed
+    n = max(sum(part.shape[0] for part in regressed), 1)
+
+    def score(parts: list[np.ndarray], count: int) -> float:
+        variance = float(np.mean(np.concatenate(parts) ** 2)) if parts else 0.0
+        return n * np.log(max(variance, 1e-300)) + count * np.log(n)
+    return filtered if score(filtered, 0) <= score(regressed, model.shape[0]) else regressed
+
+
+def _input_noise_filtered(loop: LoopState, fit: Fit, errors: list[np.ndarray],
+                          starts: list[int]) -> list[np.ndarray] | None:
+    """Held-out innovations of the input-noise Kalman filter per record, or None."""
+    from dcmotor_id.identification.discovery.comparison import input_noise_innovations
+    from dcmotor_id.identification.error_model.criterion import noise_level
+
+    out = []
+    for error, rec, start in zip(errors, fit.records, starts):
+        filtered = input_noise_innovations(
+            error, float(np.median(np.diff(rec.time_s))), float(fit.values.get('J', 0.0)),
+            float(fit.values.get('b', 0.0)),
+            cast(float, loop.torque_constant) * noise_level(rec.current),
+            noise_level(rec.position))
+        if filtered is None:
+            return None
+        out.append(filtered[start:])
+    return out
 
 
 def unearned_dm(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
