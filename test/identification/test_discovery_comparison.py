@@ -137,3 +137,48 @@ def test_a_change_unrelated_to_the_drift_does_not_predict_significantly_better(s
     t, dof = innovation_dm(_loop(), _fit(missing + remaining + sensor, 14000),
                            _fit(missing + remaining + 0.3 * other + sensor, 14000))
     assert t < student.ppf(1.0 - HELDOUT_ALPHA, max(dof, 1)), (t, dof)
+
+
+def _mechanical_fit(residual, stop, current_noise, rng):
+    """
+    Return a stand-in mechanical-only fit (J 2e-3, b 1e-3) missing ``residual``.
+
+    The measured position is the encoder's noise (2e-4 rad), the simulated one the residual
+    (which the measurement's noise then joins); the logged current a sine with white noise of
+    ``current_noise``.
+    """
+    n = residual.shape[0]
+    current = np.sin(np.arange(n) * 1e-3) + rng.normal(0.0, current_noise, n)
+    measured = rng.normal(0.0, 2e-4, n)
+    record = SimpleNamespace(position=measured, current=current, time_s=np.arange(n) * 1e-3)
+    return SimpleNamespace(stops=[stop], records=[record],
+                           simulated=[{'position': residual}],
+                           values={'J': 2e-3, 'b': 1e-3})
+
+
+def test_the_position_s_error_model_is_the_input_noise_filter_where_it_describes_the_residual():
+    from dcmotor_id.identification.discovery.judging import held_out_innovations
+    from dcmotor_id.identification.error_model.criterion import noise_level
+
+    rng = np.random.default_rng(4)
+    # The input current's noise (0.02 A at a torque constant of 1) integrated twice.
+    fit = _mechanical_fit(_input_noise_residual(rng, sensor=0.0), 4000, 0.02, rng)
+    record, residual = fit.records[0], fit.simulated[0]['position'] - fit.records[0].position
+    chosen = held_out_innovations(_loop(), fit, 'position')[0]
+    filtered = input_noise_innovations(residual, 1e-3, 2e-3, 1e-3, noise_level(record.current),
+                                       noise_level(record.position))
+    assert np.allclose(chosen, filtered[4000:], rtol=1e-6, atol=0.0)
+
+
+def test_a_missing_force_under_an_exact_input_is_left_to_the_autoregression():
+    from dcmotor_id.identification.discovery.judging import held_out_innovations
+
+    rng = np.random.default_rng(5)
+    time = np.arange(6000) * 1e-3
+    # A constant torque of 0.01 N m the model lacks: a parabola; the current is nearly exact.
+    fit = _mechanical_fit(0.5 * 0.01 / 2e-3 * time ** 2, 4000, 1e-7, rng)
+    residual = fit.simulated[0]['position'] - fit.records[0].position
+    chosen = held_out_innovations(_loop(), fit, 'position')[0]
+    model = fit_ar([(residual, 4000)])
+    assert model.shape[0] >= 1
+    assert np.array_equal(chosen, ar_innovations(residual, 4000, model))
