@@ -27,7 +27,7 @@ SAMPLES = 1500
 
 
 def differentials():
-    """Return the named generators of differentials (a generator ``rng -> array``)."""
+    """Return the named generators, each mapping a random generator to a differential."""
     def ar(rho):
         return lambda rng: lfilter([1.0], [1.0, -rho], rng.normal(size=SAMPLES))
     return {

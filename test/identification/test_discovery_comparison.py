@@ -182,3 +182,35 @@ def test_a_missing_force_under_an_exact_input_is_left_to_the_autoregression():
     model = fit_ar([(residual, 4000)])
     assert model.shape[0] >= 1
     assert np.array_equal(chosen, ar_innovations(residual, 4000, model))
+
+
+def _scored(position, stop, train_cost):
+    """Return a stand-in fit with its held-out and training costs."""
+    fit = _fit(position, stop)
+    fit.heldout_cost = float(np.mean(position[stop:] ** 2))
+    fit.train_cost = train_cost
+    fit.structure = ()
+    fit.estimate = SimpleNamespace(initial_states=None)
+    return fit
+
+
+@pytest.mark.parametrize('restart_cost', [None, 0.5, 2.0])
+def test_a_candidate_must_also_beat_the_current_structure_at_its_better_optimum(
+        monkeypatch, restart_cost):
+    # The base misses a force; the candidate has it.  When the base structure refitted from
+    # the candidate's values is a better optimum (a lower training cost) that predicts as
+    # well as the candidate, the gain is the optimiser's, not the effect's.
+    from dcmotor_id.identification.discovery import judging
+
+    missing, remaining, sensor = _drifts(0)
+    current = _scored(missing + remaining + sensor, 14000, 1.0)
+    fitted = _scored(remaining + sensor, 14000, 0.4)
+    again = None if restart_cost is None else _scored(remaining + sensor, 14000, restart_cost)
+    monkeypatch.setattr(judging, 'restarted', lambda loop, current, fitted: again)
+    candidate = SimpleNamespace(fitted=fitted, gain=1.0 - fitted.heldout_cost
+                                / current.heldout_cost)
+    doubt = judging.unearned_dm(_loop(), current, candidate)
+    if restart_cost == 0.5:
+        assert doubt is not None and 'refitted from its values' in doubt
+    else:
+        assert doubt is None
