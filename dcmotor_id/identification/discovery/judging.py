@@ -340,12 +340,13 @@ def innovation_dm(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, in
     """
     Diebold-Mariano t of the held-out one-step predictions, and its degrees of freedom.
 
-    Each structure's held-out residual on each output channel gets its own autoregressive
-    error model, the order chosen by BIC (:func:`~dcmotor_id.identification.discovery.
-    comparison.fit_ar`: white noise needs none, a drift one lag, an input's noise integrated
-    twice into a position two or more); the squared one-step prediction errors of the two
-    structures, each channel's scaled by the current structure's innovation variance, are
-    subtracted sample by sample and summed over the channels (:func:`prediction_differential`).
+    Each structure's held-out residual on each output channel gets its own error model
+    (:func:`held_out_innovations`: an autoregression, order by BIC, where white noise needs
+    no lag and a drift one; for a mechanical-only position also the Kalman filter of the
+    input current's noise integrated twice, the one of lower BIC); the squared one-step
+    prediction errors of the two structures, each channel's scaled by the current
+    structure's innovation variance, are subtracted sample by sample and summed over the
+    channels (:func:`prediction_differential`).
     The mean of that differential is tested by
     :func:`~dcmotor_id.identification.discovery.comparison.diebold_mariano`, whose variance
     and degrees of freedom follow the differential's own correlation, so the size holds where
@@ -445,8 +446,8 @@ def unearned_dm(loop: LoopState, current: Fit, candidate: Candidate) -> str | No
     refitted from the candidate's values (:func:`restarted`), reaches a lower training cost
     than the current fit (a better optimum of the same structure; the held-out part is not
     looked at), the candidate must beat that refit too.  No other rule: the test's size holds
-    whatever the residual's correlation (``bench/bench_discovery.py``,
-    ``test/identification/test_discovery_statistics.py``).
+    whatever the residual's correlation (``bench/dm_size_results.md``,
+    ``test/identification/test_discovery_comparison.py``).
     """
     doubt = _dm_doubt(loop, current, candidate, 'its held-out gain')
     if doubt is not None:
