@@ -453,13 +453,41 @@ def unearned_dm(loop: LoopState, current: Fit, candidate: Candidate) -> str | No
     if doubt is not None:
         return doubt
     again = restarted(loop, current, candidate.fitted)
-    if again is None or again.train_cost >= current.train_cost:
+    if again is not None and again.train_cost < current.train_cost:
+        doubt = _dm_doubt(loop, again, candidate,
+                          'against the current structure refitted from its values (a better '
+                          'optimum, training cost '
+                          f'{again.train_cost / current.train_cost:.3g} of the first fit), its '
+                          'held-out gain')
+    return doubt or _beyond_null(loop, current, candidate)
+
+
+def _beyond_null(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
+    """
+    Why the candidate's t is within its bootstrap null (a mechanical-only loop), or None.
+
+    The t of refits of replicas of the current structure with the input current's noise
+    (:func:`~dcmotor_id.identification.discovery.bootstrap.null_t`) give the null's mean and
+    spread; the candidate's t must lie beyond their one-sided :data:`HELDOUT_ALPHA`
+    prediction bound (``mean + t_(R-1) s sqrt(1 + 1/R)`` over ``R`` replicas).
+    """
+    from scipy.stats import t as student
+
+    from dcmotor_id.identification.discovery.bootstrap import MIN_REPLICAS, null_t
+
+    replicas = np.array(null_t(loop, current, candidate.fitted))
+    if replicas.shape[0] < MIN_REPLICAS:
         return None
-    return _dm_doubt(loop, again, candidate,
-                     'against the current structure refitted from its values (a better '
-                     'optimum, training cost '
-                     f'{again.train_cost / current.train_cost:.3g} of the first fit), its '
-                     'held-out gain')
+    count = replicas.shape[0]
+    bound = float(np.mean(replicas) + student.ppf(1.0 - HELDOUT_ALPHA, count - 1)
+                  * np.std(replicas, ddof=1) * np.sqrt(1.0 + 1.0 / count))
+    t = innovation_dm(loop, current, candidate.fitted)[0]
+    if t > bound:
+        return None
+    return (f'its Diebold-Mariano t ({t:.3g}) is within what refits of {count} replicas of '
+            "the current structure with the input current's noise give (t "
+            f'{np.mean(replicas):.3g} +- {np.std(replicas, ddof=1):.3g}, bound {bound:.3g}): '
+            'the gain may be the noise the shaft integrates')
 
 
 def _dm_doubt(loop: LoopState, current: Fit, candidate: Candidate, what: str) -> str | None:
