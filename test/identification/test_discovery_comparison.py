@@ -200,13 +200,15 @@ def test_a_candidate_must_also_beat_the_current_structure_at_its_better_optimum(
     # The base misses a force; the candidate has it.  When the base structure refitted from
     # the candidate's values is a better optimum (a lower training cost) that predicts as
     # well as the candidate, the gain is the optimiser's, not the effect's.
-    from dcmotor_id.identification.discovery import judging
+    from dcmotor_id.identification.discovery import bootstrap, judging
 
     missing, remaining, sensor = _drifts(0)
     current = _scored(missing + remaining + sensor, 14000, 1.0)
     fitted = _scored(remaining + sensor, 14000, 0.4)
     again = None if restart_cost is None else _scored(remaining + sensor, 14000, restart_cost)
     monkeypatch.setattr(judging, 'restarted', lambda loop, current, fitted: again)
+    # (The bootstrap of a noisy input current, judged apart below, says nothing here.)
+    monkeypatch.setattr(bootstrap, 'null_t', lambda loop, current, fitted: [])
     candidate = SimpleNamespace(fitted=fitted, gain=1.0 - fitted.heldout_cost
                                 / current.heldout_cost)
     doubt = judging.unearned_dm(_loop(), current, candidate)
@@ -214,3 +216,29 @@ def test_a_candidate_must_also_beat_the_current_structure_at_its_better_optimum(
         assert doubt is not None and 'refitted from its values' in doubt
     else:
         assert doubt is None
+
+
+@pytest.mark.parametrize('spread', [0.2, 3.0])
+def test_a_candidate_must_lie_beyond_the_t_its_structure_gets_on_replicas_of_the_null(
+        monkeypatch, spread):
+    # With a noisy input current the output-error fit is biased, and replicas of the current
+    # structure give t values far from Student's: the candidate's t must exceed their
+    # prediction bound.  Here its t is about 3.6: beyond replicas spread by 0.2 (a bound
+    # near 0.8), within replicas spread by 3 (a bound near 12).
+    from dcmotor_id.identification.discovery import bootstrap, judging
+
+    missing, remaining, sensor = _drifts(0)
+    current = _scored(missing + remaining + sensor, 14000, 1.0)
+    fitted = _scored(remaining + sensor, 14000, 0.4)
+    replicas = list(np.random.default_rng(6).normal(0.0, spread, 19))
+    monkeypatch.setattr(judging, 'restarted', lambda loop, current, fitted: None)
+    monkeypatch.setattr(bootstrap, 'null_t', lambda loop, current, fitted: replicas)
+    candidate = SimpleNamespace(fitted=fitted, gain=1.0 - fitted.heldout_cost
+                                / current.heldout_cost)
+    t = innovation_dm(_loop(), current, fitted)[0]
+    assert 3.0 < t < 5.0, t
+    doubt = judging.unearned_dm(_loop(), current, candidate)
+    if spread == 0.2:
+        assert doubt is None
+    else:
+        assert doubt is not None and 'replicas' in doubt

@@ -20,6 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.records import Record
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Fit
@@ -63,6 +64,8 @@ def replica_records(loop: LoopState, current: Fit,
     from dcmotor_id.identification.error_model.criterion import noise_level
     from dcmotor_id.identification.prepare import prepare_records
 
+    if not loop.records or len(loop.records) != len(current.simulated):
+        return None
     records = []
     for rec, simulated in zip(loop.records, current.simulated):
         position = simulated.get('position')
@@ -74,4 +77,7 @@ def replica_records(loop: LoopState, current: Fit,
                               None, None,
                               position + rng.normal(0.0, noise_level(rec.position), n),
                               source=rec.source))
-    return prepare_records(records, torque_constant=loop.torque_constant)
+    try:
+        return prepare_records(records, torque_constant=loop.torque_constant)
+    except DcMotorIdError:
+        return None
