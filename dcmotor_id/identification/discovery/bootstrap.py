@@ -1,5 +1,5 @@
 """
-The Diebold-Mariano t of a candidate when the current structure is the truth: a parametric bootstrap.
+A candidate's Diebold-Mariano t when the current structure is the truth: a parametric bootstrap.
 
 With a noisy input current (errors in variables) the output-error fit of the position is
 biased by the noise the shaft integrates, and a candidate that absorbs that drift predicts the
@@ -73,8 +73,8 @@ def replica_records(loop: LoopState, current: Fit,
                 or position.shape != rec.position.shape):
             return None
         n = rec.time_s.shape[0]
-        records.append(Record(rec.time_s, rec.current + rng.normal(0.0, noise_level(rec.current), n),
-                              None, None,
+        logged = rec.current + rng.normal(0.0, noise_level(rec.current), n)
+        records.append(Record(rec.time_s, logged, None, None,
                               position + rng.normal(0.0, noise_level(rec.position), n),
                               source=rec.source))
     try:
