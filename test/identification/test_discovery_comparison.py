@@ -208,7 +208,7 @@ def test_a_candidate_must_also_beat_the_current_structure_at_its_better_optimum(
     again = None if restart_cost is None else _scored(remaining + sensor, 14000, restart_cost)
     monkeypatch.setattr(judging, 'restarted', lambda loop, current, fitted: again)
     # (The bootstrap of a noisy input current, judged apart below, says nothing here.)
-    monkeypatch.setattr(bootstrap, 'null_t', lambda loop, current, fitted: [])
+    monkeypatch.setattr(bootstrap, 'null_t', lambda loop, current, fitted, **options: [])
     candidate = SimpleNamespace(fitted=fitted, gain=1.0 - fitted.heldout_cost
                                 / current.heldout_cost)
     doubt = judging.unearned_dm(_loop(), current, candidate)
@@ -232,7 +232,7 @@ def test_a_candidate_must_lie_beyond_the_t_its_structure_gets_on_replicas_of_the
     fitted = _scored(remaining + sensor, 14000, 0.4)
     replicas = list(np.random.default_rng(6).normal(0.0, spread, 19))
     monkeypatch.setattr(judging, 'restarted', lambda loop, current, fitted: None)
-    monkeypatch.setattr(bootstrap, 'null_t', lambda loop, current, fitted: replicas)
+    monkeypatch.setattr(bootstrap, 'null_t', lambda loop, current, fitted, **options: replicas)
     candidate = SimpleNamespace(fitted=fitted, gain=1.0 - fitted.heldout_cost
                                 / current.heldout_cost)
     t = innovation_dm(_loop(), current, fitted)[0]

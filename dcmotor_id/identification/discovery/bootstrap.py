@@ -17,6 +17,7 @@ fit's bias give.  A candidate's t must lie beyond their prediction bound at the 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any, Callable
 
 import numpy as np
 
@@ -25,6 +26,8 @@ from dcmotor_id.core.records import Record
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Fit
 
+#: A test statistic of a candidate against the current fit: ``(t, degrees of freedom)``.
+Statistic = Callable[[LoopState, Fit, Fit], tuple[float, Any]]
 #: Replicas of the null (the current structure with the input's noise).
 REPLICAS = 19
 #: Fewest replicas refitted for a judgement (else the bootstrap says nothing).
@@ -33,16 +36,20 @@ MIN_REPLICAS = 5
 SEED = 20260
 
 
-def null_t(loop: LoopState, current: Fit, fitted: Fit, replicas: int = REPLICAS) -> list[float]:
+def null_t(loop: LoopState, current: Fit, fitted: Fit, replicas: int = REPLICAS,
+           statistic: Statistic | None = None) -> list[float]:
     """
-    Return the Diebold-Mariano t of ``fitted``'s structure on replicas of ``current``'s.
+    Return the t of ``fitted``'s structure on replicas of ``current``'s.
 
-    Only for a mechanical-only loop on records whose position the current fit simulates
-    (else an empty list); a replica whose refit fails is left out.
+    ``statistic``: ``(loop, current fit, candidate fit) -> (t, degrees of freedom)``, the
+    Diebold-Mariano t of :func:`~dcmotor_id.identification.discovery.judging.innovation_dm`
+    by default.  Only for a mechanical-only loop on records whose position the current fit
+    simulates (else an empty list); a replica whose refit fails is left out.
     """
     from dcmotor_id.identification.discovery.judging import innovation_dm
     from dcmotor_id.identification.discovery.refitting import _try_from, base_start
 
+    test = statistic or innovation_dm
     rng = np.random.default_rng(SEED)
     out: list[float] = []
     for _ in range(replicas if loop.torque_constant is not None else 0):
@@ -54,7 +61,7 @@ def null_t(loop: LoopState, current: Fit, fitted: Fit, replicas: int = REPLICAS)
         base = _try_from(replica, current.structure, start, dict(current.values), None)
         refit = _try_from(replica, fitted.structure, start, dict(fitted.values), None)
         if base is not None and refit is not None:
-            out.append(innovation_dm(replica, base, refit)[0])
+            out.append(float(test(replica, base, refit)[0]))
     return out
 
 

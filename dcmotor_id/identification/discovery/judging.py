@@ -462,7 +462,9 @@ def unearned_dm(loop: LoopState, current: Fit, candidate: Candidate) -> str | No
     return doubt or _beyond_null(loop, current, candidate)
 
 
-def _beyond_null(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
+def _beyond_null(loop: LoopState, current: Fit, candidate: Candidate,
+                 statistic: Callable[[LoopState, Fit, Fit], tuple[float, Any]] | None = None,
+                 name: str = 'Diebold-Mariano t') -> str | None:
     """
     Why the candidate's t is within its bootstrap null (a mechanical-only loop), or None.
 
@@ -475,16 +477,17 @@ def _beyond_null(loop: LoopState, current: Fit, candidate: Candidate) -> str | N
 
     from dcmotor_id.identification.discovery.bootstrap import MIN_REPLICAS, null_t
 
-    replicas = np.array(null_t(loop, current, candidate.fitted))
+    test = statistic or innovation_dm
+    replicas = np.array(null_t(loop, current, candidate.fitted, statistic=test))
     if replicas.shape[0] < MIN_REPLICAS:
         return None
     count = replicas.shape[0]
     bound = float(np.mean(replicas) + student.ppf(1.0 - HELDOUT_ALPHA, count - 1)
                   * np.std(replicas, ddof=1) * np.sqrt(1.0 + 1.0 / count))
-    t = innovation_dm(loop, current, candidate.fitted)[0]
+    t = float(test(loop, current, candidate.fitted)[0])
     if t > bound:
         return None
-    return (f'its Diebold-Mariano t ({t:.3g}) is within what refits of {count} replicas of '
+    return (f'its {name} ({t:.3g}) is within what refits of {count} replicas of '
             "the current structure with the input current's noise give (t "
             f'{np.mean(replicas):.3g} +- {np.std(replicas, ddof=1):.3g}, bound {bound:.3g}): '
             'the gain may be the noise the shaft integrates')
@@ -526,6 +529,9 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     """
     if loop.acceptance == 'innovation-dm':
         return unearned_dm(loop, current, candidate)
+    if loop.acceptance == 'innovation-t-null':
+        return (unearned_heldout_t(loop, current, candidate, innovation_t)
+                or _beyond_null(loop, current, candidate, innovation_t, 'innovation t'))
     if loop.acceptance == 'noise-level':
         return unearned_noise_level(loop, current, candidate)
     if loop.acceptance == 'innovation-t':
