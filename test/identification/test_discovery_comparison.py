@@ -242,3 +242,31 @@ def test_a_candidate_must_lie_beyond_the_t_its_structure_gets_on_replicas_of_the
         assert doubt is None
     else:
         assert doubt is not None and 'replicas' in doubt
+
+
+def test_innovation_t_null_asks_innovation_t_and_its_bootstrap(monkeypatch):
+    # The rule innovation-t-null: innovation-t's test, and for a mechanical-only loop its t
+    # beyond the bootstrap replicas' bound.
+    from dcmotor_id.identification.discovery import bootstrap, judging
+    from dcmotor_id.identification.discovery.judging import innovation_t
+
+    missing, remaining, sensor = _drifts(0)
+    current = _scored(missing + remaining + sensor, 14000, 1.0)
+    fitted = _scored(remaining + sensor, 14000, 0.4)
+    loop = DiscoveryLoop([], 1.0, criterion='position', weights={'position': 1.0},
+                         min_gain=0.05, acceptance='innovation-t-null')
+    t = innovation_t(loop, current, fitted)[0]
+    candidate = SimpleNamespace(fitted=fitted, gain=1.0 - fitted.heldout_cost
+                                / current.heldout_cost)
+    seen = []
+
+    def replicas(loop, current, fitted, statistic=None):
+        seen.append(statistic)
+        return list(np.random.default_rng(7).normal(0.0, spread, 19))
+    monkeypatch.setattr(bootstrap, 'null_t', replicas)
+    spread = 0.05 * t
+    assert judging.unearned(loop, current, candidate) is None
+    spread = 0.5 * t
+    doubt = judging.unearned(loop, current, candidate)
+    assert doubt is not None and 'innovation t' in doubt and 'replicas' in doubt
+    assert seen == [innovation_t, innovation_t]
