@@ -8,10 +8,13 @@ considered (:func:`decide`).  The loop never ends worse than its base model
 
 Earned (rule ``heldout-t``): the held-out drop is significant on the samples it is worth
 (:func:`heldout_t`, the residual's correlation time) and spread over the held-out part
-(:func:`gain_t`).  Rule ``innovation-t`` (the default): the same on the innovations of an
+(:func:`gain_t`).  Rule ``innovation-t``: the same on the innovations of an
 AR(1) error model of each structure's held-out residual (:func:`innovation_t`): a drifting
 residual (a position the model integrates) is judged on its increments, which are worth
-many samples where the drift is worth a handful.  Rule ``innovation-dm``: a Diebold-Mariano
+many samples where the drift is worth a handful.  Rule ``innovation-t-null`` (the default):
+innovation-t, and a mechanical-only candidate's t beyond a parametric bootstrap of the
+current structure with the input current's noise
+(:mod:`~dcmotor_id.identification.discovery.bootstrap`).  Rule ``innovation-dm``: a Diebold-Mariano
 test of the held-out one-step predictions, each structure under its own error model (an AR(p)
 by BIC, or the Kalman filter of a noisy input current integrated into the position), with a
 long-run variance that follows the differential's correlation (:func:`innovation_dm`,
@@ -523,9 +526,14 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
 
     By the loop's rule (``loop.acceptance``, one of
     :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``:
-    :func:`unearned_heldout_t`; ``innovation-t`` (default): the same on the innovations of
-    the residuals' AR(1) error models (:func:`innovation_t`); ``noise-level`` (the former
-    rules, kept to measure against): :func:`unearned_noise_level`.
+    :func:`unearned_heldout_t`; ``innovation-t``: the same on the innovations of the
+    residuals' AR(1) error models (:func:`innovation_t`); ``innovation-t-null`` (default):
+    innovation-t, and for a mechanical-only loop its t beyond the parametric bootstrap of
+    the current structure with the input current's noise (:func:`_beyond_null`: with a noisy
+    input the output-error fit of the position is biased and a candidate absorbing the
+    integrated noise predicts better, so the t test alone has not its size there);
+    ``innovation-dm``: :func:`unearned_dm`; ``noise-level`` (the former rules, kept to
+    measure against): :func:`unearned_noise_level`.
     """
     if loop.acceptance == 'innovation-dm':
         return unearned_dm(loop, current, candidate)

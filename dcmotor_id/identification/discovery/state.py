@@ -44,7 +44,7 @@ MAX_EFFECTS = 4
 ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'innovation-t-null', 'innovation-dm',
                     'noise-level')
 #: The rule of every identification.
-DEFAULT_ACCEPTANCE = 'innovation-t'
+DEFAULT_ACCEPTANCE = 'innovation-t-null'
 
 
 @dataclass(frozen=True, eq=False)
