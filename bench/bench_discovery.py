@@ -303,13 +303,16 @@ def main(argv=None):
         "increments), on the whitened series' effective "
         'samples; innovation-dm = a Diebold-Mariano test of the held-out one-step prediction '
         "errors under each structure's own error model (an AR(p) by BIC; for the position of "
-        "a mechanical-only fit the Kalman filter of the input current's noise integrated twice "
-        'by the shaft), with a cosine (fixed-smoothing) long-run variance whose number of '
+        "a mechanical-only fit, of that and the Kalman filter of the input current's noise "
+        'integrated twice by the shaft, the one of lower BIC), with a cosine '
+        '(fixed-smoothing) long-run variance whose number of '
         "terms follows the differential's correlation, one-sided 0.13 %, and the candidate "
         'also judged against the current structure refitted from its values when that refit '
-        'is a better optimum; noise-level = the former rules '
-        "(an effect's own part of the outputs above the per-sample noise, a cogging ripple "
-        'above the Coulomb friction needing twice the evidence).  Each case is judged by every '
+        'is a better optimum, and for a mechanical-only loop beyond the bootstrap below; '
+        'innovation-t-null (the default) = innovation-t, and for a '
+        "mechanical-only loop the candidate's t beyond the one-sided 0.135 % prediction bound "
+        'of the t of 19 refitted replicas of the current structure with the input '
+        "current's noise (a parametric bootstrap).  Each case is judged by every "
         'rule on the same data.  Modes: current-speed = current and speed logged with noise, '
         'the loop alone (`discover`); position = current and a 4096-count encoder angle, the '
         'speed derived from it, the default `identify` (position criterion); mechanical = the '

@@ -18,10 +18,11 @@ current structure with the input current's noise
 test of the held-out one-step predictions, each structure under its own error model (an AR(p)
 by BIC, or the Kalman filter of a noisy input current integrated into the position), with a
 long-run variance that follows the differential's correlation (:func:`innovation_dm`,
-:mod:`~dcmotor_id.identification.discovery.comparison`).  The former rules (``noise-level``: an
-effect's own part of the outputs against the per-sample noise, :func:`own_part`, and a
-cogging ripple above the Coulomb friction needing twice the evidence) are kept to be
-measured against (``bench/bench_discovery.py``, a column per rule).
+:mod:`~dcmotor_id.identification.discovery.comparison`).  Every rule is measured beside the
+others by ``bench/bench_discovery.py`` (a column per rule).  The former rules (an effect's own
+part of the outputs against the per-sample noise, a cogging ripple above the Coulomb
+friction needing twice the evidence: ``noise-level``) were deleted when innovation-t-null
+became the default; their last measurements are in ``bench/discovery_results.md``.
 """
 
 from __future__ import annotations
@@ -33,8 +34,6 @@ import numpy as np
 
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit
-from dcmotor_id.identification.error_model.residuals import simulate_records
-from dcmotor_id.identification.estimators.refined import OutputErrorModel
 
 
 #: Contiguous blocks of the held-out part whose error drops give the noise of the gain.
@@ -45,10 +44,6 @@ GAIN_NOISE_FACTOR = 2.0
 TIE_SHARE = 0.98
 #: Blocks per record's held-out part of the gain's t statistic (:func:`gain_t`).
 GAIN_BLOCKS = 8
-#: Share of a refit's residual RMS an effect's own part of the outputs must exceed.
-OWN_PART_SHARE = 0.5
-#: Noise levels of an effect's own part beyond which its held-out gain needs no t test.
-OWN_PART_STRONG = 3.0
 #: Least t of the held-out gain for an effect to be added.
 GAIN_T = 2.0
 #: Nominal one-sided size of the held-out t test (:func:`heldout_t_threshold`): t >= 3 on
@@ -532,16 +527,13 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     the current structure with the input current's noise (:func:`_beyond_null`: with a noisy
     input the output-error fit of the position is biased and a candidate absorbing the
     integrated noise predicts better, so the t test alone has not its size there);
-    ``innovation-dm``: :func:`unearned_dm`; ``noise-level`` (the former rules, kept to
-    measure against): :func:`unearned_noise_level`.
+    ``innovation-dm``: :func:`unearned_dm`.
     """
     if loop.acceptance == 'innovation-dm':
         return unearned_dm(loop, current, candidate)
     if loop.acceptance == 'innovation-t-null':
         return (unearned_heldout_t(loop, current, candidate, innovation_t)
                 or _beyond_null(loop, current, candidate, innovation_t, 'innovation t'))
-    if loop.acceptance == 'noise-level':
-        return unearned_noise_level(loop, current, candidate)
     if loop.acceptance == 'innovation-t':
         return unearned_heldout_t(loop, current, candidate, innovation_t)
     return unearned_heldout_t(loop, current, candidate)
@@ -585,82 +577,6 @@ def heldout_t_threshold(effective: float) -> float:
     from scipy.stats import t as student
 
     return float(student.ppf(1.0 - HELDOUT_ALPHA, max(effective - 1.0, 1.0)))
-
-
-def unearned_noise_level(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
-    """
-    Why a winning candidate has not earned its place by the former rules, or None.
-
-    Its own part of the simulated outputs must exceed the noise (:func:`own_part`); unless
-    it stands far out of it (:data:`OWN_PART_STRONG` noise levels), its held-out gain must
-    stand out of the gain's own noise over blocks (:func:`gain_t` at least
-    :data:`GAIN_T`).  An effect beyond a physical size limit (a cogging ripple larger than
-    the Coulomb friction) always needs twice that t and twice the gain.
-    """
-    own = own_part(loop, candidate)
-    if own is not None and own[0] <= 1.0:
-        return (f'its own part of the simulated outputs is below the noise ({own[1]}): its '
-                'held-out gain comes from moving the other parameters')
-    required, gain = GAIN_T, loop.min_gain
-    strong = own is not None and own[0] >= OWN_PART_STRONG
-    values = candidate.fitted.values
-    size = ''
-    if candidate.name == 'cogging':
-        amplitude = float(np.hypot(values.get('cogging.sin_Nm', 0.0),
-                                   values.get('cogging.cos_Nm', 0.0)))
-        if amplitude > values.get('Mc', 0.0):
-            required, gain, strong = 2.0 * GAIN_T, 2.0 * loop.min_gain, False
-            size = (f' (a ripple of {amplitude:.3g} N m, larger than the Coulomb friction '
-                    f'{values.get("Mc", 0.0):.3g} N m, needs t >= {required:g} and a gain of '
-                    f'{100 * gain:.0f} %)')
-    achieved = float(candidate.gain or 0.0)
-    if strong and achieved >= gain:
-        return None
-    t = gain_t(loop, current, candidate.fitted)
-    if t >= required and achieved >= gain:
-        return None
-    return (f'its held-out gain ({100 * achieved:.3g} %, t = {t:.2g} over '
-            f'{GAIN_BLOCKS} blocks per record) does not stand out of its own noise{size}')
-
-
-def own_part(loop: LoopState, candidate: Candidate) -> tuple[float, str] | None:
-    """
-    Size of an effect's own part of the simulated outputs, in noise levels, and its text.
-
-    The refit is simulated again with the effect's coefficients at zero; the largest
-    channel's RMS difference over its noise (the sensor noise, or :data:`OWN_PART_SHARE` of
-    the refit's residual RMS when larger: input noise integrated by the motor, or misfit).
-    An effect below one noise level explains no part of the signal that stands out: a gain
-    it brings comes from moving the other parameters (extra freedom, not an effect).  None
-    for data effects (delays), which are not judged so.
-    """
-    from dcmotor_id.identification.checks.identifiability import noise_level
-
-    fitted = candidate.fitted
-    prefix = f'{candidate.name}.'
-    terms = [term for term in fitted.terms if term.name.startswith(prefix)]
-    if not terms or candidate.effect.TRANSFORM:
-        return None
-    values = dict(fitted.values)
-    for term in terms:
-        values[term.name] = 0.0
-    model = OutputErrorModel(fitted.records, loop.torque_constant, fitted.terms,
-                             loop.quasi_static)
-    without = simulate_records(model, values, fitted.estimate.initial_states)
-    ratio, texts = 0.0, []
-    for channel in loop.outputs:
-        difference = np.concatenate([sim[channel] - out[channel] for sim, out
-                                     in zip(fitted.simulated, without)])
-        sensor = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2
-                                  for rec in fitted.records]))
-        misfit = float(fitted.estimate.info.get('noise_std', {}).get(channel, 0.0))
-        noise = max(float(sensor), OWN_PART_SHARE * misfit, 1e-300)
-        rms = float(np.sqrt(np.mean(difference ** 2)))
-        if not np.isfinite(rms):
-            return None
-        ratio = max(ratio, rms / noise)
-        texts.append(f'{channel} {rms:.3g} against a noise of {noise:.3g}')
-    return ratio, ', '.join(texts)
 
 
 def candidate_report(candidate: Candidate, analysis: dict) -> dict[str, Any]:
