@@ -240,3 +240,19 @@ def test_a_start_whose_fit_does_not_converge_gives_way_to_the_next():
     assert result.parameters['Ra'] == pytest.approx(scenario.truth.Ra, rel=0.05)
     assert result.parameters['CPhi'] == pytest.approx(scenario.truth.CPhi, rel=0.05)
     assert result.parameters['J'] == pytest.approx(scenario.truth.J, rel=0.1)
+
+
+def test_overflowed_sensitivities_at_the_optimum_are_a_failed_fit_not_an_internal_error():
+    # LAPACK's SVD on a Hessian with inf/NaN raised LinAlgError out of identify ("the numbers
+    # do not fit a DC motor model", exit 2, where the regression had an answer).
+    from dcmotor_id.identification.estimators.least_squares import _Pass, FitProblem
+    from dcmotor_id.identification.estimators.refined import OutputErrorModel
+    scenario = lab_scenarios.servo_torque_steps()
+    records = prepare_records(scenario.records, scenario.torque_constant)
+    model = OutputErrorModel(records, scenario.torque_constant)
+    start = {'J': scenario.truth.J, 'b': scenario.truth.b, 'Mc': scenario.truth.Mc}
+    problem = FitProblem(model, start, 'estimate', None, None, False)
+    size = problem.z0.shape[0]
+    broken = _Pass(1.0, np.full((size, size), np.inf), np.zeros(size))
+    with pytest.raises(FitError, match='diverged'):
+        problem.estimate('refined', problem.z0, broken, problem.first_noise(), 1)

@@ -243,7 +243,13 @@ class FitProblem:
         n_residuals = sum(len(rec) for rec in self.records) * len(model.outputs)
         dof = max(n_residuals - z.shape[0], 1)
         s2 = float(final.cost) / dof
-        cov_z = s2 * np.linalg.pinv(final.hessian)
+        try:
+            if not np.all(np.isfinite(final.hessian)):
+                raise np.linalg.LinAlgError('non-finite sensitivities')
+            cov_z = s2 * np.linalg.pinv(final.hessian)
+        except np.linalg.LinAlgError as error:  # LAPACK's SVD on overflowed sensitivities
+            raise FitError(f'the output-error fit diverged ({error} at its optimum): '
+                           + MISFIT) from None
         chain = self.chain_of(theta)
         covariance = cov_z * np.outer(chain, chain)
         stderr_all = np.sqrt(np.maximum(np.diag(covariance), 0.0))
