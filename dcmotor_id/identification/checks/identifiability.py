@@ -13,7 +13,7 @@ model misfit far above the sensor noise, a current that sits at an amplifier's l
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence, TYPE_CHECKING
+from typing import Any, Mapping, Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -264,7 +264,7 @@ def initial_state_warnings(estimate: Any, records: Sequence[Any],
 
 
 def misfit_ratios(records: Sequence[Any], outputs: Sequence[str],
-                  residual_rms: dict[str, float]) -> dict[str, float]:
+                  residual_rms: Mapping[str, float]) -> dict[str, float]:
     """Return the channels whose residual is beyond :data:`MISFIT_FACTOR` sensor noises."""
     ratios = {}
     for channel in outputs:
