@@ -256,3 +256,23 @@ def test_overflowed_sensitivities_at_the_optimum_are_a_failed_fit_not_an_interna
     broken = _Pass(1.0, np.full((size, size), np.inf), np.zeros(size))
     with pytest.raises(FitError, match='diverged'):
         problem.estimate('refined', problem.z0, broken, problem.first_noise(), 1)
+
+
+def test_a_simulation_that_overflows_is_an_infinite_cost_the_search_rejects(monkeypatch):
+    # It ended the fit ("the output-error fit diverged (OverflowError ...)") where the search
+    # would have stepped back; levenberg_marquardt still refuses such a start.
+    from dcmotor_id.identification.estimators import least_squares
+    from dcmotor_id.identification.estimators.refined import OutputErrorModel
+    scenario = lab_scenarios.servo_torque_steps()
+    records = prepare_records(scenario.records, scenario.torque_constant)
+    model = OutputErrorModel(records, scenario.torque_constant)
+    start = {'J': scenario.truth.J, 'b': scenario.truth.b, 'Mc': scenario.truth.Mc}
+    problem = least_squares.FitProblem(model, start, 'estimate', None, None, False)
+
+    def overflow(*args, **kwargs):
+        raise OverflowError('math range error')
+    monkeypatch.setattr(least_squares, '_numeric_pass', overflow)
+    evaluate = problem.evaluator(problem.first_noise())
+    assert evaluate(problem.z0, True).cost == np.inf
+    with pytest.raises(FitError, match='non-finite residuals at the start'):
+        least_squares.levenberg_marquardt(evaluate, problem.z0, 10)
