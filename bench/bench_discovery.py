@@ -153,7 +153,7 @@ def found_by(rule, mode, records, torque_constant):
     return result.discovery_result
 
 
-def run_case(name, magnitude, noise, rng, mode='current-speed', rules=ACCEPTANCE_RULES):
+def run_case(name, magnitude, noise, rng, mode='current-speed'):
     motor = random_motor(rng)
     kind, amplitude, t, voltage = random_excitation(rng)
     effects = [] if name is None else [effect_for(name, MAGNITUDES[magnitude], motor, voltage,
@@ -165,7 +165,7 @@ def run_case(name, magnitude, noise, rng, mode='current-speed', rules=ACCEPTANCE
                                         motor)
     accepted = ACCEPTED.get(name, (name,))
     by_rule = {}
-    for rule in rules:  # the same data judged by every rule (paired)
+    for rule in ACCEPTANCE_RULES:  # the same data judged by every rule (paired)
         start = time.perf_counter()
         try:
             found = found_by(rule, mode, records, torque_constant)
@@ -196,7 +196,7 @@ def run_case(name, magnitude, noise, rng, mode='current-speed', rules=ACCEPTANCE
     }
 
 
-def summarise(rows, rules=ACCEPTANCE_RULES):
+def summarise(rows):
     def median(key):
         return float(np.median([row[key] for row in rows]))
     return {
@@ -204,7 +204,7 @@ def summarise(rows, rules=ACCEPTANCE_RULES):
         'detected': float(np.mean([row['detected'] for row in rows])) * 100,
         'wrong': float(np.mean([row['wrong'] for row in rows])) * 100,
         **{f'{key} {rule}': float(np.mean([row[f'{key} {rule}'] for row in rows])) * 100
-           for rule in rules for key in ('detected', 'wrong')},
+           for rule in ACCEPTANCE_RULES for key in ('detected', 'wrong')},
         'unexplained': float(np.mean([row['unexplained'] for row in rows])) * 100,
         'before': median('before'), 'after': median('after'),
         'core_before': median('core_before'), 'core_after': median('core_after'),
@@ -221,10 +221,10 @@ def cases_of(mode, effects):
     return [case for case in cases if not effects or (case[0] or 'none') in effects]
 
 
-def table_row(mode, name, magnitude, noise, s, rules=ACCEPTANCE_RULES):
+def table_row(mode, name, magnitude, noise, s):
     """Return one row of the table (a mode, effect, magnitude and noise level summarised)."""
     cells = ''.join(('- | ' if name is None else f"{s[f'detected {rule}']:.0f} % | ")
-                    + f"{s[f'wrong {rule}']:.0f} % | " for rule in rules)
+                    + f"{s[f'wrong {rule}']:.0f} % | " for rule in ACCEPTANCE_RULES)
     return (f"| {mode} | {name or 'none (clean)'} | {magnitude} | {noise * 100:g} % | "
             f"{s['n']} | {cells}{s['unexplained']:.0f} % | "
             f"{s['before']:.3g} % -> {s['after']:.3g} % | {s['core_before']:.3g} % -> "
@@ -245,41 +245,32 @@ def main(argv=None):
                         help='how the motor is logged (default current-speed): position and '
                              'mechanical run the rows of the mechanical effects through '
                              'identify (the encoder angle, the position criterion)')
-    parser.add_argument('--rules', nargs='+', choices=ACCEPTANCE_RULES,
-                        default=list(ACCEPTANCE_RULES),
-                        help='the rules compared (default all; the default rule, which gives '
-                             'the other columns, is always run)')
     args = parser.parse_args(argv)
-    rules = tuple(rule for rule in ACCEPTANCE_RULES
-                  if rule in args.rules or rule == DEFAULT_RULE)
     rng = np.random.default_rng(args.seed)
     rule_columns = ''.join(f'detected ({rule}) | wrong effect added ({rule}) | '
-                           for rule in rules)
+                           for rule in ACCEPTANCE_RULES)
     lines = ['| mode | true effect | magnitude | noise | trials | ' + rule_columns
              + 'unexplained | held-out error before -> after (sum of channels, median) | '
              'core-parameter error before -> after (max of the fitted ones, median) | '
              'loop time (median) |',
-             '|---|---|---|---|---|' + '---|---|' * len(rules) + '---|---|---|---|']
+             '|---|---|---|---|---|' + '---|---|' * len(ACCEPTANCE_RULES) + '---|---|---|---|']
     started = time.perf_counter()
     failed = 0
     for mode in args.modes:
         for name, magnitude in cases_of(mode, args.effects):
             for noise in (0.005, 0.01):
                 trials = args.trials * (3 if name is None else 1)
-                rows = [run_case(name, magnitude, noise, rng, mode, rules)
-                        for _ in range(trials)]
+                rows = [run_case(name, magnitude, noise, rng, mode) for _ in range(trials)]
                 failed += sum(row is None for row in rows)
                 rows = [row for row in rows if row is not None]
                 if rows:
-                    lines.append(table_row(mode, name, magnitude, noise,
-                                           summarise(rows, rules), rules))
+                    lines.append(table_row(mode, name, magnitude, noise, summarise(rows)))
                     print(lines[-1], flush=True)
     header = [
         '# Discovery loop benchmark', '',
         f'Generated by `python bench/bench_discovery.py --trials {args.trials} --seed '
         f'{args.seed}{" --effects " + " ".join(args.effects) if args.effects else ""}'
-        f'{" --modes " + " ".join(args.modes) if args.modes != [MODES[0]] else ""}'
-        f'{" --rules " + " ".join(args.rules) if rules != ACCEPTANCE_RULES else ""}` in '
+        f'{" --modes " + " ".join(args.modes) if args.modes != [MODES[0]] else ""}` in '
         f'{time.perf_counter() - started:.0f} s; {failed} case(s) whose base '
         'model had no fit (a FitError before any rule) left out of the rows.', '',
         'Random motors (paper1/paper2 with every parameter scaled by 0.7..1.4), random '
@@ -301,18 +292,9 @@ def main(argv=None):
         'innovation-t = the same test on the innovations of an AR(1) error model of each '
         "structure's held-out residual (a drifting position residual is judged on its "
         "increments), on the whitened series' effective "
-        'samples; innovation-dm = a Diebold-Mariano test of the held-out one-step prediction '
-        "errors under each structure's own error model (an AR(p) by BIC; for the position of "
-        "a mechanical-only fit, of that and the Kalman filter of the input current's noise "
-        'integrated twice by the shaft, the one of lower BIC), with a cosine '
-        '(fixed-smoothing) long-run variance whose number of '
-        "terms follows the differential's correlation, one-sided 0.13 %, and the candidate "
-        'also judged against the current structure refitted from its values when that refit '
-        'is a better optimum, and for a mechanical-only loop beyond the bootstrap below; '
-        'innovation-t-null (the default) = innovation-t, and for a '
-        "mechanical-only loop the candidate's t beyond the one-sided 0.135 % prediction bound "
-        'of the t of 19 refitted replicas of the current structure with the input '
-        "current's noise (a parametric bootstrap).  Each case is judged by every "
+        'samples; noise-level = the former rules '
+        "(an effect's own part of the outputs above the per-sample noise, a cogging ripple "
+        'above the Coulomb friction needing twice the evidence).  Each case is judged by every '
         'rule on the same data.  Modes: current-speed = current and speed logged with noise, '
         'the loop alone (`discover`); position = current and a 4096-count encoder angle, the '
         'speed derived from it, the default `identify` (position criterion); mechanical = the '

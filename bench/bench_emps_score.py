@@ -264,9 +264,7 @@ def main() -> int:
             'motion, open-loop simulation; an effect is added when its held-out drop is '
             'significant by the default rule, the held-out t test on the innovations of an '
             "AR(1) error model of each structure's held-out residual (a drifting "
-            'position residual judged on its increments), its t also beyond a parametric '
-            "bootstrap of the current structure with the input current's noise "
-            '(innovation-t-null), `discovery/judging.py`):', '',
+            'position residual judged on its increments), `discovery/judging.py`):', '',
             rounds_text(products), '',
             '## The study (studies/emps.py)', '',
             format_score(score), '', difference_text(score), '',

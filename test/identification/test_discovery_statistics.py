@@ -35,6 +35,14 @@ def test_an_asymmetric_coulomb_friction_below_the_per_sample_noise_is_found():
                                                              ['coulomb_asymmetry'])
 
 
+def test_the_former_rule_turned_it_down():
+    found = discover(asymmetric_coulomb_chirp(), acceptance='noise-level')
+    assert found.effects == []
+    rejected = [candidate['rejected'] for candidate in found.steps[0]['candidates']
+                if candidate['name'] == 'load_torque']
+    assert rejected and 'below the noise' in rejected[0]
+
+
 @pytest.mark.parametrize('seed', [0, 1])
 def test_clean_records_add_no_effect_by_the_heldout_t(seed):
     rng = np.random.default_rng(seed)

@@ -55,7 +55,8 @@ from dcmotor_id.identification.discovery.analysis import (MATERIAL_FRACTION, MIS
                                                           NEGLIGIBLE_NRMSE_PCT, ONE_STEP_TERMS)
 from dcmotor_id.identification.discovery.judging import (GAIN_BLOCKS, GAIN_NOISE_FACTOR, GAIN_T,
                                                          HELDOUT_BLOCKS, heldout_gain_noise,
-                                                         never_worse, TIE_SHARE)
+                                                         never_worse, OWN_PART_SHARE,
+                                                         OWN_PART_STRONG, TIE_SHARE)
 from dcmotor_id.identification.discovery.loop import discover, DiscoveryLoop
 from dcmotor_id.identification.discovery.parts import (EXCITATION_BLOCKS, excited_stop,
                                                        HOLDOUT_FRACTION, moving_extent,
@@ -76,7 +77,7 @@ __all__ = [
     'GAIN_BLOCKS', 'GAIN_NOISE_FACTOR', 'GAIN_T', 'HELDOUT_BLOCKS', 'heldout_gain_noise',
     'HOLDOUT_FRACTION', 'LoopState', 'MATERIAL_FRACTION', 'MAX_EFFECTS', 'MIN_GAIN',
     'MISFIT_FACTOR', 'moving_extent', 'NEGLIGIBLE_NRMSE_PCT', 'never_worse', 'ONE_STEP_TERMS',
-    'open_loop_outputs', 'refit_all_data', 'refit_start',
+    'open_loop_outputs', 'OWN_PART_SHARE', 'OWN_PART_STRONG', 'refit_all_data', 'refit_start',
     'Round', 'SCREEN_SHARE', 'SCREEN_TOP', 'SCREEN_TOP_MISFIT', 'Structure', 'structure_errors',
     'TIE_SHARE', 'TRAIN_SHARE_BOUNDS',
 ]

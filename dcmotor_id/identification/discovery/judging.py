@@ -8,21 +8,13 @@ considered (:func:`decide`).  The loop never ends worse than its base model
 
 Earned (rule ``heldout-t``): the held-out drop is significant on the samples it is worth
 (:func:`heldout_t`, the residual's correlation time) and spread over the held-out part
-(:func:`gain_t`).  Rule ``innovation-t``: the same on the innovations of an
+(:func:`gain_t`).  Rule ``innovation-t`` (the default): the same on the innovations of an
 AR(1) error model of each structure's held-out residual (:func:`innovation_t`): a drifting
 residual (a position the model integrates) is judged on its increments, which are worth
-many samples where the drift is worth a handful.  Rule ``innovation-t-null`` (the default):
-innovation-t, and a mechanical-only candidate's t beyond a parametric bootstrap of the
-current structure with the input current's noise
-(:mod:`~dcmotor_id.identification.discovery.bootstrap`).  Rule ``innovation-dm``: a Diebold-Mariano
-test of the held-out one-step predictions, each structure under its own error model (an AR(p)
-by BIC, or the Kalman filter of a noisy input current integrated into the position), with a
-long-run variance that follows the differential's correlation (:func:`innovation_dm`,
-:mod:`~dcmotor_id.identification.discovery.comparison`).  Every rule is measured beside the
-others by ``bench/bench_discovery.py`` (a column per rule).  The former rules (an effect's own
-part of the outputs against the per-sample noise, a cogging ripple above the Coulomb
-friction needing twice the evidence: ``noise-level``) were deleted when innovation-t-null
-became the default; their last measurements are in ``bench/discovery_results.md``.
+many samples where the drift is worth a handful.  The former rules (``noise-level``: an
+effect's own part of the outputs against the per-sample noise, :func:`own_part`, and a
+cogging ripple above the Coulomb friction needing twice the evidence) are kept to be
+measured against (``bench/bench_discovery.py``, a column per rule).
 """
 
 from __future__ import annotations
@@ -34,6 +26,8 @@ import numpy as np
 
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit
+from dcmotor_id.identification.error_model.residuals import simulate_records
+from dcmotor_id.identification.estimators.refined import OutputErrorModel
 
 
 #: Contiguous blocks of the held-out part whose error drops give the noise of the gain.
@@ -44,6 +38,10 @@ GAIN_NOISE_FACTOR = 2.0
 TIE_SHARE = 0.98
 #: Blocks per record's held-out part of the gain's t statistic (:func:`gain_t`).
 GAIN_BLOCKS = 8
+#: Share of a refit's residual RMS an effect's own part of the outputs must exceed.
+OWN_PART_SHARE = 0.5
+#: Noise levels of an effect's own part beyond which its held-out gain needs no t test.
+OWN_PART_STRONG = 3.0
 #: Least t of the held-out gain for an effect to be added.
 GAIN_T = 2.0
 #: Nominal one-sided size of the held-out t test (:func:`heldout_t_threshold`): t >= 3 on
@@ -334,206 +332,18 @@ def _innovations(current: Fit, fitted: Fit, index: int, channel: str,
     return out[0][out[0].shape[0] - common:], out[1][out[1].shape[0] - common:]
 
 
-def innovation_dm(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, int]:
-    """
-    Diebold-Mariano t of the held-out one-step predictions, and its degrees of freedom.
-
-    Each structure's held-out residual on each output channel gets its own error model
-    (:func:`held_out_innovations`: an autoregression, order by BIC, where white noise needs
-    no lag and a drift one; for a mechanical-only position also the Kalman filter of the
-    input current's noise integrated twice, the one of lower BIC); the squared one-step
-    prediction errors of the two structures, each channel's scaled by the current
-    structure's innovation variance, are subtracted sample by sample and summed over the
-    channels (:func:`prediction_differential`).
-    The mean of that differential is tested by
-    :func:`~dcmotor_id.identification.discovery.comparison.diebold_mariano`, whose variance
-    and degrees of freedom follow the differential's own correlation, so the size holds where
-    the error models miss it (the test of the rule ``innovation-dm``).  Returns ``(t, degrees
-    of freedom)``.
-    """
-    from dcmotor_id.identification.discovery.comparison import diebold_mariano
-
-    differential = prediction_differential(loop, current, fitted)
-    if differential is None:
-        return 0.0, 0
-    return diebold_mariano(differential)
-
-
-def prediction_differential(loop: LoopState, current: Fit, fitted: Fit) -> np.ndarray | None:
-    """Held-out loss differential of the one-step predictions (:func:`innovation_dm`), or None."""
-    per_record: list[list[np.ndarray]] = [[] for _ in current.stops]
-    for channel in loop.outputs:
-        innovations = [held_out_innovations(loop, fit, channel) for fit in (current, fitted)]
-        scale = float(np.mean(np.concatenate(innovations[0]) ** 2))
-        if not scale > 0:
-            return None
-        for index, (before, after) in enumerate(zip(*innovations)):
-            # A data effect (a sensor delay) shifts the records by a few samples: the common end.
-            common = min(before.shape[0], after.shape[0])
-            per_record[index].append((before[before.shape[0] - common:] ** 2
-                                      - after[after.shape[0] - common:] ** 2) / scale)
-    pieces = []
-    for channels in per_record:
-        common = min(part.shape[0] for part in channels)
-        pieces.append(np.sum([part[part.shape[0] - common:] for part in channels], axis=0))
-    differential = np.concatenate(pieces) if pieces else np.zeros(0)
-    return differential if np.all(np.isfinite(differential)) else None
-
-
-def held_out_innovations(loop: LoopState, fit: Fit, channel: str) -> list[np.ndarray]:
-    """
-    Return a fit's held-out one-step prediction errors on one channel, per record.
-
-    The residual's autoregressive model, order by BIC
-    (:func:`~dcmotor_id.identification.discovery.comparison.fit_ar`); for the position of a
-    mechanical-only fit, whose logged input current may carry noise, also the Kalman filter
-    of that noise integrated twice by the shaft
-    (:func:`~dcmotor_id.identification.discovery.comparison.input_noise_innovations`: the
-    current's and the position's noise levels, the fit's J and b; no free parameter), and of
-    the two error models the one of lower BIC on the held-out innovations (a misfit the
-    filter's noise levels do not describe, such as a missing force under an exact input, is
-    left to the autoregression).
-    """
-    from dcmotor_id.identification.discovery.comparison import (ar_innovations, fit_ar,
-                                                                MAX_AR_ORDER)
-
-    errors = [np.asarray(sim[channel] - getattr(rec, channel), dtype=float)
-              for rec, sim in zip(fit.records, fit.simulated)]
-    starts = [max(stop, MAX_AR_ORDER) for stop in fit.stops]
-    model = fit_ar(list(zip(errors, fit.stops)))
-    regressed = [ar_innovations(error, start, model) for error, start in zip(errors, starts)]
-    if channel != 'position' or loop.torque_constant is None:
-        return regressed
-    filtered = _input_noise_filtered(loop, fit, errors, starts)
-    if filtered is None:
-        return regressed
-    n = max(sum(part.shape[0] for part in regressed), 1)
-
-    def score(parts: list[np.ndarray], count: int) -> float:
-        variance = float(np.mean(np.concatenate(parts) ** 2)) if parts else 0.0
-        return n * np.log(max(variance, 1e-300)) + count * np.log(n)
-    return filtered if score(filtered, 0) <= score(regressed, model.shape[0]) else regressed
-
-
-def _input_noise_filtered(loop: LoopState, fit: Fit, errors: list[np.ndarray],
-                          starts: list[int]) -> list[np.ndarray] | None:
-    """Held-out innovations of the input-noise Kalman filter per record, or None."""
-    from dcmotor_id.identification.discovery.comparison import input_noise_innovations
-    from dcmotor_id.identification.error_model.criterion import noise_level
-
-    out = []
-    for error, rec, start in zip(errors, fit.records, starts):
-        filtered = input_noise_innovations(
-            error, float(np.median(np.diff(rec.time_s))), float(fit.values.get('J', 0.0)),
-            float(fit.values.get('b', 0.0)),
-            cast(float, loop.torque_constant) * noise_level(rec.current),
-            noise_level(rec.position))
-        if filtered is None:
-            return None
-        out.append(filtered[start:])
-    return out
-
-
-def unearned_dm(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
-    """
-    Why a winning candidate's held-out predictions are not significantly better, or None.
-
-    The Diebold-Mariano t of :func:`innovation_dm` must reach Student's t quantile of its
-    degrees of freedom at the one-sided size :data:`HELDOUT_ALPHA`, and the held-out gain the
-    loop's least gain.  The test compares structures, not fits: when the current structure,
-    refitted from the candidate's values (:func:`restarted`), reaches a lower training cost
-    than the current fit (a better optimum of the same structure; the held-out part is not
-    looked at), the candidate must beat that refit too.  No other rule: the test's size holds
-    whatever the residual's correlation (``bench/dm_size_results.md``,
-    ``test/identification/test_discovery_comparison.py``).
-    """
-    doubt = _dm_doubt(loop, current, candidate, 'its held-out gain')
-    if doubt is not None:
-        return doubt
-    again = restarted(loop, current, candidate.fitted)
-    if again is not None and again.train_cost < current.train_cost:
-        doubt = _dm_doubt(loop, again, candidate,
-                          'against the current structure refitted from its values (a better '
-                          'optimum, training cost '
-                          f'{again.train_cost / current.train_cost:.3g} of the first fit), its '
-                          'held-out gain')
-    return doubt or _beyond_null(loop, current, candidate)
-
-
-def _beyond_null(loop: LoopState, current: Fit, candidate: Candidate,
-                 statistic: Callable[[LoopState, Fit, Fit], tuple[float, Any]] | None = None,
-                 name: str = 'Diebold-Mariano t') -> str | None:
-    """
-    Why the candidate's t is within its bootstrap null (a mechanical-only loop), or None.
-
-    The t of refits of replicas of the current structure with the input current's noise
-    (:func:`~dcmotor_id.identification.discovery.bootstrap.null_t`) give the null's mean and
-    spread; the candidate's t must lie beyond their one-sided :data:`HELDOUT_ALPHA`
-    prediction bound (``mean + t_(R-1) s sqrt(1 + 1/R)`` over ``R`` replicas).
-    """
-    from scipy.stats import t as student
-
-    from dcmotor_id.identification.discovery.bootstrap import MIN_REPLICAS, null_t
-
-    test = statistic or innovation_dm
-    replicas = np.array(null_t(loop, current, candidate.fitted, statistic=test))
-    if replicas.shape[0] < MIN_REPLICAS:
-        return None
-    count = replicas.shape[0]
-    bound = float(np.mean(replicas) + student.ppf(1.0 - HELDOUT_ALPHA, count - 1)
-                  * np.std(replicas, ddof=1) * np.sqrt(1.0 + 1.0 / count))
-    t = float(test(loop, current, candidate.fitted)[0])
-    if t > bound:
-        return None
-    return (f'its {name} ({t:.3g}) is within what refits of {count} replicas of '
-            "the current structure with the input current's noise give (t "
-            f'{np.mean(replicas):.3g} +- {np.std(replicas, ddof=1):.3g}, bound {bound:.3g}): '
-            'the gain may be the noise the shaft integrates')
-
-
-def _dm_doubt(loop: LoopState, current: Fit, candidate: Candidate, what: str) -> str | None:
-    """Why the Diebold-Mariano test of :func:`unearned_dm` does not pass, or None."""
-    from scipy.stats import t as student
-
-    t, dof = innovation_dm(loop, current, candidate.fitted)
-    achieved = 1.0 - candidate.fitted.heldout_cost / current.heldout_cost
-    required = float(student.ppf(1.0 - HELDOUT_ALPHA, max(dof, 1)))
-    if t >= required and achieved >= loop.min_gain:
-        return None
-    return (f'{what} ({100 * achieved:.3g} %) is not significant in the one-step '
-            f'predictions (Diebold-Mariano t = {t:.2g} on {dof} degrees of freedom, '
-            f't >= {required:.3g} needed)')
-
-
-def restarted(loop: LoopState, current: Fit, fitted: Fit) -> Fit | None:
-    """Return the current structure refitted from a candidate's values (None if it fails)."""
-    from dcmotor_id.identification.discovery.refitting import _try_from, base_start
-
-    initial = {**current.values, **{name: value for name, value in fitted.values.items()
-                                    if name in current.values}}
-    return _try_from(loop, current.structure, base_start(loop, fitted), initial,
-                     fitted.estimate.initial_states)
-
-
 def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     """
     Why a winning candidate has not earned its place on held-out data, or None.
 
     By the loop's rule (``loop.acceptance``, one of
     :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``:
-    :func:`unearned_heldout_t`; ``innovation-t``: the same on the innovations of the
-    residuals' AR(1) error models (:func:`innovation_t`); ``innovation-t-null`` (default):
-    innovation-t, and for a mechanical-only loop its t beyond the parametric bootstrap of
-    the current structure with the input current's noise (:func:`_beyond_null`: with a noisy
-    input the output-error fit of the position is biased and a candidate absorbing the
-    integrated noise predicts better, so the t test alone has not its size there);
-    ``innovation-dm``: :func:`unearned_dm`.
+    :func:`unearned_heldout_t`; ``innovation-t`` (default): the same on the innovations of
+    the residuals' AR(1) error models (:func:`innovation_t`); ``noise-level`` (the former
+    rules, kept to measure against): :func:`unearned_noise_level`.
     """
-    if loop.acceptance == 'innovation-dm':
-        return unearned_dm(loop, current, candidate)
-    if loop.acceptance == 'innovation-t-null':
-        return (unearned_heldout_t(loop, current, candidate, innovation_t)
-                or _beyond_null(loop, current, candidate, innovation_t, 'innovation t'))
+    if loop.acceptance == 'noise-level':
+        return unearned_noise_level(loop, current, candidate)
     if loop.acceptance == 'innovation-t':
         return unearned_heldout_t(loop, current, candidate, innovation_t)
     return unearned_heldout_t(loop, current, candidate)
@@ -577,6 +387,82 @@ def heldout_t_threshold(effective: float) -> float:
     from scipy.stats import t as student
 
     return float(student.ppf(1.0 - HELDOUT_ALPHA, max(effective - 1.0, 1.0)))
+
+
+def unearned_noise_level(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
+    """
+    Why a winning candidate has not earned its place by the former rules, or None.
+
+    Its own part of the simulated outputs must exceed the noise (:func:`own_part`); unless
+    it stands far out of it (:data:`OWN_PART_STRONG` noise levels), its held-out gain must
+    stand out of the gain's own noise over blocks (:func:`gain_t` at least
+    :data:`GAIN_T`).  An effect beyond a physical size limit (a cogging ripple larger than
+    the Coulomb friction) always needs twice that t and twice the gain.
+    """
+    own = own_part(loop, candidate)
+    if own is not None and own[0] <= 1.0:
+        return (f'its own part of the simulated outputs is below the noise ({own[1]}): its '
+                'held-out gain comes from moving the other parameters')
+    required, gain = GAIN_T, loop.min_gain
+    strong = own is not None and own[0] >= OWN_PART_STRONG
+    values = candidate.fitted.values
+    size = ''
+    if candidate.name == 'cogging':
+        amplitude = float(np.hypot(values.get('cogging.sin_Nm', 0.0),
+                                   values.get('cogging.cos_Nm', 0.0)))
+        if amplitude > values.get('Mc', 0.0):
+            required, gain, strong = 2.0 * GAIN_T, 2.0 * loop.min_gain, False
+            size = (f' (a ripple of {amplitude:.3g} N m, larger than the Coulomb friction '
+                    f'{values.get("Mc", 0.0):.3g} N m, needs t >= {required:g} and a gain of '
+                    f'{100 * gain:.0f} %)')
+    achieved = float(candidate.gain or 0.0)
+    if strong and achieved >= gain:
+        return None
+    t = gain_t(loop, current, candidate.fitted)
+    if t >= required and achieved >= gain:
+        return None
+    return (f'its held-out gain ({100 * achieved:.3g} %, t = {t:.2g} over '
+            f'{GAIN_BLOCKS} blocks per record) does not stand out of its own noise{size}')
+
+
+def own_part(loop: LoopState, candidate: Candidate) -> tuple[float, str] | None:
+    """
+    Size of an effect's own part of the simulated outputs, in noise levels, and its text.
+
+    The refit is simulated again with the effect's coefficients at zero; the largest
+    channel's RMS difference over its noise (the sensor noise, or :data:`OWN_PART_SHARE` of
+    the refit's residual RMS when larger: input noise integrated by the motor, or misfit).
+    An effect below one noise level explains no part of the signal that stands out: a gain
+    it brings comes from moving the other parameters (extra freedom, not an effect).  None
+    for data effects (delays), which are not judged so.
+    """
+    from dcmotor_id.identification.checks.identifiability import noise_level
+
+    fitted = candidate.fitted
+    prefix = f'{candidate.name}.'
+    terms = [term for term in fitted.terms if term.name.startswith(prefix)]
+    if not terms or candidate.effect.TRANSFORM:
+        return None
+    values = dict(fitted.values)
+    for term in terms:
+        values[term.name] = 0.0
+    model = OutputErrorModel(fitted.records, loop.torque_constant, fitted.terms,
+                             loop.quasi_static)
+    without = simulate_records(model, values, fitted.estimate.initial_states)
+    ratio, texts = 0.0, []
+    for channel in loop.outputs:
+        difference = np.concatenate([sim[channel] - out[channel] for sim, out
+                                     in zip(fitted.simulated, without)])
+        sensor = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2
+                                  for rec in fitted.records]))
+        misfit = float(fitted.estimate.info.get('noise_std', {}).get(channel, 0.0))
+        noise = max(float(sensor), OWN_PART_SHARE * misfit, 1e-300)
+        rms = float(np.sqrt(np.mean(difference ** 2)))
+        if not np.isfinite(rms):
+            return None
+        ratio = max(ratio, rms / noise)
+        texts.append(f'{channel} {rms:.3g} against a noise of {noise:.3g}')
+    return ratio, ', '.join(texts)
 
 
 def candidate_report(candidate: Candidate, analysis: dict) -> dict[str, Any]:
