@@ -30,10 +30,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+from statistics import NormalDist
 from typing import Callable, Sequence, TYPE_CHECKING
 
 import numpy as np
-from scipy.stats import norm
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -104,7 +104,7 @@ def record_shortfalls(record: Record, steps: Sequence[tuple[int, float]],
         return []
     solution, residual, sigma = fit
     starts = [first for first, _ in steps] + [volts.size]
-    bound = float(norm.isf(RAMP_LEVEL / (WINDOW_SAMPLES * len(steps))))
+    bound = bonferroni_bound(len(steps))
     found = []
     for (first, sign), following in zip(steps, starts[1:]):
         width = min(WINDOW_SAMPLES, max((following - first) // 2, 1), residual.size - first)
@@ -154,4 +154,6 @@ def ramp_masks(records: Sequence[Record],
 
 def bonferroni_bound(steps: int) -> float:
     """Return the z bound of the test for a record with this many steps."""
-    return float(norm.isf(RAMP_LEVEL / (WINDOW_SAMPLES * max(steps, 1)))) if steps else math.inf
+    # the standard library's normal quantile: identify's path does not import scipy
+    return (NormalDist().inv_cdf(1.0 - RAMP_LEVEL / (WINDOW_SAMPLES * max(steps, 1))) if steps
+            else math.inf)
