@@ -51,6 +51,8 @@ from dcmotor_id.identification.checks.inertia import (inertia_half_range,  # noq
 from dcmotor_id.identification.identify import identify, prepare_records  # noqa: E402
 from dcmotor_id.simulation import lab_scenarios  # noqa: E402
 
+from common import markdown_table  # noqa: E402,I100  (bench/common.py, beside this script)
+
 #: The sweep of J for the wheel class [kg m^2] (the authors' value among them).
 SWEEP_J = (2.5e-7, 5e-7, lab_scenarios.WHEEL_J_AUTHORS, 2.5e-6, 5e-6, 1e-5, 2e-5, 4e-5, 8e-5)
 WHEELS_COMMIT = '59fc082'
@@ -199,11 +201,6 @@ def hsm150_rows(repo: str) -> list[list[str]]:
     return rows
 
 
-def _table(header: list[str], rows: list[list[str]]) -> list[str]:
-    return ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)] + [
-        '| ' + ' | '.join(row) + ' |' for row in rows]
-
-
 def main(argv: list[str] | None = None) -> int:
     """Measure the check on every source given; write the markdown tables."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[1])
@@ -227,12 +224,15 @@ def main(argv: list[str] | None = None) -> int:
              '## Power curve: the wheel class (signed current, 30 ms) over J', '',
              'tau: the mechanical time constant J Ra / CPhi^2 (the voltage drives the motor; '
              'the current is logged as the input).', '']
-    lines += _table(['J [kg m^2]', 'tau [ms]', 'tau [samples]', 'median h', 'z (min .. max)',
-                     'flagged'], sweep_rows(args.seeds))
+    lines += markdown_table(
+        ['J [kg m^2]', 'tau [ms]', 'tau [samples]', 'median h', 'z (min .. max)', 'flagged'],
+        sweep_rows(args.seeds)).splitlines()
     rows, judged, flagged = lab_rows(args.seeds)
     lines += ['', f'## Lab classes ({args.seeds} seeds each, true b/CPhi)', '',
               f'Judged {judged} records (a measured speed and current), flagged {flagged}.', '']
-    lines += _table(['class', 'judged', 'median h', 'largest z', 'flagged'], rows)
+    lines += markdown_table(
+        ['class', 'judged', 'median h', 'largest z', 'flagged'],
+        rows).splitlines()
     if args.corpus_data and args.corpus_out:
         rows = corpus_rows(args.corpus_data, args.corpus_out)
         count = sum(row[4] == 'yes' for row in rows)
@@ -241,17 +241,23 @@ def main(argv: list[str] | None = None) -> int:
                   f'{len(rows)} cases with a CSV of current and speed; the statistic flags '
                   f'{count}; `identify` says J is not determined in {said} (only current-input '
                   'fits are judged).', '']
-        lines += _table(['case', 'fit', 'h', 'z', 'flagged', 'identify says so'], rows)
+        lines += markdown_table(
+            ['case', 'fit', 'h', 'z', 'flagged', 'identify says so'],
+            rows).splitlines()
     if args.wheels:
         lines += ['', '## Real: the wheel log (BrOleg5/research-wheel-slippage, 30.6 ms)', '',
                   "Through `identify` (`--torque-constant 0.0514`); h with the answer's b "
                   "(a refusal: the authors' b).  |J - J_authors| / stderr: how many stated "
                   "standard errors the authors' J 1.14e-6 lies from the tool's.", '']
-        lines += _table(['motor', 'J (tool) +/- stderr', 'h', 'z', 'J flagged',
-                         '|J - J_authors| / stderr'], wheel_rows(args.wheels))
+        lines += markdown_table(
+            ['motor', 'J (tool) +/- stderr', 'h', 'z', 'J flagged',
+             '|J - J_authors| / stderr'],
+            wheel_rows(args.wheels)).splitlines()
     if args.hsm150:
         lines += ['', '## Real: HSM150 (1 kHz, current steps), catalog b', '']
-        lines += _table(['record', 'h', 'z', 'flagged'], hsm150_rows(args.hsm150))
+        lines += markdown_table(
+            ['record', 'h', 'z', 'flagged'],
+            hsm150_rows(args.hsm150)).splitlines()
     lines += ['', 'MECH 467 and EMPS log a position (the speed is derived): not judged.', '',
               f'Run time {time.time() - started:.0f} s.', '']
     args.out.write_text('\n'.join(lines))

@@ -47,6 +47,8 @@ from dcmotor_id.identification.pipeline.floor import (_step_starts, ramp_samples
                                                       start_ramp_samples)
 from dcmotor_id.simulation import lab_scenarios  # noqa: E402
 
+from common import markdown_table  # noqa: E402,I100  (bench/common.py, beside this script)
+
 #: Ramp lengths of the power sweep [s] (2 ms samples).
 RAMPS_S = (0.004, 0.006, 0.008, 0.012, 0.018, 0.036, 0.072)
 
@@ -130,11 +132,6 @@ def power_rows(seeds: int) -> list[list[str]]:
     return rows
 
 
-def _table(header: list[str], rows: list[list[str]]) -> list[str]:
-    return ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)] + [
-        '| ' + ' | '.join(row) + ' |' for row in rows]
-
-
 def main(argv: list[str] | None = None) -> int:
     """Measure the test's size and power; write the markdown tables."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[1])
@@ -156,19 +153,24 @@ def main(argv: list[str] | None = None) -> int:
               'limit, sensors held or quantised, PWM): the delay of 1.5 samples over 3 or more '
               "and the limit rule keep those from being named; the z test's nominal 1 % holds "
               'only where the ARX model is exact.', '']
-    lines += _table(['class', 'records', 'largest z', 'z beyond its bound', 'ramp named'], rows)
+    lines += markdown_table(
+        ['class', 'records', 'largest z', 'z beyond its bound', 'ramp named'],
+        rows).splitlines()
     if args.corpus_data:
         rows = corpus_rows(args.corpus_data)
         lines += ['', '## Size: the corpus records', '',
                   f'{len(rows)} CSVs with a voltage and a current; a ramp named in '
                   f"{sum(row[3] == 'yes' for row in rows)}; z alone beyond its bound in "
                   f"{sum(row[2] == 'yes' for row in rows)}.", '']
-        lines += _table(['record', 'largest z', 'z beyond its bound', 'ramp named'], rows)
+        lines += markdown_table(
+            ['record', 'largest z', 'z beyond its bound', 'ramp named'],
+            rows).splitlines()
     lines += ['', f'## Power: amplifier_ramp_mid_step over the ramp ({args.seeds} seeds each)',
               '', 'Found: the named samples cover at least 80 % of the ramp and none precede '
               'the step.  Delay: the current lag the test measures, in samples.', '']
-    lines += _table(['ramp [ms]', 'ramp [samples]', 'median delay', 'found'],
-                    power_rows(args.seeds))
+    lines += markdown_table(
+        ['ramp [ms]', 'ramp [samples]', 'median delay', 'found'],
+        power_rows(args.seeds)).splitlines()
     lines += ['', 'Real records: none of the scorecard has a voltage with a current; not '
               'applied.', '', f'Run time {time.time() - started:.0f} s.', '']
     args.out.write_text('\n'.join(lines))

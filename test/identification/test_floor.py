@@ -242,16 +242,22 @@ def test_a_start_whose_fit_does_not_converge_gives_way_to_the_next():
     assert result.parameters['J'] == pytest.approx(scenario.truth.J, rel=0.1)
 
 
-def test_overflowed_sensitivities_at_the_optimum_are_a_failed_fit_not_an_internal_error():
-    # LAPACK's SVD on a Hessian with inf/NaN raised LinAlgError out of identify ("the numbers
-    # do not fit a DC motor model", exit 2, where the regression had an answer).
-    from dcmotor_id.identification.estimators.least_squares import _Pass, FitProblem
+def _servo_fit_problem():
+    """Return the output-error problem of the servo's torque steps, started at the truth."""
+    from dcmotor_id.identification.estimators.least_squares import FitProblem
     from dcmotor_id.identification.estimators.refined import OutputErrorModel
     scenario = lab_scenarios.servo_torque_steps()
     records = prepare_records(scenario.records, scenario.torque_constant)
     model = OutputErrorModel(records, scenario.torque_constant)
     start = {'J': scenario.truth.J, 'b': scenario.truth.b, 'Mc': scenario.truth.Mc}
-    problem = FitProblem(model, start, 'estimate', None, None, False)
+    return FitProblem(model, start, 'estimate', None, None, False)
+
+
+def test_overflowed_sensitivities_at_the_optimum_are_a_failed_fit_not_an_internal_error():
+    # LAPACK's SVD on a Hessian with inf/NaN raised LinAlgError out of identify ("the numbers
+    # do not fit a DC motor model", exit 2, where the regression had an answer).
+    from dcmotor_id.identification.estimators.least_squares import _Pass
+    problem = _servo_fit_problem()
     size = problem.z0.shape[0]
     broken = _Pass(1.0, np.full((size, size), np.inf), np.zeros(size))
     with pytest.raises(FitError, match='diverged'):
@@ -262,12 +268,7 @@ def test_a_simulation_that_overflows_is_an_infinite_cost_the_search_rejects(monk
     # It ended the fit ("the output-error fit diverged (OverflowError ...)") where the search
     # would have stepped back; levenberg_marquardt still refuses such a start.
     from dcmotor_id.identification.estimators import least_squares
-    from dcmotor_id.identification.estimators.refined import OutputErrorModel
-    scenario = lab_scenarios.servo_torque_steps()
-    records = prepare_records(scenario.records, scenario.torque_constant)
-    model = OutputErrorModel(records, scenario.torque_constant)
-    start = {'J': scenario.truth.J, 'b': scenario.truth.b, 'Mc': scenario.truth.Mc}
-    problem = least_squares.FitProblem(model, start, 'estimate', None, None, False)
+    problem = _servo_fit_problem()
 
     def overflow(*args, **kwargs):
         raise OverflowError('math range error')
