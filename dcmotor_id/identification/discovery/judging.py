@@ -8,13 +8,16 @@ considered (:func:`decide`).  The loop never ends worse than its base model
 
 Earned (rule ``heldout-t``): the held-out drop is significant on the samples it is worth
 (:func:`heldout_t`, the residual's correlation time) and spread over the held-out part
-(:func:`gain_t`).  Rule ``innovation-t`` (the default): the same on the innovations of an
+(:func:`gain_t`).  Rule ``innovation-t``: the same on the innovations of an
 AR(1) error model of each structure's held-out residual (:func:`innovation_t`): a drifting
 residual (a position the model integrates) is judged on its increments, which are worth
-many samples where the drift is worth a handful.  The former rules (``noise-level``: an
-effect's own part of the outputs against the per-sample noise, :func:`own_part`, and a
-cogging ripple above the Coulomb friction needing twice the evidence) are kept to be
-measured against (``bench/bench_discovery.py``, a column per rule).
+many samples where the drift is worth a handful.  Rule ``innovation-t-alone`` (the default):
+that t test alone, without the spread over blocks (:func:`heldout_gain_noise` in
+:func:`choose`, :func:`gain_t`), which repeats the test with 7 degrees of freedom and turns
+down evidence gathered at a few instants (a sensor delay at a sawtooth's jumps).  The former
+rules (``noise-level``: an effect's own part of the outputs against the per-sample noise,
+:func:`own_part`, and a cogging ripple above the Coulomb friction needing twice the evidence)
+are kept to be measured against (``bench/bench_discovery.py``, a column per rule).
 """
 
 from __future__ import annotations
@@ -118,7 +121,7 @@ def choose(loop: LoopState, current: Fit, admissible: list[Candidate],
     winner = min(ties, key=lambda candidate: order[candidate.name])
     # Refitted candidates are scored: gain, bic_delta and gain_noise are set.
     gain, bic_delta = cast(float, winner.gain), cast(float, winner.bic_delta)
-    noise = winner.gain_noise
+    noise = None if loop.acceptance == 'innovation-t-alone' else winner.gain_noise
     if gain >= loop.min_gain and bic_delta < 0 and (noise is None or gain > noise):
         return winner, [candidate for candidate in ties if candidate is not winner]
     return None, []
@@ -338,35 +341,38 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
 
     By the loop's rule (``loop.acceptance``, one of
     :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``:
-    :func:`unearned_heldout_t`; ``innovation-t`` (default): the same on the innovations of
-    the residuals' AR(1) error models (:func:`innovation_t`); ``noise-level`` (the former
+    :func:`unearned_heldout_t`; ``innovation-t``: the same on the innovations of
+    the residuals' AR(1) error models (:func:`innovation_t`); ``innovation-t-alone``
+    (default): that t test without the spread over blocks; ``noise-level`` (the former
     rules, kept to measure against): :func:`unearned_noise_level`.
     """
     if loop.acceptance == 'noise-level':
         return unearned_noise_level(loop, current, candidate)
     if loop.acceptance == 'innovation-t':
         return unearned_heldout_t(loop, current, candidate, innovation_t)
+    if loop.acceptance == 'innovation-t-alone':
+        return unearned_heldout_t(loop, current, candidate, innovation_t, spread=False)
     return unearned_heldout_t(loop, current, candidate)
 
 
 def unearned_heldout_t(loop: LoopState, current: Fit, candidate: Candidate,
-                       test: Callable[[LoopState, Fit, Fit], tuple[float, float]] | None = None
-                       ) -> str | None:
+                       test: Callable[[LoopState, Fit, Fit], tuple[float, float]] | None = None,
+                       spread: bool = True) -> str | None:
     """
     Why a winning candidate's held-out gain is not significant, or None.
 
     Its held-out drop must have a t of at least :func:`heldout_t_threshold` on the samples it
-    is worth (``test``: :func:`heldout_t` by default, :func:`innovation_t` for the rule
-    ``innovation-t``), the gain must be spread over the held-out part
-    (:func:`gain_t` over blocks at least :data:`GAIN_T`: not one stretch traded for another)
-    and at least the loop's least gain.  No size rule: a per-sample amplitude below the
+    is worth (``test``: :func:`heldout_t` by default, :func:`innovation_t` for the rules
+    ``innovation-t`` and ``innovation-t-alone``), the gain must be at least the loop's least
+    gain and, with ``spread``, spread over the held-out part (:func:`gain_t` over blocks at
+    least :data:`GAIN_T`).  No size rule: a per-sample amplitude below the
     per-sample noise is what many samples resolve.
     """
     t, effective = (test or heldout_t)(loop, current, candidate.fitted)
     achieved = float(candidate.gain or 0.0)
     required = heldout_t_threshold(effective)
     if t >= required and achieved >= loop.min_gain:
-        blocks = gain_t(loop, current, candidate.fitted)
+        blocks = gain_t(loop, current, candidate.fitted) if spread else GAIN_T
         if blocks >= GAIN_T:
             return None
         return (f'its held-out gain ({100 * achieved:.3g} %) is carried by a few stretches '
