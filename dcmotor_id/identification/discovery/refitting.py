@@ -264,7 +264,7 @@ def null_refit(loop: LoopState, current: Fit) -> Fit | None:
 def judging_reference(current: Fit) -> Fit:
     """Return the fit a candidate's held-out gain is measured from: the null refit, or it."""
     null = current.info.get('null_refit')
-    return null if isinstance(null, Fit) else current
+    return current if null is None else null
 
 
 def refit_candidate(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
