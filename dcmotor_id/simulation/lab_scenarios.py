@@ -626,6 +626,33 @@ def small_motor_step_encoder_speed(seed: int = 0, sample_period_s: float = 1e-3,
                     note=f'{level_v:g} V from rest, {counts_per_rev}-count encoder speed')
 
 
+def small_motor_step_encoder_angle(seed: int = 0, sample_period_s: float = 1e-3,
+                                   level_v: float = 9.0, counts_per_rev: int = 1024,
+                                   duration_s: float = 1.5) -> Scenario:
+    """
+    Simulate one voltage step from rest of a small fast motor: current and encoder angle.
+
+    The motor and step of :func:`small_motor_step_encoder_speed`, with the encoder's angle
+    logged instead of its speed (so ``identify`` fits the position, the speed derived from
+    it).  No effect of the vocabulary is in the data: its regression evidence (a filtered
+    derivative of a step) is off by several times, the loop's base on the position is taken
+    for unsound and the loop starts from the speed fit, whose position drifts; every
+    candidate then gained by its refit on the position alone (a current offset, a brush drop
+    or a cogging torque added).
+    """
+    rng = np.random.default_rng(seed)
+    truth = MotorParameters(Ra=5.0, La=0.5e-3, CPhi=0.03, J=1e-5, b=5e-6, Mc=2e-3)
+    command = np.full(int(round(duration_s / sample_period_s)), level_v)
+    out = simulate_drive(truth, command, sample_period_s)
+    t = np.arange(command.shape[0]) * sample_period_s
+    lsb = 2 * np.pi / counts_per_rev
+    record = Record(t, current=_noisy(out['current'], 0.003, rng), voltage=command,
+                    position=np.floor(out['angle'] / lsb) * lsb,
+                    source='small_motor_step_encoder_angle')
+    return Scenario('small_motor_step_encoder_angle', [record], truth,
+                    note=f'{level_v:g} V from rest, {counts_per_rev}-count encoder angle')
+
+
 def amplifier_ramp_mid_step(seed: int = 0, sample_period_s: float = 2e-3,
                             ramp_s: float = 0.036) -> Scenario:
     """
@@ -650,6 +677,7 @@ def amplifier_ramp_mid_step(seed: int = 0, sample_period_s: float = 2e-3,
 
 SCENARIOS.update({'small_motor_encoder_500hz': small_motor_encoder_500hz,
                   'small_motor_step_encoder_speed': small_motor_step_encoder_speed,
+                  'small_motor_step_encoder_angle': small_motor_step_encoder_angle,
                   'amplifier_ramp_step': amplifier_ramp_step,
                   'amplifier_ramp_mid_step': amplifier_ramp_mid_step})
 

@@ -209,3 +209,22 @@ def test_an_early_sensor_is_not_accepted_as_a_negative_delay():
                           'not causal' in (candidate['rejected'] or '')
                           for candidate in delays)
     assert any(candidate['inner']['samples'] < 0 for candidate in delays)
+
+
+def test_the_final_structure_must_beat_the_base_refitted_as_the_candidates_were():
+    # A base fitted on the speed drifts on the position: any structure fitted on the position
+    # beats it.  The final structure must beat the base refitted on the position (no effect).
+    from types import SimpleNamespace
+
+    from dcmotor_id.identification.discovery.judging import never_worse
+    from dcmotor_id.identification.discovery.refitting import judging_reference
+
+    base = SimpleNamespace(heldout_cost=50.0, info={})
+    final = SimpleNamespace(heldout_cost=1.02)
+    assert judging_reference(base) is base
+    assert never_worse(base, final, 'explained')[0] is final
+    base.info['null_refit'] = SimpleNamespace(heldout_cost=1.0)
+    reference = judging_reference(base)
+    assert reference is base.info['null_refit']
+    kept, reason = never_worse(base, final, 'explained', reference)
+    assert kept is base and 'did not lower the held-out error' in reason

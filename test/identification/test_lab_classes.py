@@ -159,3 +159,28 @@ def test_the_wheel_motor_sampled_fast_has_its_inertia_determined():
     assert 'J' not in result.not_identifiable
     assert not any(text.startswith('J is not determined') for text in result.warnings)
     assert result.parameters['J'] == pytest.approx(scenario.truth.J, rel=0.05)
+
+
+@pytest.mark.parametrize('level_v, sample_period_s, counts', [(9.0, 1e-3, 1024),
+                                                              (6.0, 2e-3, 2048)])
+def test_a_step_from_rest_logged_by_its_encoder_angle_gets_no_effect(level_v, sample_period_s,
+                                                                     counts):
+    # The loop starts from the speed fit (its regression evidence, a filtered derivative of
+    # the step, is several times off), whose position drifts: judged against it, a candidate
+    # gained 96-98 % by its refit on the position alone, and a Stribeck friction (9 V) or a
+    # cogging torque (6 V) was added.  Judged against the base refitted as they are, none is.
+    scenario = lab_scenarios.small_motor_step_encoder_angle(
+        sample_period_s=sample_period_s, level_v=level_v, counts_per_rev=counts)
+    result = identify(prepare_records(scenario.records))
+    assert result.criterion == 'position'
+    assert 'base_from' in result.discovery_result.base.estimate.info
+    assert result.effects == []
+    rounds = result.discovery_result.steps
+    assert rounds and all(step['judged_against'] for step in rounds)
+    gains = [candidate['heldout_gain_pct'] for candidate in rounds[0]['candidates']
+             if candidate['heldout_gain_pct'] is not None]
+    assert gains and max(gains) < 5.0
+    truth = scenario.truth
+    assert result.parameters['Ra'] == pytest.approx(truth.Ra, rel=0.05)
+    assert result.parameters['CPhi'] == pytest.approx(truth.CPhi, rel=0.05)
+    assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)

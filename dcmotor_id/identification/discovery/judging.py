@@ -84,9 +84,15 @@ def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
     return GAIN_NOISE_FACTOR * stderr / current.heldout_cost
 
 
-def never_worse(base: Fit, final: Fit, reason: str) -> tuple[Fit, str]:
-    """Return the final structure, or the base one when it is not better on the held-out part."""
-    if final is base or final.heldout_cost < base.heldout_cost:
+def never_worse(base: Fit, final: Fit, reason: str,
+                reference: Fit | None = None) -> tuple[Fit, str]:
+    """
+    Return the final structure, or the base one when it is not better on the held-out part.
+
+    Better than ``reference`` (default ``base``): the base structure as the candidates were
+    refitted, when the base is not a fit of the loop's criterion.
+    """
+    if final is base or final.heldout_cost < (reference or base).heldout_cost:
         return final, reason
     return base, (reason + '; the effects found did not lower the held-out error of the base '
                   'model, which is kept')

@@ -20,7 +20,8 @@ from dcmotor_id.identification.discovery.analysis import (analyse, explained, ma
                                                           negligible)
 from dcmotor_id.identification.discovery.judging import decide, never_worse, round_report, score
 from dcmotor_id.identification.discovery.refitting import (anchor_fit, base_unsound, fit_structure,
-                                                           refit_all, refit_candidate,
+                                                           judging_reference, refit_all,
+                                                           refit_candidate,
                                                            speed_base_on_the_position, taught)
 from dcmotor_id.identification.discovery.result import DiscoveryResult
 from dcmotor_id.identification.discovery.screening import (screen_absent, SCREEN_SHARE, SCREEN_TOP,
@@ -75,7 +76,7 @@ def run_loop(settings: LoopState, estimate: Estimate | None = None,
     loop, base = base_fit(settings, estimate, structure or Structure())
     analysis_before = analyse(loop, base)
     search = search_rounds(loop, base, analysis_before)
-    current, reason = never_worse(base, search.current, search.reason)
+    current, reason = never_worse(base, search.current, search.reason, judging_reference(base))
     records, terms, estimate, base_estimate, out_of_time = refit_all_data(
         loop, base, current, estimate, search.out_of_time)
     analysis = search.analysis
@@ -100,7 +101,9 @@ def base_fit(loop: LoopState, estimate: Estimate | None,
     (:func:`~dcmotor_id.identification.discovery.refitting.taught`, the pinned initial states,
     the anchor) and the base.  On the position, a base model fit that fails or lands far from
     the model-free evidence (:func:`~dcmotor_id.identification.discovery.refitting.base_unsound`)
-    gives way to the base fitted on the speed (:func:`speed_base_on_the_position`).
+    gives way to the base fitted on the speed (:func:`speed_base_on_the_position`); the
+    candidates are then judged against that base refitted on the position as they are
+    (:func:`~dcmotor_id.identification.discovery.refitting.null_refit`).
     """
     if loop.progress is not None:
         loop.progress.set_stage('discovery: base model on the training parts')
@@ -197,26 +200,36 @@ def _base_on_all_data(loop: LoopState, base: Fit) -> Estimate:
 
 
 def one_round(loop: LoopState, current: Fit, analysis: dict) -> Round:
-    """One search round: screen every absent effect, refit the promising, choose."""
-    scored = refit_promising(loop, current, screen_absent(loop, current))
+    """
+    One search round: screen every absent effect, refit the promising, choose.
+
+    The candidates are screened and refitted from ``current`` and judged against
+    :func:`~dcmotor_id.identification.discovery.refitting.judging_reference`: the current
+    structure refitted as they are when ``current`` is not a fit of the loop's criterion.
+    """
+    reference = judging_reference(current)
+    scored = refit_promising(loop, current, screen_absent(loop, current), reference)
     order = {cls.name: position for position, cls in enumerate(loop.candidates)}
     refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
                       key=lambda candidate: candidate.fitted.heldout_cost)
     screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
                           key=lambda candidate: -candidate.screen_explained)
-    chosen, equivalent, refitted = decide(loop, current, refitted, order)
+    chosen, equivalent, refitted = decide(loop, reference, refitted, order)
     results = refitted + screened_out
-    return Round(results, chosen,
-                 round_report(loop, current, analysis, results, chosen, equivalent))
+    report = round_report(loop, reference, analysis, results, chosen, equivalent)
+    if reference is not current:
+        report['judged_against'] = 'the base refitted as the candidates are (no effect)'
+    return Round(results, chosen, report)
 
 
-def refit_promising(loop: LoopState, current: Fit,
-                    screened: list[Candidate]) -> list[Candidate]:
+def refit_promising(loop: LoopState, current: Fit, screened: list[Candidate],
+                    reference: Fit | None = None) -> list[Candidate]:
     """
     Refit and score the candidates the screen supports, and the best few anyway.
 
     The screen is a linearisation: a strongly nonlinear effect may look smaller than it
     is.  ``screened`` is in the order of the screen, best first; so is the list returned.
+    Each refit (from ``current``) is scored against ``reference`` (default ``current``).
     """
     threshold = SCREEN_SHARE * loop.min_gain
     top = SCREEN_TOP_MISFIT if misfit(loop, current) else SCREEN_TOP
@@ -225,7 +238,8 @@ def refit_promising(loop: LoopState, current: Fit,
         if rank < top or candidate.screen_explained >= threshold:
             if loop.progress is not None:
                 loop.progress.set_stage(f'discovery: candidate {candidate.name}')
-            candidate = score(loop, current, refit_candidate(loop, current, candidate))
+            candidate = score(loop, reference or current,
+                              refit_candidate(loop, current, candidate))
         scored.append(candidate)
     return scored
 

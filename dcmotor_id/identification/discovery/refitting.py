@@ -232,7 +232,39 @@ def speed_base_on_the_position(loop: LoopState) -> tuple[LoopState, Fit] | None:
     records = list(loop.records)
     estimate = with_position_states(anchor.estimate, records)
     base = judged_fit(loop, Structure(), estimate, records, training_stops(loop, records), ())
-    return replace(loop, anchor=anchor, weights=noise_weights(loop, estimate)), base
+    loop = replace(loop, anchor=anchor, weights=noise_weights(loop, estimate))
+    null = null_refit(loop, base)
+    if null is not None:
+        base.info['null_refit'] = null
+    return loop, base
+
+
+def null_refit(loop: LoopState, current: Fit) -> Fit | None:
+    """
+    Refit the current structure on the loop's criterion as a candidate is; None if it fails.
+
+    A candidate's refit (:func:`try_candidate`) fits the position from the current fit's
+    values (friction lifted off zero, :func:`refit_start`) and from the anchor's.  When the
+    current fit is not a fit of the position (the base fitted on the speed,
+    :func:`speed_base_on_the_position`), every candidate would gain by that refit alone, the
+    effect or not: on one voltage step from rest logged by an encoder angle, cogging,
+    current offset and brush drop gained 96-98 % of the held-out error, within 0.05 % of
+    each other.  This fit, with the same starts, evaluations and criterion and no effect, is
+    the null model a candidate is judged against (:func:`judging_reference`).
+    """
+    fits = [_try_from(loop, current.structure, base_start(loop, current),
+                      dict(current.values), current.estimate.initial_states)]
+    if loop.anchor is not None:
+        fits.append(_try_from(loop, current.structure, base_start(loop, loop.anchor),
+                              dict(loop.anchor.values), None))
+    found = [fit for fit in fits if fit is not None and np.isfinite(fit.heldout_cost)]
+    return min(found, key=lambda fit: fit.train_cost, default=None)
+
+
+def judging_reference(current: Fit) -> Fit:
+    """Return the fit a candidate's held-out gain is measured from: the null refit, or it."""
+    null = current.info.get('null_refit')
+    return current if null is None else null
 
 
 def refit_candidate(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
