@@ -74,8 +74,9 @@ def sampled_current_pi(motor: Motor, bandwidth_hz_: float,
     Return the current PI for a sampled loop and its correction factor.
 
     The closed form keeps ``Ti = La/Ra`` but ``Kp = 2 pi f_c La`` gives a sampled loop a
-    wider bandwidth than ``f_c`` (the zero-order hold's half-sample delay makes it peak:
-    +7 % at ``f_c = f_s/50``, +22 % at ``f_s/20``). With ``dt`` the design frequency is
+    wider bandwidth than ``f_c`` (the zero-order hold's half-sample delay makes it peak, the
+    more the closer ``f_c`` comes to ``f_s``; the manual's control design page gives the
+    figures on its example's motor). With ``dt`` the design frequency is
     scaled by the factor (found by brentq) that makes the sampled closed loop's -3 dB
     bandwidth ``f_c``; without ``dt`` it is the closed form (factor 1).
 
