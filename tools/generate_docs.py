@@ -220,6 +220,50 @@ def _figure_caption(sessions: Mapping[str, Session]) -> str:
     return '\n' + '\n'.join(wrap(text, 96)).replace('\n  ', '\n') + '\n\n'
 
 
+def sampled_current_figures(result: Mapping, sample_period_s: float = 1e-4) -> list[tuple]:
+    """
+    Return ``(f_s / f_c, widening %, sampling_correction)`` of the sampled current loop.
+
+    For the identified motor of ``result`` at ``f_c = f_s/50`` and ``f_s/20``: how much wider
+    than ``f_c`` the closed form's sampled loop is, and the factor the design scales it by
+    (:func:`dcmotor_id.design.loops.sampled_current_pi`).
+    """
+    if ROOT not in sys.path:
+        sys.path.insert(0, ROOT)
+    from dcmotor_id.design.loops import (bandwidth_hz, current_pi, inner_loop,
+                                         sampled_current_pi)
+    from dcmotor_id.design.plant import motor_from_result
+    motor = motor_from_result(dict(result))
+    figures = []
+    for ratio in (50, 20):
+        f_c = 1.0 / (ratio * sample_period_s)
+        inner = inner_loop(motor, current_pi(motor, f_c), None, sample_period_s)
+        widening = 100.0 * (bandwidth_hz(inner[inner.output_labels.index('i'), 0]) / f_c - 1)
+        figures.append((ratio, widening, sampled_current_pi(motor, f_c, sample_period_s)[1]))
+    return figures
+
+
+def _current_loop_block(sessions: Mapping[str, Session]) -> str:
+    (low, low_wide, low_factor), (high, high_wide, high_factor) = sampled_current_figures(
+        sessions['prbs'].json('result.json'))
+    text = (
+        '**Current loop** (`u` from `i_ref - i`): pole-zero cancellation of the armature pole, '
+        '`Ti = La/Ra`, `Kp = 2 pi f_c La`, `Ki = Kp/Ti = 2 pi f_c Ra`. Without back-EMF the '
+        'open loop is `2 pi f_c / s`: a first-order closed loop of bandwidth `f_c` and 90 deg '
+        'phase margin (continuous design: exactly these gains, `closed_form` in the JSON). '
+        "Sampled, the zero-order hold's half-sample delay makes the loop peak and widens its "
+        f'bandwidth (on the motor of the example above: {low_wide:+.0f} % at `f_c = f_s/{low}`, '
+        f'{high_wide:+.0f} % at `f_s/{high}`), so with `--sample-period` the closed form is '
+        f'used at `f_c` times a factor (`sampling_correction`, {low_factor:.2f} and '
+        f'{high_factor:.2f} there, found by brentq) that makes the sampled closed loop\'s -3 dB '
+        'bandwidth `f_c`; `Ti = La/Ra` is kept. The back-EMF (`CPhi w`, given as '
+        '`back_emf_feedforward_v_per_rad_s` to add to `u`) is in the evaluated plant; the '
+        'reported bandwidth and margins are those of the exact (sampled) loop.')
+    kept = re.sub(r'`[^`]*`', lambda found: found.group(0).replace(' ', '\0'), text)
+    lines = '\n'.join(wrap(kept, 96)).replace('\n  ', '\n').replace('\0', ' ')
+    return '\n' + lines + '\n\n'
+
+
 def bench_lines(name: str, pattern: str) -> list[str]:
     """Return group 1 of every line of a committed results file that ``pattern`` matches."""
     lines = [m.group(1) for m in re.finditer(pattern, read_bench(name), re.MULTILINE)]
@@ -271,6 +315,54 @@ def _readme_emps_block(sessions: Mapping[str, Session]) -> str:
     return '\n' + '\n'.join(lines) + '\n\n'
 
 
+#: The EMPS study's rows the manual shows: (label, the row of bench/emps_score_results.md).
+EMPS_STUDY_ROWS = (
+    ('published IDIM-LS parameters (M, Fv, Fc, offset)', 'published IDIM-LS (M, Fv, Fc, offset)'),
+    ('4-parameter rigid model, output error on speed (`--criterion speed`)',
+     '4-parameter rigid model, output error on speed'),
+    ('4-parameter rigid model, output error on position',
+     '4-parameter rigid model, output error on position'),
+    ('discovery loop on speed (`identify --criterion speed`, {effects})',
+     'discovery loop on speed'),
+    ('**position output error + viscous_asymmetry** (Fv+ {b_pos:.0f}, Fv- {b_neg:.0f} N s/m)',
+     'position output error + viscous_asymmetry'),
+    ('position output error + viscous and Coulomb asymmetry',
+     'position output error + viscous and coulomb asymmetry'),
+    ('... + Stribeck friction', 'position output error + viscous_asymmetry + stribeck'),
+    ('... + quadratic drag (Fv {Fv:g} N s/m)',
+     'position output error + viscous_asymmetry + quadratic_drag'),
+    ('... + force periodic in position, 58 mm (not reproduced on PULSES)',
+     'position output error + viscous_asymmetry + force periodic in position (cogging, period '
+     '58 mm)'),
+    ('... + first-order lag of the force (fits {lag})',
+     'position output error + viscous_asymmetry + first-order lag of the force'),
+    ('diagnosis, not a score: viscous_asymmetry structure fitted on PULSES',
+     'diagnosis, not a score: position output error + viscous_asymmetry fitted on PULSES'))
+
+
+def _emps_study_block(sessions: Mapping[str, Session]) -> str:
+    """Return the EMPS study's scores from bench/emps_score_results.md (The study)."""
+    table = next(t for t in bench_tables(read_bench('emps_score_results.md'))
+                 if 'The study' in t.heading)
+    head = {name: table.header.index(name) for name in table.header}
+    lines = ['| model (trained on DATA_EMPS) | PULSES position RMSE | DATA_EMPS |', '|---|---|---|']
+    for label, wanted in EMPS_STUDY_ROWS:
+        row = next(row for row in table.rows if row[0] == wanted or (
+            wanted == 'discovery loop on speed' and row[0].startswith(wanted)))
+        effects = row[head['effects']]
+        fv = float(row[head['Fv [N s/m]']])
+        delta = re.search(r'viscous_asymmetry delta_Nm_s ([-+.\de]+)', effects)
+        lag = re.search(r'force lag ([-+.\de]+ ms)', effects)
+        text = label.format(
+            effects=re.sub(r'^.*\((identify, )?(.*)\)$', r'\2', row[0]), Fv=fv, lag=lag and lag.group(1),
+            b_pos=fv + float(delta.group(1)) if delta else 0.0,
+            b_neg=fv - float(delta.group(1)) if delta else 0.0)
+        score = row[head['PULSES position RMSE [mm]']].strip('*')
+        score = f'**{score} mm**' if text.startswith('**') else f'{score} mm'
+        lines.append(f"| {text} | {score} | {row[head['DATA_EMPS position RMSE [mm]']]} mm |")
+    return '\n' + '\n'.join(lines) + '\n\n'
+
+
 #: Block name -> (page, how the block is made from the sessions).
 BLOCKS: dict[str, tuple[str, Callable[[Mapping[str, Session]], str]]] = {
     'readme': ('README.md', _readme_block),
@@ -280,10 +372,12 @@ BLOCKS: dict[str, tuple[str, Callable[[Mapping[str, Session]], str]]] = {
     'stribeck-example': ('docs/closing_the_loop.md', _stribeck_block),
     'report-figure-numbers': ('docs/closing_the_loop.md', _figure_caption),
     'design-example': ('docs/control_design.md', _design_block),
+    'current-loop': ('docs/control_design.md', _current_loop_block),
     'design-refused': ('docs/control_design.md', _refused_block),
     'design-stribeck': ('docs/control_design.md', _stribeck_design_block),
     # from the committed benchmark results (their live runs take minutes)
     'readme-emps': ('README.md', _readme_emps_block),
+    'emps-study': ('docs/emps.md', _emps_study_block),
     'online-alarms': ('docs/online.md', _online_alarms_block),
     'fleet-example': ('docs/fleet.md', _fleet_block),
 }

@@ -407,7 +407,7 @@ def _cmd_design(args):
                             args.sample_period)
     notes = bandwidth_notes(result, args)
     design, gains = control_design.design(motor, options)
-    design['notes'] += armature_lag_note(result, design['requested']['speed_bandwidth_hz'])
+    design['notes'] += armature_lag_note(result, design['nominal']['speed']['bandwidth_hz'])
     if args.gravity_load:
         add_gravity(design['feedforward'], gravity_feedforward(motor))
     design['source'] = args.result

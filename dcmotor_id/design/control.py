@@ -49,10 +49,12 @@ from typing import Any
 
 import numpy as np
 
-from dcmotor_id.design.loops import (bandwidth_hz, current_pi, design_speed,
-                                     difference_equation, feedforward, inner_loop, margins,
-                                     motor_model, pi_controller, sampled_current_pi,
-                                     sampled_system, speed_loops)
+from dcmotor_id.design.loops import (achievable_speed_bandwidths, bandwidth_hz, current_pi,
+                                     decade_speed_pi, design_speed, difference_equation,
+                                     feedforward, feedforward_step_overshoot_pct,
+                                     inner_loop, margins, motor_model, pi_controller,
+                                     sampled_current_pi, sampled_system, speed_loops,
+                                     step_overshoot_pct)
 from dcmotor_id.design.plant import DesignError, DesignOptions, Motor, resolve_options, Z95
 
 
@@ -240,10 +242,11 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
     notes = _design_notes(motor.mode, torque_loop, current_bandwidth or speed_bandwidth, dt)
     reference = reference_of(motor)
     inner = inner_loop(motor, current, torque_loop, dt)
-    kp, ki, crossover = design_speed(inner, speed_bandwidth,
-                                     options.phase_margin_deg, dt, reference)
+    kp, ki, crossover, speed_notes = _speed_pi(motor, inner, speed_bandwidth,
+                                               options.phase_margin_deg, dt)
     gains = Gains(current, (kp, ki), dt, torque_loop)
     nominal = loop_metrics(motor, gains)
+    speed_notes += _step_overshoot(motor, inner, gains, nominal['speed'])
     if not all(values['stable'] for values in nominal.values()):
         raise DesignError('the designed loops are unstable at this sample period: lower the '
                           'bandwidths or sample faster.')
@@ -255,8 +258,59 @@ def design(motor: Motor, options: DesignOptions) -> tuple[dict, Gains]:
     result['feedforward'] = feedforward(motor)
     result['nominal'] = nominal
     result['robustness'] = robustness(motor, gains)
-    result['notes'] = notes + effect_notes(motor) + result['robustness']['notes']
+    result['notes'] = notes + speed_notes + effect_notes(motor) + result['robustness']['notes']
     return result, gains
+
+
+def _speed_pi(motor: Motor, inner: Any, bandwidth: float, phase_margin_deg: float,
+              dt: float | None) -> tuple[float, float, float, list[str]]:
+    """
+    Return the speed PI ``(Kp, Ki, crossover [Hz])`` and the notes on a lowered bandwidth.
+
+    A voltage-to-speed plant with the armature lag has a highest speed bandwidth a PI reaches
+    with the phase margin (the lag's phase), where the PI's integral action vanishes; a
+    bandwidth above it is lowered to that of the fastest PI whose zero lies a decade below its
+    crossover (:func:`~dcmotor_id.design.loops.decade_speed_pi`), and a note says so. Any
+    other unmet request is refused (:class:`DesignError`).
+    """
+    reference = reference_of(motor)
+    try:
+        return (*design_speed(inner, bandwidth, phase_margin_deg, dt, reference), [])
+    except DesignError:
+        if not (motor.mode == 'voltage_speed' and 'Ta' in motor.values):
+            raise
+        highest = achievable_speed_bandwidths(inner, phase_margin_deg, dt, reference,
+                                              bandwidth)[1]
+        if not (np.isfinite(highest) and bandwidth > highest):
+            raise
+    kp, ki, crossover, lowered = decade_speed_pi(inner, phase_margin_deg, dt, reference,
+                                                 highest)
+    note = (f'--speed-bandwidth {bandwidth:g} Hz is beyond the armature lag: with '
+            f'{phase_margin_deg:g} deg phase margin a PI reaches at most {highest:.3g} Hz on '
+            'this plant, its integral action vanishing there; the loop is designed for '
+            f'{lowered:.3g} Hz, the fastest PI whose zero lies a decade below its crossover '
+            '(ask for less, or a smaller --phase-margin)')
+    return kp, ki, crossover, [note]
+
+
+def _step_overshoot(motor: Motor, inner: Any, gains: Gains, nominal: dict) -> list[str]:
+    """
+    Put the speed step's overshoot into the nominal figures; return the note on it.
+
+    ``nominal['step_overshoot_pct']``: the closed speed loop's ``w_ref -> w`` (the PI alone).
+    Voltage-speed mode also notes the step with the static feedforward added.
+    """
+    nominal['step_overshoot_pct'] = step_overshoot_pct(
+        loops(motor, gains)['speed_closed'][0, 0], nominal['bandwidth_hz'])
+    if motor.mode != 'voltage_speed':
+        return []
+    with_feedforward = feedforward_step_overshoot_pct(inner, *gains.speed, motor.values['kV'],
+                                                      gains.dt, nominal['bandwidth_hz'])
+    return [f"a step of the speed reference overshoots by {nominal['step_overshoot_pct']:.3g} "
+            f'% with the PI alone, by {with_feedforward:.3g} % with the static feedforward '
+            'kS sgn(w_ref) + kV w_ref added: the feedforward holds the new speed, so the '
+            'integral gives back what it gathered on the rise; feed the feedforward and the PI '
+            'a profiled reference (e.g. WPILib TrapezoidProfile), not a step']
 
 
 #: What the controller does with each effect beyond ignoring it in the linear loops.
@@ -328,7 +382,7 @@ def design_controller(result: Any, current_bandwidth_hz: float | None = None,
     motor = motor_from_result(data, gear_ratio, output_shaft)
     made, _ = design(motor, DesignOptions(current_bandwidth_hz, speed_bandwidth_hz,
                                           phase_margin_deg, sample_period_s))
-    made['notes'] += armature_lag_note(data, made['requested']['speed_bandwidth_hz'])
+    made['notes'] += armature_lag_note(data, made['nominal']['speed']['bandwidth_hz'])
     if gravity_load:
         add_gravity(made['feedforward'], gravity_feedforward(motor))
     return made
@@ -340,8 +394,9 @@ def _design_notes(mode: str, torque_loop: float | None, fastest: float,
     notes = []
     if mode == 'voltage_speed':
         notes.append('voltage-to-speed result (kS, kV, kA; no current): the speed PI acts on '
-                     'the voltage, plant kA s + kV with the armature lag neglected; no current '
-                     'loop (it needs Ra and La: identify with the current)')
+                     'the voltage, plant kA s + kV (with Ta kA s^2 where the identification '
+                     'found the armature lag Ta); no current loop (it needs Ra and La: '
+                     'identify with the current)')
     elif mode == 'mechanical':
         notes.append('mechanical-only result (J, b, Mc): the speed loop acts on a torque '
                      'command; the current loop needs Ra and La (identify with voltage).')
@@ -429,7 +484,9 @@ def format_design(result: dict) -> str:
                      f"ki = {loop['ki']:.5g} {loop['units']['ki']} (Ti {loop['ti_s']:.4g} s)")
         lines.append(f"{'':<9} bandwidth {metrics['bandwidth_hz']:.4g} Hz (asked "
                      f"{asked:.4g}), phase margin {metrics['phase_margin_deg']:.3g} deg, gain "
-                     f"margin {metrics['gain_margin_db']:.3g} dB")
+                     f"margin {metrics['gain_margin_db']:.3g} dB" + (
+                         f", step overshoot {metrics['step_overshoot_pct']:.3g} %"
+                         if 'step_overshoot_pct' in metrics else ''))
     ff = result['feedforward']
     lines.append(f"feedforward kS = {ff['kS']:.5g} {ff['units']['kS']}, kV = {ff['kV']:.5g} "
                  f"{ff['units']['kV']}, kA = {ff['kA']:.5g} {ff['units']['kA']}"

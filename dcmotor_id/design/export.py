@@ -35,8 +35,8 @@ from dcmotor_id.identification.effects import parse_effect
 #: Format tag of the StateSpace JSON.
 STATESPACE_FORMAT = 'dcmotor_id.statespace/1'
 _UNITS = {'Ra': 'Ohm', 'La': 'H', 'CPhi': 'V s', 'J': 'kg m^2', 'b': 'N m s/rad', 'Mc': 'N m',
-          'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'}
-_SIGNAL_UNITS = {'i': 'A', 'w': 'rad/s', 'u': 'V', 'torque': 'N m'}
+          'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad', 'Ta': 's', 'kA_inertia': 'V s^2/rad'}
+_SIGNAL_UNITS = {'i': 'A', 'w': 'rad/s', 'u': 'V', 'torque': 'N m', 'a': 'rad/s^2'}
 
 
 def statespace_dict(motor: Motor) -> dict:

@@ -40,9 +40,16 @@ def motor_model(motor: Motor) -> control.StateSpace:
     Full mode: states ``i, w``, inputs ``u`` [V] and ``torque`` [N m] (any further torque on
     the shaft; Coulomb friction is ``-Mc sgn(w)`` on it), outputs ``i, w``. Mechanical mode:
     state and output ``w``, input ``torque``. Voltage-speed mode: ``kA dw/dt = u - kV w``,
-    state and output ``w``, input ``u``.
+    state and output ``w``, input ``u``; with the armature lag ``Ta`` (the exact motor's
+    ``Ta kA_inertia d2w/dt2 + kA dw/dt + kV w = u``, ``kA`` the acceleration gain), states
+    ``w`` and ``a = dw/dt``.
     """
     p = motor.values
+    if motor.mode == 'voltage_speed' and 'Ta' in p:
+        jerk = p['Ta'] * p['kA_inertia']
+        return control.ss([[0.0, 1.0], [-p['kV'] / jerk, -p['kA'] / jerk]], [[0.0], [1.0 / jerk]],
+                          [[1.0, 0.0]], [[0.0]], inputs=['u'], outputs=['w'], states=['w', 'a'],
+                          name='motor')
     if motor.mode == 'voltage_speed':
         return control.ss([[-p['kV'] / p['kA']]], [[1.0 / p['kA']]], [[1.0]], [[0.0]],
                           inputs=['u'], outputs=['w'], states=['w'], name='motor')
@@ -67,8 +74,9 @@ def sampled_current_pi(motor: Motor, bandwidth_hz_: float,
     Return the current PI for a sampled loop and its correction factor.
 
     The closed form keeps ``Ti = La/Ra`` but ``Kp = 2 pi f_c La`` gives a sampled loop a
-    wider bandwidth than ``f_c`` (the zero-order hold's half-sample delay makes it peak:
-    +7 % at ``f_c = f_s/50``, +22 % at ``f_s/20``). With ``dt`` the design frequency is
+    wider bandwidth than ``f_c`` (the zero-order hold's half-sample delay makes it peak, the
+    more the closer ``f_c`` comes to ``f_s``; the manual's control design page gives the
+    figures on its example's motor). With ``dt`` the design frequency is
     scaled by the factor (found by brentq) that makes the sampled closed loop's -3 dB
     bandwidth ``f_c``; without ``dt`` it is the closed form (factor 1).
 
@@ -276,6 +284,22 @@ def bandwidth_hz(system: control.LTI) -> float:
     return root / (2.0 * math.pi)
 
 
+def step_overshoot_pct(closed: control.LTI, bandwidth_hz_: float) -> float:
+    """
+    Return the overshoot [%] of a closed loop's unit step (python-control's ``step_info``).
+
+    Over 20 periods of ``bandwidth_hz_`` (the peak of a loop of that bandwidth comes within
+    one or two), relative to the DC gain; 0 without overshoot.
+    """
+    horizon = 20.0 / bandwidth_hz_
+    if closed.isdtime(strict=True):
+        times = np.arange(int(math.ceil(horizon / closed.dt)) + 1) * closed.dt
+    else:
+        times = np.linspace(0.0, horizon, 4001)
+    info = control.step_info(closed, T=times)
+    return float(info['Overshoot'])
+
+
 def margins(loop: control.LTI) -> dict:
     """
     Return the stability margins of an open loop: phase [deg], gain [dB], crossovers [Hz].
@@ -325,9 +349,7 @@ def margins(loop: control.LTI) -> dict:
 def _speed_pi_at(inner_w: control.LTI, crossover: float, phase_margin_deg: float,
                  dt: float | None) -> tuple[float, float]:
     """PI ``(Kp, Ki)`` giving ``phase_margin_deg`` at the crossover ``crossover`` [rad/s]."""
-    grid = np.logspace(math.log10(crossover) - 4, math.log10(crossover), 80)
-    response = _response(inner_w, grid)
-    phase = np.unwrap(np.angle(response))[-1]
+    phase, gain = _plant_phase(inner_w, crossover)
     pi_phase = -math.pi + math.radians(phase_margin_deg) - phase
     if not -math.pi / 2 < pi_phase < 0:
         raise _NoPI(
@@ -339,8 +361,72 @@ def _speed_pi_at(inner_w: control.LTI, crossover: float, phase_margin_deg: float
     # the sampled PI has the phase of the continuous one at that warped frequency.
     warped = crossover if dt is None else 2.0 / dt * math.tan(crossover * dt / 2.0)
     ti = 1.0 / (warped * math.tan(-pi_phase))
-    kp = 1.0 / (abs(response[-1]) * abs(1.0 - 1j / (warped * ti)))
+    kp = 1.0 / (gain * abs(1.0 - 1j / (warped * ti)))
     return kp, kp / ti
+
+
+def _plant_phase(inner_w: control.LTI, crossover: float) -> tuple[float, float]:
+    """Return the plant's phase [rad] (unwrapped from four decades below) and gain there."""
+    grid = np.logspace(math.log10(crossover) - 4, math.log10(crossover), 80)
+    response = _response(inner_w, grid)
+    return float(np.unwrap(np.angle(response))[-1]), float(abs(response[-1]))
+
+
+#: Phase [rad] of a PI at its crossover when its zero lies a decade below it.
+DECADE_PI_PHASE = -math.atan(0.1)
+
+
+def decade_speed_pi(inner: control.LTI, phase_margin_deg: float, dt: float | None,
+                    reference: str, highest_hz: float) -> tuple[float, float, float, float]:
+    """
+    Return the fastest speed PI whose zero lies a decade below its crossover.
+
+    Near the highest bandwidth a PI reaches with the phase margin (``highest_hz``, from
+    :func:`achievable_speed_bandwidths`) the plant leaves the PI no phase: its integral
+    action vanishes (``Ti`` grows without bound). This PI keeps ``Ti`` at ten times
+    ``1/w_x``: its crossover ``w_x`` is where the plant leaves the margin and the PI's
+    ``-5.7`` deg (brentq on the phase).
+
+    Returns
+    -------
+    tuple
+        ``(Kp, Ki, crossover [Hz], closed-loop bandwidth [Hz])``.
+
+    """
+    inner_w = inner[inner.output_labels.index('w'), 0]
+
+    def excess(log_crossover):
+        phase = _plant_phase(inner_w, math.exp(log_crossover))[0]
+        return -math.pi + math.radians(phase_margin_deg) - phase - DECADE_PI_PHASE
+
+    high = math.log(2 * math.pi * highest_hz)
+    low = high - math.log(1000.0)
+    if excess(low) >= 0 or excess(high) <= 0:
+        raise DesignError(f'no PI reaches {phase_margin_deg:g} deg phase margin with its '
+                          'zero a decade below the crossover: lower --phase-margin')
+    crossover = math.exp(brentq(excess, low, high, xtol=1e-9))
+    kp, ki = _speed_pi_at(inner_w, crossover, phase_margin_deg, dt)
+    return kp, ki, crossover / (2 * math.pi), _speed_bandwidth(inner, kp, ki, dt, reference)
+
+
+def feedforward_step_overshoot_pct(inner: control.LTI, kp: float, ki: float, kv: float,
+                                   dt: float | None, bandwidth_hz_: float) -> float:
+    """
+    Return the overshoot [%] of a reference step with the static feedforward ``kV w_ref``.
+
+    Voltage-to-speed mode: the voltage is the speed PI's output plus ``kV w_ref`` (``kS``
+    cancels the Coulomb friction at a speed of one sign). With a feedforward that holds the
+    steady state the integral ends where it started, so the error's integral over the step is
+    zero: what the PI gathers on the rise it gives back as overshoot.
+    """
+    pi = pi_controller(kp, ki, dt, 'e_w', 'u_pi')
+    static = control.tf([kv], [1.0], dt=0 if dt is None else dt, inputs='w_ref',
+                        outputs='u_ff', name='feedforward')
+    error = control.summing_junction(['w_ref', '-w'], 'e_w', dt=dt, name='sum_w')
+    voltage = control.summing_junction(['u_pi', 'u_ff'], 'u', dt=dt, name='sum_u')
+    closed = control.interconnect([inner, pi, static, error, voltage], inplist=['w_ref'],
+                                  outlist=['w'], inputs=['w_ref'], outputs=['w'])
+    return step_overshoot_pct(closed, bandwidth_hz_)
 
 
 def speed_loops(inner: control.LTI, kp: float, ki: float, dt: float | None,
@@ -419,9 +505,10 @@ def achievable_speed_bandwidths(inner: control.LTI, phase_margin_deg: float,
     """
     Return the lowest and highest speed bandwidth [Hz] a PI reaches with the phase margin.
 
-    Scans crossovers from a hundredth to a thousand times ``around_hz`` (log grid): a PI
-    exists where the plant's phase leaves room for the margin; the edges of that stretch are
-    then bisected. nan, nan where a PI exists nowhere.
+    Scans crossovers from a hundredth to a thousand times ``around_hz`` (log grid; a sampled
+    loop's below its Nyquist frequency, above which its response repeats): a PI exists where
+    the plant's phase leaves room for the margin; the edges of that stretch are then
+    bisected. nan, nan where a PI exists nowhere.
     """
     inner_w = inner[inner.output_labels.index('w'), 0]
 
@@ -431,7 +518,8 @@ def achievable_speed_bandwidths(inner: control.LTI, phase_margin_deg: float,
         except _NoPI:
             return None
 
-    grid = list(np.log(2 * math.pi * np.geomspace(around_hz / 100, around_hz * 1000, 61)))
+    top = around_hz * 1000 if dt is None else min(around_hz * 1000, 0.49 / dt)
+    grid = list(np.log(2 * math.pi * np.geomspace(min(around_hz / 100, top / 10), top, 61)))
     exists = [pi_at(value) is not None for value in grid]
     places = [value for value, ok in zip(grid, exists) if ok]
     for index in range(len(grid) - 1):

@@ -31,6 +31,8 @@ DEFAULT_PHASE_MARGIN_DEG = 60.0
 LINEAR_FULL = ('Ra', 'La', 'CPhi', 'J', 'b')
 LINEAR_MECHANICAL = ('J', 'b')
 LINEAR_VOLTAGE_SPEED = ('kA', 'kV')
+#: Voltage-speed mode with the armature lag: ``Ta`` and the inertia's ``kA = Ra J/CPhi`` too.
+LINEAR_VOLTAGE_SPEED_LAG = ('kA', 'kV', 'Ta', 'kA_inertia')
 #: The parameters of each mode of an identify result, and those that must be positive.
 MODE_NAMES = {'full': ('Ra', 'La', 'CPhi', 'J', 'b', 'Mc'), 'mechanical': ('J', 'b', 'Mc'),
               'voltage_speed': ('kS', 'kV', 'kA')}
@@ -50,7 +52,11 @@ class Motor:
     ----------
     values : dict
         ``Ra, La, CPhi, J, b, Mc`` (full mode), ``J, b, Mc`` (mechanical mode) or
-        ``kS, kV, kA`` (voltage_speed mode: identified without a current).
+        ``kS, kV, kA`` (voltage_speed mode: identified without a current); where the
+        identification found the armature lag, ``kA`` is its acceleration gain
+        ``kA + Ta Ra b/CPhi`` and ``Ta`` [s] and ``kA_inertia`` (the identified
+        ``kA = Ra J/CPhi``) complete the second-order plant
+        ``1/(Ta kA_inertia s^2 + kA s + kV)``.
     stderr : dict
         Standard error of each value (``nan`` when unknown), same units.
     mode : str
@@ -80,6 +86,8 @@ class Motor:
     @property
     def linear_names(self) -> tuple:
         """Names of the parameters that shape the linear loops."""
+        if self.mode == 'voltage_speed' and 'Ta' in self.values:
+            return LINEAR_VOLTAGE_SPEED_LAG
         return {'full': LINEAR_FULL, 'voltage_speed': LINEAR_VOLTAGE_SPEED}.get(
             self.mode, LINEAR_MECHANICAL)
 
@@ -165,7 +173,8 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
         ``N`` = motor speed / output speed (> 0).
     output_shaft : bool
         Express everything on the output shaft (the equivalent motor ``CPhi N``, ``J N^2``,
-        ``b N^2``, ``Mc N``, ``K N``; ``kV N``, ``kA N`` of the voltage-to-speed model).
+        ``b N^2``, ``Mc N``, ``K N``; ``kV N``, ``kA N`` of the voltage-to-speed model, whose
+        ``Ta`` stays).
 
     Raises
     ------
@@ -188,7 +197,10 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
         given.get(name) is None for name in ('Ra', 'La', 'CPhi')))
     mode = 'mechanical' if mechanical else mode or 'full'
     values, stderr = _checked_values(result, MODE_NAMES[mode])
-    gain = acceleration_gain(result)
+    gain, lag = acceleration_gain(result), armature_lag(result)
+    if gain is not None and lag is not None:
+        values['kA_inertia'], stderr['kA_inertia'] = values['kA'], stderr['kA']
+        values['Ta'], stderr['Ta'] = lag
     if gain is not None:
         values['kA'], stderr['kA'] = gain
     torque_constant = None
@@ -198,7 +210,8 @@ def motor_from_result(result: dict, gear_ratio: float = 1.0,
             torque_constant = None
     if output_shaft:
         scale = {'CPhi': gear_ratio, 'J': gear_ratio ** 2, 'b': gear_ratio ** 2,
-                 'Mc': gear_ratio, 'kV': gear_ratio, 'kA': gear_ratio}
+                 'Mc': gear_ratio, 'kV': gear_ratio, 'kA': gear_ratio,
+                 'kA_inertia': gear_ratio}
         values = {name: value * scale.get(name, 1.0) for name, value in values.items()}
         stderr = {name: value * scale.get(name, 1.0) for name, value in stderr.items()}
         if torque_constant is not None:
@@ -214,11 +227,11 @@ def acceleration_gain(result: dict) -> tuple[float, float] | None:
     ``combined['acceleration_gain']`` = ``kA + Ta Ra b/CPhi`` (``Ta = La/Ra``), reported when
     the armature lag shapes the speed, is the coefficient of ``dw/dt`` in the exact
     ``u = kS sgn w + kV w + (kA + Ta Ra b/CPhi) dw/dt + Ta kA d2w/dt2``: what a feedforward
-    that neglects the jerk needs, and the first-order plant closest to the motor (its
-    denominator's first two coefficients); the data fix it far better than ``kA`` (0.09 %
-    against 7.5 % Cramer-Rao bound on a SysId routine). ``bench/design_results.md``
-    measured the feedforward and the speed loop with each. None when the result has no such
-    entry (the first-order model, whose ``kA`` is that coefficient) or it is unusable.
+    that neglects the jerk needs, and the coefficient of ``s`` in the plant's denominator;
+    the data fix it far better than ``kA`` (0.09 % against 7.5 % Cramer-Rao bound on a
+    SysId routine). ``bench/design_results.md`` measured the feedforward and the speed loop
+    with each. None when the result has no such entry (the first-order model, whose ``kA``
+    is that coefficient) or it is unusable.
     """
     if result.get('mode') != 'voltage_speed':
         return None
@@ -229,6 +242,23 @@ def acceleration_gain(result: dict) -> tuple[float, float] | None:
     if not (np.isfinite(value) and value > 0):
         return None
     error = _number(entry.get('stderr'))
+    return value, abs(error) if np.isfinite(error) else float('nan')
+
+
+def armature_lag(result: dict) -> tuple[float, float] | None:
+    """
+    Return the armature time constant ``Ta = La/Ra`` [s] of a voltage-to-speed result.
+
+    ``combined['armature_time_constant_s']`` with its standard error (nan when unknown); None
+    for another mode, a result without it (the first-order model) or an unusable value.
+    """
+    if result.get('mode') != 'voltage_speed':
+        return None
+    entry = (result.get('combined') or {}).get('armature_time_constant_s')
+    value = _number(entry.get('value')) if isinstance(entry, dict) else float('nan')
+    if not (np.isfinite(value) and value > 0):
+        return None
+    error = _number(entry.get('stderr'))  # type: ignore[union-attr]
     return value, abs(error) if np.isfinite(error) else float('nan')
 
 
@@ -356,30 +386,31 @@ def armature_lag_note(result: dict, speed_bandwidth_hz: float) -> list[str]:
     The identification reports ``Ta = La/Ra`` in ``combined['armature_time_constant_s']``
     when the lag shapes the speed, and with it the acceleration gain
     (:func:`acceleration_gain`), which the design then uses for ``kA`` (a note says so,
-    with both values); the speed loop's first-order plant leaves out the lag's pole at
-    ``1/(2 pi Ta)``, which costs phase margin near it.
+    with both values). The speed loop's plant is then the second-order
+    ``1/(Ta kA s^2 + (kA + Ta Ra b/CPhi) s + kV)`` (a note gives it, and says when the speed
+    bandwidth comes within a factor 5 of the lag's pole ``1/(2 pi Ta)``: the margins then
+    rest on ``Ta``).
     """
-    lag = (result.get('combined') or {}).get('armature_time_constant_s') or {}
-    value = _number(lag.get('value')) if isinstance(lag, dict) else float('nan')
-    if result.get('mode') != 'voltage_speed' or not (np.isfinite(value) and value > 0):
+    lag, gain = armature_lag(result), acceleration_gain(result)
+    if lag is None:
         return []
-    notes = []
-    gain = acceleration_gain(result)
-    plant = 'kA s + kV'
-    if gain is not None:
-        plant = '(kA + Ta Ra b/CPhi) s + kV'
-        notes.append(
-            f'kA of the feedforward and the speed loop is the acceleration gain kA + Ta Ra '
-            f'b/CPhi = {gain[0]:.4g} V s^2/rad (combined.acceleration_gain), not the '
-            f'identified kA = {_number(result["parameters"].get("kA")):.4g}: the coefficient '
-            'of dw/dt when the jerk is neglected, determined far better by the data; it '
-            'predicts the voltage and tracks a speed profile at least as well on simulated '
-            'motors (bench/design_results.md)')
-    pole_hz = 1.0 / (2.0 * np.pi * value)
-    text = (f'the armature lag Ta = {value:.3g} s (a pole at {pole_hz:.3g} Hz) is neglected by '
-            f'the speed loop (plant {plant})')
+    identified = _number(result['parameters'].get('kA'))
+    pole_hz = 1.0 / (2.0 * np.pi * lag[0])
+    if gain is None:  # no coefficient of dw/dt to go with Ta: the first-order plant
+        return [f'the armature lag Ta = {lag[0]:.3g} s (a pole at {pole_hz:.3g} Hz) is '
+                'neglected by the speed loop (plant kA s + kV; the result has no '
+                'combined.acceleration_gain to go with it)']
+    notes = [
+        f'kA of the feedforward is the acceleration gain kA + Ta Ra b/CPhi = {gain[0]:.4g} V '
+        f's^2/rad (combined.acceleration_gain), not the identified kA = {identified:.4g}: '
+        'the coefficient of dw/dt when the jerk is neglected, determined far better by the '
+        'data; it predicts the voltage and tracks a speed profile at least as well on '
+        'simulated motors (bench/design_results.md)']
+    text = (f"the speed loop's plant includes the armature lag Ta = {lag[0]:.3g} s: "
+            f'1/(Ta kA s^2 + (kA + Ta Ra b/CPhi) s + kV) with kA = {identified:.4g} (a pole '
+            f'near {pole_hz:.3g} Hz)')
     if speed_bandwidth_hz > 0.2 * pole_hz:
-        text += (f': the speed bandwidth {speed_bandwidth_hz:g} Hz is above a fifth of that '
-                 'pole, so the real phase margin is lower; lower --speed-bandwidth to '
-                 f'{0.2 * pole_hz:.3g} Hz or less')
+        text += (f'; the speed bandwidth {speed_bandwidth_hz:.3g} Hz is above a fifth of '
+                 '1/(2 pi Ta): the margins rest on Ta (its 95 % interval is in the robustness '
+                 'range)')
     return notes + [text]

@@ -42,11 +42,15 @@ def test_the_design_uses_the_acceleration_gain_and_says_so():
     assert made['feedforward']['kA'] > 1.09 * KA  # paper motor 2: the gain is 9.5 % above kA
     said = [note for note in made['notes'] if 'acceleration gain' in note]
     assert len(said) == 1 and f'{GAIN:.4g}' in said[0] and f'{KA:.4g}' in said[0]
-    assert any('plant (kA + Ta Ra b/CPhi) s + kV' in note for note in made['notes'])
+    assert any('plant includes the armature lag Ta = 0.01 s: 1/(Ta kA s^2 + (kA + Ta Ra '
+               f'b/CPhi) s + kV) with kA = {KA:.4g}' in note for note in made['notes'])
     plant = motor_from_result(voltage_speed_result())
     assert plant.values['kA'] == GAIN and plant.stderr['kA'] == pytest.approx(1e-3 * GAIN)
+    assert plant.values['kA_inertia'] == KA and plant.values['Ta'] == MOTOR.La / MOTOR.Ra
     geared = motor_from_result(voltage_speed_result(), gear_ratio=10.0, output_shaft=True)
     assert geared.values['kA'] == pytest.approx(10.0 * GAIN)
+    assert geared.values['kA_inertia'] == pytest.approx(10.0 * KA)
+    assert geared.values['Ta'] == plant.values['Ta']
 
 
 def test_without_the_lag_kA_is_used_as_identified():
