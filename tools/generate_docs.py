@@ -255,8 +255,8 @@ def _current_loop_block(sessions: Mapping[str, Session]) -> str:
         f'bandwidth (on the motor of the example above: {low_wide:+.0f} % at `f_c = f_s/{low}`, '
         f'{high_wide:+.0f} % at `f_s/{high}`), so with `--sample-period` the closed form is '
         f'used at `f_c` times a factor (`sampling_correction`, {low_factor:.2f} and '
-        f'{high_factor:.2f} there, found by brentq) that makes the sampled closed loop\'s -3 dB '
-        'bandwidth `f_c`; `Ti = La/Ra` is kept. The back-EMF (`CPhi w`, given as '
+        f'{high_factor:.2f} there, found by brentq) that makes the sampled closed loop'
+        "'s -3 dB bandwidth `f_c`; `Ti = La/Ra` is kept. The back-EMF (`CPhi w`, given as "
         '`back_emf_feedforward_v_per_rad_s` to add to `u`) is in the evaluated plant; the '
         'reported bandwidth and margins are those of the exact (sampled) loop.')
     kept = re.sub(r'`[^`]*`', lambda found: found.group(0).replace(' ', '\0'), text)
