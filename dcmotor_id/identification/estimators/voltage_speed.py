@@ -272,18 +272,30 @@ def simulate_speed(values: Mapping[str, float], voltage: np.ndarray, sample_peri
         quasi-static ``u - CPhi w`` (the current settled).
 
     """
-    ka, kv, ks = float(values['kA']), float(values['kV']), float(values['kS'])
     voltage = np.asarray(voltage, dtype=float)
+    theta = theta_of(values, lag)
     if lag is None:
-        return simulate_mechanical(ka, kv, ks, voltage, sample_period_s, initial_speed)
-    ta, gain = lag
-    share = 1.0 - (gain - ka) / (ta * kv)  # CPhi/kV
-    theta = np.array([math.log(ka), math.log(kv), ks, math.log(ta * kv / ka),
-                      min(max(share, 1e-3), 1.0)])
+        return simulate_mechanical(math.exp(theta[0]), math.exp(theta[1]), theta[2], voltage,
+                                   sample_period_s, initial_speed)
     motor = motor_of(theta)
     current = initial_drop if initial_drop is not None else (  # at Ra = 1 Ohm
         float(voltage[0]) - motor.CPhi * initial_speed if voltage.size else 0.0)
     return simulate_motor(motor, voltage, sample_period_s, (current, initial_speed))[1]
+
+
+def theta_of(values: Mapping[str, float], lag: tuple[float, float] | None = None) -> np.ndarray:
+    """
+    Return the fit's parameter vector of a reported model (:func:`simulate_speed`'s arguments).
+
+    3 entries (log kA, log kV, kS) without the lag, 5 with it (:func:`motor_of`).
+    """
+    ka, kv, ks = float(values['kA']), float(values['kV']), float(values['kS'])
+    if lag is None:
+        return np.array([math.log(ka), math.log(kv), ks])
+    ta, gain = lag
+    share = 1.0 - (gain - ka) / (ta * kv)  # CPhi/kV
+    return np.array([math.log(ka), math.log(kv), ks, math.log(ta * kv / ka),
+                     min(max(share, 1e-3), 1.0)])
 
 
 def _second_order(theta: np.ndarray, record: Record, initial: np.ndarray) -> np.ndarray:

@@ -22,13 +22,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
-from typing import Callable, Sequence, TYPE_CHECKING
+from typing import Callable, Mapping, Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.estimators.voltage_speed import (_fit, channels, motor_of,
-                                                                summary, VoltageSpeedFit)
+                                                                summary, theta_of,
+                                                                VoltageSpeedFit)
 from dcmotor_id.simulation import (MotorEffects, simulate_mechanical,
                                    simulate_mechanical_effects, simulate_motor,
                                    simulate_motor_effects)
@@ -97,6 +98,25 @@ def _with_load(theta: np.ndarray, load: float, voltage: np.ndarray, sample_perio
     torque = None if load == 0.0 else np.full(voltage.shape, -load * motor.CPhi)
     return simulate_motor(motor, voltage, sample_period_s, (float(initial[1]), float(initial[0])),
                           extra_torque=torque)[1]
+
+
+def simulate_speed_effects(values: Mapping[str, float], voltage: np.ndarray,
+                           sample_period_s: float, initial_speed: float,
+                           lag: tuple[float, float] | None, effects: MotorEffects,
+                           initial_drop: float | None = None) -> np.ndarray:
+    """
+    Return the speed [rad/s] of a reported model with effects (shaft fields in volts).
+
+    The arguments of :func:`~dcmotor_id.identification.estimators.voltage_speed.
+    simulate_speed` (kS, kV, kA, the lag as reported, the initial state), and the effects.
+    """
+    theta = theta_of(values, lag)
+    voltage = np.asarray(voltage, dtype=float)
+    initial = [initial_speed]
+    if theta.size == 5:
+        initial.append(initial_drop if initial_drop is not None else (  # at Ra = 1 Ohm
+            float(voltage[0]) - motor_of(theta).CPhi * initial_speed if voltage.size else 0.0))
+    return simulate_with_effects(theta, effects, voltage, sample_period_s, initial)
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,8 @@ from __future__ import annotations
 import time
 from typing import Sequence, TYPE_CHECKING
 
+import numpy as np
+
 from dcmotor_id.formats.held import restore_held
 from dcmotor_id.identification.discovery.voltage_speed import (discover_voltage_speed, IN_VOLTS,
                                                                VoltageSpeedDiscovery)
@@ -71,16 +73,15 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
     -------
     IdentificationResult
         Of mode ``voltage_speed`` (method ``voltage_speed``); ``TimeBudgetExceeded`` is
-        raised when the budget runs out before the first-order fit ends.
+        raised when the budget runs out before the first-order fit.
 
     """
     began = time.monotonic()
     # A speed sensor refreshing slower than the log: fit on its real updates (as stage 1).
     records, held = restore_held(list(records))
-    base = fit = fit_voltage_speed(records, progress)
+    base = fit_voltage_speed(records, progress)
     found = discover_voltage_speed(records, base, progress) if discover else None
-    if found is not None and found.fit is not None:
-        fit = found.fit  # kS, kV, kA of the model with the effects found
+    fit = found.fit if found is not None and found.fit is not None else base  # with effects
     combined = {**{name: {'value': fit.values[name], 'stderr': fit.stderr[name],
                           'of': COMBINATIONS[name], 'unit': UNITS[name]}
                    for name in COMBINATIONS}, **_lag_entries(fit), **_effect_entries(found)}
@@ -106,9 +107,21 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
         input_records=list(records),
         estimate=Estimate(MODE, dict(fit.values), dict(fit.stderr),
                           [[speed] for speed in fit.initial_speeds],
-                          {'simulated_speeds': fit.speeds, 'start': base.start}))
+                          {'simulated_speeds': _as_measured(fit.speeds, found, records),
+                           'start': base.start}))
     result.elapsed_s = time.monotonic() - began
     return result
+
+
+def _as_measured(speeds: Sequence[np.ndarray], found: VoltageSpeedDiscovery | None,
+                 records: Sequence[Record]) -> list[np.ndarray]:
+    """Return the simulated speeds as the records' sensor reads them (a delay found, undone)."""
+    delay = sum(int(inner.get('samples', 0)) for cls, inner in
+                (found.structure.items if found is not None else []) if cls.TRANSFORM)
+    if delay <= 0:
+        return list(speeds)
+    return [np.concatenate([np.full(delay, speed[0]), speed])[:len(record)]
+            for speed, record in zip(speeds, records)]
 
 
 def _effect_entries(found: VoltageSpeedDiscovery | None) -> dict[str, dict]:
