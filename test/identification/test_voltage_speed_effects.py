@@ -9,6 +9,7 @@ and ``design --gravity-load`` takes it as kG (``bench/voltage_speed_results.md``
 has the rates over seeds).
 """
 
+from dataclasses import replace
 import json
 
 import numpy as np
@@ -112,3 +113,31 @@ def test_a_voltage_speed_model_refuses_an_effect_that_needs_the_current():
     model['effects'] = [{'name': 'load_torque', 'parameters': {'torque_Nm': 0.5}}]
     with pytest.raises(InputDataError, match='unknown parameter.*torque_V'):
         model_from_dict({'model': model})
+
+
+@pytest.mark.parametrize('lag', [None, (MOTOR.La / MOTOR.Ra, None)])
+def test_the_effects_in_volts_are_the_motor_s_torques_times_ra_over_cphi(lag):
+    """The model with effects in volts simulates paper motor 2 with its torques exactly."""
+    from dcmotor_id.identification.estimators.voltage_speed_effects import (
+        simulate_speed_effects)
+    from dcmotor_id.simulation import combine_effects
+    volts = MOTOR.Ra / MOTOR.CPhi
+    torques = [make_effect('load_torque', torque_Nm=0.3),
+               make_effect('coulomb_asymmetry', delta_Nm=0.2),
+               make_effect('viscous_asymmetry', delta_Nm_s=0.05)]
+    in_volts = [type(effect).from_voltage_speed(effect.describe_voltage_speed()['parameters'])
+                for effect in [make_effect('load_torque', torque_Nm=0.3 * volts),
+                               make_effect('coulomb_asymmetry', delta_Nm=0.2 * volts),
+                               make_effect('viscous_asymmetry', delta_Nm_s=0.05 * volts)]]
+    voltage = sysid_voltage()
+    values = {'kS': MOTOR.Ra * MOTOR.Mc / MOTOR.CPhi, 'kA': MOTOR.Ra * MOTOR.J / MOTOR.CPhi,
+              'kV': MOTOR.CPhi + MOTOR.Ra * MOTOR.b / MOTOR.CPhi}
+    motor, tolerance = MOTOR, 1e-6
+    if lag is None:  # the first-order model: the motor with a negligible armature lag
+        motor, tolerance = replace(MOTOR, La=1e-6), 1e-4
+    else:
+        lag = (lag[0], values['kA'] + lag[0] * MOTOR.Ra * MOTOR.b / MOTOR.CPhi)
+    _, truth, _ = simulate_motor_effects(motor, voltage, DT, torques, oversample=10)
+    speed = simulate_speed_effects(values, voltage, DT, 0.0, lag, combine_effects(in_volts),
+                                   0.0)
+    assert np.max(np.abs(speed - truth)) < tolerance * np.max(np.abs(truth))
