@@ -150,7 +150,8 @@ def gravity_feedforward(motor: Motor) -> dict:
     The ``load_torque`` effect's ``T_L`` (positive when it opposes positive rotation) taken
     as gravity on an elevator, constant over the travel: ``kG = Ra T_L / CPhi`` [V] (full
     mode), ``T_L`` [N m] (mechanical mode, and ``T_L / K`` [A] with the torque constant), on
-    the controlled shaft.
+    the controlled shaft; in mode ``voltage_speed`` the effect is ``Ra T_L / CPhi`` [V]
+    already (``torque_V``), kG itself, the same on either shaft (as kS).
 
     Raises
     ------
@@ -158,9 +159,10 @@ def gravity_feedforward(motor: Motor) -> dict:
         When the identification found no load torque.
 
     """
-    scale = motor.gear_ratio if motor.shaft == 'output' else 1.0
-    torques = [effect['parameters'].get('torque_Nm') for effect in motor.effects
-               if effect['name'] == 'load_torque']
+    volts = motor.mode == 'voltage_speed'
+    scale = motor.gear_ratio if motor.shaft == 'output' and not volts else 1.0
+    torques = [effect['parameters'].get('torque_V' if volts else 'torque_Nm')
+               for effect in motor.effects if effect['name'] == 'load_torque']
     if not torques or not isinstance(torques[0], (int, float)):
         raise DesignError('--gravity-load: the result has no load_torque effect to take as '
                           'gravity; identify with discovery on (a record that moves the '
@@ -168,9 +170,9 @@ def gravity_feedforward(motor: Motor) -> dict:
     torque = float(torques[0]) * scale
     p = motor.values
     convention = 'u = kG + kS sgn(w) + kV w + kA dw/dt (WPILib ElevatorFeedforward)'
-    if motor.mode == 'full':
-        return {'kG': p['Ra'] * torque / p['CPhi'], 'convention': convention,
-                'units': {'kG': 'V'}}
+    if motor.mode in ('full', 'voltage_speed'):
+        return {'kG': torque if volts else p['Ra'] * torque / p['CPhi'],
+                'convention': convention, 'units': {'kG': 'V'}}
     gains: dict = {'kG': torque, 'convention': convention.replace('u =', 'torque ='),
                    'units': {'kG': 'N m'}}
     if motor.torque_constant:

@@ -27,7 +27,8 @@ from dcmotor_id.formats.json_file import load_json
 from dcmotor_id.identification.effects import make_effect
 from dcmotor_id.identification.estimators.voltage_speed import (NAMES as VOLTAGE_SPEED_NAMES,
                                                                 simulate_speed)
-from dcmotor_id.simulation import (held_input, simulate_mechanical_effects,
+from dcmotor_id.identification.estimators.voltage_speed_effects import simulate_speed_effects
+from dcmotor_id.simulation import (combine_effects, held_input, simulate_mechanical_effects,
                                    simulate_motor_effects)
 
 #: Samples at the start of a record used for the initial state (and not scored), by default.
@@ -73,9 +74,11 @@ def model_block(result: Mapping[str, Any]) -> dict[str, Any]:
             raise InputDataError(f'effect {json.dumps(effect)[:80]} is not {{"name": ..., '
                                  '"parameters": {...}}')
         try:
-            known = make_effect(effect['name']).PARAMETERS
+            made = make_effect(effect['name'])
         except (KeyError, ValueError):
             continue
+        known = set(made.PARAMETERS) | ({entry[0] for entry in made.VOLTAGE_SPEED_NAMES.values()}
+                                        if mode == 'voltage_speed' else set())
         effects.append({'name': effect['name'],
                         'parameters': {key: value for key, value
                                        in effect.get('parameters', {}).items() if key in known}})
@@ -255,7 +258,7 @@ def model_from_dict(data: Mapping[str, Any], source: str = 'model') -> Model:
         raise InputDataError(f'{source}: a mechanical-only model needs its torque_constant')
     effects = list(block.get('effects') or [])
     for effect in effects:
-        _check_effect(effect, source)
+        _check_effect(effect, source, mode)
     if mode == 'voltage_speed':
         _check_lag(block.get('armature_lag'), source)
     return Model(parameters, mode, None if constant is None else float(constant), effects,
@@ -340,13 +343,14 @@ def _effect_names(effects: Any) -> list[Any]:
             for effect in (effects if isinstance(effects, list) else [])]
 
 
-def _check_effect(effect: Any, source: str) -> None:
+def _check_effect(effect: Any, source: str, mode: str = 'full') -> None:
     """Refuse an effect that is unknown, or whose parameters are not of their types."""
     if not isinstance(effect, Mapping) or not isinstance(effect.get('parameters', {}), Mapping):
         raise InputDataError(f'{source}: effect {effect!r} is not {{"name": ..., "parameters": '
                              '{...}}; a model written by dcmotor-id identify --json is expected')
     try:
-        made = make_effect(effect['name'], **effect.get('parameters', {}))
+        made = (_voltage_speed_effect(effect) if mode == 'voltage_speed' else
+                make_effect(effect['name'], **effect.get('parameters', {})))
     except (KeyError, TypeError, ValueError) as error:
         raise InputDataError(f'{source}: effect {effect!r}: {error}') from None
     for key, value in effect.get('parameters', {}).items():
@@ -358,6 +362,29 @@ def _check_effect(effect: Any, source: str) -> None:
             raise InputDataError(f'{source}: effect {effect["name"]}: parameter {key} is '
                                  f'{json.dumps(value)}, not a finite number; fix the model file '
                                  '(as dcmotor-id identify --json writes it)')
+
+
+def _voltage_speed_effect(effect: Mapping[str, Any]) -> Any:
+    """
+    Build an effect of a ``voltage_speed`` model (its parameters in volts).
+
+    Raises
+    ------
+    ValueError
+        An effect that does not act in the voltage-to-speed model, or an unknown parameter.
+
+    """
+    cls = type(make_effect(effect['name']))
+    parameters = dict(effect.get('parameters', {}))
+    if not cls.in_voltage_speed():
+        raise ValueError(f'{cls.name} does not act in the voltage-to-speed model (no current)')
+    allowed = ({entry[0] for entry in cls.VOLTAGE_SPEED_NAMES.values()}
+               | (set(cls.PARAMETERS) - set(cls.VOLTAGE_SPEED_NAMES)))
+    unknown = sorted(set(parameters) - allowed)
+    if unknown:
+        raise ValueError(f'unknown parameter(s) {", ".join(unknown)} of a voltage_speed model; '
+                         f'it has {", ".join(sorted(allowed)) or "none"}')
+    return cls.from_voltage_speed(parameters)
 
 
 def load_model(path: str) -> Model:
@@ -388,7 +415,8 @@ def _effects_for(model: Model, sample_period_s: float) -> tuple[list[Any], dict[
             continue
         if model.mechanical_only and item['name'] in ('current_offset',):
             continue
-        effects.append(make_effect(item['name'], **parameters))
+        effects.append(_voltage_speed_effect(item) if model.mode == 'voltage_speed' else
+                       make_effect(item['name'], **parameters))
     return effects, delays
 
 
@@ -470,10 +498,13 @@ def simulate(model: Model, record: Record,
     out: dict[str, np.ndarray] = {}
     if model.mode == 'voltage_speed':
         lag = model.description.get('armature_lag')
-        speed = simulate_speed(p, np.asarray(record.voltage, dtype=float), dt,
-                               float(initial_state[0]), None if not lag else (
-                                   lag['time_constant_s'], lag['acceleration_gain']),
-                               *[float(value) for value in initial_state[1:2]])
+        lag = None if not lag else (lag['time_constant_s'], lag['acceleration_gain'])
+        voltage = np.asarray(record.voltage, dtype=float)
+        drop = [float(value) for value in initial_state[1:2]]
+        speed = (simulate_speed_effects(p, voltage, dt, float(initial_state[0]), lag,
+                                        combine_effects(effects), *drop) if effects else
+                 simulate_speed(p, voltage, dt, float(initial_state[0]), lag, *drop))
+        speed = _shift(speed, delays.get('speed', 0))
         return {'speed': speed, 'position': start_angle + np.concatenate(
             [[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1])) * dt])}
     if model.mechanical_only:

@@ -6,7 +6,8 @@ The report of a voltage-to-speed result (records without a current): kS, kV, kA 
 identified and what cannot be without the current, the speed simulated under the measured
 voltage against the measured one (the model as the JSON holds it, the armature lag included
 when one was found) and its error, the parameters with their 95 % intervals and what each is
-made of, and the warnings.  There is no discovery on such records, so no before/after.
+made of (the effects found among them, in volts), and the warnings.  The error is the
+regression start's against the fitted model's; the discovery's rounds are in the JSON.
 """
 
 from __future__ import annotations

@@ -86,8 +86,12 @@ class Effect:
     summary: ClassVar[str] = ''
     #: Parameter name -> (unit, default, meaning and sign).
     PARAMETERS: ClassVar[dict[str, tuple[str, Any, str]]] = {}
-    #: Modes where the effect applies: ``full`` and/or ``mechanical``.
+    #: Modes where the effect applies: ``full``, ``mechanical`` and/or ``voltage_speed``
+    #: (records without a current: the effect acts on the shaft and is fitted in volts).
     MODES: ClassVar[tuple[str, ...]] = ('full', 'mechanical')
+    #: In mode ``voltage_speed``: each parameter's name, unit and make-up there (a torque on
+    #: the shaft is the voltage ``Ra T/CPhi``); parameters not listed keep their name and unit.
+    VOLTAGE_SPEED_NAMES: ClassVar[dict[str, tuple[str, str, str]]] = {}
     #: Whether the effect acts by transforming the data instead of by terms.
     TRANSFORM: ClassVar[bool] = False
     #: Place in the vocabulary: ties between equivalent effects go to the lower rank.
@@ -118,6 +122,35 @@ class Effect:
     def applies(cls, mechanical_only: bool) -> bool:
         """Whether the effect can act in this mode."""
         return ('mechanical' if mechanical_only else 'full') in cls.MODES
+
+    @classmethod
+    def in_voltage_speed(cls) -> bool:
+        """Whether the effect acts in the voltage-to-speed model (records without a current)."""
+        return 'voltage_speed' in cls.MODES
+
+    def describe_voltage_speed(self) -> dict[str, Any]:
+        """
+        JSON form in mode ``voltage_speed``: the parameters named in volts.
+
+        The values of an effect of the voltage-to-speed model are in volts already (its
+        torque parameters hold ``Ra T/CPhi``); only the names change
+        (:attr:`VOLTAGE_SPEED_NAMES`).
+        """
+        return {'name': self.name,
+                'parameters': {self.VOLTAGE_SPEED_NAMES.get(key, (key,))[0]: value
+                               for key, value in self.parameters.items()}}
+
+    @classmethod
+    def from_voltage_speed(cls, parameters: Mapping[str, Any]) -> Effect:
+        """
+        Build the effect from its ``voltage_speed`` JSON parameters (values stay in volts).
+
+        The inverse of :meth:`describe_voltage_speed`: what the voltage-to-speed simulation
+        takes (its shaft fields in volts); unknown names are left out.
+        """
+        names = {entry[0]: key for key, entry in cls.VOLTAGE_SPEED_NAMES.items()}
+        return cls(**{names.get(key, key): value for key, value in parameters.items()
+                      if names.get(key, key) in cls.PARAMETERS})
 
     def motor_effects(self) -> MotorEffects:
         """Return the effect's contribution to the simulation (its fields set)."""
@@ -186,6 +219,8 @@ class Effect:
         lines = [f'`{cls.name}`: {cls.summary}']
         for key, (unit, _, meaning) in cls.PARAMETERS.items():
             lines.append(f'  - `{key}` [{unit}]: {meaning}')
+        for key, (volts, unit, of) in cls.VOLTAGE_SPEED_NAMES.items():
+            lines.append(f'  - `{volts}` [{unit}]: {of}, in mode voltage_speed (no current)')
         return '\n'.join(lines)
 
     @staticmethod

@@ -19,6 +19,8 @@ class CoulombAsymmetry(Effect):
     summary = ('Coulomb friction Mc + d for w > 0 and Mc - d for w < 0 (also the break-away '
                'levels); the same model as load_torque = d while |d| < Mc.')
     PARAMETERS = {'delta_Nm': ('N m', 0.0, 'd, half the difference Mc+ - Mc-')}
+    MODES = ('full', 'mechanical', 'voltage_speed')
+    VOLTAGE_SPEED_NAMES = {'delta_Nm': ('delta_V', 'V', 'Ra d / CPhi')}
 
     def motor_effects(self) -> MotorEffects:
         """Simulate with friction levels ``Mc +/- d``."""

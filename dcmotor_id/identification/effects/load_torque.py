@@ -17,6 +17,8 @@ class LoadTorque(Effect):
     summary = ('constant load torque T_L on the shaft: J dw/dt = ... - T_L (the "offset" of '
                'the EMPS IDIM model).')
     PARAMETERS = {'torque_Nm': ('N m', 0.0, 'T_L, positive when it opposes positive rotation')}
+    MODES = ('full', 'mechanical', 'voltage_speed')
+    VOLTAGE_SPEED_NAMES = {'torque_Nm': ('torque_V', 'V', 'Ra T_L / CPhi')}
 
     def motor_effects(self) -> MotorEffects:
         """Simulate as a constant torque."""

@@ -25,6 +25,7 @@ class SensorDelay(Effect):
         'samples': ('samples', 0, 'delay, > 0 when that sensor is late (integer)'),
     }
     TRANSFORM = True
+    MODES = ('full', 'mechanical', 'voltage_speed')
 
     def __init__(self, **parameters: Any) -> None:
         super().__init__(**parameters)

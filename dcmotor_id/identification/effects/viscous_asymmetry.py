@@ -26,6 +26,8 @@ class ViscousAsymmetry(Effect):
     summary = ('viscous friction (b + d) w for w > 0 and (b - d) w for w < 0: an extra '
                'torque -d |w|.')
     PARAMETERS = {'delta_Nm_s': ('N m s/rad', 0.0, 'd, half the difference b+ - b-')}
+    MODES = ('full', 'mechanical', 'voltage_speed')
+    VOLTAGE_SPEED_NAMES = {'delta_Nm_s': ('delta_V_s_per_rad', 'V s/rad', 'Ra d / CPhi')}
 
     def motor_effects(self) -> MotorEffects:
         """Simulate as a torque ``-d |w|``."""

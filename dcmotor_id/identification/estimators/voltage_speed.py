@@ -94,6 +94,15 @@ class VoltageSpeedFit:
         ``dw/dt`` in the voltage (:func:`acceleration_gain`), and its standard error.
     notes : tuple of str
         What the fit left out (the armature-lag fit, when the time budget ran out).
+    theta : tuple of float
+        The fitted parameter vector (log kA, log kV, kS and, with the lag, the lag's share
+        and ``c``, :func:`motor_of`): the start of further fits.
+    states : list of list of float
+        Every record's fitted initial state (the speed, and with the lag the current at
+        1 Ohm).
+    coefficients, coefficient_stderr : dict
+        The effects' coefficients (in volts, for a fit with effects) and their standard
+        errors, by name.
     correlation_factor : float
         The factor the Gauss-Newton standard errors were scaled by.
     speeds : list of numpy.ndarray
@@ -115,6 +124,10 @@ class VoltageSpeedFit:
     acceleration_gain: float | None = None
     acceleration_gain_stderr: float | None = None
     notes: tuple[str, ...] = ()
+    theta: tuple[float, ...] = ()
+    states: list[list[float]] = field(default_factory=list, repr=False)
+    coefficients: dict[str, float] = field(default_factory=dict)
+    coefficient_stderr: dict[str, float] = field(default_factory=dict)
 
 
 def channels(record: Record) -> tuple[np.ndarray, np.ndarray]:
@@ -259,18 +272,30 @@ def simulate_speed(values: Mapping[str, float], voltage: np.ndarray, sample_peri
         quasi-static ``u - CPhi w`` (the current settled).
 
     """
-    ka, kv, ks = float(values['kA']), float(values['kV']), float(values['kS'])
     voltage = np.asarray(voltage, dtype=float)
+    theta = theta_of(values, lag)
     if lag is None:
-        return simulate_mechanical(ka, kv, ks, voltage, sample_period_s, initial_speed)
-    ta, gain = lag
-    share = 1.0 - (gain - ka) / (ta * kv)  # CPhi/kV
-    theta = np.array([math.log(ka), math.log(kv), ks, math.log(ta * kv / ka),
-                      min(max(share, 1e-3), 1.0)])
+        return simulate_mechanical(math.exp(theta[0]), math.exp(theta[1]), theta[2], voltage,
+                                   sample_period_s, initial_speed)
     motor = motor_of(theta)
     current = initial_drop if initial_drop is not None else (  # at Ra = 1 Ohm
         float(voltage[0]) - motor.CPhi * initial_speed if voltage.size else 0.0)
     return simulate_motor(motor, voltage, sample_period_s, (current, initial_speed))[1]
+
+
+def theta_of(values: Mapping[str, float], lag: tuple[float, float] | None = None) -> np.ndarray:
+    """
+    Return the fit's parameter vector of a reported model (:func:`simulate_speed`'s arguments).
+
+    3 entries (log kA, log kV, kS) without the lag, 5 with it (:func:`motor_of`).
+    """
+    ka, kv, ks = float(values['kA']), float(values['kV']), float(values['kS'])
+    if lag is None:
+        return np.array([math.log(ka), math.log(kv), ks])
+    ta, gain = lag
+    share = 1.0 - (gain - ka) / (ta * kv)  # CPhi/kV
+    return np.array([math.log(ka), math.log(kv), ks, math.log(ta * kv / ka),
+                     min(max(share, 1e-3), 1.0)])
 
 
 def _second_order(theta: np.ndarray, record: Record, initial: np.ndarray) -> np.ndarray:
@@ -290,9 +315,14 @@ def _first_order_state(theta: np.ndarray, record: Record, initial: np.ndarray) -
 STATES = {_first_order_state: 1, _second_order: 2}
 
 
+def states_of(model) -> int:
+    """Return the initial states per record of a model (:data:`STATES`, or its ``states``)."""
+    return int(getattr(model, 'states', 0) or STATES[model])
+
+
 def _residual(model, records: Sequence[Record], size: int):
     """Return the residual function of the output-error fit (parameters then initial states)."""
-    states = STATES[model]
+    states = states_of(model)
 
     def residual(x: np.ndarray) -> np.ndarray:
         parts = []
@@ -304,11 +334,18 @@ def _residual(model, records: Sequence[Record], size: int):
 
 
 def _fit(model, records: Sequence[Record], theta: np.ndarray, lower: list, upper: list,
-         progress: Progress | None = None):
-    """Run the output-error fit, reporting each evaluation to ``progress``; return scipy's."""
+         progress: Progress | None = None, initial: Sequence[Sequence[float]] | None = None,
+         max_nfev: int = 400):
+    """
+    Run the output-error fit, reporting each evaluation to ``progress``; return scipy's.
+
+    ``initial``: the records' initial states to start from (default: the first measured
+    speed, and no current).
+    """
     from scipy.optimize import least_squares  # lazily: the command line's start stays light
-    states = STATES[model]
-    initial = [[float(channels(rec)[1][0])] + [0.0] * (states - 1) for rec in records]
+    states = states_of(model)
+    if initial is None:
+        initial = [[float(channels(rec)[1][0])] + [0.0] * (states - 1) for rec in records]
     x0 = np.concatenate([theta, np.ravel(initial)])
     bounds = (np.array(lower + [-np.inf] * x0[theta.size:].size),
               np.array(upper + [np.inf] * x0[theta.size:].size))
@@ -321,7 +358,7 @@ def _fit(model, records: Sequence[Record], theta: np.ndarray, lower: list, upper
             progress.update(cost=0.5 * float(values @ values))
         return values
     return least_squares(reported, x0, bounds=bounds, x_scale='jac', method='trf',
-                         xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=400)
+                         xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev)
 
 
 def correlation_factor(residual: np.ndarray, lags: int = 200) -> float:
@@ -436,13 +473,29 @@ def fit_voltage_speed(records: Sequence[Record],
         raise FitError('the voltage-to-speed fit did not converge; check that the voltage and '
                        'the speed are in SI units (V, rad/s) and of one sign convention')
     second = _second_fit(records, first, progress)
-    chosen, size, extra, notes = first, 3, {}, []
+    chosen, size, notes = first, 3, []
     if second is None:
         notes.append(BUDGET_NOTE)
     elif (np.all(np.isfinite(second.x))
             and _bic(second.fun, second.x.size) < _bic(first.fun, first.x.size) - BIC_MARGIN):
         chosen, size = second, 5
+    model = _first_order_state if size == 3 else _second_order
+    return summary(chosen, model, records, start, _nrmse_pct(records, start_residual), notes)
+
+
+def summary(chosen, model, records: Sequence[Record], start: dict[str, float],
+            nrmse_start_pct: float, notes: Sequence[str] = (),
+            names: Sequence[str] = ()) -> VoltageSpeedFit:
+    """
+    Return the :class:`VoltageSpeedFit` of an output-error fit (scipy's result).
+
+    ``model`` is the fit's model (first or second order, or one with effects whose
+    coefficients, named ``names``, follow the base parameters: its ``size`` is the base's).
+    """
+    size = int(getattr(model, 'size', 3 if model is _first_order_state else 5))
+    count = size + len(names)
     covariance, factor = _covariance(chosen, chosen.fun)
+    extra: dict = {}
     if size == 5:
         ta = math.exp(chosen.x[3] + chosen.x[0] - chosen.x[1])
         slope = np.array([1.0, -1.0, 0.0, 1.0, 0.0])  # of log Ta
@@ -452,11 +505,13 @@ def fit_voltage_speed(records: Sequence[Record],
                      slope @ covariance[:5, :5] @ slope), 0.0)),
                  'acceleration_gain': gain[0], 'acceleration_gain_stderr': gain[1]}
     values, stderr = _combinations(chosen.x[:size], covariance)
-    model = _first_order_state if size == 3 else _second_order
-    initial = chosen.x[size:].reshape(len(records), STATES[model])
+    initial = chosen.x[count:].reshape(len(records), states_of(model))
     return VoltageSpeedFit(
-        values, stderr, start, [float(state[0]) for state in initial],
-        _nrmse_pct(records, start_residual), _nrmse_pct(records, chosen.fun),
-        float(np.std(chosen.fun)), correlation_factor=factor,
-        speeds=[model(chosen.x[:size], rec, initial[k]) for k, rec in enumerate(records)],
-        notes=tuple(notes), **extra)
+        values, stderr, start, [float(state[0]) for state in initial], nrmse_start_pct,
+        _nrmse_pct(records, chosen.fun), float(np.std(chosen.fun)), correlation_factor=factor,
+        speeds=[model(chosen.x[:count], rec, initial[k]) for k, rec in enumerate(records)],
+        notes=tuple(notes), theta=tuple(float(x) for x in chosen.x[:size]),
+        states=[[float(x) for x in state] for state in initial],
+        coefficients={name: float(chosen.x[size + k]) for k, name in enumerate(names)},
+        coefficient_stderr={name: math.sqrt(max(float(covariance[size + k, size + k]), 0.0))
+                            for k, name in enumerate(names)}, **extra)

@@ -6,7 +6,11 @@ The path of records without a current: the voltage-to-speed model as an identifi
 :class:`~dcmotor_id.identification.result.IdentificationResult` of mode ``voltage_speed``:
 ``parameters`` and ``stderr`` hold ``kS, kV, kA``; ``not_identifiable`` says plainly that
 Ra, CPhi, J, b and Mc are not separable without the current; ``combined`` gives what each
-parameter is made of (and the armature time constant when the data resolve it).
+parameter is made of (and the armature time constant when the data resolve it).  With
+discovery on, the effects that act on the shaft are searched on this model
+(:mod:`~dcmotor_id.identification.discovery.voltage_speed`): the ones found are listed in
+``effects`` with their parameters in volts (``combined`` gives each with its standard error),
+and kS, kV, kA are those of the model with them.
 """
 
 from __future__ import annotations
@@ -14,7 +18,11 @@ from __future__ import annotations
 import time
 from typing import Sequence, TYPE_CHECKING
 
+import numpy as np
+
 from dcmotor_id.formats.held import restore_held
+from dcmotor_id.identification.discovery.voltage_speed import (discover_voltage_speed, IN_VOLTS,
+                                                               VoltageSpeedDiscovery)
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.estimators.voltage_speed import (COMBINATIONS,
                                                                 fit_voltage_speed,
@@ -29,7 +37,6 @@ if TYPE_CHECKING:
 
 #: The mode of the result (JSON ``mode``).
 MODE = 'voltage_speed'
-#: Why the effect discovery does not run on such records.
 #: Said with every such result: a current recorded under another name is not used.
 NO_CURRENT_COLUMN = ('no current in the records: the voltage-to-speed model (kS, kV, kA) was '
                      'fitted; if the current was recorded, name its column current (or give '
@@ -39,8 +46,9 @@ ACCELERATION_GAIN_OF = 'Ra J / CPhi + (La / Ra) Ra b / CPhi'
 #: kA's relative standard error above which (and above twice the acceleration gain's) the
 #: result says that the lag and the inertia are split loosely.
 LOOSE_KA = 0.02
-NO_DISCOVERY = ('the effect vocabulary is written for the motor with its current; on voltage '
-                'and speed alone only kS, kV, kA are fitted')
+#: Said when the time budget ran out during the effect search.
+DISCOVERY_BUDGET = ('the time budget (--max-time) ran out during the effect search: the '
+                    'effects found so far are kept; give more time to search them all')
 
 
 def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
@@ -54,54 +62,91 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
     records : list of Record
         Prepared records with a voltage and a speed and no current.
     discover : bool
-        Whether discovery was asked for (it is skipped; ``discovery`` says why).
+        Whether to search the effects that act on the shaft (:func:`discover_voltage_speed`).
     progress : Progress, optional
-        Progress line and time budget (``--max-time``); past the deadline during the
-        armature-lag fit the first-order model is kept with a warning.
+        Progress line and time budget (``--max-time``): past it in the armature-lag fit the
+        first-order model is kept, in the effect search the effects so far (warnings say so).
     structure_bootstrap : int
-        The resamples asked for; they rerun discovery, which does not run here (a warning
-        says so).
+        The resamples asked for: not drawn on voltage and speed (a warning says so).
 
     Returns
     -------
     IdentificationResult
         Of mode ``voltage_speed`` (method ``voltage_speed``); ``TimeBudgetExceeded`` is
-        raised when the budget runs out before the first-order fit ends.
+        raised when the budget runs out before the first-order fit.
 
     """
     began = time.monotonic()
     # A speed sensor refreshing slower than the log: fit on its real updates (as stage 1).
     records, held = restore_held(list(records))
-    fit = fit_voltage_speed(records, progress)
-    combined = {name: {'value': fit.values[name], 'stderr': fit.stderr[name],
-                       'of': COMBINATIONS[name], 'unit': UNITS[name]} for name in COMBINATIONS}
-    combined.update(_lag_entries(fit))
-    warnings = [NO_CURRENT_COLUMN] + held + list(fit.notes) + _lag_warnings(fit) + [
-        f'--structure-bootstrap {structure_bootstrap} ignored: it reruns the effect discovery, '
-        'which does not run on voltage and speed alone'] * bool(structure_bootstrap)
-    note = ('Gauss-Newton of the output-error fit on the speed, scaled by the residual '
-            f'correlation (factor {fit.correlation_factor:.3g})')
+    base = fit_voltage_speed(records, progress)
+    found = discover_voltage_speed(records, base, progress) if discover else None
+    fit = found.fit if found is not None and found.fit is not None else base  # with effects
+    combined = {**{name: {'value': fit.values[name], 'stderr': fit.stderr[name],
+                          'of': COMBINATIONS[name], 'unit': UNITS[name]}
+                   for name in COMBINATIONS}, **_lag_entries(fit), **_effect_entries(found)}
+    warnings = ([NO_CURRENT_COLUMN] + held + list(fit.notes) + _lag_warnings(fit)
+                + _discovery_warnings(found, structure_bootstrap))
     result = IdentificationResult(
-        parameters=dict(fit.values), stderr=dict(fit.stderr), method=MODE, effects=[],
-        error_before={'current_nrmse_pct': None, 'speed_nrmse_pct': fit.nrmse_start_pct},
+        parameters=dict(fit.values), stderr=dict(fit.stderr), method=MODE,
+        effects=found.effects_json() if found is not None else [],
+        error_before={'current_nrmse_pct': None, 'speed_nrmse_pct': base.nrmse_start_pct},
         error_after={'current_nrmse_pct': None, 'speed_nrmse_pct': fit.nrmse_pct},
         unexplained=False, mode=MODE, torque_constant=None,
         initial_states=[[speed] for speed in fit.initial_speeds],
         noise_std={'speed': fit.noise_std}, sample_period_s=records[0].sample_period_s,
         n_samples=sum(len(rec) for rec in records), sources=[rec.source for rec in records],
         units=dict(UNITS), discover=discover,
-        discovery={'skipped': NO_DISCOVERY} if discover else None,
+        discovery=found.summary if found is not None else None,
         stderr_model={name: value / fit.correlation_factor
                       for name, value in fit.stderr.items()},
-        uncertainty_method=note,
+        uncertainty_method=('Gauss-Newton of the output-error fit on the speed, scaled by '
+                            f'the residual correlation (factor {fit.correlation_factor:.3g})'),
         not_identifiable={'Ra, CPhi, J, b, Mc': NOT_SEPARABLE},
         warnings=warnings, combined=combined, operating_range=operating_range(records),
         input_records=list(records),
         estimate=Estimate(MODE, dict(fit.values), dict(fit.stderr),
                           [[speed] for speed in fit.initial_speeds],
-                          {'simulated_speeds': fit.speeds, 'start': fit.start}))
+                          {'simulated_speeds': _as_measured(fit.speeds, found, records),
+                           'start': base.start}))
     result.elapsed_s = time.monotonic() - began
     return result
+
+
+def _as_measured(speeds: Sequence[np.ndarray], found: VoltageSpeedDiscovery | None,
+                 records: Sequence[Record]) -> list[np.ndarray]:
+    """Return the simulated speeds as the records' sensor reads them (a delay found, undone)."""
+    delay = sum(int(inner.get('samples', 0)) for cls, inner in
+                (found.structure.items if found is not None else []) if cls.TRANSFORM)
+    if delay <= 0:
+        return list(speeds)
+    return [np.concatenate([np.full(delay, speed[0]), speed])[:len(record)]
+            for speed, record in zip(speeds, records)]
+
+
+def _effect_entries(found: VoltageSpeedDiscovery | None) -> dict[str, dict]:
+    """Return the ``combined`` entries of the effects found: value and stderr in volts."""
+    if found is None or found.fit is None:
+        return {}
+    entries = {}
+    for cls, _ in found.structure.items:
+        for key, (volts, unit, of) in cls.VOLTAGE_SPEED_NAMES.items():
+            name = cls.term_name(key)
+            entries[f'{cls.name}.{volts}'] = {
+                'value': found.fit.coefficients[name],
+                'stderr': found.fit.coefficient_stderr[name],
+                'of': of, 'unit': unit}
+    return entries
+
+
+def _discovery_warnings(found: VoltageSpeedDiscovery | None,
+                        structure_bootstrap: int) -> list[str]:
+    """Return what the effect search says: the effects in volts, a budget run out."""
+    ignored = [f'--structure-bootstrap {structure_bootstrap} ignored: its resamples are not '
+               'drawn on voltage and speed alone'] * bool(structure_bootstrap)
+    if found is None:
+        return ignored
+    return ignored + [IN_VOLTS] * bool(found.effects) + [DISCOVERY_BUDGET] * found.out_of_time
 
 
 def _lag_entries(fit: VoltageSpeedFit) -> dict[str, dict]:
