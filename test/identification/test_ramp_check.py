@@ -90,3 +90,41 @@ def test_a_slew_at_one_step_of_the_same_motor_is_found():
     assert [item.start for item in found] == [slewed_step]
     assert 3 <= found[0].delay_samples <= 10  # about half the slew's length, in samples
     assert 8 <= found[0].samples <= 14
+
+
+def _arx_three_passes(current, volts, speed):
+    """The equation error's robust fit as written before: always three passes."""
+    from dcmotor_id.identification.checks.ramp import OUTLIER_SIGMAS
+    matrix = np.column_stack([current[:-1], volts[:-1], speed[:-1], np.ones(current.size - 1)])
+    target, keep = current[1:], np.ones(current.size - 1, dtype=bool)
+    for _ in range(3):
+        solution = np.linalg.lstsq(matrix[keep], target[keep], rcond=None)[0]
+        residual = target - matrix @ solution
+        centred = residual[keep] - np.median(residual[keep])
+        sigma = 1.4826 * float(np.median(np.abs(centred)))
+        keep = np.abs(residual) <= OUTLIER_SIGMAS * max(sigma, 1e-12)
+    return solution, residual, max(sigma, 1e-12)
+
+
+@pytest.mark.parametrize('outliers', [0, 40])
+def test_the_robust_fit_stops_when_the_kept_samples_repeat(monkeypatch, outliers):
+    """Issue 29 (speed): a pass on the samples the previous one kept is not repeated."""
+    from dcmotor_id.identification.checks import ramp
+    rng = np.random.default_rng(1)
+    n = 3000
+    volts = 10.0 * np.sign(np.sin(np.arange(n) * 2e-3 * np.pi * 3))
+    speed = np.cumsum(volts) * 1e-3 + 0.01 * rng.standard_normal(n)
+    current = np.zeros(n)
+    for k in range(1, n):
+        current[k] = 0.6 * current[k - 1] + 0.3 * volts[k - 1] - 0.1 * speed[k - 1]
+    current += 0.01 * rng.standard_normal(n)
+    current[rng.choice(n, outliers, replace=False)] += 5.0
+    expected = _arx_three_passes(current, volts, speed)
+    solves = []
+    original = np.linalg.lstsq
+    monkeypatch.setattr(np.linalg, 'lstsq', lambda *a, **k: solves.append(1) or original(*a, **k))
+    found = ramp._arx(current, volts, speed)
+    assert len(solves) == 1 if outliers == 0 else len(solves) <= 3
+    np.testing.assert_array_equal(found[0], expected[0])
+    np.testing.assert_array_equal(found[1], expected[1])
+    assert found[2] == expected[2]

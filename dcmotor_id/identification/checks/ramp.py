@@ -83,7 +83,10 @@ def _arx(current: np.ndarray, volts: np.ndarray, speed: np.ndarray
         residual = target - matrix @ solution
         centred = residual[keep] - np.median(residual[keep])
         sigma = 1.4826 * float(np.median(np.abs(centred)))
-        keep = np.abs(residual) <= OUTLIER_SIGMAS * max(sigma, 1e-12)
+        kept = np.abs(residual) <= OUTLIER_SIGMAS * max(sigma, 1e-12)
+        if np.array_equal(kept, keep):
+            break  # the same samples kept: a further pass repeats this one exactly
+        keep = kept
     return solution, residual, max(sigma, 1e-12)
 
 
