@@ -93,7 +93,7 @@ def test_a_slew_at_one_step_of_the_same_motor_is_found():
 
 
 def _arx_three_passes(current, volts, speed):
-    """The equation error's robust fit as written before: always three passes."""
+    """Return the equation error's robust fit as written before (always three passes)."""
     from dcmotor_id.identification.checks.ramp import OUTLIER_SIGMAS
     matrix = np.column_stack([current[:-1], volts[:-1], speed[:-1], np.ones(current.size - 1)])
     target, keep = current[1:], np.ones(current.size - 1, dtype=bool)
