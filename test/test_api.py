@@ -89,3 +89,26 @@ def test_a_result_designs_only_through_the_package_face_binding():
     assert lazy.bound('design_controller') is dcmotor_id.design_controller
     with pytest.raises(LookupError, match='nothing is bound'):
         lazy.bound('no such function')
+
+
+IN_MEMORY_IDENTIFY = """
+import sys
+import numpy as np
+import dcmotor_id
+t = np.arange(0.0, 2.0, 1e-3)
+voltage = 60.0 * np.sign(np.sin(2 * np.pi * 1.5 * t))
+current, speed = dcmotor_id.simulate_motor(dcmotor_id.PAPER_MOTORS['paper2'], voltage, 1e-3)
+from dcmotor_id.identification.identify import identify, prepare_records
+identify(prepare_records([dcmotor_id.Record(t, current, voltage, speed)]))
+print('loaded:' + ','.join(sorted(m for m in {modules!r} if m in sys.modules)))
+"""
+
+
+def test_identify_in_memory_loads_no_file_handling():
+    """Issue 29 (speed): records in memory: no path checks, JSON files or temporary files."""
+    modules = ('tempfile', 'shutil', 'dcmotor_id.formats.paths', 'dcmotor_id.formats.json_file',
+               'dcmotor_id.formats.csv')
+    completed = subprocess.run([sys.executable, '-c', IN_MEMORY_IDENTIFY.format(
+        modules=modules)], capture_output=True, text=True, timeout=300)
+    assert completed.returncode == 0, completed.stderr
+    assert completed.stdout.strip().splitlines()[-1] == 'loaded:'

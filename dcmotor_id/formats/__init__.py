@@ -23,7 +23,6 @@ from typing import Any, Optional
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import PathLike, Record
 from dcmotor_id.formats.mapping import DEFAULT_OPTIONS, ReadOptions
-from dcmotor_id.formats.paths import check_input_path, same_content, same_file
 from dcmotor_id.formats.quality import check_channels
 from dcmotor_id.formats.registry import (file_suffixes, FileFormat, format_of, FORMATS, Reader,
                                          register, table_reader)
@@ -87,6 +86,10 @@ def read_record(path: PathLike, *, topics: Optional[Mapping[str, str]] = None,
         what to do.
 
     """
+    # imported here, as in read_records: identify on records in memory needs no path checks
+    # (their module imports tempfile, shutil and its compressors)
+    from dcmotor_id.formats.paths import check_input_path
+
     check_input_path(path, directory=True)
     if os.path.isdir(path):
         for entry in sorted(os.listdir(path)):
@@ -110,6 +113,8 @@ def read_records(paths: Iterable[PathLike], *,
     is refused: it would count its samples twice and shrink the standard errors by the
     square root of two.
     """
+    from dcmotor_id.formats.paths import same_content, same_file
+
     paths = list(paths)
     for index, path in enumerate(paths):
         twin = same_file(path, paths[:index])

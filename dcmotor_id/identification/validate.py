@@ -23,7 +23,6 @@ import numpy as np
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import MECHANICAL_NAMES, MotorParameters, PARAMETER_NAMES
 from dcmotor_id.core.records import COLUMNS, Record
-from dcmotor_id.formats.json_file import load_json
 from dcmotor_id.identification.effects import make_effect
 from dcmotor_id.identification.estimators.voltage_speed import (NAMES as VOLTAGE_SPEED_NAMES,
                                                                 simulate_speed)
@@ -389,6 +388,8 @@ def _voltage_speed_effect(effect: Mapping[str, Any]) -> Any:
 
 def load_model(path: str) -> Model:
     """Read a model from the JSON ``identify --json`` wrote."""
+    from dcmotor_id.formats.json_file import load_json  # not on identify's path (tempfile)
+
     if not os.path.isfile(path):
         raise InputDataError(f'{path}: no such file; give the JSON written by identify --json')
     try:
