@@ -249,3 +249,21 @@ def test_a_run_measures_each_channels_noise_once_for_all_its_start_checks(monkey
     others = [records[0].slice(0, 2000)]
     assert noise.of(others, 'speed') == start_check.pooled_noise(others, 'speed')
     assert len(measured) == 6
+
+
+def test_the_start_search_solves_each_admissible_regression_once(monkeypatch):
+    """Issue 29 (speed): the free mechanical solve is the bounded one's when it is admissible."""
+    from dcmotor_id.core.model import PAPER_MOTORS
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.estimators import refined
+    from dcmotor_id.simulation import simulate_motor
+    t = np.arange(0.0, 4.0, 1e-3)
+    voltage = 60.0 * np.sign(np.sin(2 * np.pi * 1.5 * t)) + 20.0 * np.sin(2 * np.pi * 7 * t)
+    current, speed = simulate_motor(PAPER_MOTORS['paper2'], voltage, 1e-3)
+    records = prepare_records([Record(t, current, voltage, speed)])
+    solves = []
+    original = np.linalg.lstsq
+    monkeypatch.setattr(np.linalg, 'lstsq', lambda *a, **k: solves.append(1) or original(*a, **k))
+    candidates = refined._svf_candidates(records, None)
+    assert len(candidates) == 3  # admissible at every cut-off: one candidate each
+    assert len(solves) == 2 * 3  # the mechanical and the electrical regression per cut-off

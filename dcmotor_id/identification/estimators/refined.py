@@ -299,10 +299,11 @@ def _svf_candidates(records, torque_constant, cutoffs_fraction=(0.1, 0.02, 0.004
                 # derivatives of extreme values): skip this start point instead
                 raise np.linalg.LinAlgError('non-finite start-point equations')
             matrix, rhs = np.vstack(rows_m), np.concatenate(rhs_m)
-            free = np.linalg.lstsq(matrix, rhs, rcond=None)[0]
             # Where the free solution puts J, b or Mc below zero, the bounded one is a
-            # candidate too (taking magnitudes can start far from the data).
+            # candidate too (taking magnitudes can start far from the data); where it does
+            # not, the bounded one is the free one (the same solve, not repeated).
             bounded, held = nonnegative_lstsq(matrix, rhs, (True, True, True))
+            free = np.linalg.lstsq(matrix, rhs, rcond=None)[0] if held.any() else bounded
             mechs = [free] + ([bounded] if held.any() else [])
             cphi = 1.0
             electrical: dict[str, float] = {}
