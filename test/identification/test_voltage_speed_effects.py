@@ -23,6 +23,7 @@ from dcmotor_id.core.records import Record
 from dcmotor_id.design.control import design_controller
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.json_file import with_schema_version
+from dcmotor_id.identification.discovery.state import DEFAULT_ACCEPTANCE
 from dcmotor_id.identification.effects import make_effect
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.validate import model_from_dict, validate
@@ -60,7 +61,7 @@ def test_a_clean_record_gets_no_effect():
     result = identify(prepare_records([effect_record([])]))
     assert result.effects == []
     discovery = result.discovery
-    assert discovery['acceptance'] == 'innovation-t'
+    assert discovery['acceptance'] == DEFAULT_ACCEPTANCE
     tried = {candidate['name'] for step in discovery['steps']
              for candidate in step['candidates'] if candidate['refitted']}
     assert {'load_torque', 'coulomb_asymmetry', 'viscous_asymmetry'} <= tried
