@@ -14,8 +14,8 @@ keeps covering them wherever they live.  Measured in ``bench/bench_cold_start.py
 
 Its first step compiles the kernels of the identify path ahead of time
 (:func:`dcmotor_id.simulation.compiled.build`: an extension module that loads without numba,
-which saves every later process about 0.6 s of CPU); without a C compiler it says so and the
-identify steps compile the JIT kernels into the cache instead.
+which saves every later process numba's import and set-up, ``bench/cold_start_results.md``);
+without a C compiler it says so and the identify steps compile the JIT kernels into the cache instead.
 """
 
 from __future__ import annotations
