@@ -15,7 +15,8 @@ keeps covering them wherever they live.  Measured in ``bench/bench_cold_start.py
 Its first step compiles the kernels of the identify path ahead of time
 (:func:`dcmotor_id.simulation.compiled.build`: an extension module that loads without numba,
 which saves every later process numba's import and set-up, ``bench/cold_start_results.md``);
-without a C compiler it says so and the identify steps compile the JIT kernels into the cache instead.
+without a C compiler it says so and the identify steps compile the JIT kernels into the cache
+instead.
 """
 
 from __future__ import annotations
