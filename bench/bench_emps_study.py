@@ -30,11 +30,12 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from common import judged_by  # noqa: E402,I100  (bench/common.py, beside this script)
 from dcmotor_id.identification.discovery import judging  # noqa: E402
 from dcmotor_id.identification.discovery.state import DEFAULT_ACCEPTANCE  # noqa: E402
-from studies.emps import (emps_study, ESTIMATION_FILE, find_data_dir, format_study,  # noqa: E402
+from studies.emps import (emps_study, ESTIMATION_FILE, find_data_dir, format_study,  # noqa
                           load_emps, VALIDATION_FILE)
+
+from common import judged_by  # noqa: E402,I100  (bench/common.py, beside this script)
 
 #: The reading options of the README's EMPS command (``.mat`` variables, units).
 READING = ['--column', 'current=vir', '--column', 'position=qm', '--position-unit', 'm']
@@ -126,7 +127,7 @@ def results_table(runs: dict[str, dict[str, Any]]) -> str:
 
 
 def commit() -> str:
-    """Return the short hash of the checked-out commit (``+`` when the tree has changes)."""
+    """Return the short hash of HEAD, with ``+`` when the tree has changes."""
     import subprocess
     root = os.path.dirname(HERE)
     head = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=root, text=True,
@@ -137,7 +138,7 @@ def commit() -> str:
 
 
 def main() -> int:
-    """Run the study and the rules' runs; write the markdown file."""
+    """Run the study and the rules' runs; write the results file."""
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument('data_dir', nargs='?')
     parser.add_argument('--out', default=os.path.join(HERE, 'emps_study_results.md'))
@@ -154,7 +155,8 @@ def main() -> int:
     seconds = time.perf_counter() - start
     text = ['# EMPS: the study (studies/emps.py) and the acceptance rules', '',
             'Command: `EMPS_DATA_DIR=data/emps python bench/bench_emps_study.py` '
-            f'(code: commit {commit()}; {seconds:.0f} s; load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f} at '
+            f'(code: commit {commit()}; {seconds:.0f} s; load average {load[0]:.2f}, '
+            f'{load[1]:.2f}, {load[2]:.2f} at '
             'the start, 2 shared cores).', '',
             '## The study', '',
             'What `python -m studies.emps` prints: the published IDIM-LS reproduced, each '
@@ -163,7 +165,7 @@ def main() -> int:
             format_study(study), '',
             '## The acceptance rules on EMPS', '',
             'The t test of every winning candidate (`discovery/judging.py`): on the speed '
-            "(`identify --criterion speed`) and on the position (the README command, "
+            '(`identify --criterion speed`) and on the position (the README command, '
             '`--extended-vocabulary`, run through the command line in this process), under the '
             f'default rule `{DEFAULT_ACCEPTANCE}` (t on the innovations of an AR(1) error '
             "model of each structure's held-out residual: effective innovations) and under "
