@@ -363,6 +363,16 @@ def _emps_study_block(sessions: Mapping[str, Session]) -> str:
     return '\n' + '\n'.join(lines) + '\n\n'
 
 
+def study_table(nth: int) -> str:
+    """Return the ``nth`` table of bench/emps_study_results.md's study, as the file has it."""
+    tables = [t for t in bench_tables(read_bench('emps_study_results.md'))
+              if t.heading == 'The study']
+    table = tables[nth - 1]
+    lines = ['| ' + ' | '.join(table.header) + ' |', '|' + '---|' * len(table.header)]
+    lines += ['| ' + ' | '.join(row) + ' |' for row in table.rows]
+    return '\n' + '\n'.join(lines) + '\n\n'
+
+
 #: Block name -> (page, how the block is made from the sessions).
 BLOCKS: dict[str, tuple[str, Callable[[Mapping[str, Session]], str]]] = {
     'readme': ('README.md', _readme_block),
@@ -378,6 +388,9 @@ BLOCKS: dict[str, tuple[str, Callable[[Mapping[str, Session]], str]]] = {
     # from the committed benchmark results (their live runs take minutes)
     'readme-emps': ('README.md', _readme_emps_block),
     'emps-study': ('docs/emps.md', _emps_study_block),
+    'emps-idim': ('docs/emps.md', lambda sessions: study_table(1)),
+    'emps-criteria': ('docs/emps.md', lambda sessions: study_table(2)),
+    'emps-speed-loop': ('docs/emps.md', lambda sessions: study_table(3)),
     'online-alarms': ('docs/online.md', _online_alarms_block),
     'fleet-example': ('docs/fleet.md', _fleet_block),
 }
