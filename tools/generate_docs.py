@@ -525,7 +525,7 @@ def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
     ``min``, ``abs`` (the largest size), ``range`` (``min-max``) of the ``part``-th number
     (default the first) of the cells that have one, or their ``sum`` (with ``per: COLUMN``
     each a percentage of that column's number: counts from rates), written with ``format``
-    (default ``g``).
+    (default ``g``); ``count``: the number of rows meeting the conditions (no ``column``).
     """
     text = read(spec['bench'])
     if 'match' in spec:
@@ -541,6 +541,8 @@ def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
     table = _one(tables, 'tables', spec)
     assert isinstance(table, Table)
     rows = _selected(table, spec)
+    if spec.get('value') == 'count':
+        return str(len(rows))
     names = ([spec['column']] if spec['column'] in table.header
              else [name.strip() for name in spec['column'].split(',')])
     missing = [name for name in names if name not in table.header]
