@@ -433,7 +433,7 @@ QUOTED = re.compile(r'<!-- from: (?P<spec>.*?) -->(?P<body>.*?)<!-- /from -->', 
 BENCH = os.path.join(ROOT, 'bench')
 #: The pages whose quoted numbers are filled in (the README and the Markdown pages; the reST
 #: pages have no HTML comments, and architecture.rst shows the syntax).
-QUOTING_PAGES = ('README.md', 'docs/*.md')
+QUOTING_PAGES = ('README.md', 'docs/*.md', 'docs/benchmarks/index.md')
 #: A number in a text (a sign only where it does not follow a digit: ``0.7-0.9`` is two).
 NUMBER = re.compile(r'(?<![\d.])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|(?:\d+\.?\d*|\.\d+)')
 #: Printed numbers that differ by at most this relative amount, or by one unit of their last
