@@ -266,13 +266,14 @@ def format_study(study: Mapping[str, Any]) -> str:
               'estimation | speed simulation error, PULSES validation |', '|---|---|---|---|']
     for label in ('idim_ls', 'output_error'):
         item = study['criteria'][label]
-        lines.append(f'| {label.replace("_", " ")} | {item["force_error_pct"]:.2f} % | '
+        lines.append(f'| {"IDIM-LS" if label == "idim_ls" else "output error"} | '
+                     f'{item["force_error_pct"]:.2f} % | '
                      f'{item["speed_error_estimation_pct"]:.2f} % | '
                      f'{item["speed_error_validation_pct"]:.2f} % |')
     lines += ['', '| vocabulary | effects found (in order) | held-out error before -> after | '
               'estimation record before -> after | PULSES before -> after | unexplained |',
               '|---|---|---|---|---|---|']
-    for key, label in (('loop', "the issue's nine"), ('loop_extended', 'extended')):
+    for key, label in (('loop', 'standard'), ('loop_extended', 'extended')):
         item = study[key]
         result = item['result']
         found = ', '.join(_effect_text(effect) for effect in result['effects']) or 'none'
@@ -285,13 +286,13 @@ def format_study(study: Mapping[str, Any]) -> str:
                      f'{pair(item["validation"])} | {str(result["unexplained"]).lower()} |')
     lines += ['', '| vocabulary | PULSES speed error, effect by effect (all-data refits) |',
               '|---|---|']
-    for key, label in (('loop', "the issue's nine"), ('loop_extended', 'extended')):
+    for key, label in (('loop', 'standard'), ('loop_extended', 'extended')):
         steps = study[key]['validation_by_step']
         text = ' -> '.join(f"{'+'.join(step['effects']) or 'base'} "
                            f"{step['speed_nrmse_pct']:.2f} %" for step in steps)
         lines.append(f'| {label} | {text} |')
     lines += ['', '| vocabulary | round | candidates (held-out gain) |', '|---|---|---|']
-    for key, label in (('loop', "the issue's nine"), ('loop_extended', 'extended')):
+    for key, label in (('loop', 'standard'), ('loop_extended', 'extended')):
         for number, step in enumerate(study[key]['result']['discovery']['steps'], start=1):
             text = ', '.join(f"{c['name']} {c['heldout_gain_pct']:.1f} %"
                              + (' (rejected)' if c.get('rejected') else '')

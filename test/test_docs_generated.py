@@ -152,6 +152,13 @@ def test_an_empty_cell_keeps_the_columns_in_place():
     assert generate_docs.quoted_value(spec, lambda name: text) == '8.41'
 
 
+def test_a_count_of_the_rows_meeting_the_conditions():
+    assert quoted('bench: x.md; table: Accuracy; row: motor ~ paper2; value: count') == '2'
+    assert quoted('bench: x.md; table: Accuracy; row: noise % = 3; value: count') == '1'
+    with pytest.raises(RuntimeError, match='no row'):
+        quoted('bench: x.md; table: Accuracy; row: motor = paper3; value: count')
+
+
 def test_a_count_from_percentages_of_trials():
     text = ('## T\n\n| mode | trials | false |\n|---|---|---|\n| a | 15 | 20 % |\n'
             '| a | 15 | 0 % |\n| b | 15 | 40 % |\n')

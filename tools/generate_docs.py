@@ -363,6 +363,16 @@ def _emps_study_block(sessions: Mapping[str, Session]) -> str:
     return '\n' + '\n'.join(lines) + '\n\n'
 
 
+def study_table(nth: int) -> str:
+    """Return the ``nth`` table of bench/emps_study_results.md's study, as the file has it."""
+    tables = [t for t in bench_tables(read_bench('emps_study_results.md'))
+              if t.heading == 'The study']
+    table = tables[nth - 1]
+    lines = ['| ' + ' | '.join(table.header) + ' |', '|' + '---|' * len(table.header)]
+    lines += ['| ' + ' | '.join(row) + ' |' for row in table.rows]
+    return '\n' + '\n'.join(lines) + '\n\n'
+
+
 #: Block name -> (page, how the block is made from the sessions).
 BLOCKS: dict[str, tuple[str, Callable[[Mapping[str, Session]], str]]] = {
     'readme': ('README.md', _readme_block),
@@ -378,6 +388,9 @@ BLOCKS: dict[str, tuple[str, Callable[[Mapping[str, Session]], str]]] = {
     # from the committed benchmark results (their live runs take minutes)
     'readme-emps': ('README.md', _readme_emps_block),
     'emps-study': ('docs/emps.md', _emps_study_block),
+    'emps-idim': ('docs/emps.md', lambda sessions: study_table(1)),
+    'emps-criteria': ('docs/emps.md', lambda sessions: study_table(2)),
+    'emps-speed-loop': ('docs/emps.md', lambda sessions: study_table(3)),
     'online-alarms': ('docs/online.md', _online_alarms_block),
     'fleet-example': ('docs/fleet.md', _fleet_block),
 }
@@ -420,7 +433,7 @@ QUOTED = re.compile(r'<!-- from: (?P<spec>.*?) -->(?P<body>.*?)<!-- /from -->', 
 BENCH = os.path.join(ROOT, 'bench')
 #: The pages whose quoted numbers are filled in (the README and the Markdown pages; the reST
 #: pages have no HTML comments, and architecture.rst shows the syntax).
-QUOTING_PAGES = ('README.md', 'docs/*.md')
+QUOTING_PAGES = ('README.md', 'docs/*.md', 'docs/benchmarks/index.md')
 #: A number in a text (a sign only where it does not follow a digit: ``0.7-0.9`` is two).
 NUMBER = re.compile(r'(?<![\d.])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|(?:\d+\.?\d*|\.\d+)')
 #: Printed numbers that differ by at most this relative amount, or by one unit of their last
@@ -512,7 +525,7 @@ def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
     ``min``, ``abs`` (the largest size), ``range`` (``min-max``) of the ``part``-th number
     (default the first) of the cells that have one, or their ``sum`` (with ``per: COLUMN``
     each a percentage of that column's number: counts from rates), written with ``format``
-    (default ``g``).
+    (default ``g``); ``count``: the number of rows meeting the conditions (no ``column``).
     """
     text = read(spec['bench'])
     if 'match' in spec:
@@ -528,6 +541,8 @@ def quoted_value(spec: Mapping[str, str], read: Callable[[str], str]) -> str:
     table = _one(tables, 'tables', spec)
     assert isinstance(table, Table)
     rows = _selected(table, spec)
+    if spec.get('value') == 'count':
+        return str(len(rows))
     names = ([spec['column']] if spec['column'] in table.header
              else [name.strip() for name in spec['column'].split(',')])
     missing = [name for name in names if name not in table.header]

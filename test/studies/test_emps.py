@@ -118,3 +118,54 @@ def test_the_two_records_differ_in_friction():
         extra = (after[f'Fc_{direction}'] - before[f'Fc_{direction}']
                  + 0.1 * (after[f'Fv_{direction}'] - before[f'Fv_{direction}']))
         assert 0.5 < extra < 2.0
+
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _committed_results():
+    """Return bench/emps_study_results.md, which docs/emps.md quotes."""
+    with open(os.path.join(ROOT, 'bench', 'emps_study_results.md'), encoding='utf-8') as stream:
+        return stream.read()
+
+
+def _same_numbers(before, after):
+    """``tools/generate_docs.same_numbers``: equal but for the last digit of some decimals."""
+    import importlib.util
+    import sys
+    spec = importlib.util.spec_from_file_location('generate_docs',
+                                                  os.path.join(ROOT, 'tools', 'generate_docs.py'))
+    module = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault('generate_docs', module)
+    spec.loader.exec_module(module)
+    return module.same_numbers(before, after)
+
+
+def test_the_committed_results_show_what_the_study_prints_now(study):
+    """
+    The manual's EMPS tables come from bench/emps_study_results.md: it must be current.
+
+    A changed study output fails here until ``python bench/bench_emps_study.py`` is run again
+    (and ``make docs-regenerate``); numbers may differ in their last printed digit only (a fit
+    on another CPU), as the docs test allows.
+    """
+    from studies.emps import format_study
+
+    committed = _committed_results().split('## The study\n')[1].split('\n## ')[0]
+    printed = format_study(study)
+    tables = committed[committed.index('| parameter |'):].rstrip('\n')
+    assert _same_numbers(tables, printed), (
+        'bench/emps_study_results.md is stale: run python bench/bench_emps_study.py')
+
+
+def test_the_committed_speed_loop_verdict_is_the_study_s(study):
+    """The committed t test of the speed loop's best candidate is the one the loop made now."""
+    import re
+    first = study['loop']['result']['discovery']['steps'][0]['candidates'][0]
+    found = re.search(r'\(([\d.]+) %, t = (\S+) on (\d+) effective innovations\) is not '
+                      r'significant \(t >= (\S+) needed\)', first['rejected'])
+    assert found, first['rejected']
+    gain, t, effective, needed = found.groups()
+    row = (f'| speed | innovation-t-alone | {first["name"]} | {float(gain):.1f} | {t} | '
+           f'{effective} | {needed} | not added |')
+    assert row in _committed_results(), (row, 'run python bench/bench_emps_study.py')
