@@ -51,6 +51,7 @@ import numpy as np
 
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.records import Record
+from dcmotor_id.identification.discovery.state import DEFAULT_ACCEPTANCE
 from dcmotor_id.identification.estimators import voltage_speed as vs
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.simulation import simulate_motor
@@ -421,8 +422,9 @@ def main():
               'identify with discovery on (the default): the effects that act on the shaft '
               '(load_torque, coulomb_asymmetry, viscous_asymmetry, sensor_delay) fitted on the '
               'voltage-to-speed model with its armature lag, in volts (a torque T as Ra T/CPhi), '
-              "each judged by the loop's held-out innovation-t rule. Clean records over "
-              f'{args.seeds} seeds, the others over {max(2, args.seeds // 2)}. found: the true '
+              f"each judged by the loop's held-out rule ({DEFAULT_ACCEPTANCE}, the default). "
+              f'Clean records over {args.seeds} seeds, the others over '
+              f'{max(2, args.seeds // 2)}. found: the true '
               'effect (a Coulomb asymmetry below the Coulomb friction is the same model as a '
               'load torque, and the tie goes to the load torque); wrong: any other effect '
               'added; value: the median of the effect found in V (the truth); within 2 se: '
