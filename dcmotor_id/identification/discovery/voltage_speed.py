@@ -13,7 +13,7 @@ holds volts (``Ra T_L/CPhi``).
 Every round refits each absent effect on the training parts
 (:func:`~dcmotor_id.identification.discovery.parts.excited_stop`), scores it on the held-out
 parts and judges it by the loop's rule
-(:func:`~dcmotor_id.identification.discovery.judging.decide`: the default innovation-t test
+(:func:`~dcmotor_id.identification.discovery.judging.decide`: the default rule's t test
 on effective samples, the least gain, the BIC, the ties to the earlier effect); the loop
 never ends worse than its base (:func:`~dcmotor_id.identification.discovery.judging.
 never_worse`).  The effects found are refitted with the base on all of the data.  The
