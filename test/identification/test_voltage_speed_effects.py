@@ -27,7 +27,7 @@ from dcmotor_id.identification.discovery.state import DEFAULT_ACCEPTANCE
 from dcmotor_id.identification.effects import make_effect
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.validate import model_from_dict, validate
-from dcmotor_id.simulation import simulate_motor_effects
+from dcmotor_id.simulation import MotorEffects, simulate_motor_effects
 
 DT = 1e-3
 MOTOR = PAPER_MOTORS['paper2']
@@ -142,3 +142,21 @@ def test_the_effects_in_volts_are_the_motor_s_torques_times_ra_over_cphi(lag):
     speed = simulate_speed_effects(values, voltage, DT, 0.0, lag, combine_effects(in_volts),
                                    0.0)
     assert np.max(np.abs(speed - truth)) < tolerance * np.max(np.abs(truth))
+
+
+def test_a_candidate_whose_simulation_overflows_has_no_fit():
+    # A QUBE-Servo 2 record (500 Hz, voltage and angle) ended in an internal error: one
+    # candidate's simulation overflowed and scipy's trust region refused the Jacobian.
+    from dcmotor_id.identification.estimators.voltage_speed_effects import (EffectModel,
+                                                                            fit_effects)
+
+    class Overflowing(EffectModel):
+        def __call__(self, theta, record, initial):
+            speed = super().__call__(theta, record, initial)
+            return speed if theta[self.size] == 0.0 else np.full_like(speed, np.inf)
+
+    record = prepare_records([effect_record([])])[0].slice(0, 2000)
+    model = Overflowing(3, lambda coefficients: MotorEffects())
+    truth = true_combinations()
+    theta = np.array([truth['kS'], truth['kV'], 0.05, 0.0])
+    assert fit_effects(model, [record], theta, ['load_torque.torque_V'], [[0.0]]) is None

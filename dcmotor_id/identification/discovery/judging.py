@@ -74,8 +74,9 @@ def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
         before, after = before[before.shape[0] - common:], after[after.shape[0] - common:]
         if common < 2 * HELDOUT_BLOCKS:
             return float('inf')
-        term = (before ** 2 - after ** 2) / (max(weights.get(channel, 1.0), 1e-300) ** 2
-                                             * before.shape[0])
+        with np.errstate(over='ignore', invalid='ignore'):  # a diverged candidate: inf below
+            term = (before ** 2 - after ** 2) / (max(weights.get(channel, 1.0), 1e-300) ** 2
+                                                 * before.shape[0])
         drop = term if drop is None else drop + term
     if drop is None or not np.all(np.isfinite(drop)) or current.heldout_cost <= 0.0:
         return float('inf')

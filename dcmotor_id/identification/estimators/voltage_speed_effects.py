@@ -162,8 +162,13 @@ def fit_effects(model: EffectModel, records: Sequence[Record], theta: np.ndarray
     lower, upper = BOUNDS[model.size]
     extra = [-np.inf] * len(names), [np.inf] * len(names)
     with np.errstate(all='ignore'):  # a wild step may overflow; it is an infinite cost
-        result = _fit(model, records, theta, lower + extra[0], upper + extra[1], progress,
-                      initial, max_nfev)
+        try:
+            result = _fit(model, records, theta, lower + extra[0], upper + extra[1], progress,
+                          initial, max_nfev)
+        except ValueError:
+            # scipy's trust region refuses a residual or Jacobian that overflowed (its SVD
+            # checks for infs and NaNs): this candidate has no fit, as when it diverges.
+            return None
     if not (np.all(np.isfinite(result.x)) and np.all(np.isfinite(result.fun))):
         return None
     return summary(result, model, records, {}, float('nan'), names=names), result.x
