@@ -333,15 +333,16 @@ def _residual(model, records: Sequence[Record], size: int):
     return residual
 
 
-def _fit(model, records: Sequence[Record], theta: np.ndarray, lower: list, upper: list,
+def _fit(model, records: Sequence[Record], theta: np.ndarray, limits: tuple[list, list],
          progress: Progress | None = None, initial: Sequence[Sequence[float]] | None = None,
          max_nfev: int = 400):
     """
     Run the output-error fit, reporting each evaluation to ``progress``; return scipy's.
 
-    ``initial``: the records' initial states to start from (default: the first measured
-    speed, and no current).
+    ``limits``: the lower and the upper bounds of ``theta``.  ``initial``: the records'
+    initial states to start from (default: the first measured speed, and no current).
     """
+    lower, upper = limits
     from scipy.optimize import least_squares  # lazily: the command line's start stays light
     states = states_of(model)
     if initial is None:
@@ -437,7 +438,7 @@ def _second_fit(records: Sequence[Record], first, progress: Progress | None):
             progress.set_stage('voltage-speed fit: armature lag')
         return _fit(_second_order, records,
                     np.concatenate([first.x[:3], [math.log(min(share, 0.5)), 0.5]]),
-                    [-np.inf, -np.inf, 0.0, -15.0, 1e-3], [np.inf, np.inf, np.inf, 0.0, 1.0],
+                    ([-np.inf, -np.inf, 0.0, -15.0, 1e-3], [np.inf, np.inf, np.inf, 0.0, 1.0]),
                     progress)
     except TimeBudgetExceeded:
         return None
@@ -467,8 +468,8 @@ def fit_voltage_speed(records: Sequence[Record],
         np.concatenate([theta, [float(channels(rec)[1][0]) for rec in records]]))
     if progress is not None:
         progress.set_stage('voltage-speed fit: first order')
-    first = _fit(_first_order_state, records, theta, [-np.inf, -np.inf, 0.0],
-                 [np.inf, np.inf, np.inf], progress)
+    first = _fit(_first_order_state, records, theta, ([-np.inf, -np.inf, 0.0],
+                 [np.inf, np.inf, np.inf]), progress)
     if not np.all(np.isfinite(first.x)):
         raise FitError('the voltage-to-speed fit did not converge; check that the voltage and '
                        'the speed are in SI units (V, rad/s) and of one sign convention')

@@ -163,8 +163,8 @@ def fit_effects(model: EffectModel, records: Sequence[Record], theta: np.ndarray
     extra = [-np.inf] * len(names), [np.inf] * len(names)
     with np.errstate(all='ignore'):  # a wild step may overflow; it is an infinite cost
         try:
-            result = _fit(model, records, theta, lower + extra[0], upper + extra[1], progress,
-                          initial, max_nfev)
+            result = _fit(model, records, theta, (lower + extra[0], upper + extra[1]),
+                          progress, initial, max_nfev)
         except ValueError:
             # scipy's trust region refuses a residual or Jacobian that overflowed (its SVD
             # checks for infs and NaNs): this candidate has no fit, as when it diverges.
