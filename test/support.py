@@ -1,4 +1,4 @@
-"""Helpers shared by the tests: processes seen through /proc, a spinning ROS executor, waits."""
+"""Helpers shared by the tests: processes in /proc, a spinning ROS executor, waits, goals."""
 
 import contextlib
 import os
@@ -6,6 +6,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.simulation import simulate_motor
@@ -128,3 +129,9 @@ def remove_nodes(executor, *nodes):
         if closer:
             closer()
         node.destroy_node()
+
+
+def assert_near_truth(parameters, truth, **relative):
+    """Assert each named parameter within its relative tolerance of the truth's (``Ra=0.05``)."""
+    for name, tolerance in relative.items():
+        assert parameters[name] == pytest.approx(getattr(truth, name), rel=tolerance), name

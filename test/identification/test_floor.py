@@ -4,6 +4,7 @@ import warnings
 
 import numpy as np
 import pytest
+from support import assert_near_truth
 
 from dcmotor_id.core.errors import FitError, NotIdentifiableError
 from dcmotor_id.core.records import Record
@@ -27,9 +28,7 @@ def test_amplifier_ramp_after_a_logged_step_is_found_left_out_and_named():
     # The paper estimator's start no longer divides by zero on the user's terminal.
     assert not [item for item in caught if item.filename.endswith('paper.py')]
     truth = scenario.truth
-    assert result.parameters['Ra'] == pytest.approx(truth.Ra, rel=0.05)
-    assert result.parameters['CPhi'] == pytest.approx(truth.CPhi, rel=0.05)
-    assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
+    assert_near_truth(result.parameters, truth, Ra=0.05, CPhi=0.05, J=0.1)
     assert any('did not reach the motor' in text and 'amplifier_ramp_step samples 0-' in text
                for text in result.warnings)
     assert not any(text.startswith('the time looks like') for text in result.warnings)
@@ -69,9 +68,7 @@ def test_small_24v_motor_at_500hz_with_an_encoder_meets_the_issue_goals():
     scenario = lab_scenarios.small_motor_encoder_500hz()
     result = identify(prepare_records(scenario.records))
     truth = scenario.truth
-    assert result.parameters['Ra'] == pytest.approx(truth.Ra, rel=0.05)
-    assert result.parameters['CPhi'] == pytest.approx(truth.CPhi, rel=0.05)
-    assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
+    assert_near_truth(result.parameters, truth, Ra=0.05, CPhi=0.05, J=0.1)
     assert result.parameters['b'] == pytest.approx(truth.b, rel=0.3)
     assert 'La' in result.upper_bounds
 
@@ -202,9 +199,7 @@ def test_a_step_from_rest_with_a_coarse_encoder_speed_is_identified_not_diverged
     scenario = lab_scenarios.small_motor_step_encoder_speed()
     result = identify(prepare_records(scenario.records))
     truth = scenario.truth
-    assert result.parameters['Ra'] == pytest.approx(truth.Ra, rel=0.05)
-    assert result.parameters['CPhi'] == pytest.approx(truth.CPhi, rel=0.05)
-    assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
+    assert_near_truth(result.parameters, truth, Ra=0.05, CPhi=0.05, J=0.1)
     assert 'La' in result.not_identifiable  # La/Ra = 0.1 ms below the 1 ms period
     assert 'Mc' in result.not_identifiable  # one direction: the total friction torque
 

@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from support import assert_near_truth
 
 from dcmotor_id.cli.main import main
 from dcmotor_id.core.errors import NotIdentifiableError
@@ -18,9 +19,7 @@ def test_hobby_servo_by_pwm_with_its_angle_only_is_identified():
     scenario = lab_scenarios.hobby_servo_pwm_angle()
     result = identify(prepare_records(scenario.records))
     truth = scenario.truth
-    assert result.parameters['Ra'] == pytest.approx(truth.Ra, rel=0.05)
-    assert result.parameters['CPhi'] == pytest.approx(truth.CPhi, rel=0.05)
-    assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
+    assert_near_truth(result.parameters, truth, Ra=0.05, CPhi=0.05, J=0.1)
 
 
 @pytest.fixture(scope='module')
@@ -181,6 +180,4 @@ def test_a_step_from_rest_logged_by_its_encoder_angle_gets_no_effect(level_v, sa
              if candidate['heldout_gain_pct'] is not None]
     assert gains and max(gains) < 5.0
     truth = scenario.truth
-    assert result.parameters['Ra'] == pytest.approx(truth.Ra, rel=0.05)
-    assert result.parameters['CPhi'] == pytest.approx(truth.CPhi, rel=0.05)
-    assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
+    assert_near_truth(result.parameters, truth, Ra=0.05, CPhi=0.05, J=0.1)

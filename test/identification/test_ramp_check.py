@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from support import assert_near_truth
 
 from dcmotor_id.core.records import Record
 from dcmotor_id.identification.checks.ramp import ramp_masks, record_shortfalls
@@ -24,9 +25,7 @@ def test_a_ramp_after_a_mid_record_step_is_found_left_out_and_named():
     assert len(said) == 1 and f'amplifier_ramp_mid_step samples {step}-' in said[0]
     assert 'split at the later ones' in said[0]
     truth = scenario.truth
-    assert result.parameters['Ra'] == pytest.approx(truth.Ra, rel=0.05)
-    assert result.parameters['CPhi'] == pytest.approx(truth.CPhi, rel=0.05)
-    assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
+    assert_near_truth(result.parameters, truth, Ra=0.05, CPhi=0.05, J=0.1)
 
 
 @pytest.mark.parametrize('name', sorted(name for name in lab_scenarios.SCENARIOS
