@@ -15,6 +15,11 @@ by at least 1.5 samples over 3 or more.  This script measures how often it does:
 * **Power**: :func:`~dcmotor_id.simulation.lab_scenarios.amplifier_ramp_mid_step` over the
   ramp's length (2 ms samples), ``--seeds`` draws each: found when the named samples cover at
   least 80 % of the ramp and none before the step.
+* **A record's start**: the size on ``--random-motors`` voltage steps from rest of random
+  motors without a ramp (:func:`random_step_from_rest`), and the power on
+  :func:`~dcmotor_id.simulation.lab_scenarios.amplifier_ramp_step` over the ramp's length;
+  the start check alone (the former rule) beside the start check confirmed by the one-step
+  test (the rule now).
 
 The real recordings of the scorecard have no voltage with a current (HSM150, MECH 467, EMPS and
 the wheel log give the current as the input; SysIdOpt and the QUBE-Servo give no current):
@@ -132,16 +137,110 @@ def power_rows(seeds: int) -> list[list[str]]:
     return rows
 
 
+def random_step_from_rest(seed: int) -> tuple[list, str]:
+    """
+    Simulate a voltage step from rest of a random motor, logged from the step on; no ramp.
+
+    Log-uniform: Ra 0.1-20 Ohm, La/Ra 0.05-5 ms, CPhi 0.005-0.5 V s/rad, J Ra/CPhi^2
+    5 ms-1 s, b Ra/CPhi^2 0.005-0.3, Mc 0.2-5 % of the stall torque, 6-48 V; sampled at 1, 2
+    or 5 ms for at least 1 s or 6 mechanical time constants; the current with 0.5 % of the
+    stall current of noise, the speed with 0.5 % of the no-load speed or a 4096-count
+    encoder's angle only.  Returns the records and the motor's time constants.
+    """
+    from dcmotor_id.core.model import MotorParameters
+    from dcmotor_id.core.records import Record
+    rng = np.random.default_rng(1000 + seed)
+
+    def uniform_log(low, high):
+        return float(np.exp(rng.uniform(np.log(low), np.log(high))))
+    ra, tau_e, cphi, tau_m = (uniform_log(0.1, 20.0), uniform_log(5e-5, 5e-3),
+                              uniform_log(0.005, 0.5), uniform_log(5e-3, 1.0))
+    volts = uniform_log(6.0, 48.0)
+    truth = MotorParameters(Ra=ra, La=tau_e * ra, CPhi=cphi, J=tau_m * cphi ** 2 / ra,
+                            b=uniform_log(0.005, 0.3) * cphi ** 2 / ra,
+                            Mc=uniform_log(0.002, 0.05) * cphi * volts / ra)
+    dt = (1e-3, 2e-3, 5e-3)[seed % 3]
+    command = np.full(int(round(max(1.0, 6.0 * tau_m) / dt)), volts)
+    out = lab_scenarios.simulate_drive(truth, command, dt)
+    t = np.arange(command.size) * dt
+    current = out['current'] + rng.normal(0.0, 0.005 * volts / ra, command.size)
+    if seed % 2:
+        angle = np.floor(out['angle'] * 4096 / (2 * np.pi)) * 2 * np.pi / 4096
+        record = Record(t, current=current, voltage=command, position=angle)
+    else:
+        speed = out['speed'] + rng.normal(0.0, 0.005 * volts / cphi, command.size)
+        record = Record(t, current=current, voltage=command, speed=speed)
+    return [record], (f'La/Ra {tau_e * 1e3:.2f} ms, J Ra/CPhi^2 {tau_m * 1e3:.0f} ms, '
+                      f'dt {dt * 1e3:g} ms')
+
+
+def start_size_rows(count: int) -> tuple[list[list[str]], int, int]:
+    """Return the random steps from rest with a ramp named; by the start check alone, and now."""
+    rows, alone, now = [], 0, 0
+    for seed in range(count):
+        records, motor = random_step_from_rest(seed)
+        records = prepare_records(records)
+        former = bool(start_ramp_samples(records)[0].any())
+        named = bool(ramp_samples(records)[0].any())
+        alone, now = alone + former, now + named
+        if former or named:
+            steps = _step_starts(np.asarray(records[0].voltage, dtype=float))
+            z = [item.z for item in record_shortfalls(records[0], steps) if item.start == 0]
+            rows.append([str(seed), motor, f'{z[0]:.1f}' if z else '-',
+                         'yes' if former else 'no', 'yes' if named else 'no'])
+    return rows, alone, now
+
+
+def start_power_rows(seeds: int) -> list[list[str]]:
+    """Return the detection of a ramp at a record's start (a step from rest) over its length."""
+    rows = []
+    for ramp_s in RAMPS_S:
+        found = {'alone': 0, 'now': 0}
+        for seed in range(seeds):
+            scenario = lab_scenarios.amplifier_ramp_step(seed=seed, ramp_s=ramp_s)
+            records = prepare_records(scenario.records)
+            length = max(int(round(ramp_s / records[0].sample_period_s)), 1)
+            for key, mask in (('alone', start_ramp_samples(records)[0]),
+                              ('now', ramp_samples(records)[0])):
+                found[key] += bool(np.mean(mask[:length]) >= 0.8)
+        rows.append([f'{ramp_s * 1e3:.0f}', f'{ramp_s / 2e-3:.0f}',
+                     f"{found['alone']}/{seeds}", f"{found['now']}/{seeds}"])
+    return rows
+
+
+def start_lines(seeds: int, count: int) -> list[str]:
+    """Return the sections on a record's start: size on random motors, power over the ramp."""
+    rows, alone, now = start_size_rows(count)
+    lines = ['', f"## A record's start: size on {count} voltage steps from rest of random motors",
+             '', 'No ramp in any record (`random_step_from_rest`: log-uniform motors, 1, 2 or 5 '
+             'ms, speed or a 4096-count angle).  Start check alone: the former rule, runs of '
+             'at least 4 samples beyond 8 robust noise levels of the electrical equation on '
+             'raw derivatives.  Now: those runs where the one-step (ARX) test at the start is '
+             f'also beyond its 1 % bound.  Ramps named: start check alone {alone}/{count}, now '
+             f'{now}/{count}.  The records with either:', '']
+    lines += markdown_table(['seed', 'motor', 'z at the start', 'start check alone', 'now'],
+                            rows).splitlines()
+    lines += ['', f"## A record's start: power, amplifier_ramp_step over the ramp ({seeds} "
+              'seeds each)', '', 'Found: the named samples cover at least 80 % of the ramp.',
+              '']
+    lines += markdown_table(['ramp [ms]', 'ramp [samples]', 'start check alone', 'now'],
+                            start_power_rows(seeds)).splitlines()
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     """Measure the test's size and power; write the markdown tables."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[1])
     parser.add_argument('--seeds', type=int, default=10)
     parser.add_argument('--corpus-data', type=Path)
+    parser.add_argument('--random-motors', type=int, default=150,
+                        help='voltage steps from rest of random motors (size at the start)')
     parser.add_argument('--out', type=Path, default=Path('bench/ramp_results.md'))
     args = parser.parse_args(argv)
     started, load = time.time(), os.getloadavg()
     lines = ['# The ramp test after any logged step: size and power (issue 29)', '',
-             f'Command: `bench/bench_ramp.py --seeds {args.seeds}'
+             f'Command: `bench/bench_ramp.py --seeds {args.seeds} '
+             f'--random-motors {args.random_motors}'
              + (' --corpus-data DATA' if args.corpus_data else '') + '`  ',
              f'Load average at the start: {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}', '']
     rows, judged, named = lab_rows(args.seeds)
@@ -171,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     lines += markdown_table(
         ['ramp [ms]', 'ramp [samples]', 'median delay', 'found'],
         power_rows(args.seeds)).splitlines()
+    lines += start_lines(args.seeds, args.random_motors)
     lines += ['', 'Real records: none of the scorecard has a voltage with a current; not '
               'applied.', '', f'Run time {time.time() - started:.0f} s.', '']
     args.out.write_text('\n'.join(lines))

@@ -686,6 +686,36 @@ SCENARIOS.update({'small_motor_encoder_500hz': small_motor_encoder_500hz,
 HOBBY_SERVO = MotorParameters(Ra=4.0, La=1.0e-3, CPhi=0.25, J=2.0e-4, b=4e-4, Mc=0.02)
 
 
+#: A small motor that spins up within a few 2 ms samples (La/Ra 0.81 ms, J Ra/CPhi^2 15 ms).
+FAST_SPIN_UP_MOTOR = MotorParameters(Ra=1.6, La=1.3e-3, CPhi=0.044, J=1.8e-5, b=1.3e-5,
+                                     Mc=2.5e-3)
+
+
+def fast_spin_up_step(seed: int = 0, sample_period_s: float = 2e-3, level_v: float = 18.0,
+                      duration_s: float = 1.0) -> Scenario:
+    """
+    Simulate a voltage step from rest of a motor that spins up within about eight samples.
+
+    The step reaches the motor at once (no ramp); logged from its first sample at 500 Hz.  The
+    armature settles within a sample and the speed within a few: a start check on raw
+    derivatives of the current took that transient for an amplifier's ramp and cut it out.
+    """
+    rng = np.random.default_rng(seed)
+    truth = FAST_SPIN_UP_MOTOR
+    command = np.full(int(round(duration_s / sample_period_s)), level_v)
+    out = simulate_drive(truth, command, sample_period_s)
+    t = np.arange(command.shape[0]) * sample_period_s
+    record = Record(t, current=_noisy(out['current'], 0.005 * level_v / truth.Ra, rng),
+                    voltage=command,
+                    speed=_noisy(out['speed'], 0.005 * level_v / truth.CPhi, rng),
+                    source='fast_spin_up_step')
+    return Scenario('fast_spin_up_step', [record], truth,
+                    note='step from rest at 500 Hz, La/Ra 0.81 ms, J Ra/CPhi^2 15 ms, no ramp')
+
+
+SCENARIOS['fast_spin_up_step'] = fast_spin_up_step
+
+
 def hobby_servo_pwm_angle(seed: int = 0, sample_period_s: float = 2e-3,
                           counts_per_rev: int = 4096, bus_voltage_v: float = 6.0) -> Scenario:
     """

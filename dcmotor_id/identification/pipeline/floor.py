@@ -16,8 +16,8 @@ with standard errors counted on the samples the residual is worth (its correlati
 below the sample period (or an undetermined La) makes the electrical equation static
 (``u = Ra i + CPhi w``, La an upper bound).  Samples where the logged voltage does not reach
 the motor (an amplifier's ramp or slew after a step: the electrical residual far beyond its
-noise for several samples in a row from the step on) are left out of both equations and named
-(:func:`ramp_samples`).
+noise for several samples in a row from the step on, and the one-step test of the current
+beyond its 1 % bound) are left out of both equations and named (:func:`ramp_samples`).
 
 :func:`heldout_error` measures a parameter set on the held-out end of every record (the one
 the discovery loop holds out, :func:`~dcmotor_id.identification.discovery.parts.excited_stop`),
@@ -37,7 +37,8 @@ from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (DERIVED_NAMES, derived_values, MECHANICAL_NAMES,
                                    PARAMETER_NAMES, UNITS)
 from dcmotor_id.identification.checks.identifiability import limited_samples
-from dcmotor_id.identification.checks.ramp import ramp_masks
+from dcmotor_id.identification.checks.ramp import (bonferroni_bound, ramp_masks,
+                                                   record_shortfalls)
 from dcmotor_id.identification.checks.start import (both_directions, correlation_time,
                                                     regression_rows)
 from dcmotor_id.identification.discovery.parts import excited_stop
@@ -186,16 +187,36 @@ def ramp_samples(records: Sequence[Record]) -> list[np.ndarray]:
     """
     Per record, the samples after a step where the logged voltage did not reach the motor.
 
-    Those after a step at the record's start (:func:`start_ramp_samples`) and those after any
-    step by the one-step test of the electrical equation
+    Those after a step at the record's start (:func:`start_ramp_samples`, kept where the
+    one-step test also finds the current short at the start, :func:`_start_shortfall`) and
+    those after any step by the one-step test of the electrical equation
     (:func:`~dcmotor_id.identification.checks.ramp.ramp_masks`; steps into a current limit
-    are the limit's).
+    are the limit's).  ``bench/bench_ramp.py`` measures both rules' size and power.
     """
-    starts = start_ramp_samples(records)
     limited = limited_samples(records) if all(rec.current is not None for rec in records) \
         else None
+    starts = [mask if mask.any() and _start_shortfall(rec, None if limited is None
+                                                      else limited[index]) else
+              np.zeros_like(mask) for index, (rec, mask)
+              in enumerate(zip(records, start_ramp_samples(records)))]
     after = ramp_masks(records, _step_starts, limited)
     return [first | later for first, later in zip(starts, after)]
+
+
+def _start_shortfall(record: Record, limited: np.ndarray | None) -> bool:
+    """
+    Whether the current after a record's first step falls short beyond chance (a ramp's sign).
+
+    The one-step test of the electrical equation (an ARX model of the current,
+    :func:`~dcmotor_id.identification.checks.ramp.record_shortfalls`) at the record's start:
+    its z beyond the Bonferroni bound of the record's 1 % test.  The start check's runs of
+    outlying residual (:func:`start_ramp_samples`, on raw derivatives) also follow a fast
+    armature or spin-up that the derivatives smear (La/Ra near the sample period, a
+    mechanical time constant of a few samples): those fall short by no more than chance.
+    """
+    steps = _step_starts(np.asarray(record.voltage, dtype=float))
+    first = [item for item in record_shortfalls(record, steps, limited) if item.start == 0]
+    return bool(first) and first[0].z > bonferroni_bound(len(steps))
 
 
 def start_ramp_samples(records: Sequence[Record]) -> list[np.ndarray]:
