@@ -303,7 +303,10 @@ def main(argv=None):
         "structure's held-out residual (a drifting position residual is judged on its "
         "increments), on the whitened series' effective "
         'samples, and spread over blocks; innovation-t-alone = that t test alone (the gain '
-        'not asked to be spread over blocks); noise-level = the former rules '
+        'not asked to be spread over blocks); innovation-arma = that t test alone on the '
+        "innovations of an ARMA(1, 2) model of each structure's AR(1) innovations (the "
+        "wandering speed error of an integrated input noise under the rounding's "
+        'increments); noise-level = the former rules '
         "(an effect's own part of the outputs above the per-sample noise, a cogging ripple "
         'above the Coulomb friction needing twice the evidence).  Each case is judged by every '
         'rule on the same data.  Modes: current-speed = current and speed logged with noise, '

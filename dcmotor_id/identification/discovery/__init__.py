@@ -44,6 +44,8 @@ One module per seam of the loop; each imports only the modules before it in this
   records first tried on an excerpt of them;
 - :mod:`~dcmotor_id.identification.discovery.refitting`: fitting a structure, a candidate's
   refit and its physical problems, the all-data refit (steps 3 and 5);
+- :mod:`~dcmotor_id.identification.discovery.arma`: ARMA(1, q) error models of the held-out
+  innovations (the rule ``innovation-arma``);
 - :mod:`~dcmotor_id.identification.discovery.judging`: the held-out gain, its noise, the
   choice and the round's report (step 4);
 - :mod:`~dcmotor_id.identification.discovery.result`: :class:`DiscoveryResult`;

@@ -14,7 +14,11 @@ residual (a position the model integrates) is judged on its increments, which ar
 many samples where the drift is worth a handful.  Rule ``innovation-t-alone`` (the default):
 that t test alone, without the spread over blocks (:func:`heldout_gain_noise` in
 :func:`choose`, :func:`gain_t`), which repeats the test with 7 degrees of freedom and turns
-down evidence gathered at a few instants (a sensor delay at a sawtooth's jumps).  The former
+down evidence gathered at a few instants (a sensor delay at a sawtooth's jumps).  Rule
+``innovation-arma``: that test alone on the innovations of an ARMA(1, 2) model of each
+structure's AR(1) innovations (:func:`innovation_arma_t`, :mod:`.arma`: the input noise a
+mechanical model integrates leaves a wandering speed error under the rounding's increments),
+measured beside the default (``bench/discovery_results.md``, round 7).  The former
 rules (``noise-level``: an effect's own part of the outputs against the per-sample noise,
 :func:`own_part`, and a cogging ripple above the Coulomb friction needing twice the evidence)
 are kept to be measured against (``bench/bench_discovery.py``, a column per rule).
@@ -51,6 +55,8 @@ GAIN_T = 2.0
 #: many samples; the false-effect rate and the power are measured by
 #: ``bench/bench_discovery.py`` (a column per rule) and ``bench/bench_discovery_real.py``.
 HELDOUT_ALPHA = 0.00135
+#: Rules that do not ask the gain to be spread over the held-out part.
+SPREAD_FREE = ('innovation-t-alone', 'innovation-arma')
 
 
 def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
@@ -128,7 +134,7 @@ def choose(loop: LoopState, current: Fit, admissible: list[Candidate],
     winner = min(ties, key=lambda candidate: order[candidate.name])
     # Refitted candidates are scored: gain, bic_delta and gain_noise are set.
     gain, bic_delta = cast(float, winner.gain), cast(float, winner.bic_delta)
-    noise = None if loop.acceptance == 'innovation-t-alone' else winner.gain_noise
+    noise = None if loop.acceptance in SPREAD_FREE else winner.gain_noise
     if gain >= loop.min_gain and bic_delta < 0 and (noise is None or gain > noise):
         return winner, [candidate for candidate in ties if candidate is not winner]
     return None, []
@@ -256,7 +262,8 @@ def heldout_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]
     return float(t), float(worth)
 
 
-def innovation_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]:
+def innovation_t(loop: LoopState, current: Fit, fitted: Fit,
+                 arma: bool = False) -> tuple[float, float]:
     """
     Student t of the held-out drop in the innovations of the residual's error model.
 
@@ -266,9 +273,12 @@ def innovation_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, flo
     output channel is an AR(1) sequence, one per structure (:func:`residual_ar`, fitted on
     its held-out residual: white noise gives 0, a drift nearly 1, where the innovations are
     the residual's increments; each structure with its own, so that a bias the candidate
-    removes is not taken for a drift of both); each fit's held-out residual is whitened by
-    its own (the first held-out innovation from the last training sample), both scaled by
-    the current structure's innovation variance.  The drop of their squares compares the
+    removes is not taken for a drift of both); with ``arma`` (rule ``innovation-arma``) the
+    AR(1) innovations are whitened further by an ARMA(1, 2) model of each structure's own
+    (:func:`residual_arma`: the wander of an input's integrated noise under the rounding's
+    increments).  Each fit's held-out residual is whitened by its own model (the first
+    held-out innovation from the training samples before it), both scaled by the current
+    structure's innovation variance.  The drop of their squares compares the
     two structures' held-out one-step predictions under their error models; its t counts
     the samples over the integrated correlation time of the whitened residual (and of the
     drop's chance part), as :func:`heldout_t` does, and the channels' variances add
@@ -278,12 +288,12 @@ def innovation_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, flo
 
     total, variances, dofs = 0.0, [], []
     for channel in loop.outputs:
-        rho, scale = residual_ar(current, channel)
-        rhos = (rho, residual_ar(fitted, channel)[0])
-        pairs = [_innovations(current, fitted, index, channel, rhos)
+        models = (residual_arma(current, channel, arma), residual_arma(fitted, channel, arma))
+        pairs = [_innovations(current, fitted, index, channel, models)
                  for index in range(len(current.stops))]
         before = np.concatenate([pair[0] for pair in pairs])
         after = np.concatenate([pair[1] for pair in pairs])
+        scale = models[0][3]
         drop = (before ** 2 - after ** 2) / scale
         chance = 2.0 * after * (after - before) / scale
         if drop.shape[0] < 3 or not (np.all(np.isfinite(drop)) and np.all(np.isfinite(chance))):
@@ -301,6 +311,11 @@ def innovation_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, flo
     return float(total / np.sqrt(variance)), float(worth)
 
 
+def innovation_arma_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]:
+    """:func:`innovation_t` on the innovations of the ARMA(1, 2) error models (``arma``)."""
+    return innovation_t(loop, current, fitted, arma=True)
+
+
 def residual_ar(fit: Fit, channel: str) -> tuple[float, float]:
     """
     AR(1) error model of a fit's held-out residual on one channel: ``(rho, innovation var)``.
@@ -312,31 +327,67 @@ def residual_ar(fit: Fit, channel: str) -> tuple[float, float]:
     and initial states), and the drift it extrapolates (an input's noise integrated twice
     into the position) shows where it was not.
     """
+    rho, _, _, variance = residual_arma(fit, channel, False)
+    return rho, variance
+
+
+def residual_arma(fit: Fit, channel: str, arma: bool = True
+                  ) -> tuple[float, float, np.ndarray, float]:
+    """
+    Error model of a fit's held-out residual: ``(rho, phi, theta, innovation variance)``.
+
+    ``rho``: the AR(1) coefficient of :func:`residual_ar`; with ``arma``, ``phi`` and the MA
+    polynomial ``theta`` of an ARMA(1, 2) model of the AR(1) innovations of the held-out
+    parts (:func:`~dcmotor_id.identification.discovery.arma.fit_arma`), else ``0`` and
+    ``[1]``.  The variance is that of the held-out innovations of the whole model (the
+    filters run from each record's start), at least a tiny positive number.
+    """
+    from dcmotor_id.identification.discovery.arma import fit_arma
     from dcmotor_id.identification.error_model.criterion import MAX_POSITION_AR, whiten
 
     lagged = products = 0.0
-    pieces = []
+    errors = []
     for rec, sim, stop in zip(fit.records, fit.simulated, fit.stops):
-        error = np.asarray(sim[channel][stop:] - getattr(rec, channel)[stop:], dtype=float)
-        error = error[np.isfinite(error)]
-        if error.shape[0] >= 2:
-            lagged += float(error[:-1] @ error[:-1])
-            products += float(error[1:] @ error[:-1])
-            pieces.append(error)
+        error = np.asarray(sim[channel] - getattr(rec, channel), dtype=float)
+        heldout = error[stop:]
+        heldout = heldout[np.isfinite(heldout)]
+        if heldout.shape[0] >= 2:
+            lagged += float(heldout[:-1] @ heldout[:-1])
+            products += float(heldout[1:] @ heldout[:-1])
+            errors.append((error, stop))
     rho = float(np.clip(products / lagged, 0.0, MAX_POSITION_AR)) if lagged > 0 else 0.0
-    whitened = [whiten(piece, rho)[1:] for piece in pieces]
+    phi, theta = 0.0, np.ones(1)
+    if arma:
+        phi, theta = fit_arma([(error[1:] - rho * error[:-1])[max(stop - 1, 0):]
+                               for error, stop in errors])
+        whitened = [_whitened(error, stop, (rho, phi, theta)) for error, stop in errors]
+    else:  # the AR(1) model alone: within the held-out parts (Prais-Winsten)
+        whitened = [whiten(error[stop:][np.isfinite(error[stop:])], rho)[1:]
+                    for error, stop in errors]
     variance = float(np.mean(np.concatenate(whitened) ** 2)) if whitened else 0.0
-    return rho, max(variance, 1e-300)
+    return rho, phi, theta, max(variance, 1e-300)
+
+
+def _whitened(error: np.ndarray, stop: int, model: tuple[float, float, np.ndarray]
+              ) -> np.ndarray:
+    """Held-out innovations of one record's residual under ``(rho, phi, theta)``."""
+    from dcmotor_id.identification.discovery.arma import arma_filter
+
+    rho, phi, theta = model
+    innovations = error[1:] - rho * error[:-1]
+    if phi != 0.0 or np.any(theta[1:]):
+        innovations = arma_filter(np.where(np.isfinite(innovations), innovations, 0.0),
+                                  phi, theta)
+    return innovations[max(stop - 1, 0):]
 
 
 def _innovations(current: Fit, fitted: Fit, index: int, channel: str,
-                 rhos: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """Held-out innovations of one record: the current fit's, the candidate's (each its rho)."""
+                 models: Sequence[tuple]) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out innovations of one record: the current fit's, the candidate's (each its model)."""
     out = []
-    for fit, rho in zip((current, fitted), rhos):
+    for fit, model in zip((current, fitted), models):
         error = fit.simulated[index][channel] - getattr(fit.records[index], channel)
-        innovations = error[1:] - rho * error[:-1]
-        out.append(innovations[max(fit.stops[index] - 1, 0):])
+        out.append(_whitened(error, fit.stops[index], model[:3]))
     # A data effect (a sensor delay) shifts the records by a few samples: the common end.
     common = min(out[0].shape[0], out[1].shape[0])
     return out[0][out[0].shape[0] - common:], out[1][out[1].shape[0] - common:]
@@ -350,8 +401,10 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``:
     :func:`unearned_heldout_t`; ``innovation-t``: the same on the innovations of
     the residuals' AR(1) error models (:func:`innovation_t`); ``innovation-t-alone``
-    (default): that t test without the spread over blocks; ``noise-level`` (the former
-    rules, kept to measure against): :func:`unearned_noise_level`.
+    (default): that t test without the spread over blocks; ``innovation-arma``: that test
+    on the innovations of the ARMA(1, 2) error models (:func:`innovation_arma_t`);
+    ``noise-level`` (the former rules, kept to measure against):
+    :func:`unearned_noise_level`.
     """
     if loop.acceptance == 'noise-level':
         return unearned_noise_level(loop, current, candidate)
@@ -359,6 +412,8 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
         return unearned_heldout_t(loop, current, candidate, innovation_t)
     if loop.acceptance == 'innovation-t-alone':
         return unearned_heldout_t(loop, current, candidate, innovation_t, spread=False)
+    if loop.acceptance == 'innovation-arma':
+        return unearned_heldout_t(loop, current, candidate, innovation_arma_t, spread=False)
     return unearned_heldout_t(loop, current, candidate)
 
 

@@ -37,8 +37,11 @@ MAX_EFFECTS = 4
 #: its increments many), and ``noise-level``, the former own-part and cogging-size rules, kept
 #: so that ``bench/bench_discovery.py`` measures them all on the same data;
 #: ``innovation-t-alone``, that t test on the innovations alone, without asking the gain to be
-#: spread over 8 blocks of the held-out part (evidence gathered at a few instants is not).
-ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level', 'innovation-t-alone')
+#: spread over 8 blocks of the held-out part (evidence gathered at a few instants is not);
+#: ``innovation-arma``, that test alone on the innovations of an ARMA(1, 2) model of the AR(1)
+#: innovations (measured beside the default, not the default).
+ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level', 'innovation-t-alone',
+                    'innovation-arma')
 #: The rule of every identification.
 DEFAULT_ACCEPTANCE = 'innovation-t-alone'
 
