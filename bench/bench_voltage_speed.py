@@ -35,7 +35,8 @@ Run from the repository root::
     PYTHONPATH=$PWD .venv/bin/python bench/bench_voltage_speed.py \
         --sysidopt /work/.mirror/calcmogul+SysIdOpt/repo --out bench/voltage_speed_results.md
 
-``--sysidopt`` takes a clone (bare or not) of github.com/calcmogul/SysIdOpt.
+``--sysidopt`` takes a clone (bare or not) of github.com/calcmogul/SysIdOpt;
+``--discovery-only`` runs section 4 alone (its load average and command line first).
 """
 
 import argparse
@@ -383,14 +384,41 @@ def table(header, rows):
     return '\n'.join(lines + ['| ' + ' | '.join(row) + ' |' for row in rows])
 
 
+def discovery_section(seeds):
+    """Return section 4's lines: the effect discovery on the voltage-to-speed model."""
+    return ['', '## 4. Effect discovery on the voltage-to-speed model (paper motor 2, '
+            '1 % noise)', '',
+            'identify with discovery on (the default): the effects that act on the shaft '
+            '(load_torque, coulomb_asymmetry, viscous_asymmetry, sensor_delay) fitted on the '
+            'voltage-to-speed model with its armature lag, in volts (a torque T as Ra T/CPhi), '
+            f"each judged by the loop's held-out rule ({DEFAULT_ACCEPTANCE}, the default). "
+            f'Clean records over {seeds} seeds, the others over '
+            f'{max(2, seeds // 2)}. found: the true '
+            'effect (a Coulomb asymmetry below the Coulomb friction is the same model as a '
+            'load torque, and the tie goes to the load torque); wrong: any other effect '
+            'added; value: the median of the effect found in V (the truth); within 2 se: '
+            'its stated standard error; kS, kV, kA: rms error in % of the true combination '
+            'before (no discovery) / after; s: median CPU seconds of identify.', '',
+            table(['true effect', 'experiment', 'found', 'wrong', 'effects added',
+                   'value V (true)', 'within 2 se', 'kS % before / after',
+                   'kV % before / after', 'kA % before / after', 's'],
+                  discovery_rows(seeds))]
+
+
 def main():
-    """Run the three tables and print (or write) the report."""
+    """Run the tables and print (or write) the report."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', type=int, default=8, help='noise seeds per experiment')
     parser.add_argument('--sysidopt', help='clone of github.com/calcmogul/SysIdOpt')
     parser.add_argument('--out', help='write the report here (default: stdout)')
+    parser.add_argument('--discovery-only', action='store_true',
+                        help='run section 4 (the effect discovery) alone')
     args = parser.parse_args()
     load = os.getloadavg()
+    if args.discovery_only:
+        return write_report([f'`bench/bench_voltage_speed.py {" ".join(sys.argv[1:])}`; load '
+                             f'average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} (2 cores).',
+                             *discovery_section(args.seeds)], args.out)
     parts = ['# Voltage and speed without a current: kS, kV, kA (issue 31)', '',
              f'`bench/bench_voltage_speed.py {" ".join(sys.argv[1:])}`; load average '
              f'{load[0]:.2f} {load[1]:.2f} {load[2]:.2f} (2 cores).', '',
@@ -417,26 +445,15 @@ def main():
                   table(['parameter', 'identify', 'stated %', 'quasistatic fit',
                          'identify vs quasistatic %', 'within 10 %', 'CPU s'],
                         sysidopt_rows(args.sysidopt))]
-    parts += ['', '## 4. Effect discovery on the voltage-to-speed model (paper motor 2, '
-              '1 % noise)', '',
-              'identify with discovery on (the default): the effects that act on the shaft '
-              '(load_torque, coulomb_asymmetry, viscous_asymmetry, sensor_delay) fitted on the '
-              'voltage-to-speed model with its armature lag, in volts (a torque T as Ra T/CPhi), '
-              f"each judged by the loop's held-out rule ({DEFAULT_ACCEPTANCE}, the default). "
-              f'Clean records over {args.seeds} seeds, the others over '
-              f'{max(2, args.seeds // 2)}. found: the true '
-              'effect (a Coulomb asymmetry below the Coulomb friction is the same model as a '
-              'load torque, and the tie goes to the load torque); wrong: any other effect '
-              'added; value: the median of the effect found in V (the truth); within 2 se: '
-              'its stated standard error; kS, kV, kA: rms error in % of the true combination '
-              'before (no discovery) / after; s: median CPU seconds of identify.', '',
-              table(['true effect', 'experiment', 'found', 'wrong', 'effects added',
-                     'value V (true)', 'within 2 se', 'kS % before / after',
-                     'kV % before / after', 'kA % before / after', 's'],
-                    discovery_rows(args.seeds))]
+    parts += discovery_section(args.seeds)
+    write_report(parts, args.out)
+
+
+def write_report(parts, out):
+    """Print the report's lines and write them to ``out`` when given."""
     report = '\n'.join(parts) + '\n'
-    if args.out:
-        with open(args.out, 'w', encoding='utf-8') as handle:
+    if out:
+        with open(out, 'w', encoding='utf-8') as handle:
             handle.write(report)
     print(report)
 
