@@ -35,7 +35,8 @@ Run from the repository root::
     PYTHONPATH=$PWD .venv/bin/python bench/bench_voltage_speed.py \
         --sysidopt /work/.mirror/calcmogul+SysIdOpt/repo --out bench/voltage_speed_results.md
 
-``--sysidopt`` takes a clone (bare or not) of github.com/calcmogul/SysIdOpt.
+``--sysidopt`` takes a clone (bare or not) of github.com/calcmogul/SysIdOpt;
+``--discovery-only`` runs section 4 alone (its load average and command line first).
 """
 
 import argparse
@@ -264,13 +265,15 @@ def discovery_case(motor, make, effects, true, seeds):
     """Run one case of table 4 over the seeds; return its counts and errors."""
     truth = combinations(motor)
     found = wrong = within = 0
-    values, before, after, names, times = [], [], [], [], []
+    values, before, after, names, times, screens = [], [], [], [], [], []
     for seed in range(seeds):
         records = effect_record(motor, make(), effects, seed)
         base = vs.fit_voltage_speed(records)
         began = time.process_time()
         result = identify(records)
         times.append(time.process_time() - began)
+        screens += [candidate for step in result.discovery.get('steps', [])
+                    for candidate in step['candidates']]
         got = [effect['name'] for effect in result.effects]
         names += got
         right = bool(true) and bool(got) and got[0] in SAME_MODEL.get(true[0], {true[0]})
@@ -282,7 +285,21 @@ def discovery_case(motor, make, effects, true, seeds):
             within += abs(value - true[1]) <= 2.0 * stderr
         before.append([100.0 * (base.values[n] / truth[n] - 1.0) for n in NAMES])
         after.append([100.0 * (result.parameters[n] / truth[n] - 1.0) for n in NAMES])
-    return found, wrong, within, values, np.array(before), np.array(after), names, times
+    return (found, wrong, within, values, np.array(before), np.array(after), names, times,
+            screens)
+
+
+def screen_cells(screens):
+    """
+    Return the candidates refitted of those screened, and the screen against the refits.
+
+    The largest gap in points between a refitted candidate's screen (the share of the
+    training residual its linearised fit explains) and its refit's training gain.
+    """
+    refitted = [item for item in screens if item['refitted']]
+    gaps = [abs(item['screen_explained_pct'] - item['insample_gain_pct'])
+            for item in refitted if item['insample_gain_pct'] is not None]
+    return [f'{len(refitted)}/{len(screens)}', f'{max(gaps):.2f}' if gaps else '-']
 
 
 def discovery_rows(seeds):
@@ -298,8 +315,8 @@ def discovery_rows(seeds):
     for label, (effects, true) in effect_cases(motor).items():
         count = seeds if true is None else max(2, seeds // 2)
         for experiment, make in EXPERIMENTS.items():
-            found, wrong, within, values, before, after, names, times = discovery_case(
-                motor, make, effects, true, count)
+            found, wrong, within, values, before, after, names, times, screens = \
+                discovery_case(motor, make, effects, true, count)
             rms = [np.sqrt(np.mean(errors ** 2, axis=0)) for errors in (before, after)]
             listed = ', '.join(sorted(set(names))) or 'none'
             yield [label, experiment, '-' if true is None else f'{found}/{count}',
@@ -307,7 +324,7 @@ def discovery_rows(seeds):
                    '-' if not values else f'{np.median(values):.4g} ({true[1]:.4g})',
                    '-' if not values else f'{within}/{found}',
                    *[f'{rms[0][k]:.2f} / {rms[1][k]:.2f}' for k in range(len(NAMES))],
-                   f'{np.median(times):.1f}']
+                   f'{np.median(times):.1f}', *screen_cells(screens)]
 
 
 def load_sysidopt(path):
@@ -383,14 +400,46 @@ def table(header, rows):
     return '\n'.join(lines + ['| ' + ' | '.join(row) + ' |' for row in rows])
 
 
+def discovery_section(seeds):
+    """Return section 4's lines: the effect discovery on the voltage-to-speed model."""
+    return ['', '## 4. Effect discovery on the voltage-to-speed model (paper motor 2, '
+            '1 % noise)', '',
+            'identify with discovery on (the default): the effects that act on the shaft '
+            '(load_torque, coulomb_asymmetry, viscous_asymmetry, sensor_delay) fitted on the '
+            'voltage-to-speed model with its armature lag, in volts (a torque T as Ra T/CPhi), '
+            f"each judged by the loop's held-out rule ({DEFAULT_ACCEPTANCE}, the default). "
+            f'Clean records over {seeds} seeds, the others over '
+            f'{max(2, seeds // 2)}. found: the true '
+            'effect (a Coulomb asymmetry below the Coulomb friction is the same model as a '
+            'load torque, and the tie goes to the load torque); wrong: any other effect '
+            'added; value: the median of the effect found in V (the truth); within 2 se: '
+            'its stated standard error; kS, kV, kA: rms error in % of the true combination '
+            'before (no discovery) / after; s: median CPU seconds of identify; refitted: '
+            'the candidates refitted of those the rounds tried (screened), over the seeds; '
+            'screen gap: the largest difference in points between a refitted '
+            "candidate's screen (the share of the training residual its linearised fit "
+            "explains) and its refit's training gain.", '',
+            table(['true effect', 'experiment', 'found', 'wrong', 'effects added',
+                   'value V (true)', 'within 2 se', 'kS % before / after',
+                   'kV % before / after', 'kA % before / after', 's', 'refitted',
+                   'screen gap'],
+                  discovery_rows(seeds))]
+
+
 def main():
-    """Run the three tables and print (or write) the report."""
+    """Run the tables and print (or write) the report."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', type=int, default=8, help='noise seeds per experiment')
     parser.add_argument('--sysidopt', help='clone of github.com/calcmogul/SysIdOpt')
     parser.add_argument('--out', help='write the report here (default: stdout)')
+    parser.add_argument('--discovery-only', action='store_true',
+                        help='run section 4 (the effect discovery) alone')
     args = parser.parse_args()
     load = os.getloadavg()
+    if args.discovery_only:
+        return write_report([f'`bench/bench_voltage_speed.py {" ".join(sys.argv[1:])}`; load '
+                             f'average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} (2 cores).',
+                             *discovery_section(args.seeds)], args.out)
     parts = ['# Voltage and speed without a current: kS, kV, kA (issue 31)', '',
              f'`bench/bench_voltage_speed.py {" ".join(sys.argv[1:])}`; load average '
              f'{load[0]:.2f} {load[1]:.2f} {load[2]:.2f} (2 cores).', '',
@@ -417,26 +466,15 @@ def main():
                   table(['parameter', 'identify', 'stated %', 'quasistatic fit',
                          'identify vs quasistatic %', 'within 10 %', 'CPU s'],
                         sysidopt_rows(args.sysidopt))]
-    parts += ['', '## 4. Effect discovery on the voltage-to-speed model (paper motor 2, '
-              '1 % noise)', '',
-              'identify with discovery on (the default): the effects that act on the shaft '
-              '(load_torque, coulomb_asymmetry, viscous_asymmetry, sensor_delay) fitted on the '
-              'voltage-to-speed model with its armature lag, in volts (a torque T as Ra T/CPhi), '
-              f"each judged by the loop's held-out rule ({DEFAULT_ACCEPTANCE}, the default). "
-              f'Clean records over {args.seeds} seeds, the others over '
-              f'{max(2, args.seeds // 2)}. found: the true '
-              'effect (a Coulomb asymmetry below the Coulomb friction is the same model as a '
-              'load torque, and the tie goes to the load torque); wrong: any other effect '
-              'added; value: the median of the effect found in V (the truth); within 2 se: '
-              'its stated standard error; kS, kV, kA: rms error in % of the true combination '
-              'before (no discovery) / after; s: median CPU seconds of identify.', '',
-              table(['true effect', 'experiment', 'found', 'wrong', 'effects added',
-                     'value V (true)', 'within 2 se', 'kS % before / after',
-                     'kV % before / after', 'kA % before / after', 's'],
-                    discovery_rows(args.seeds))]
+    parts += discovery_section(args.seeds)
+    write_report(parts, args.out)
+
+
+def write_report(parts, out):
+    """Print the report's lines and write them to ``out`` when given."""
     report = '\n'.join(parts) + '\n'
-    if args.out:
-        with open(args.out, 'w', encoding='utf-8') as handle:
+    if out:
+        with open(out, 'w', encoding='utf-8') as handle:
             handle.write(report)
     print(report)
 

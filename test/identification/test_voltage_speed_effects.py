@@ -23,8 +23,15 @@ from dcmotor_id.core.records import Record
 from dcmotor_id.design.control import design_controller
 from dcmotor_id.formats.csv import write_csv
 from dcmotor_id.formats.json_file import with_schema_version
-from dcmotor_id.identification.discovery.state import DEFAULT_ACCEPTANCE
+from dcmotor_id.identification.discovery.loop import one_round
+from dcmotor_id.identification.discovery.screening import SCREEN_SHARE
+from dcmotor_id.identification.discovery.state import DEFAULT_ACCEPTANCE, LoopState, MIN_GAIN
+from dcmotor_id.identification.discovery.structure import Structure
+from dcmotor_id.identification.discovery.voltage_speed import (fit_parts, refit,
+                                                               VOLTAGE_SPEED_ROUND,
+                                                               VOLTAGE_SPEED_VOCABULARY)
 from dcmotor_id.identification.effects import make_effect
+from dcmotor_id.identification.estimators.voltage_speed import fit_voltage_speed
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.validate import model_from_dict, validate
 from dcmotor_id.simulation import MotorEffects, simulate_motor_effects
@@ -57,16 +64,57 @@ def true_combinations():
 
 
 def test_a_clean_record_gets_no_effect():
-    """The shaft's effects are tried on the voltage-to-speed model; none earns its place."""
+    """
+    The shaft's effects are screened on the voltage-to-speed model; none earns its place.
+
+    None explains a share of the residual worth a refit: none is refitted (the costly part,
+    a refit through the event-driven kernel, is skipped).
+    """
     result = identify(prepare_records([effect_record([])]))
     assert result.effects == []
     discovery = result.discovery
     assert discovery['acceptance'] == DEFAULT_ACCEPTANCE
-    tried = {candidate['name'] for step in discovery['steps']
-             for candidate in step['candidates'] if candidate['refitted']}
-    assert {'load_torque', 'coulomb_asymmetry', 'viscous_asymmetry'} <= tried
+    screened = {candidate['name']: candidate for step in discovery['steps']
+                for candidate in step['candidates']}
+    assert {'load_torque', 'coulomb_asymmetry', 'viscous_asymmetry'} <= set(screened)
+    assert not any(candidate['refitted'] for candidate in screened.values())
+    assert all(candidate['screen_explained_pct'] < 100 * SCREEN_SHARE * MIN_GAIN
+               for candidate in screened.values())
     assert all(step['added'] is None for step in discovery['steps'])
     assert not any('in volts' in text for text in result.warnings)
+
+
+def test_a_round_refits_only_the_candidates_the_screen_supports():
+    """
+    A load torque: the round screens every absent effect and refits those the screen supports.
+
+    The round is the loop's own (:func:`one_round`) with the voltage-to-speed steps; the
+    refits are counted through its refit step.  The load torque (its screen: most of the
+    residual) is refitted and chosen; the next round, nothing left to explain, refits none.
+    """
+    records = prepare_records([effect_record([make_effect('load_torque', torque_Nm=0.5)])])
+    fitted = fit_voltage_speed(records)
+    loop = LoopState(records, torque_constant=1.0, vocabulary=VOLTAGE_SPEED_VOCABULARY)
+    base = fit_parts(loop, Structure(), fitted.theta, {}, fitted.states)
+    loop = replace(loop, weights={'speed': base.estimate.info['noise_std']['speed']})
+    refitted = []
+
+    def counted(loop, current, candidate):
+        refitted.append(candidate.name)
+        return refit(loop, current, candidate)
+    steps = replace(VOLTAGE_SPEED_ROUND, refit=counted)
+    threshold = SCREEN_SHARE * loop.min_gain
+    first = one_round(loop, base, {}, steps)
+    assert first.chosen is not None and first.chosen.name == 'load_torque'
+    assert first.report['added']['parameters']['torque_V'] == pytest.approx(
+        0.5 * MOTOR.Ra / MOTOR.CPhi, rel=0.02)
+    assert sorted(refitted) == sorted(candidate.name for candidate in first.candidates
+                                      if candidate.screen_explained >= threshold)
+    refitted.clear()
+    second = one_round(loop, first.chosen.fitted, {}, steps)
+    assert second.chosen is None and refitted == []
+    assert {'coulomb_asymmetry', 'viscous_asymmetry'} <= {
+        candidate.name for candidate in second.candidates}
 
 
 def test_a_load_torque_is_found_in_volts_within_its_stated_uncertainty(tmp_path, capsys):

@@ -50,7 +50,10 @@ One module per seam of the loop; each imports only the modules before it in this
   choice and the round's report (step 4);
 - :mod:`~dcmotor_id.identification.discovery.result`: :class:`DiscoveryResult`;
 - :mod:`~dcmotor_id.identification.discovery.loop`: :class:`DiscoveryLoop`, the search round
-  by round, and :func:`discover`.
+  by round, and :func:`discover`; what a round does on its model (screen, refit, analysis)
+  is a ``RoundSteps``;
+- :mod:`~dcmotor_id.identification.discovery.voltage_speed`: the same rounds on the
+  voltage-to-speed model (records without a current), with its own steps.
 """
 
 from dcmotor_id.identification.discovery.analysis import (MATERIAL_FRACTION, MISFIT_FACTOR,

@@ -5,13 +5,16 @@ Each step is a function of the frozen
 :class:`~dcmotor_id.identification.discovery.state.LoopState` that returns what it found:
 :func:`base_fit` the loop it taught and the base, :func:`one_round` a
 :class:`~dcmotor_id.identification.discovery.structure.Round`, :func:`search_rounds` the
-:class:`Search`, :func:`refit_all_data` the all-data fits.
+:class:`Search`, :func:`refit_all_data` the all-data fits.  What a round does on its model
+(the screen's sensitivities, a candidate's refit, the residual analysis) is a
+:class:`RoundSteps`: :data:`OUTPUT_ERROR` here, the voltage-to-speed model's in
+:mod:`~dcmotor_id.identification.discovery.voltage_speed`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence, TYPE_CHECKING
+from typing import Any, Callable, Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
@@ -24,7 +27,8 @@ from dcmotor_id.identification.discovery.refitting import (anchor_fit, base_unso
                                                            refit_candidate,
                                                            speed_base_on_the_position, taught)
 from dcmotor_id.identification.discovery.result import DiscoveryResult
-from dcmotor_id.identification.discovery.screening import (screen_absent, SCREEN_SHARE, SCREEN_TOP,
+from dcmotor_id.identification.discovery.screening import (OUTPUT_ERROR_SCREEN, Screen,
+                                                           screen_absent, SCREEN_SHARE, SCREEN_TOP,
                                                            SCREEN_TOP_MISFIT)
 from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit, Round, Structure
@@ -32,6 +36,50 @@ from dcmotor_id.identification.discovery.structure import Candidate, Fit, Round,
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.estimators.base import Estimate
+
+
+@dataclass(frozen=True)
+class RoundSteps:
+    """
+    What a search round does on its model: screen, refit a candidate, analyse, name.
+
+    Attributes
+    ----------
+    screen : Screen
+        The screen's sensitivities and term responses
+        (:class:`~dcmotor_id.identification.discovery.screening.Screen`).
+    refit : callable
+        ``(loop, current, candidate) -> candidate``: the candidate refitted on the training
+        parts, with its problem (not yet scored); its ``fit`` None when the refit failed.
+    analyse : callable
+        ``(loop, fit) -> analysis``: the residual analysis after an effect is added (an
+        empty one: the model has none, and the search runs until no candidate earns its
+        place).
+    describe : callable, optional
+        ``candidate -> dict``: the added effect as the result names it (default
+        :meth:`~dcmotor_id.identification.discovery.structure.Candidate.describe`).
+    label : str
+        The progress stage's name.
+    refitted_anyway : tuple of int
+        How many of the best screened candidates are refitted whatever their screen, when
+        the model fits and when it misfits far above the noise
+        (:func:`~dcmotor_id.identification.discovery.analysis.misfit`): the linearisation
+        may miss a nonlinear effect.  The others are refitted when the screen explains
+        :data:`~dcmotor_id.identification.discovery.screening.SCREEN_SHARE` of the least
+        gain.
+
+    """
+
+    screen: Screen
+    refit: Callable[[LoopState, Fit, Candidate], Candidate]
+    analyse: Callable[[LoopState, Fit], dict]
+    describe: Callable[[Candidate], dict] | None = None
+    label: str = 'discovery'
+    refitted_anyway: tuple[int, int] = (SCREEN_TOP, SCREEN_TOP_MISFIT)
+
+
+#: The steps of the output-error model (current and speed, or the mechanical mode's speed).
+OUTPUT_ERROR = RoundSteps(OUTPUT_ERROR_SCREEN, refit_candidate, analyse)
 
 
 @dataclass
@@ -138,25 +186,31 @@ def _fit_base(loop: LoopState, estimate: Estimate | None, structure: Structure) 
                          initial_states=estimate.initial_states)
 
 
-def search_rounds(loop: LoopState, base: Fit, analysis: dict) -> Search:
-    """Add effects round by round until the residual is white or nothing helps."""
+def search_rounds(loop: LoopState, base: Fit, analysis: dict,
+                  steps: RoundSteps = OUTPUT_ERROR) -> Search:
+    """
+    Add effects round by round until the residual is white or nothing helps.
+
+    An empty ``analysis`` (a model without a residual analysis, ``steps.analyse``) never
+    stops the search: it runs until no candidate earns its place or the most effects.
+    """
     search = Search(base, analysis)
     try:
         while True:
-            if explained(loop, search.analysis):
+            if search.analysis and explained(loop, search.analysis):
                 search.reason = 'the residual is white' if not negligible(
                     search.analysis) else 'the model reproduces the data exactly'
                 break
             if len(search.current.structure) >= loop.max_effects:
                 search.reason = f'stopped at {loop.max_effects} effects'
                 break
-            step = one_round(loop, search.current, search.analysis)
+            step = one_round(loop, search.current, search.analysis, steps)
             search.steps.append(step.report)
             if step.chosen is None:
                 search.reason = 'no candidate lowers the held-out error enough'
                 break
             search.current = step.chosen.fitted
-            search.analysis = analyse(loop, search.current)
+            search.analysis = steps.analyse(loop, search.current)
     except TimeBudgetExceeded:
         search.out_of_time = True
         search.reason = 'the time budget ran out: the best structure so far is kept'
@@ -199,16 +253,19 @@ def _base_on_all_data(loop: LoopState, base: Fit) -> Estimate:
         return base.estimate
 
 
-def one_round(loop: LoopState, current: Fit, analysis: dict) -> Round:
+def one_round(loop: LoopState, current: Fit, analysis: dict,
+              steps: RoundSteps = OUTPUT_ERROR) -> Round:
     """
     One search round: screen every absent effect, refit the promising, choose.
 
-    The candidates are screened and refitted from ``current`` and judged against
-    :func:`~dcmotor_id.identification.discovery.refitting.judging_reference`: the current
-    structure refitted as they are when ``current`` is not a fit of the loop's criterion.
+    The candidates are screened and refitted from ``current`` (by ``steps``) and judged
+    against :func:`~dcmotor_id.identification.discovery.refitting.judging_reference`: the
+    current structure refitted as they are when ``current`` is not a fit of the loop's
+    criterion.
     """
     reference = judging_reference(current)
-    scored = refit_promising(loop, current, screen_absent(loop, current), reference)
+    scored = refit_promising(loop, current, screen_absent(loop, current, steps.screen),
+                             reference, steps)
     order = {cls.name: position for position, cls in enumerate(loop.candidates)}
     refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
                       key=lambda candidate: candidate.fitted.heldout_cost)
@@ -219,27 +276,32 @@ def one_round(loop: LoopState, current: Fit, analysis: dict) -> Round:
     report = round_report(loop, reference, analysis, results, chosen, equivalent)
     if reference is not current:
         report['judged_against'] = 'the base refitted as the candidates are (no effect)'
+    if chosen is not None and steps.describe is not None:  # the model names its effects
+        report['added'] = steps.describe(chosen)
+        report['equivalent'] = [steps.describe(candidate) for candidate in equivalent]
     return Round(results, chosen, report)
 
 
 def refit_promising(loop: LoopState, current: Fit, screened: list[Candidate],
-                    reference: Fit | None = None) -> list[Candidate]:
+                    reference: Fit | None = None,
+                    steps: RoundSteps = OUTPUT_ERROR) -> list[Candidate]:
     """
     Refit and score the candidates the screen supports, and the best few anyway.
 
     The screen is a linearisation: a strongly nonlinear effect may look smaller than it
     is.  ``screened`` is in the order of the screen, best first; so is the list returned.
-    Each refit (from ``current``) is scored against ``reference`` (default ``current``).
+    Each refit (from ``current``, by ``steps.refit``) is scored against ``reference``
+    (default ``current``).
     """
     threshold = SCREEN_SHARE * loop.min_gain
-    top = SCREEN_TOP_MISFIT if misfit(loop, current) else SCREEN_TOP
+    top = steps.refitted_anyway[1] if misfit(loop, current) else steps.refitted_anyway[0]
     scored = []
     for rank, candidate in enumerate(screened):
         if rank < top or candidate.screen_explained >= threshold:
             if loop.progress is not None:
-                loop.progress.set_stage(f'discovery: candidate {candidate.name}')
+                loop.progress.set_stage(f'{steps.label}: candidate {candidate.name}')
             candidate = score(loop, reference or current,
-                              refit_candidate(loop, current, candidate))
+                              steps.refit(loop, current, candidate))
         scored.append(candidate)
     return scored
 

@@ -3,12 +3,17 @@ The linearised screen: which candidate explains the residual, with which inner p
 
 The residual of the training parts is regressed on the sensitivities of the fitted parameters
 and of each candidate's terms (finite differences through the model); a sensor delay on the
-time derivative of the simulated channel.
+time derivative of the simulated channel.  The model's part is a :class:`Screen`: how its
+fitted parameters and a candidate's coefficients move the simulated outputs
+(:data:`OUTPUT_ERROR_SCREEN`, the output-error model of the current-speed loop; the
+voltage-to-speed model has its own in
+:mod:`~dcmotor_id.identification.discovery.voltage_speed`).
 """
 
 from __future__ import annotations
 
-from typing import Sequence, TYPE_CHECKING
+from dataclasses import dataclass
+from typing import Callable, Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +38,32 @@ SCREEN_TOP = 2
 #: linearised screen then ranks, it does not gate: a decisive nonlinear effect can screen low).
 SCREEN_TOP_MISFIT = 4
 
+#: The weighted training residual, the fitted parameters' sensitivities and the nominal outputs.
+Sensitivities = tuple[np.ndarray, np.ndarray, list]
+
+
+@dataclass(frozen=True)
+class Screen:
+    """
+    How a model's training outputs respond: the screen's model-specific part.
+
+    Attributes
+    ----------
+    sensitivities : callable
+        ``(loop, fit) -> (residual, matrix, nominal)``: the weighted training residual, the
+        sensitivities of the fit's parameters (columns) and the simulated outputs per record
+        (:func:`base_sensitivities`).
+    responses : callable
+        ``(loop, fit, effect class, inner, nominal) -> (terms, columns)``: a candidate's terms
+        (their names, start values and typical magnitudes) and the sensitivities of the
+        training outputs to their coefficients (:func:`term_responses`).
+
+    """
+
+    sensitivities: Callable[[LoopState, Fit], Sensitivities]
+    responses: Callable[[LoopState, Fit, type[Effect], dict, list],
+                        tuple[Sequence[ExogenousTerm], np.ndarray]]
+
 
 def train_model(loop: LoopState, fitted: Fit,
                 terms: tuple[ExogenousTerm, ...]) -> tuple[list[Record], OutputErrorModel]:
@@ -53,7 +84,7 @@ def stack(loop: LoopState, outputs_per_record: Sequence[dict],
     return np.concatenate(parts)
 
 
-def base_sensitivities(loop: LoopState, fitted: Fit) -> tuple[np.ndarray, np.ndarray, list]:
+def base_sensitivities(loop: LoopState, fitted: Fit) -> Sensitivities:
     """Weighted residual and sensitivities of the fitted parameters (training part)."""
     train, model = train_model(loop, fitted, fitted.terms)
     values = dict(fitted.values)
@@ -69,24 +100,35 @@ def base_sensitivities(loop: LoopState, fitted: Fit) -> tuple[np.ndarray, np.nda
         moved = {**values, **dict(zip(names, vector))}
         with np.errstate(all='ignore'):
             return stack(loop, simulate_records(model, moved, states), fitted.stops)
-    steps = np.where(point != 0.0, 1e-6 * np.abs(point), 1e-9)
-    matrix = (jacobian(stacked, point, steps, central=False,
-                       f0=stack(loop, nominal, fitted.stops))
-              if names else np.zeros((residual.shape[0], 0)))
     # Initial-state sensitivities are left out: they decay within a few time constants.
-    matrix = matrix[:, np.all(np.isfinite(matrix), axis=0)]
-    return residual, matrix, nominal
+    return residual, sensitivity_matrix(stacked, point, stack(loop, nominal, fitted.stops)), \
+        nominal
 
 
-def _term_responses(loop: LoopState, fitted: Fit, terms: Sequence[ExogenousTerm],
-                    nominal: list) -> np.ndarray:
+def sensitivity_matrix(stacked: Callable[[np.ndarray], np.ndarray], point: np.ndarray,
+                       nominal: np.ndarray) -> np.ndarray:
     """
-    Sensitivities of the training outputs to a candidate's coefficients.
+    Forward-difference sensitivities of stacked outputs to the parameters at ``point``.
+
+    Relative steps of 1e-6 (1e-9 at zero); columns that are not finite are left out.
+    """
+    if not point.size:
+        return np.zeros((nominal.shape[0], 0))
+    steps = np.where(point != 0.0, 1e-6 * np.abs(point), 1e-9)
+    matrix = jacobian(stacked, point, steps, central=False, f0=nominal)
+    return matrix[:, np.all(np.isfinite(matrix), axis=0)]
+
+
+def term_responses(loop: LoopState, fitted: Fit, cls: type[Effect], inner: dict,
+                   nominal: list) -> tuple[Sequence[ExogenousTerm], np.ndarray]:
+    """
+    Return a candidate's terms and the training outputs' sensitivities to its coefficients.
 
     Finite differences through the model from the candidate's start values, with the
     coefficient's typical magnitude as the (secant) step, so stick-slip events do not make
     the difference noisy; for a linear term this is its exact linear response.
     """
+    terms = cls.terms(fitted.records, inner, fitted.values, loop.torque_constant)
     _, model = train_model(loop, fitted, fitted.terms + tuple(terms))
     start = dict(fitted.values)
     start.update({term.name: term.initial for term in terms})
@@ -96,9 +138,13 @@ def _term_responses(loop: LoopState, fitted: Fit, terms: Sequence[ExogenousTerm]
         moved = {**start, **dict(zip(names, vector))}
         return stack(loop, simulate_records(model, moved, fitted.estimate.initial_states),
                      fitted.stops)
-    return jacobian(stacked, [term.initial for term in terms],
-                    [term.scale for term in terms], central=False,
-                    f0=stack(loop, nominal, fitted.stops))
+    return terms, jacobian(stacked, [term.initial for term in terms],
+                           [term.scale for term in terms], central=False,
+                           f0=stack(loop, nominal, fitted.stops))
+
+
+#: The screen of the output-error model (current and speed, or the speed of the mechanical mode).
+OUTPUT_ERROR_SCREEN = Screen(base_sensitivities, term_responses)
 
 
 def projector(matrix: np.ndarray) -> np.ndarray | None:
@@ -123,12 +169,12 @@ def explained_by(q: np.ndarray | None, residual: np.ndarray,
 
 
 def screen(loop: LoopState, fitted: Fit, cls: type[Effect], residual: np.ndarray,
-           q: np.ndarray | None, nominal: list) -> tuple[float, dict, dict] | None:
+           q: np.ndarray | None, nominal: list,
+           model: Screen = OUTPUT_ERROR_SCREEN) -> tuple[float, dict, dict] | None:
     """Best inner parameters of a candidate by the linearised fit; with start values."""
     best = None
     for inner in cls.inner_grid(fitted.records, fitted.values, loop.torque_constant):
-        terms = cls.terms(fitted.records, inner, fitted.values, loop.torque_constant)
-        columns = _term_responses(loop, fitted, terms, nominal)
+        terms, columns = model.responses(loop, fitted, cls, inner, nominal)
         if not np.all(np.isfinite(columns)) or np.allclose(columns, 0.0):
             continue
         gained, coefficients = explained_by(q, residual, columns)
@@ -157,7 +203,8 @@ def delay_estimate(loop: LoopState, fitted: Fit, channel: str, residual: np.ndar
 
 
 def screen_candidate(loop: LoopState, current: Fit, cls: type[Effect], residual: np.ndarray,
-                     q: np.ndarray | None, nominal: list) -> Candidate | None:
+                     q: np.ndarray | None, nominal: list,
+                     model: Screen = OUTPUT_ERROR_SCREEN) -> Candidate | None:
     """
     Linearised screen of one candidate: its inner parameters, start and explained share.
 
@@ -174,28 +221,30 @@ def screen_candidate(loop: LoopState, current: Fit, cls: type[Effect], residual:
                 best = Candidate(cls, {'channel': channel, 'samples': samples}, {},
                                  gained / total)
         return best
-    found = screen(loop, current, cls, residual, q, nominal)
+    found = screen(loop, current, cls, residual, q, nominal, model)
     if found is None:
         return None
     gained, inner, start_terms = found
     return Candidate(cls, inner, start_terms, gained / total)
 
 
-def screen_absent(loop: LoopState, current: Fit) -> list[Candidate]:
+def screen_absent(loop: LoopState, current: Fit,
+                  model: Screen = OUTPUT_ERROR_SCREEN) -> list[Candidate]:
     """
     Screen every effect of the vocabulary not yet in the structure; best screen first.
 
     The residual and the sensitivities of the fitted parameters (training parts) are computed
-    once; each candidate is screened against them (:func:`screen_candidate`).
+    once, by the model's :class:`Screen`; each candidate is screened against them
+    (:func:`screen_candidate`).
     """
-    residual, matrix, nominal = base_sensitivities(loop, current)
+    residual, matrix, nominal = model.sensitivities(loop, current)
     q = projector(matrix)
     present = set(current.structure.names())
     screened = []
     for cls in loop.candidates:
         if cls.name in present:
             continue
-        candidate = screen_candidate(loop, current, cls, residual, q, nominal)
+        candidate = screen_candidate(loop, current, cls, residual, q, nominal, model)
         if candidate is not None:
             screened.append(candidate)
     screened.sort(key=lambda candidate: -candidate.screen_explained)
