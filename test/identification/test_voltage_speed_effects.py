@@ -26,11 +26,11 @@ from dcmotor_id.formats.json_file import with_schema_version
 from dcmotor_id.identification.discovery.loop import one_round
 from dcmotor_id.identification.discovery.screening import SCREEN_SHARE
 from dcmotor_id.identification.discovery.state import DEFAULT_ACCEPTANCE, LoopState, MIN_GAIN
-from dcmotor_id.identification.discovery.structure import Structure
+from dcmotor_id.identification.discovery.structure import Candidate, Structure
 from dcmotor_id.identification.discovery.voltage_speed import (fit_parts, refit,
                                                                VOLTAGE_SPEED_ROUND,
                                                                VOLTAGE_SPEED_VOCABULARY)
-from dcmotor_id.identification.effects import make_effect
+from dcmotor_id.identification.effects import make_effect, ViscousAsymmetry
 from dcmotor_id.identification.estimators.voltage_speed import fit_voltage_speed
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.validate import model_from_dict, validate
@@ -208,3 +208,22 @@ def test_a_candidate_whose_simulation_overflows_has_no_fit():
     truth = true_combinations()
     theta = np.array([truth['kS'], truth['kV'], 0.05, 0.0])
     assert fit_effects(model, [record], theta, ['load_torque.torque_V'], [[0.0]]) is None
+
+
+def test_a_viscous_asymmetry_below_kv_is_admissible():
+    """
+    The refit judges a viscous asymmetry against kV, not against the fit's log kV.
+
+    The fit holds log kV (here 0.33 for kV 1.39 V s/rad; negative for every kV below 1):
+    judged against it, an asymmetry of 0.55 V s/rad (0.8 b) read "viscous friction would be
+    negative" and was never added.
+    """
+    records = prepare_records([effect_record([make_effect('viscous_asymmetry',
+                                                          delta_Nm_s=0.8 * MOTOR.b)])])
+    fitted = fit_voltage_speed(records)
+    loop = LoopState(records, torque_constant=1.0, vocabulary=VOLTAGE_SPEED_VOCABULARY)
+    base = fit_parts(loop, Structure(), fitted.theta, {}, fitted.states)
+    loop = replace(loop, weights={'speed': base.estimate.info['noise_std']['speed']})
+    done = refit(loop, base, Candidate(ViscousAsymmetry, {}, {}, 0.0))
+    assert done.fit is not None
+    assert done.problem is None

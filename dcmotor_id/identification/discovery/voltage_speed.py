@@ -242,9 +242,9 @@ def refit(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
         return candidate
     values = fitted.values
     effect = structure.effects(values)[-1]
-    return replace(candidate, fit=fitted,
-                   problem=effect.problem({'Mc': values['kS'], 'b': values['kV']},
-                                          fitted.records))
+    # The fit holds log kV (kV > 0): the base's viscous term is kV itself.
+    base = {'Mc': values['kS'], 'b': math.exp(values['kV'])}
+    return replace(candidate, fit=fitted, problem=effect.problem(base, fitted.records))
 
 
 def _in_volts(chosen: Candidate) -> dict[str, Any]:
