@@ -179,3 +179,56 @@ def inertia_reason(half: HalfRange, dt: float, torque_constant: float, j: float,
             f'(J = {j:.3g} +/- {stderr:.2g} kg m^2, the standard error being that half range '
             'at its upper bound). Sample faster than the speed settles to determine J; b and Mc '
             'come from the steady speeds')
+
+
+@dataclass(frozen=True)
+class OneLevelRange:
+    """
+    J over the friction split a one-level step leaves open: ``low`` (b = 0), ``high`` (Mc = 0).
+
+    ``level``: the voltage [V] while the motor moves; ``speed``: the final speed [rad/s].
+    """
+
+    level: float
+    speed: float
+    low: float
+    high: float
+
+
+def one_level_range(records: Sequence[Record], parameters: dict[str, float]
+                    ) -> OneLevelRange | None:
+    """
+    J's range when the voltage holds one level in one direction while the motor moves.
+
+    The spin-up is then one first-order lag: with ``A = CPhi^2/Ra`` it gives its time constant
+    ``J / (A + b)`` and its final speed ``w = (CPhi u/Ra - Mc) / (A + b)``, two numbers for J,
+    b and Mc.  Every ``b`` from 0 to ``b + Mc/w`` (where Mc reaches 0) fits as well, with
+    ``J = (A + b) tau``: J lies between ``J A/(A + b)`` and ``J (A + b + Mc/w)/(A + b)`` of the
+    fitted values.  None when the voltage takes more than one level or both directions occur
+    (:func:`~dcmotor_id.identification.estimators.voltage_speed.one_level_step`).
+    """
+    from dcmotor_id.identification.estimators.voltage_speed import one_level_step
+    if not one_level_step(records):
+        return None
+    ra, cphi = parameters['Ra'], parameters['CPhi']
+    j, b, mc = parameters['J'], max(parameters['b'], 0.0), max(parameters['Mc'], 0.0)
+    moving = [np.asarray(rec.voltage, dtype=float)[np.abs(np.asarray(rec.speed)) > 0.0]
+              for rec in records]
+    level = float(np.median(np.concatenate(moving)))
+    damping = cphi * cphi / ra + b
+    speed = (cphi * abs(level) / ra - mc) / damping
+    if not (ra > 0.0 and damping > 0.0 and speed > 0.0 and j > 0.0):
+        return None
+    return OneLevelRange(level, speed, j * (damping - b) / damping,
+                         j * (damping + mc / speed) / damping)
+
+
+def one_level_reason(span: OneLevelRange, j: float, stderr: float) -> str:
+    """Say that one voltage level does not separate J from the friction's split, with J's range."""
+    return (f'one voltage level ({span.level:.4g} V) in one direction: the spin-up gives its '
+            'time constant J/(CPhi^2/Ra + b) and the friction at its final speed '
+            f'({span.speed:.3g} rad/s) Mc + b w, not J, b and Mc each: J lies between '
+            f'{span.low:.3g} kg m^2 (no viscous friction) and {span.high:.3g} (no Coulomb '
+            f'friction) (J = {j:.3g} +/- {stderr:.2g}, the standard error reaching the farther '
+            'end). Record steps of two or more voltage levels, or both directions, to separate '
+            'them')

@@ -18,7 +18,8 @@ from dcmotor_id.identification.checks.answer import answer_warnings, FinalFit
 from dcmotor_id.identification.checks.identifiability import (at_bound, loose,
                                                               one_direction_note)
 from dcmotor_id.identification.checks.inertia import (inertia_half_range, inertia_reason,
-                                                      inertia_unresolved)
+                                                      inertia_unresolved, one_level_range,
+                                                      one_level_reason)
 from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.pipeline.state import Answer, Inputs
 
@@ -54,6 +55,8 @@ def identifiability(inputs: Inputs, answer: Answer) -> Answer:
     if inertia is not None:  # b and Mc from the steady speeds stay useful: said after the checks
         not_identifiable['J'] = inertia
         warnings += (inertia,)
+    elif 'J' not in not_identifiable:
+        warnings += one_level_inertia(inputs, answer, stderr)
     return replace(answer, bound=bound, not_identifiable=not_identifiable, stderr=stderr,
                    combined=combined, warnings=warnings)
 
@@ -76,3 +79,21 @@ def unresolved_inertia(inputs: Inputs, answer: Answer, stderr: dict[str, float])
     stderr['J'] = max(stderr['J'], half.upper * abs(j))
     return inertia_reason(half, answer.fitted_records[0].sample_period_s, constant, j,
                           stderr['J'])
+
+
+def one_level_inertia(inputs: Inputs, answer: Answer, stderr: dict[str, float]) -> tuple:
+    """
+    Say J's range when one voltage level in one direction leaves the friction's split open.
+
+    :func:`~dcmotor_id.identification.checks.inertia.one_level_range`; J's standard error in
+    ``stderr`` is raised to reach the farther end of the range.  Empty: the mechanical mode
+    (the current is the input), or the voltage takes more than one level or both directions.
+    """
+    if inputs.mechanical_only or not answer.fitted_records:
+        return ()
+    span = one_level_range(answer.fitted_records, answer.parameters)
+    if span is None:
+        return ()
+    j = answer.parameters['J']
+    stderr['J'] = max(stderr['J'], abs(span.high - j), abs(j - span.low))
+    return (one_level_reason(span, j, stderr['J']),)
