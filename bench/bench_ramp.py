@@ -52,6 +52,7 @@ from dcmotor_id.identification.pipeline.floor import (_step_starts, ramp_samples
                                                       start_ramp_samples)
 from dcmotor_id.simulation import lab_scenarios  # noqa: E402
 
+from bench_random_motors import command_of, random_motor  # noqa: E402,I100  (beside this)
 from common import markdown_table  # noqa: E402,I100  (bench/common.py, beside this script)
 
 #: Ramp lengths of the power sweep [s] (2 ms samples).
@@ -141,26 +142,17 @@ def random_step_from_rest(seed: int) -> tuple[list, str]:
     """
     Simulate a voltage step from rest of a random motor, logged from the step on; no ramp.
 
-    Log-uniform: Ra 0.1-20 Ohm, La/Ra 0.05-5 ms, CPhi 0.005-0.5 V s/rad, J Ra/CPhi^2
-    5 ms-1 s, b Ra/CPhi^2 0.005-0.3, Mc 0.2-5 % of the stall torque, 6-48 V; sampled at 1, 2
+    The motor of :func:`bench_random_motors.random_motor` and its step from rest; sampled at 1, 2
     or 5 ms for at least 1 s or 6 mechanical time constants; the current with 0.5 % of the
     stall current of noise, the speed with 0.5 % of the no-load speed or a 4096-count
     encoder's angle only.  Returns the records and the motor's time constants.
     """
-    from dcmotor_id.core.model import MotorParameters
     from dcmotor_id.core.records import Record
     rng = np.random.default_rng(1000 + seed)
-
-    def uniform_log(low, high):
-        return float(np.exp(rng.uniform(np.log(low), np.log(high))))
-    ra, tau_e, cphi, tau_m = (uniform_log(0.1, 20.0), uniform_log(5e-5, 5e-3),
-                              uniform_log(0.005, 0.5), uniform_log(5e-3, 1.0))
-    volts = uniform_log(6.0, 48.0)
-    truth = MotorParameters(Ra=ra, La=tau_e * ra, CPhi=cphi, J=tau_m * cphi ** 2 / ra,
-                            b=uniform_log(0.005, 0.3) * cphi ** 2 / ra,
-                            Mc=uniform_log(0.002, 0.05) * cphi * volts / ra)
+    truth, volts, tau_m = random_motor(rng)
+    ra, cphi, tau_e = truth.Ra, truth.CPhi, truth.La / truth.Ra
     dt = (1e-3, 2e-3, 5e-3)[seed % 3]
-    command = np.full(int(round(max(1.0, 6.0 * tau_m) / dt)), volts)
+    command = command_of('step', volts, tau_m, dt, rng)
     out = lab_scenarios.simulate_drive(truth, command, dt)
     t = np.arange(command.size) * dt
     current = out['current'] + rng.normal(0.0, 0.005 * volts / ra, command.size)
