@@ -207,14 +207,12 @@ def one_level_range(records: Sequence[Record], parameters: dict[str, float]
     fitted values.  None when the voltage takes more than one level or both directions occur
     (:func:`~dcmotor_id.identification.estimators.voltage_speed.one_level_step`).
     """
-    from dcmotor_id.identification.estimators.voltage_speed import one_level_step
+    from dcmotor_id.identification.estimators.voltage_speed import moving_voltage, one_level_step
     if not one_level_step(records):
         return None
     ra, cphi = parameters['Ra'], parameters['CPhi']
     j, b, mc = parameters['J'], max(parameters['b'], 0.0), max(parameters['Mc'], 0.0)
-    moving = [np.asarray(rec.voltage, dtype=float)[np.abs(np.asarray(rec.speed)) > 0.0]
-              for rec in records]
-    level = float(np.median(np.concatenate(moving)))
+    level = float(np.median(moving_voltage(records)[0]))
     damping = cphi * cphi / ra + b
     speed = (cphi * abs(level) / ra - mc) / damping
     if not (ra > 0.0 and damping > 0.0 and speed > 0.0 and j > 0.0):

@@ -176,7 +176,7 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
 ONE_LEVEL_SPREAD = 0.01
 
 
-def _levels(records: Sequence[Record]) -> tuple[np.ndarray, np.ndarray]:
+def moving_voltage(records: Sequence[Record]) -> tuple[np.ndarray, np.ndarray]:
     """Return the voltage and the speed's sign over the samples where the motor moves."""
     voltages, signs = [], []
     for record in records:
@@ -195,7 +195,7 @@ def one_level_step(records: Sequence[Record]) -> str:
     constant are two numbers for three unknowns, and ``kS + kV w = u`` at the final speed ties
     kS to kV (the regressors ``sgn w``, ``w`` and ``dw/dt`` are dependent).
     """
-    voltage, signs = _levels(records)
+    voltage, signs = moving_voltage(records)
     if voltage.size == 0 or np.unique(signs).size > 1:
         return ''
     size = float(np.max(np.abs(voltage)))
@@ -216,7 +216,7 @@ def one_magnitude(records: Sequence[Record]) -> str:
     ``sgn w`` changes within the response, separate kS from kV, and the two trade against
     each other beyond what their standard errors say.
     """
-    voltage, signs = _levels(records)
+    voltage, signs = moving_voltage(records)
     if voltage.size == 0 or np.unique(signs).size < 2:
         return ''
     size = float(np.max(np.abs(voltage)))

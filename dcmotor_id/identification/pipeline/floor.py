@@ -195,10 +195,11 @@ def ramp_samples(records: Sequence[Record]) -> list[np.ndarray]:
     """
     limited = limited_samples(records) if all(rec.current is not None for rec in records) \
         else None
-    starts = [mask if mask.any() and _start_shortfall(rec, None if limited is None
-                                                      else limited[index]) else
-              np.zeros_like(mask) for index, (rec, mask)
-              in enumerate(zip(records, start_ramp_samples(records)))]
+    starts = start_ramp_samples(records)
+    for index, record in enumerate(records):
+        if starts[index].any() and not _start_shortfall(
+                record, None if limited is None else limited[index]):
+            starts[index] = np.zeros_like(starts[index])
     after = ramp_masks(records, _step_starts, limited)
     return [first | later for first, later in zip(starts, after)]
 
