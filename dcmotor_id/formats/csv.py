@@ -19,9 +19,9 @@ from __future__ import annotations
 import codecs
 import csv
 import io
-from itertools import islice
+from itertools import islice, repeat
 import os
-from typing import Callable, IO, Iterator
+from typing import Callable, IO, Iterator, Sequence
 
 import numpy as np
 
@@ -147,7 +147,7 @@ def read_csv(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
         with _open_text(path, encoding) as stream:
             header, header_line, delimiter = _header(path, stream)
             index = _column_index(path, header, options)
-            columns = _parse(path, stream, header_line, index,
+            columns = _parse(path, stream, (header_line, len(header)), index,
                              lambda: _open_text(path, encoding), delimiter)
     except UnicodeDecodeError as error:
         raise InputDataError(f'{path}: not a CSV text file (bytes that are not {encoding} '
@@ -212,7 +212,7 @@ def _column_index(path: PathLike, header: list[str], options: ReadOptions) -> di
     return index
 
 
-def _parse(path: PathLike, stream: IO[str], header_line: int, index: dict[str, int],
+def _parse(path: PathLike, stream: IO[str], header: tuple[int, int], index: dict[str, int],
            reopen: Callable[[], IO[str]], delimiter: str = ',') -> dict[str, np.ndarray]:
     """
     Parse the samples of the chosen columns in blocks; return channel -> values.
@@ -220,7 +220,9 @@ def _parse(path: PathLike, stream: IO[str], header_line: int, index: dict[str, i
     numpy's C parser reads each block of lines into one small array; each column of it is
     kept as its own piece and the pieces are joined once per channel at the end, so the
     peak is about the numbers themselves plus one column and one block.  With a separator
-    other than the comma, a comma is a decimal comma.
+    other than the comma, a comma is a decimal comma.  ``header``: the header's line number
+    and its number of columns (a line with more fields is refused by the row-by-row parser,
+    :func:`_parse_slowly`: the C parser reads only the chosen columns and would not see it).
     """
     channels = list(index)
     usecols = [index[channel] for channel in channels]
@@ -236,10 +238,11 @@ def _parse(path: PathLike, stream: IO[str], header_line: int, index: dict[str, i
                                quotechar='"', dtype=float)
         except ValueError:
             block = None
-        if block is None or block.shape[1] != len(channels):
+        if block is None or block.shape[1] != len(channels) or \
+                _overlong(lines, header[1], delimiter):
             del lines, pieces
             with reopen() as again:
-                return _parse_slowly(path, again, header_line, index, delimiter)
+                return _parse_slowly(path, again, header, index, delimiter)
         for column, channel in enumerate(channels):
             pieces[channel].append(np.ascontiguousarray(block[:, column]))
         del block, lines
@@ -252,20 +255,39 @@ def _parse(path: PathLike, stream: IO[str], header_line: int, index: dict[str, i
     return out
 
 
-def _parse_slowly(path: PathLike, stream: IO[str], header_line: int,
+def _overlong(lines: Sequence[str], width: int, delimiter: str) -> bool:
+    """
+    Whether a line may have more fields than the header (fields beyond it not all empty).
+
+    A quick screen by counting separators (a quoted separator can make it say yes: the
+    row-by-row parser then decides); separators at a line's end (``1,2,3,4,``) are no field.
+    """
+    if max(map(str.count, lines, repeat(delimiter)), default=0) < width:
+        return False
+    return any(line.rstrip().rstrip(delimiter).count(delimiter) >= width for line in lines)
+
+
+def _parse_slowly(path: PathLike, stream: IO[str], header: tuple[int, int],
                   index: dict[str, int], delimiter: str = ',') -> dict[str, np.ndarray]:
     """
-    Parse row by row with the csv module, to name the first bad cell (or skip blank rows).
+    Parse row by row with the csv module, to name the first bad cell or row (skip blank rows).
 
     Only reached when the fast parser refuses a block: its messages carry no line number of
-    the file, and rows of empty cells (``,,,``) are skipped here as blank lines.
+    the file, and rows of empty cells (``,,,``) are skipped here as blank lines.  A row with
+    more fields than the header (two lines run together, a stray separator) is refused: its
+    cells cannot be matched to the columns.
     """
     values: dict[str, list[float]] = {channel: [] for channel in index}
     reader = csv.reader(stream, delimiter=delimiter)
     decimal_comma = delimiter != ','
+    header_line, width = header
     for row_number, row in enumerate(_checked(path, reader), start=1):
         if row_number <= header_line or not row or not any(cell.strip() for cell in row):
             continue
+        if any(cell.strip() for cell in row[width:]):
+            raise InputDataError(
+                f'{path}: line {row_number} has {len(row)} fields and the header {width}: two '
+                'lines run together or a stray separator; fix or remove that line')
         for name, column in index.items():
             try:
                 cell = row[column]
@@ -329,5 +351,6 @@ def read_csv_text(text: str, options: ReadOptions = DEFAULT_OPTIONS,
     stream = io.StringIO(text)
     header, header_line, delimiter = _header(source, stream)
     index = _column_index(source, header, options)
-    columns = _parse(source, stream, header_line, index, lambda: io.StringIO(text), delimiter)
+    columns = _parse(source, stream, (header_line, len(header)), index,
+                     lambda: io.StringIO(text), delimiter)
     return build_record(columns, options, source=source)

@@ -7,6 +7,7 @@ import pytest
 from scipy.io import savemat
 
 from dcmotor_id.cli.main import main as cli_main
+from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.records import Record
 from dcmotor_id.formats import csv as csv_format, read_record
@@ -279,6 +280,30 @@ def test_blocks_join_exactly_and_bad_cells_are_located(tmp_path, si_record, monk
     open(path, 'w', encoding='utf-8').write('\n'.join(text) + '\n')
     with pytest.raises(Exception, match='line 52'):
         read_record(path)
+
+
+def test_a_row_with_more_fields_than_the_header_is_refused_naming_its_line(tmp_path,
+                                                                           si_record):
+    # Two lines run together (a logger's lost newline) give a row whose cells shift into
+    # the wrong columns: numpy's parser reads only the chosen columns and took it as data.
+    path = str(tmp_path / 'run_together.csv')
+    write_csv(path, si_record)
+    text = open(path, encoding='utf-8').read().splitlines()
+    width = len(text[0].split(','))
+    text[30] = text[30] + ',' + text[31]
+    open(path, 'w', encoding='utf-8').write('\n'.join(text) + '\n')
+    with pytest.raises(InputDataError, match=f'line 31 has {2 * width} fields and the header '
+                                             f'{width}:'):
+        read_record(path)
+
+
+def test_separators_at_the_end_of_every_row_are_no_field(tmp_path, si_record):
+    path = str(tmp_path / 'trailing.csv')
+    write_csv(path, si_record)
+    text = open(path, encoding='utf-8').read().splitlines()
+    open(path, 'w', encoding='utf-8').write(
+        '\n'.join([text[0]] + [line + ',' for line in text[1:]]) + '\n')
+    np.testing.assert_array_equal(read_record(path).current, si_record.current)
 
 
 def test_input_units_say_from_what_each_channel_was_converted():
