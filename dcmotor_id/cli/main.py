@@ -31,7 +31,7 @@ from dcmotor_id.formats.json_file import with_schema_version, write_json
 from dcmotor_id.formats.mapping import (CURRENT_SIGN_SOURCES, CURRENT_UNITS, output_shaft,
                                         parse_assignments,
                                         POSITION_UNITS, ReadingNote, ReadOptions,
-                                        SIGNED_CHANNELS, SPEED_UNITS)
+                                        SIGNED_CHANNELS, SPEED_UNITS, TIME_UNITS)
 from dcmotor_id.formats.paths import check_input_path, check_output_path, is_bag_dir
 from dcmotor_id.identification.checks.dropouts import repair_all
 from dcmotor_id.identification.effects import EFFECTS, EXTENDED_VOCABULARY, parse_effect
@@ -264,7 +264,7 @@ def reading_options(args: argparse.Namespace) -> ReadOptions:
     if getattr(args, 'segment_column', None):
         columns['segment'] = args.segment_column
     return ReadOptions(
-        columns=columns, current_unit=args.current_unit,
+        columns=columns, time_unit=args.time_unit, current_unit=args.current_unit,
         speed_unit=args.speed_unit, speed_counts_per_rev=args.speed_counts_per_rev,
         position_unit=args.position_unit, position_counts_per_rev=args.position_counts_per_rev,
         gear_ratio=args.gear_ratio, bus_voltage=args.voltage_from_duty,
@@ -285,6 +285,9 @@ def _add_reading_options(command: argparse.ArgumentParser) -> None:
                        help='the samples are S seconds apart: time = k*S (.mat, CSV without '
                             'or with broken time stamps; a time column is then not used); for '
                             'bags the grid step')
+    group.add_argument('--time-unit', choices=list(TIME_UNITS), default='s',
+                       help='unit of the time column (a logger stamping in ms, us or ns); '
+                            'CSV, MATLAB and Parquet files')
     group.add_argument('--current-unit', choices=sorted(CURRENT_UNITS), default='A')
     group.add_argument('--speed-unit', choices=sorted(SPEED_UNITS), default='rad/s')
     group.add_argument('--speed-counts-per-rev', type=positive, metavar='N',

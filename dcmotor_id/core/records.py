@@ -280,7 +280,8 @@ def irregular_sampling(name: str, steps: np.ndarray, period: float) -> str:
                 'fitted from its own initial state), or pass --resample to interpolate across '
                 'them (it invents the samples in between)')
     millis = (f' (stamps {period:.6g} s apart: if the time column is in milliseconds, that '
-              f'is --sample-period {period / 1000.0:.6g})') if period >= MILLISECOND_HINT_S else ''
+              f'is --sample-period {period / 1000.0:.6g}, and --time-unit ms reads its stamps '
+              'in ms)') if period >= MILLISECOND_HINT_S else ''
     return (f'{text}: the stamps jitter between {float(np.min(steps)):.6g} and '
             f'{float(np.max(steps)):.6g} s. If the samples were taken at a fixed rate and only '
             f'the stamps jitter (a logger stamping on arrival), give --sample-period '

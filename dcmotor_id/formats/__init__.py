@@ -37,6 +37,11 @@ def _deferred(module: str, name: str, table: bool = False) -> Reader:
     ``table``: ``name`` is a table format's ``read(path, options)`` (:func:`table_reader`).
     """
     def reader(path: PathLike, **keywords: Any) -> Record:
+        options = keywords.get('options', DEFAULT_OPTIONS)
+        if not table and options.time_unit != 's':
+            raise InputDataError(f'{path}: --time-unit {options.time_unit} is for a time '
+                                 'column (CSV, MATLAB, Parquet files); this file carries its '
+                                 'own time stamps: drop --time-unit')
         read = getattr(importlib.import_module(f'{__name__}.{module}'), name)
         return (table_reader(read) if table else read)(path, **keywords)
     return reader

@@ -139,6 +139,9 @@ def read_csv(path: PathLike, options: ReadOptions = DEFAULT_OPTIONS) -> Record:
     if not os.path.isfile(path):
         raise InputDataError(f'{path}: no such file; give the path of a CSV file or a bag')
     if is_sysid_json(path):  # no format claims .json: result files are JSON too
+        if options.time_unit != 's':
+            raise InputDataError(f'{path}: --time-unit is for a time column; a SysId JSON '
+                                 'log gives its sample period: drop --time-unit')
         return read_sysid_json(path, options)
     encoding = _encoding(path)
     if encoding != 'utf-16':
@@ -293,6 +296,8 @@ def _parse_slowly(path: PathLike, stream: IO[str], header: tuple[int, int],
                 cell = row[column]
                 values[name].append(float(cell.replace(',', '.') if decimal_comma else cell))
             except (IndexError, ValueError):
+                if row_number == header_line + 1 and _units_row(row, index):
+                    raise InputDataError(_units_row_text(path, row_number, row, index)) from None
                 cell = row[column] if column < len(row) else '(missing)'
                 what = ('the segment column (--segment-column: > 0 in a test, 0 between '
                         'tests)') if name == 'segment' else f'column {name!r}'
@@ -303,6 +308,32 @@ def _parse_slowly(path: PathLike, stream: IO[str], header: tuple[int, int],
         raise InputDataError(f'{path}: the file has a header but no samples; record or '
                              'export the data again')
     return {name: np.array(items, dtype=float) for name, items in values.items()}
+
+
+def _units_row(row: Sequence[str], index: dict[str, int]) -> bool:
+    """Whether a row under the header names units: none of its chosen cells is a number."""
+    cells = [row[column].strip() for column in index.values() if column < len(row)]
+    return bool(cells) and not any(_is_number(cell) for cell in cells)
+
+
+def _is_number(cell: str) -> bool:
+    """Whether a cell reads as a number (a decimal comma too)."""
+    try:
+        float(cell.replace(',', '.'))
+    except ValueError:
+        return False
+    return True
+
+
+def _units_row_text(path: PathLike, line: int, row: Sequence[str],
+                    index: dict[str, int]) -> str:
+    """Return the refusal of a row of units under the header, with the options that read them."""
+    units = ', '.join(f'{channel} {row[column].strip()!r}' for channel, column in index.items()
+                      if column < len(row) and row[column].strip())
+    return (f'{path}: line {line} looks like a row of units under the header ({units}), not '
+            'samples: delete that line and give the units that are not SI with the reading '
+            'options (--time-unit ms|us|ns, --current-unit mA, --speed-unit rpm|rps|deg/s, '
+            '--position-unit deg); the columns are read in s, V, A, rad/s and rad otherwise')
 
 
 def _checked(path: PathLike, rows: Iterator[list[str]],

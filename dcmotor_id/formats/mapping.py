@@ -31,6 +31,8 @@ CHANNELS = ('t', 'voltage', 'current', 'speed', 'position', 'duty', 'direction',
 SIGNED_CHANNELS = ('voltage', 'current', 'speed', 'position')
 #: Channels whose sign ``--current-sign-from`` gives a current logged as a magnitude.
 CURRENT_SIGN_SOURCES = ('voltage', 'speed')
+#: Time column units -> factor to s (loggers stamp in ms, us or ns).
+TIME_UNITS = {'s': 1.0, 'ms': 1e-3, 'us': 1e-6, 'ns': 1e-9}
 #: Current units -> factor to A.
 CURRENT_UNITS = {'A': 1.0, 'mA': 1e-3}
 #: Speed units -> factor to rad/s.
@@ -100,6 +102,9 @@ class ReadOptions:
     columns : dict
         Channel (:data:`CHANNELS`) -> name of its column in the file (CSV header name, MATLAB
         variable or ``variable:column`` with a 1-based column as in MATLAB).
+    time_unit : str
+        Unit of the time column (:data:`TIME_UNITS`; files with a time column: CSV, MATLAB,
+        Parquet; bags and DataLogs carry their own stamps).
     current_unit : str
         Unit of the current column (:data:`CURRENT_UNITS`).
     speed_unit : str
@@ -138,6 +143,7 @@ class ReadOptions:
     """
 
     columns: Mapping[str, str] = field(default_factory=dict)
+    time_unit: str = 's'
     current_unit: str = 'A'
     speed_unit: str = 'rad/s'
     speed_counts_per_rev: Optional[float] = None
@@ -165,7 +171,8 @@ class ReadOptions:
         if self.current_sign_from not in (None,) + CURRENT_SIGN_SOURCES:
             raise InputDataError(f'--current-sign-from {self.current_sign_from}: choose one of '
                                  f'{", ".join(CURRENT_SIGN_SOURCES)}')
-        for unit, units, option in ((self.current_unit, CURRENT_UNITS, '--current-unit'),
+        for unit, units, option in ((self.time_unit, TIME_UNITS, '--time-unit'),
+                                    (self.current_unit, CURRENT_UNITS, '--current-unit'),
                                     (self.speed_unit, SPEED_UNITS, '--speed-unit'),
                                     (self.position_unit, POSITION_UNITS, '--position-unit')):
             if unit not in units:
@@ -200,9 +207,10 @@ class ReadOptions:
         Return, per channel, the unit the file gave it in and the factor to SI (``input_units``).
 
         ``{'speed': {'given': 'rpm', 'si': 'rad/s', 'factor': 0.1047}, ...}`` for current, speed
-        and position (the factor includes the gear ratio to the motor shaft), and the voltage
-        as given or made from a duty column; a flipped sign says ``'negated': True``. The
-        result and the report say from what the records were converted.
+        and position (the factor includes the gear ratio to the motor shaft), the voltage as
+        given or made from a duty column, and the time ``t`` when it is not in seconds; a
+        flipped sign says ``'negated': True``. The result and the report say from what the
+        records were converted.
         """
         gear = self.gear_ratio
         speed_given = (f'encoder counts per sample ({self.speed_counts_per_rev:g} per rev)'
@@ -223,6 +231,9 @@ class ReadOptions:
                          'si': 'm' if self.position_unit == 'm' else 'rad',
                          'factor': self.position_factor},
         }
+        if self.time_unit != 's':
+            units['t'] = {'given': self.time_unit, 'si': 's',
+                          'factor': TIME_UNITS[self.time_unit]}
         if gear != 1.0:
             for channel in ('speed', 'position'):
                 units[channel]['given'] += f' at the output of a {gear:g}:1 gear'
@@ -320,15 +331,7 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
             values = values * factor  # a new array: the input columns stay as read
         return values
 
-    time_s = columns.get('t')
-    others = [values for channel, values in columns.items() if channel != 't']
-    if options.sample_period_s is not None and others:
-        # the samples are this far apart: a time column (if any) is not used
-        _compare_periods(time_s, options.sample_period_s, source)
-        time_s = np.arange(np.asarray(others[0]).shape[0]) * options.sample_period_s
-    if time_s is None:
-        raise InputDataError(f'{source}: no time column; map it with --column t=NAME, or give '
-                             'the sample period with --sample-period S')
+    time_s = _time_s(columns, options, source)
 
     def sign(channel: str) -> float:
         return -1.0 if channel in options.negated else 1.0
@@ -349,6 +352,22 @@ def build_record(columns: Mapping[str, np.ndarray], options: ReadOptions = DEFAU
     current = _signed_current(current, {'voltage': voltage, 'speed': speed}, options, source)
     return Record(np.asarray(time_s, dtype=float), current, voltage, speed, position, source,
                   segment=_segment(columns.get('segment'), options, source))
+
+
+def _time_s(columns: Mapping[str, np.ndarray], options: ReadOptions, source: str) -> Any:
+    """Return the time [s]: the time column in its unit, or ``k * --sample-period``."""
+    time_s = columns.get('t')
+    others = [values for channel, values in columns.items() if channel != 't']
+    if options.sample_period_s is not None and others:
+        # the samples are this far apart: a time column (if any) is not used
+        _compare_periods(time_s, options.sample_period_s, source)
+        return np.arange(np.asarray(others[0]).shape[0]) * options.sample_period_s
+    if time_s is None:
+        raise InputDataError(f'{source}: no time column; map it with --column t=NAME, or give '
+                             'the sample period with --sample-period S')
+    if options.time_unit != 's':
+        return np.asarray(time_s, dtype=float) * TIME_UNITS[options.time_unit]
+    return time_s
 
 
 def _signed_current(current: Optional[np.ndarray], signs: Mapping[str, Optional[np.ndarray]],

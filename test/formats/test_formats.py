@@ -330,3 +330,44 @@ def test_a_records_sample_period_is_computed_once_and_a_replaced_time_gets_its_o
     slower = record.replace(time_s=2.0 * t)
     assert slower.sample_period_s == pytest.approx(2e-3)
     assert record.slice(0, 500).sample_period_s == record.sample_period_s
+
+
+@pytest.mark.parametrize('unit, factor', [('ms', 1e3), ('us', 1e6), ('ns', 1e9)])
+def test_a_time_column_in_another_unit_is_read_with_time_unit(tmp_path, si_record, unit,
+                                                              factor):
+    path = str(tmp_path / f'{unit}.csv')
+    write_csv(path, si_record.replace(time_s=np.asarray(si_record.time_s) * factor))
+    read = read_record(path, options=ReadOptions(time_unit=unit))
+    np.testing.assert_allclose(read.time_s, si_record.time_s, rtol=1e-12, atol=1e-15)
+    assert read.sample_period_s == pytest.approx(si_record.sample_period_s)
+    np.testing.assert_array_equal(read.current, si_record.current)
+    assert ReadOptions(time_unit=unit).input_units()['t'] == {'given': unit, 'si': 's',
+                                                              'factor': 1.0 / factor}
+    assert 't' not in ReadOptions().input_units()
+
+
+def test_time_unit_is_refused_for_stamped_formats_and_unknown_units(tmp_path, capsys):
+    with pytest.raises(InputDataError, match='--time-unit h: choose one of s, ms, us, ns'):
+        ReadOptions(time_unit='h')
+    bag = tmp_path / 'run.mcap'
+    bag.write_bytes(b'\x89MCAP0\r\n' + bytes(64))
+    assert cli_main(['identify', str(bag), '--time-unit', 'ms']) == 2
+    error = capsys.readouterr().err
+    assert 'carries its own time stamps: drop --time-unit' in error
+
+
+def test_a_row_of_units_under_the_header_is_named_with_the_options_that_read_them(tmp_path,
+                                                                                  si_record):
+    path = str(tmp_path / 'units.csv')
+    write_csv(path, si_record)
+    text = open(path, encoding='utf-8').read().splitlines()
+    units = {'t': 'ms', 'voltage': 'V', 'current': 'A', 'speed': 'rpm', 'position': 'deg'}
+    row = ','.join(units.get(name, '-') for name in text[0].split(','))
+    open(path, 'w', encoding='utf-8').write('\n'.join([text[0], row] + text[1:]) + '\n')
+    expected = r"line 2 looks like a row of units under the header \(t 'ms', voltage 'V'"
+    with pytest.raises(InputDataError, match=expected + '.*--time-unit'):
+        read_record(path)
+    text[2] = text[2].replace(',', ',x', 1)  # a bad cell further down is no units row
+    open(path, 'w', encoding='utf-8').write('\n'.join(text) + '\n')
+    with pytest.raises(InputDataError, match='line 3, column .* is not a number'):
+        read_record(path)

@@ -62,7 +62,8 @@ def unit_warnings(parameters: Mapping[str, float], records: Sequence[Any],
             f'the time looks like milliseconds (or another unit than seconds): the sample '
             f'period is {dt:.3g} s{shown}, where DC motors have electrical time constants of '
             '0.01 ms to 100 ms and drives sample at 0.01 ms to 100 ms; give the time column in '
-            'seconds (divide by 1000 for ms), else La and J are off by that factor')
+            'seconds (--time-unit ms reads one in milliseconds), else La and J are off by '
+            'that factor')
     if mechanical_only:
         return found
     voltage, current = _peak(records, 'voltage'), _peak(records, 'current')
