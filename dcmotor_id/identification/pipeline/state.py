@@ -153,6 +153,7 @@ class Fit:
     not_identifiable: dict[str, str] = field(default_factory=dict)
     quasi: bool = False  # the quasi-static armature (La -> 0) is the model
     full_la: tuple[float, float, float] | None = None  # La, its stderr, Ra of the full fit
+    structure_spread: dict[str, float] | None = None  # |quasi-static - full| per parameter
     starts: dict[str, Any] | None = None  # the further starts of the base fit
     start_check: dict[str, Any] | None = None
     found: DiscoveryResult | None = None
