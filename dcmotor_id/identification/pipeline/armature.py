@@ -15,7 +15,7 @@ names those it dominates (:func:`structure_warning`).  :func:`armature` is the s
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Mapping, TYPE_CHECKING
 
 import numpy as np
 
@@ -134,55 +134,55 @@ def structure_stderr(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
     """
     Return the answer with standard errors that cover the armature equation's choice.
 
-    Under the quasi-static armature only: :func:`with_structure_stderr` on the final fit, and
+    Under the quasi-static armature only: :func:`with_structure_stderr` on the answer's
+    standard errors (as the checks left them: a J range, a bound), and
     :func:`structure_warning` naming the parameters the choice moves beyond their own errors.
     After the checks of what the data determine (they judge the data's own precision, the
-    warning says the structure's).  Parameters without a finite standard error (at a bound,
-    an upper bound) keep theirs.
+    warning says the structure's).
     """
     if not fit.quasi or not fit.structure_spread:
         return answer
-    final, named = with_structure_stderr(answer.final, fit.structure_spread)
-    stderr = dict(answer.stderr)
-    for name in stderr:
-        if np.isfinite(stderr[name]) and name in final.stderr:
-            stderr[name] = float(final.stderr[name])
-    named = {name: value for name, value in named.items() if np.isfinite(answer.stderr[name])}
+    stderr, named = with_structure_stderr(answer.stderr, answer.parameters,
+                                          fit.structure_spread)
+    final = answer.final
+    info = dict(final.info)
+    info['uncertainty_method'] = str(info.get(
+        'uncertainty_method', f"the {final.method} estimator's own")) + STRUCTURE_METHOD
+    info['armature_structure_spread'] = dict(fit.structure_spread)
+    final = replace(final, info=info, stderr={**final.stderr, **{
+        name: value for name, value in stderr.items() if name in final.stderr}})
     warnings = answer.warnings + ((structure_warning(named, inputs.records[0].sample_period_s),)
                                   if named else ())
     return replace(answer, final=final, stderr=stderr, warnings=warnings)
 
 
-def with_structure_stderr(estimate: Estimate, spread: dict[str, float]
-                          ) -> tuple[Estimate, dict[str, float]]:
+def with_structure_stderr(stderr: Mapping[str, float], parameters: Mapping[str, float],
+                          spread: Mapping[str, float]) -> tuple[dict[str, float],
+                                                                dict[str, float]]:
     """
-    Return the estimate with standard errors that cover the armature equation's choice.
+    Return standard errors that cover the armature equation's choice.
 
     Both equations fit the data: the quasi-static one (kept) and the full one, whose La
     absorbs what else lags the current by a fraction of a sample (a speed averaged over the
     sample, a delay) as readily as a real La.  Which is right the data do not tell, so each
-    shared parameter's standard error becomes ``sqrt(stderr**2 + spread**2)`` (``spread``:
-    :func:`structure_spread`, the full fit's value less the quasi-static one's); Ka's follows
-    Ra's.  Also returned: the parameters whose spread exceeds their own standard error (the
-    choice dominates their error: a warning names them), with the spread relative to the
-    value.
+    shared parameter's finite standard error becomes ``sqrt(stderr**2 + spread**2)``
+    (``spread``: :func:`structure_spread`, the full fit's value less the quasi-static one's);
+    Ka's follows Ra's; a NaN (a bound, an upper bound) stays.  Also returned: the parameters
+    whose spread exceeds their own standard error (the choice dominates their error: a
+    warning names them), with the spread relative to the value.
     """
-    stderr, parameters = dict(estimate.stderr), estimate.parameters
+    widened = dict(stderr)
     named: dict[str, float] = {}
     for name, difference in spread.items():
-        own = float(stderr.get(name, np.nan))
+        own = float(widened.get(name, np.nan))
         if not np.isfinite(own) or not np.isfinite(difference):
             continue
-        stderr[name] = float(np.hypot(own, difference))
+        widened[name] = float(np.hypot(own, difference))
         if abs(difference) > own and parameters[name] != 0.0:
             named[name] = difference / float(parameters[name])
-    if 'Ra' in spread and 'Ka' in stderr:
-        stderr['Ka'] = stderr['Ra'] / parameters['Ra'] ** 2
-    info = dict(estimate.info)
-    info['uncertainty_method'] = str(info.get(
-        'uncertainty_method', f"the {estimate.method} estimator's own")) + STRUCTURE_METHOD
-    info['armature_structure_spread'] = dict(spread)
-    return replace(estimate, stderr=stderr, info=info), named
+    if np.isfinite(widened.get('Ka', np.nan)) and 'Ra' in spread:
+        widened['Ka'] = widened['Ra'] / parameters['Ra'] ** 2
+    return widened, named
 
 
 def structure_warning(named: dict[str, float], dt: float) -> str:
