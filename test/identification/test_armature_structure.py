@@ -21,20 +21,20 @@ def test_the_spread_is_added_in_quadrature_and_names_what_it_dominates():
     spread = structure_spread(full, quasi)
     assert spread['Ra'] == pytest.approx(0.04) and 'La' not in spread
     stderr = {'Ra': 0.01, 'CPhi': 1e-4, 'J': 1e-7, 'Mc': float('nan'), 'Ka': 0.0025}
-    widened, named = with_structure_stderr(stderr, values, spread)
+    widened, named = with_structure_stderr(stderr, values, spread, {'J': 3e-7})
     assert widened['Ra'] == pytest.approx(np.hypot(0.01, 0.04))
     assert widened['CPhi'] == pytest.approx(np.hypot(1e-4, 5e-5))
-    assert widened['J'] == pytest.approx(1e-7)
+    assert widened['J'] == pytest.approx(3e-7)  # the full fit's own: La's freedom
     assert np.isnan(widened['Mc'])  # at a bound: stays said so
     assert widened['Ka'] == pytest.approx(widened['Ra'] / 4.0)
-    assert named == {'Ra': pytest.approx(0.02)}  # CPhi and J move less than their errors
-    assert structure_warning(named, 2e-3).startswith('Ra: the armature equation is not decided')
+    assert named == {'Ra': pytest.approx(0.02), 'J': 0.0}  # CPhi's error not doubled
+    assert structure_warning(named, 2e-3).startswith('Ra, J: the armature equation is not')
 
 
 def test_a_wider_error_from_the_checks_is_kept():
     # Random motor 104 (one step, J's range from the friction's split): the J range's error
     # was replaced by the fit's own, which no longer covered J (-12 % at 17 errors).
-    widened, _ = with_structure_stderr({'J': 4e-6}, {'J': 1e-5}, {'J': 1e-7})
+    widened, _ = with_structure_stderr({'J': 4e-6}, {'J': 1e-5}, {'J': 1e-7}, {})
     assert widened['J'] == pytest.approx(np.hypot(4e-6, 1e-7))
 
 

@@ -36,8 +36,9 @@ if TYPE_CHECKING:
 #: The parameters both armature equations fit (quasi-static and full).
 SHARED_NAMES = ('Ra', 'CPhi', 'J', 'b', 'Mc')
 #: What the account of the standard errors says when they cover the armature's choice.
-STRUCTURE_METHOD = ('; Ra, CPhi, J, b, Mc: with the difference between the quasi-static and '
-                    "the full armature equation's fits (the data do not decide between them)")
+STRUCTURE_METHOD = ("; Ra, CPhi, J, b, Mc: at least the full armature equation's own, with "
+                    "the difference between its fit and the quasi-static one's (the data do "
+                    'not decide between them)')
 
 
 def armature(inputs: Inputs, fit: Fit) -> Fit:
@@ -63,7 +64,9 @@ def armature(inputs: Inputs, fit: Fit) -> Fit:
                                               'La': la_reason(*full_la, dt, None)})
     estimate, errors = refit
     return replace(fit, estimate=estimate, quasi=True, errors=errors, models=models,
-                   structure_spread=structure_spread(fit.estimate, estimate))
+                   structure_spread=structure_spread(fit.estimate, estimate),
+                   full_stderr={name: float(robust.stderr[name]) for name in SHARED_NAMES
+                                if name in robust.stderr})
 
 
 def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
@@ -143,7 +146,7 @@ def structure_stderr(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
     if not fit.quasi or not fit.structure_spread:
         return answer
     stderr, named = with_structure_stderr(answer.stderr, answer.parameters,
-                                          fit.structure_spread)
+                                          fit.structure_spread, fit.full_stderr or {})
     final = answer.final
     info = dict(final.info)
     info['uncertainty_method'] = str(info.get(
@@ -157,19 +160,20 @@ def structure_stderr(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
 
 
 def with_structure_stderr(stderr: Mapping[str, float], parameters: Mapping[str, float],
-                          spread: Mapping[str, float]) -> tuple[dict[str, float],
-                                                                dict[str, float]]:
+                          spread: Mapping[str, float], full_stderr: Mapping[str, float]
+                          ) -> tuple[dict[str, float], dict[str, float]]:
     """
     Return standard errors that cover the armature equation's choice.
 
     Both equations fit the data: the quasi-static one (kept) and the full one, whose La
     absorbs what else lags the current by a fraction of a sample (a speed averaged over the
     sample, a delay) as readily as a real La.  Which is right the data do not tell, so each
-    shared parameter's finite standard error becomes ``sqrt(stderr**2 + spread**2)``
-    (``spread``: :func:`structure_spread`, the full fit's value less the quasi-static one's);
-    Ka's follows Ra's; a NaN (a bound, an upper bound) stays.  Also returned: the parameters
-    whose spread exceeds their own standard error (the choice dominates their error: a
-    warning names them), with the spread relative to the value.
+    shared parameter's finite standard error becomes ``sqrt(max(stderr, full)**2 +
+    spread**2)``: ``full`` is the full fit's own (La pinned at 0 no longer hides what La's
+    freedom leaves open), ``spread`` the full fit's value less the quasi-static one's
+    (:func:`structure_spread`).  Ka's follows Ra's; a NaN (a bound, an upper bound) stays.
+    Also returned: the parameters whose error the choice more than doubles (a warning names
+    them), with the spread relative to the value.
     """
     widened = dict(stderr)
     named: dict[str, float] = {}
@@ -177,8 +181,10 @@ def with_structure_stderr(stderr: Mapping[str, float], parameters: Mapping[str, 
         own = float(widened.get(name, np.nan))
         if not np.isfinite(own) or not np.isfinite(difference):
             continue
-        widened[name] = float(np.hypot(own, difference))
-        if abs(difference) > own and parameters[name] != 0.0:
+        full = float(full_stderr.get(name, np.nan))
+        widened[name] = float(np.hypot(max(own, full) if np.isfinite(full) else own,
+                                       difference))
+        if widened[name] > 2.0 * own and parameters[name] != 0.0:
             named[name] = difference / float(parameters[name])
     if np.isfinite(widened.get('Ka', np.nan)) and 'Ra' in spread:
         widened['Ka'] = widened['Ra'] / parameters['Ra'] ** 2
@@ -192,8 +198,8 @@ def structure_warning(named: dict[str, float], dt: float) -> str:
     return (f'{names}: the armature equation is not decided by these data (La is not '
             f'resolved at the sample period {dt:.2g} s): the full equation (with La) moves '
             f'them by {moved} '
-            'from the quasi-static one given, more than their own standard errors; their '
-            'standard errors include that difference (a speed averaged over the sample or a '
+            'from the quasi-static one given; their standard errors, more than doubled, cover '
+            "the full equation's fit too (a speed averaged over the sample or a "
             'delay can pass for La: sample faster, or log the speed at the sample instant, '
             'to decide)')
 
