@@ -5,13 +5,17 @@ When the electrical time constant La/Ra is below the sample period, or La is und
 (:func:`la_unresolved`), the model is refitted with the quasi-static armature
 (:func:`quasi_static_refit`); kept, it is the model of everything that follows, and the final
 estimate gives La by its upper bound (:func:`with_la_bound`) with the reason
-(:func:`la_reason`).  :func:`armature` is the stage.
+(:func:`la_reason`).  The data do not decide between the two equations (a speed averaged over
+the sample passes for La as well as a real La does), so the standard errors of the parameters
+both fit cover the difference between their fits (:func:`with_structure_stderr`), and a warning
+names those it dominates (:func:`structure_warning`).  :func:`armature` is the stage (3), and
+:func:`structure_stderr` the standard errors' part of it (after stage 10, the checks).
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Mapping, TYPE_CHECKING
 
 import numpy as np
 
@@ -22,11 +26,19 @@ from dcmotor_id.identification.checks.identifiability import IDENTIFIABLE_REL_ST
 from dcmotor_id.identification.error_model.residuals import model_errors
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
-from dcmotor_id.identification.pipeline.state import Fit, Inputs, Models
+from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs, Models
 
 if TYPE_CHECKING:
     from dcmotor_id.identification.error_model.residuals import ChannelErrors
     from dcmotor_id.identification.estimators.base import Estimate
+
+
+#: The parameters both armature equations fit (quasi-static and full).
+SHARED_NAMES = ('Ra', 'CPhi', 'J', 'b', 'Mc')
+#: What the account of the standard errors says when they cover the armature's choice.
+STRUCTURE_METHOD = ("; Ra, CPhi, J, b, Mc: at least the full armature equation's own, with "
+                    "the difference between its fit and the quasi-static one's (the data do "
+                    'not decide between them)')
 
 
 def armature(inputs: Inputs, fit: Fit) -> Fit:
@@ -51,7 +63,10 @@ def armature(inputs: Inputs, fit: Fit) -> Fit:
         return replace(fit, not_identifiable={**fit.not_identifiable,
                                               'La': la_reason(*full_la, dt, None)})
     estimate, errors = refit
-    return replace(fit, estimate=estimate, quasi=True, errors=errors, models=models)
+    return replace(fit, estimate=estimate, quasi=True, errors=errors, models=models,
+                   structure_spread=structure_spread(fit.estimate, estimate),
+                   full_stderr={name: float(robust.stderr[name]) for name in SHARED_NAMES
+                                if name in robust.stderr})
 
 
 def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
@@ -110,6 +125,83 @@ def with_la_bound(quasi: Estimate, la: float, la_stderr: float, ra_full: float,
     info = {**quasi.info, 'stderr_model': model}
     result = replace(quasi, parameters=parameters, stderr=stderr, info=info)
     return result, {'La': bound, 'Ta': parameters['Ta']}
+
+
+def structure_spread(full: Estimate, quasi: Estimate) -> dict[str, float]:
+    """Return ``full - quasi`` of each parameter both armature equations fit."""
+    return {name: float(full.parameters[name]) - float(quasi.parameters[name])
+            for name in SHARED_NAMES if name in full.parameters and name in quasi.parameters}
+
+
+def structure_stderr(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
+    """
+    Return the answer with standard errors that cover the armature equation's choice.
+
+    Under the quasi-static armature only: :func:`with_structure_stderr` on the answer's
+    standard errors (as the checks left them: a J range, a bound), and
+    :func:`structure_warning` naming the parameters the choice moves beyond their own errors.
+    After the checks of what the data determine (they judge the data's own precision, the
+    warning says the structure's).
+    """
+    if not fit.quasi or not fit.structure_spread:
+        return answer
+    stderr, named = with_structure_stderr(answer.stderr, answer.parameters,
+                                          fit.structure_spread, fit.full_stderr or {})
+    final = answer.final
+    info = dict(final.info)
+    info['uncertainty_method'] = str(info.get(
+        'uncertainty_method', f"the {final.method} estimator's own")) + STRUCTURE_METHOD
+    info['armature_structure_spread'] = dict(fit.structure_spread)
+    final = replace(final, info=info, stderr={**final.stderr, **{
+        name: value for name, value in stderr.items() if name in final.stderr}})
+    warnings = answer.warnings + ((structure_warning(named, inputs.records[0].sample_period_s),)
+                                  if named else ())
+    return replace(answer, final=final, stderr=stderr, warnings=warnings)
+
+
+def with_structure_stderr(stderr: Mapping[str, float], parameters: Mapping[str, float],
+                          spread: Mapping[str, float], full_stderr: Mapping[str, float]
+                          ) -> tuple[dict[str, float], dict[str, float]]:
+    """
+    Return standard errors that cover the armature equation's choice.
+
+    Both equations fit the data: the quasi-static one (kept) and the full one, whose La
+    absorbs what else lags the current by a fraction of a sample (a speed averaged over the
+    sample, a delay) as readily as a real La.  Which is right the data do not tell, so each
+    shared parameter's finite standard error becomes ``sqrt(max(stderr, full)**2 +
+    spread**2)``: ``full`` is the full fit's own (La pinned at 0 no longer hides what La's
+    freedom leaves open), ``spread`` the full fit's value less the quasi-static one's
+    (:func:`structure_spread`).  Ka's follows Ra's; a NaN (a bound, an upper bound) stays.
+    Also returned: the parameters whose error the choice more than doubles (a warning names
+    them), with the spread relative to the value.
+    """
+    widened = dict(stderr)
+    named: dict[str, float] = {}
+    for name, difference in spread.items():
+        own = float(widened.get(name, np.nan))
+        if not np.isfinite(own) or not np.isfinite(difference):
+            continue
+        full = float(full_stderr.get(name, np.nan))
+        widened[name] = float(np.hypot(max(own, full) if np.isfinite(full) else own,
+                                       difference))
+        if widened[name] > 2.0 * own and parameters[name] != 0.0:
+            named[name] = difference / float(parameters[name])
+    if np.isfinite(widened.get('Ka', np.nan)) and 'Ra' in spread:
+        widened['Ka'] = widened['Ra'] / parameters['Ra'] ** 2
+    return widened, named
+
+
+def structure_warning(named: dict[str, float], dt: float) -> str:
+    """Say which parameters the choice of the armature equation moves beyond their error."""
+    moved = ', '.join(f'{name} {100.0 * relative:+.2g} %' for name, relative in named.items())
+    names = ', '.join(named)
+    return (f'{names}: the armature equation is not decided by these data (La is not '
+            f'resolved at the sample period {dt:.2g} s): the full equation (with La) moves '
+            f'them by {moved} '
+            'from the quasi-static one given; their standard errors, more than doubled, cover '
+            "the full equation's fit too (a speed averaged over the sample or a "
+            'delay can pass for La: sample faster, or log the speed at the sample instant, '
+            'to decide)')
 
 
 def la_reason(la: float, la_stderr: float, ra: float, dt: float, bound: float | None) -> str:

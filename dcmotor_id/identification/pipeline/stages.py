@@ -4,8 +4,9 @@ Stages 5-12 of one run in their order, and a stage attempted: its result or its 
 :func:`finish` goes on from :class:`Begun`, a run up to its base's start check (stages 1-4,
 :func:`~dcmotor_id.identification.pipeline.run.begin`): discovery, the final start check,
 the final fit and its uncertainty, what the data do not determine with the checks of the
-answer, the effects' pull, the current's noise, the held-out check and the result.  A run
-left after its start check and finished later says so on the status line (``Begun.name``).
+answer, the effects' pull, the armature's choice (its part of the standard errors), the
+current's noise, the held-out check and the result.  A run left after its start check and
+finished later says so on the status line (``Begun.name``).
 :func:`attempt` runs a stage and returns the refusal it raised instead of raising it: the
 control flow (:mod:`~dcmotor_id.identification.pipeline.run`) compares runs as data.
 """
@@ -17,6 +18,7 @@ from typing import Any, Callable
 
 from dcmotor_id.core.errors import FitError, NotIdentifiableError
 from dcmotor_id.core.progress import TimeBudgetExceeded
+from dcmotor_id.identification.pipeline.armature import structure_stderr
 from dcmotor_id.identification.pipeline.discovery import discovery
 from dcmotor_id.identification.pipeline.final_fit import final_fit, uncertainty
 from dcmotor_id.identification.pipeline.fit_warnings import fit_warnings
@@ -51,6 +53,7 @@ def finish(begun: Begun) -> IdentificationResult:
     fit = check_final_start(inputs, discovery(inputs, begun.fit))
     answer = uncertainty(inputs, fit, final_fit(inputs, fit))
     answer = fit_warnings(inputs, fit, identifiability(inputs, answer))
+    answer = structure_stderr(inputs, fit, answer)
     answer = input_noise_stderr(inputs, fit, answer)
     return result(inputs, fit, heldout(inputs, fit, answer))
 

@@ -153,6 +153,8 @@ class Fit:
     not_identifiable: dict[str, str] = field(default_factory=dict)
     quasi: bool = False  # the quasi-static armature (La -> 0) is the model
     full_la: tuple[float, float, float] | None = None  # La, its stderr, Ra of the full fit
+    structure_spread: dict[str, float] | None = None  # full - quasi-static, per parameter
+    full_stderr: dict[str, float] | None = None  # the full fit's, under the quasi-static
     starts: dict[str, Any] | None = None  # the further starts of the base fit
     start_check: dict[str, Any] | None = None
     found: DiscoveryResult | None = None
