@@ -56,7 +56,7 @@ GAIN_T = 2.0
 #: ``bench/bench_discovery.py`` (a column per rule) and ``bench/bench_discovery_real.py``.
 HELDOUT_ALPHA = 0.00135
 #: Rules that do not ask the gain to be spread over the held-out part.
-SPREAD_FREE = ('innovation-t-alone', 'innovation-arma')
+SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null')
 
 
 def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
@@ -403,6 +403,9 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     the residuals' AR(1) error models (:func:`innovation_t`); ``innovation-t-alone``
     (default): that t test without the spread over blocks; ``innovation-arma``: that test
     on the innovations of the ARMA(1, 2) error models (:func:`innovation_arma_t`);
+    ``input-noise-null``: the default's test, then the effect's coefficients against their
+    fits to draws of the input current's noise
+    (:func:`~dcmotor_id.identification.discovery.input_null.input_noise_doubt`);
     ``noise-level`` (the former rules, kept to measure against):
     :func:`unearned_noise_level`.
     """
@@ -414,6 +417,11 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
         return unearned_heldout_t(loop, current, candidate, innovation_t, spread=False)
     if loop.acceptance == 'innovation-arma':
         return unearned_heldout_t(loop, current, candidate, innovation_arma_t, spread=False)
+    if loop.acceptance == 'input-noise-null':
+        from dcmotor_id.identification.discovery.input_null import input_noise_doubt
+
+        return (unearned_heldout_t(loop, current, candidate, innovation_t, spread=False)
+                or input_noise_doubt(loop, candidate, HELDOUT_ALPHA))
     return unearned_heldout_t(loop, current, candidate)
 
 

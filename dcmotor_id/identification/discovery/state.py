@@ -39,9 +39,11 @@ MAX_EFFECTS = 4
 #: ``innovation-t-alone``, that t test on the innovations alone, without asking the gain to be
 #: spread over 8 blocks of the held-out part (evidence gathered at a few instants is not);
 #: ``innovation-arma``, that test alone on the innovations of an ARMA(1, 2) model of the AR(1)
-#: innovations (measured beside the default, not the default).
+#: innovations (measured beside the default, not the default); ``input-noise-null``, the
+#: default's test and then the effect's coefficients against their fits to draws of the input
+#: current's noise (mechanical mode; :mod:`~dcmotor_id.identification.discovery.input_null`).
 ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level', 'innovation-t-alone',
-                    'innovation-arma')
+                    'innovation-arma', 'input-noise-null')
 #: The rule of every identification.
 DEFAULT_ACCEPTANCE = 'innovation-t-alone'
 
