@@ -8,7 +8,8 @@ better (a load torque takes up the drift's slope): the held-out part, which inhe
 training fit, then shows a real gain, and a held-out test accepts an effect that is not there
 (``bench/discovery_results.md``, rounds 7 and 8).
 
-Rule ``input-noise-null``: the default's held-out test, and then the candidate's coefficients
+Rule ``input-noise-null`` (the default since round 8): the held-out test of
+``innovation-t-alone``, and then the candidate's coefficients
 must stand out of their null distribution under the noise of the input and of the outputs
 (:func:`input_noise_doubt`).  The null is the fit's linear response to the noise: the
 weighted training residual of the candidate's structure is whitened as its fit whitens it
