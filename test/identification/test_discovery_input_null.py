@@ -73,3 +73,10 @@ def test_no_doubt_where_the_current_is_not_an_input():
     candidate = SimpleNamespace(name='load_torque', effect=SimpleNamespace(TRANSFORM=False),
                                 fitted=voltage_speed)
     assert input_noise_doubt(SimpleNamespace(mechanical_only=True), candidate, 0.00135) is None
+
+
+def test_the_coefficient_test_has_the_held_out_test_s_size():
+    from dcmotor_id.identification.discovery.input_null import ALPHA
+    from dcmotor_id.identification.discovery.judging import HELDOUT_ALPHA
+
+    assert ALPHA == HELDOUT_ALPHA

@@ -44,6 +44,9 @@ if TYPE_CHECKING:
 DRAWS = 200
 #: Seed of the draws (the same record gets the same verdict).
 SEED = 2029
+#: Size of the test: the held-out test's
+#: (:data:`~dcmotor_id.identification.discovery.judging.HELDOUT_ALPHA`).
+ALPHA = 0.00135
 
 
 def stacked_outputs(loop: LoopState, outputs: Sequence[dict], stops: Sequence[int],
@@ -149,15 +152,18 @@ def null_coefficients(loop: LoopState, fitted: Fit, prefix: str,
     return coefficients[indices].T
 
 
-def input_noise_doubt(loop: LoopState, candidate: Candidate, alpha: float) -> str | None:
+def input_noise_statistic(loop: LoopState, candidate: Candidate, alpha: float = ALPHA
+                          ) -> tuple[float, float, int] | None:
     """
-    Why a candidate's coefficients do not stand out of the input's noise, or None.
+    Return Hotelling's ``T^2`` of a candidate's coefficients, the ``T^2`` needed, the draws.
 
-    Hotelling's ``T^2`` of the effect's fitted coefficients against their draws under the
-    noise (:func:`null_coefficients`, a zero mean), at one-sided size ``alpha`` of the
-    ``F`` distribution.  None (no doubt) outside the mechanical mode's output-error model
-    (the current-speed loop; the voltage-speed loop, whose input is the voltage), for data
-    effects and where the null cannot be drawn.
+    The effect's fitted coefficients against their draws under the noise
+    (:func:`null_coefficients`, a zero mean): ``T^2 (m - p + 1) / (p m)`` follows ``F`` with
+    ``p`` and ``m - p + 1`` degrees of freedom (``p`` coefficients, ``m`` draws); the ``T^2``
+    needed is its upper ``alpha`` quantile (for one coefficient, ``|t|`` beyond the two-sided
+    ``alpha``: the sign of a coefficient is free).  None outside the mechanical mode's
+    output-error model (the current-speed loop; the voltage-speed loop, whose input is the
+    voltage), for data effects and where the null cannot be drawn.
     """
     from scipy.stats import f as fisher
 
@@ -173,10 +179,22 @@ def input_noise_doubt(loop: LoopState, candidate: Candidate, alpha: float) -> st
     covariance = np.atleast_2d(draws.T @ draws / draws.shape[0])
     p, m = observed.shape[0], draws.shape[0]
     statistic = float(observed @ np.linalg.pinv(covariance) @ observed)
-    scaled = statistic * (m - p + 1) / (p * m)
     required = float(fisher.ppf(1.0 - alpha, p, m - p + 1)) * p * m / (m - p + 1)
-    if statistic >= required:
+    return statistic, required, m
+
+
+def input_noise_doubt(loop: LoopState, candidate: Candidate, alpha: float = ALPHA
+                      ) -> str | None:
+    """
+    Why a candidate's coefficients do not stand out of the input's noise, or None.
+
+    Its ``T^2`` (:func:`input_noise_statistic`) must reach the one needed at ``alpha``; None
+    (no doubt) where the statistic is not computed.
+    """
+    found = input_noise_statistic(loop, candidate, alpha)
+    if found is None or found[0] >= found[1]:
         return None
+    statistic, required, draws = found
     return (f"its coefficients are within what the input current's noise makes of them "
-            f'(T^2 = {statistic:.3g} against their fits to {m} draws of that noise, '
-            f'{required:.3g} needed; F = {scaled:.3g})')
+            f'(T^2 = {statistic:.3g} against their fits to {draws} draws of that noise, '
+            f'{required:.3g} needed)')
