@@ -16,11 +16,14 @@ weighted training residual of the candidate's structure is whitened as its fit w
 (the position error's AR(1) coefficients), the fitted parameters' and the initial states'
 sensitivities are its columns, and every one of :data:`DRAWS` draws of white noise of the
 current's own level (:func:`~dcmotor_id.signals.filters.noise_std`, per record) is run through
-the model at the fitted values, white noise of each output's level added; least squares on
-the columns gives the coefficients that draw produces.  The effect's coefficients are judged
+the model at the fitted values, white noise of each output sensor's own level added
+(:func:`sensor_levels`); least squares on the columns gives the coefficients that draw
+produces.  The effect's coefficients are judged
 by Hotelling's ``T^2`` against their draws (a zero mean: ``F`` with ``p`` and
-``DRAWS - p + 1`` degrees of freedom) at the held-out test's size.  Where the current is not
-an input (the current-speed modes) or the effect is a data effect (a delay) nothing changes.
+``DRAWS - p + 1`` degrees of freedom) at the held-out test's size (:data:`ALPHA`).  Where
+the current is not an input (the current-speed loop; the voltage-speed loop, whose input is
+the voltage) or the effect is a data effect (a delay) the held-out test alone decides.  The
+test's size on clean records: ``bench/bench_input_null_size.py``.
 """
 
 from __future__ import annotations
