@@ -46,6 +46,8 @@ One module per seam of the loop; each imports only the modules before it in this
   refit and its physical problems, the all-data refit (steps 3 and 5);
 - :mod:`~dcmotor_id.identification.discovery.arma`: ARMA(1, q) error models of the held-out
   innovations (the rule ``innovation-arma``);
+- :mod:`~dcmotor_id.identification.discovery.input_null`: an effect's coefficients against
+  their fits to draws of the input current's noise (the default rule ``input-noise-null``);
 - :mod:`~dcmotor_id.identification.discovery.judging`: the held-out gain, its noise, the
   choice and the round's report (step 4);
 - :mod:`~dcmotor_id.identification.discovery.result`: :class:`DiscoveryResult`;

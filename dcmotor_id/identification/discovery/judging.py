@@ -11,14 +11,18 @@ Earned (rule ``heldout-t``): the held-out drop is significant on the samples it 
 (:func:`gain_t`).  Rule ``innovation-t``: the same on the innovations of an
 AR(1) error model of each structure's held-out residual (:func:`innovation_t`): a drifting
 residual (a position the model integrates) is judged on its increments, which are worth
-many samples where the drift is worth a handful.  Rule ``innovation-t-alone`` (the default):
-that t test alone, without the spread over blocks (:func:`heldout_gain_noise` in
+many samples where the drift is worth a handful.  Rule ``innovation-t-alone``: that t test
+alone, without the spread over blocks (:func:`heldout_gain_noise` in
 :func:`choose`, :func:`gain_t`), which repeats the test with 7 degrees of freedom and turns
 down evidence gathered at a few instants (a sensor delay at a sawtooth's jumps).  Rule
 ``innovation-arma``: that test alone on the innovations of an ARMA(1, 2) model of each
 structure's AR(1) innovations (:func:`innovation_arma_t`, :mod:`.arma`: the input noise a
 mechanical model integrates leaves a wandering speed error under the rounding's increments),
-measured beside the default (``bench/discovery_results.md``, round 7).  The former
+measured beside the default (``bench/discovery_results.md``, round 7).  Rule
+``input-noise-null`` (the default): the test of ``innovation-t-alone``, then, where the
+measured current drives the model, the effect's coefficients against their fits to draws of
+the current's noise (:mod:`.input_null`: a fit that bends to the input noise's drift leaves a
+candidate a real held-out gain, ``bench/discovery_results.md``, round 8).  The former
 rules (``noise-level``: an effect's own part of the outputs against the per-sample noise,
 :func:`own_part`, and a cogging ripple above the Coulomb friction needing twice the evidence)
 are kept to be measured against (``bench/bench_discovery.py``, a column per rule).
@@ -56,7 +60,7 @@ GAIN_T = 2.0
 #: ``bench/bench_discovery.py`` (a column per rule) and ``bench/bench_discovery_real.py``.
 HELDOUT_ALPHA = 0.00135
 #: Rules that do not ask the gain to be spread over the held-out part.
-SPREAD_FREE = ('innovation-t-alone', 'innovation-arma')
+SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null')
 
 
 def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
@@ -400,9 +404,12 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     By the loop's rule (``loop.acceptance``, one of
     :data:`~dcmotor_id.identification.discovery.state.ACCEPTANCE_RULES`): ``heldout-t``:
     :func:`unearned_heldout_t`; ``innovation-t``: the same on the innovations of
-    the residuals' AR(1) error models (:func:`innovation_t`); ``innovation-t-alone``
-    (default): that t test without the spread over blocks; ``innovation-arma``: that test
+    the residuals' AR(1) error models (:func:`innovation_t`); ``innovation-t-alone``:
+    that t test without the spread over blocks; ``innovation-arma``: that test
     on the innovations of the ARMA(1, 2) error models (:func:`innovation_arma_t`);
+    ``input-noise-null`` (default): that test, then the effect's coefficients against their
+    fits to draws of the input current's noise
+    (:func:`~dcmotor_id.identification.discovery.input_null.input_noise_doubt`);
     ``noise-level`` (the former rules, kept to measure against):
     :func:`unearned_noise_level`.
     """
@@ -414,6 +421,11 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
         return unearned_heldout_t(loop, current, candidate, innovation_t, spread=False)
     if loop.acceptance == 'innovation-arma':
         return unearned_heldout_t(loop, current, candidate, innovation_arma_t, spread=False)
+    if loop.acceptance == 'input-noise-null':
+        from dcmotor_id.identification.discovery.input_null import input_noise_doubt
+
+        return (unearned_heldout_t(loop, current, candidate, innovation_t, spread=False)
+                or input_noise_doubt(loop, candidate, HELDOUT_ALPHA))
     return unearned_heldout_t(loop, current, candidate)
 
 

@@ -39,11 +39,14 @@ MAX_EFFECTS = 4
 #: ``innovation-t-alone``, that t test on the innovations alone, without asking the gain to be
 #: spread over 8 blocks of the held-out part (evidence gathered at a few instants is not);
 #: ``innovation-arma``, that test alone on the innovations of an ARMA(1, 2) model of the AR(1)
-#: innovations (measured beside the default, not the default).
+#: innovations (measured beside the default, not the default); ``input-noise-null`` (the default
+#: since round 8), the test of ``innovation-t-alone`` and then the effect's coefficients against
+#: their fits to draws of the input current's noise (the mechanical mode's output-error loop;
+#: :mod:`~dcmotor_id.identification.discovery.input_null`; elsewhere ``innovation-t-alone``).
 ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level', 'innovation-t-alone',
-                    'innovation-arma')
+                    'innovation-arma', 'input-noise-null')
 #: The rule of every identification.
-DEFAULT_ACCEPTANCE = 'innovation-t-alone'
+DEFAULT_ACCEPTANCE = 'input-noise-null'
 
 
 @dataclass(frozen=True, eq=False)
