@@ -40,6 +40,11 @@ from dcmotor_id.simulation.lab_scenarios import coloured_disturbance, SCENARIOS
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
+def _nonzero(value):
+    """Return the value, NaN for zero (a parameter at its bound 0: no relative figure)."""
+    return float(value) if value != 0 else float('nan')
+
+
 def _halves(records):
     return ([rec.slice(0, len(rec) // 2) for rec in records],
             [rec.slice(len(rec) // 2, len(rec)) for rec in records])
@@ -120,12 +125,14 @@ def scenario_rows(name, make, seeds, structure_bootstrap=0):
             note = 'upper bound'
         elif key in result.not_identifiable:
             note = 'not identifiable: ' + result.not_identifiable[key].split(':')[0][:50]
+        size = _nonzero(abs(value))
         lines.append(
-            f'| {key} | {truth[key]:.4g} | {value:.4g} | {100 * (value / truth[key] - 1):+.1f} % '
-            f'| {100 * result.stderr[key] / abs(value):.2g} % | {100 * sd / abs(value):.2g} % '
-            f'| {med / sd:.2f} | {med_model / sd:.2f} | {100 * sd_found / abs(value):.2g} % '
+            f'| {key} | {truth[key]:.4g} | {value:.4g} '
+            f'| {100 * (value / _nonzero(truth[key]) - 1):+.1f} % '
+            f'| {100 * result.stderr[key] / size:.2g} % | {100 * sd / size:.2g} % '
+            f'| {med / sd:.2f} | {med_model / sd:.2f} | {100 * sd_found / size:.2g} % '
             f'| {med_found / sd_found:.2f} '
-            f'| {100 * half / abs(value):.2g} % '
+            f'| {100 * half / size:.2g} % '
             f'| {med / half:.2f} | {note} |')
     lines += ['', 'warnings:'] + [f'- {text}' for text in result.warnings or ['none']] + ['']
     if structure_bootstrap:

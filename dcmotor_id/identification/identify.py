@@ -109,7 +109,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
     Parameters
     ----------
     records : list of Record
-        From :func:`~dcmotor_id.identification.prepare.prepare_records`.
+        From :func:`~dcmotor_id.identification.prepare.prepare_records`; records without a
+        speed (a position only) are prepared here (their speed derived from the position).
     method : str
         ``refined`` (default) or ``paper``.
     torque_constant : float, optional
@@ -148,6 +149,8 @@ def identify(records: Sequence[Record], method: str = 'refined',
 
     """
     _check_choices(method, initial_state)
+    if any(rec.speed is None for rec in records):
+        records = prepare_records(records, torque_constant)
     budget = progress if progress is not None else Progress(max_time_s)
     if is_voltage_speed(records, torque_constant):  # no current: kS, kV, kA
         return _voltage_speed_tests(records, discover, budget, structure_bootstrap)

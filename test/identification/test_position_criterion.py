@@ -105,6 +105,14 @@ def test_position_only_record_is_identified_accurately():
     assert np.sqrt(np.mean(np.square(position))) <= np.sqrt(np.mean(np.square(speed)))
 
 
+def test_identify_prepares_a_record_without_a_speed_itself():
+    """A position-only record handed to identify as read: it was a bare numpy ValueError."""
+    record = encoder_record(duration_s=2.0)
+    direct = identify([record], discover=False)
+    prepared = identify(prepare_records([record]), discover=False)
+    assert direct.parameters == prepared.parameters
+
+
 def test_cli_criterion_option_and_json_key(tmp_path, capsys):
     rec = encoder_record(2.0)
     path = str(tmp_path / 'encoder.csv')
