@@ -109,8 +109,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
     Parameters
     ----------
     records : list of Record
-        From :func:`~dcmotor_id.identification.prepare.prepare_records`; records without a
-        speed (a position only) are prepared here (their speed derived from the position).
+        From :func:`~dcmotor_id.identification.prepare.prepare_records` (here if speed lacks).
     method : str
         ``refined`` (default) or ``paper``.
     torque_constant : float, optional
@@ -148,9 +147,7 @@ def identify(records: Sequence[Record], method: str = 'refined',
         The model does not reproduce the data, or no fit finished within the time budget.
 
     """
-    _check_choices(method, initial_state)
-    if any(rec.speed is None for rec in records):
-        records = prepare_records(records, torque_constant)
+    records = _checked(records, torque_constant, method, initial_state)
     budget = progress if progress is not None else Progress(max_time_s)
     if is_voltage_speed(records, torque_constant):  # no current: kS, kV, kA
         return _voltage_speed_tests(records, discover, budget, structure_bootstrap)
@@ -180,10 +177,19 @@ def _bootstrapped(request: Request, criterion: str, max_time_s: float | None,
                         initial_state=request.initial_state, criterion=criterion)
 
 
-def _check_choices(method: str, initial_state: str) -> None:
-    """Refuse an unknown method or initial-state choice, naming the choices."""
+def _checked(records: Sequence[Record], torque_constant: float | None, method: str,
+             initial_state: str) -> Sequence[Record]:
+    """
+    Return the records, prepared if any lacks a speed; refuse an unknown method or start.
+
+    A position-only record as read gets its speed from
+    :func:`~dcmotor_id.identification.prepare.prepare_records` (the documented first step).
+    """
     if method not in METHODS:
         raise InputDataError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
     if initial_state not in INITIAL_STATES:
         raise InputDataError(f'initial state must be one of {", ".join(INITIAL_STATES)}, not '
                              f'{initial_state!r}')
+    if any(rec.speed is None for rec in records):
+        return prepare_records(records, torque_constant)
+    return records
