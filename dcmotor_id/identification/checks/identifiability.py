@@ -341,8 +341,9 @@ def limited_samples(records: Sequence[Any]) -> list[np.ndarray] | None:
     """
     Return, per record, the samples where the current sits at an amplifier limit (or None).
 
-    A limit shows as plateaus at the largest ``|i|``: the current jumps into them within one
-    sample (from below 80 % of the level), stays within a few noise levels for at least
+    A limit shows as plateaus at the largest ``|i|``: the current jumps into them within two
+    samples (from below 80 % of the level: an armature time constant near the sample period
+    leaves the first sample short of the limit), stays within a few noise levels for at least
     :data:`LIMIT_RUN_SAMPLES` samples, and this happens at least twice.  The peaks of a
     smooth current approach the top gradually; an unlimited current step spikes and decays.
     A current that merely peaks after each switch of a binary input (a slow mechanical time
@@ -367,7 +368,7 @@ def limited_samples(records: Sequence[Any]) -> list[np.ndarray] | None:
         starts = np.flatnonzero(np.diff(padded) == 1)
         stops = np.flatnonzero(np.diff(padded) == -1)
         for first, last in zip(starts, stops):
-            jump = first > 0 and current[first - 1] < 0.8 * threshold
+            jump = first > 0 and min(current[max(first - 2, 0):first]) < 0.8 * threshold
             if jump and last - first >= LIMIT_RUN_SAMPLES:
                 plateaus += 1
                 mask[first:last] = True
