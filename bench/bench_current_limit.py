@@ -14,17 +14,22 @@ flags:
   1000 + i, kinds step / stairs / PRBS, periods 2, 1, 5 ms, speed or 4096-count encoder:
   ``sweep``), and the lab classes of ``simulation/lab_scenarios.py`` other than
   ``small_motor_pwm_steps`` at seeds 0-4 (those with a voltage and a current: the others
-  are identified in the mechanical mode, where no limit is looked for);
+  are identified in the mechanical mode, where no limit is looked for), and the CSV records of
+  ``bench/identify_equivalence.py``'s corpus but its ``small_motor_pwm_steps`` (``--corpus-data``);
 * **power**: ``small_motor_pwm_steps`` through a current limit of 1.0-3.0 A, sample periods
   1-5 ms, seeds 0-9.
 
-The records go through ``prepare_records`` and ``split_tests`` as ``identify`` does.  Run from
+The records go through ``prepare_records`` and ``split_tests`` as ``identify`` does.  The real
+recordings of the scorecard have no voltage with a current (HSM150, MECH 467, EMPS and the wheel
+log give the current as the input; SysIdOpt and the QUBE-Servo give no current): no limit is
+looked for on them.  Run from
 the repository root (about a minute)::
 
-    PYTHONPATH=$PWD .venv/bin/python bench/bench_current_limit.py --out FILE.md
+    PYTHONPATH=$PWD .venv/bin/python bench/bench_current_limit.py --corpus-data DATA --out FILE.md
 """
 
 import argparse
+import glob
 import os
 import sys
 import time
@@ -32,6 +37,7 @@ import time
 import numpy as np
 
 from dcmotor_id.core.records import Record
+from dcmotor_id.formats.csv import read_csv
 from dcmotor_id.identification.checks import identifiability
 from dcmotor_id.identification.identify import prepare_records
 from dcmotor_id.identification.pipeline.segments import split_tests
@@ -84,22 +90,32 @@ def verdicts(records: list) -> tuple[bool, bool, float | None]:
     return True, identifiability.limited_samples(prepared) is not None, p_value
 
 
-def size_sets(random_n: int, sweep_n: int) -> dict:
+def corpus_cases(data: str | None) -> list:
+    """Return the corpus records of ``bench/identify_equivalence.py`` but the limited one."""
+    if not data:
+        return []
+    paths = sorted(glob.glob(os.path.join(data, '*.csv')))
+    return [(os.path.basename(path), [read_csv(path)]) for path in paths
+            if 'small_motor_pwm_steps' not in path]
+
+
+def size_sets(random_n: int, sweep_n: int, corpus: str | None) -> dict:
     """Return, per set without a limit, its cases as (name, records) pairs."""
     lab = [(f'{name} seed {seed}', scenario(seed=seed).records)
            for name, scenario in SCENARIOS.items() if name != 'small_motor_pwm_steps'
            for seed in range(5)]
-    return {f'bench_random_motors cases 0-{random_n - 1}':
+    return {'identify_equivalence corpus (but its small_motor_pwm_steps)':
+            iter(corpus_cases(corpus)), f'bench_random_motors cases 0-{random_n - 1}':
             ((f'case {index}', [case(index)[1]]) for index in range(random_n)),
             f'sweep 0-{sweep_n - 1}':
             ((f'sweep {index}', [sweep_case(index)]) for index in range(sweep_n)),
             'lab classes without a limit, seeds 0-4': iter(lab)}
 
 
-def size_rows(random_n: int, sweep_n: int) -> tuple[list, list]:
+def size_rows(random_n: int, sweep_n: int, corpus: str | None) -> tuple[list, list]:
     """Return the size table's rows and the detail rows of every record the detector flags."""
     rows, details = [], []
-    for title, cases in size_sets(random_n, sweep_n).items():
+    for title, cases in size_sets(random_n, sweep_n, corpus).items():
         total = detected = confirmed = 0
         p_values = []
         for name, records in cases:
@@ -139,17 +155,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--random', type=int, default=600, help='bench_random_motors cases')
     parser.add_argument('--sweep', type=int, default=300, help='second-draw cases')
     parser.add_argument('--seeds', type=int, default=10, help='seeds per power cell')
+    parser.add_argument('--corpus-data', default=None,
+                        help="identify_equivalence.py's data directory (its CSV records)")
     parser.add_argument('--out', default=None, help='write the tables to this markdown file')
     args = parser.parse_args(argv)
     started, load = time.perf_counter(), os.getloadavg()
-    size, details = size_rows(args.random, args.sweep)
+    size, details = size_rows(args.random, args.sweep, args.corpus_data)
     details = sorted(details, key=lambda row: (row[1] != 'yes', float(row[2].replace('n/a', '0'))))
     shown = [row for row in details if row[1] == 'yes' or row[2] == 'n/a'] + \
         [row for row in details if row[1] == 'no' and row[2] != 'n/a'][:DETAIL_ROWS]
     power = power_rows(args.seeds)
     lines = ['# Current limit: the detector and its confirming test', '',
              'Command: `PYTHONPATH=$PWD .venv/bin/python bench/bench_current_limit.py '
-             f'--random {args.random} --sweep {args.sweep} --seeds {args.seeds}`; load average '
+             f'--random {args.random} --sweep {args.sweep} --seeds {args.seeds} --corpus-data '
+             'DATA` (DATA: `identify_equivalence.py data DATA`); load average '
              f"{load[0]:.2f} at the start, {time.perf_counter() - started:.0f} s. The test's "
              f'one-sided size {identifiability.LIMIT_TEST_SIZE:g} '
              f'({identifiability.LIMIT_NULL_DRAWS} null draws: the smallest p is '
