@@ -33,13 +33,15 @@ import glob
 import os
 import sys
 import time
+import warnings
 
 import numpy as np
 
+from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.records import Record
 from dcmotor_id.formats.csv import read_csv
 from dcmotor_id.identification.checks import identifiability
-from dcmotor_id.identification.identify import prepare_records
+from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.pipeline.segments import split_tests
 from dcmotor_id.simulation.lab_scenarios import (SCENARIOS, simulate_drive,
                                                  small_motor_pwm_steps)
@@ -149,6 +151,40 @@ def power_rows(seeds: int) -> list:
     return rows
 
 
+def sweep_motor(index: int):
+    """Return the motor of :func:`sweep_case` ``index`` (the same draw)."""
+    return random_motor(np.random.default_rng(1000 + index))[0]
+
+
+def identify_errors(records: list, motor, test_size: float) -> str:
+    """Return the default ``identify``'s Ra, CPhi, J errors [%] with the test at a size."""
+    size = identifiability.LIMIT_TEST_SIZE
+    identifiability.LIMIT_TEST_SIZE = test_size
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            result = identify(prepare_records(records))
+    except DcMotorIdError as error:
+        return f'refused ({type(error).__name__})'
+    finally:
+        identifiability.LIMIT_TEST_SIZE = size
+    return ', '.join(f'{name} {100 * (result.parameters[name] / getattr(motor, name) - 1):+.1f}'
+                     for name in ('Ra', 'CPhi', 'J'))
+
+
+def identify_rows(count: int) -> list:
+    """Return, for the sweep records below ``count`` the detector flags, identify's errors."""
+    rows = []
+    for index in range(count):
+        records = [sweep_case(index)]
+        flagged, kept, _ = verdicts(records)
+        if flagged and not kept:
+            motor = sweep_motor(index)
+            rows.append([f'sweep {index}', identify_errors(records, motor, 1.0),
+                         identify_errors(records, motor, identifiability.LIMIT_TEST_SIZE)])
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the sets and write the tables."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
@@ -157,6 +193,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--seeds', type=int, default=10, help='seeds per power cell')
     parser.add_argument('--corpus-data', default=None,
                         help="identify_equivalence.py's data directory (its CSV records)")
+    parser.add_argument('--identify', type=int, default=0,
+                        help='identify the sweep records below this the test turns down')
     parser.add_argument('--out', default=None, help='write the tables to this markdown file')
     args = parser.parse_args(argv)
     started, load = time.perf_counter(), os.getloadavg()
@@ -165,9 +203,11 @@ def main(argv: list[str] | None = None) -> int:
     shown = [row for row in details if row[1] == 'yes' or row[2] == 'n/a'] + \
         [row for row in details if row[1] == 'no' and row[2] != 'n/a'][:DETAIL_ROWS]
     power = power_rows(args.seeds)
+    effect = identify_rows(args.identify)
     lines = ['# Current limit: the detector and its confirming test', '',
              'Command: `PYTHONPATH=$PWD .venv/bin/python bench/bench_current_limit.py '
-             f'--random {args.random} --sweep {args.sweep} --seeds {args.seeds} --corpus-data '
+             f'--random {args.random} --sweep {args.sweep} --seeds {args.seeds} --identify '
+             f'{args.identify} --corpus-data '
              'DATA` (DATA: `identify_equivalence.py data DATA`); load average '
              f"{load[0]:.2f} at the start, {time.perf_counter() - started:.0f} s. The test's "
              f'one-sided size {identifiability.LIMIT_TEST_SIZE:g} '
@@ -181,7 +221,12 @@ def main(argv: list[str] | None = None) -> int:
              markdown_table(['record', 'rule flags', 'p'], shown), '',
              '## Power: small_motor_pwm_steps through a current limit', '',
              markdown_table(['limit [A]', 'period [ms]', 'detector flags', 'rule flags',
-                             'largest p'], power), '']
+                             'largest p'], power), '',
+             '## What the user gets: the sweep records the test turns down, identified', '',
+             'Default `identify` (discovery on) with the plateaus taken for a limit (the detector '
+             'alone: the test at size 1) and with the rule; errors against the truth [%].', '',
+             markdown_table(['record', 'detector alone: Ra, CPhi, J', 'the rule: Ra, CPhi, J'],
+                            effect), '']
     text = '\n'.join(lines)
     print(text)
     if args.out:
