@@ -42,6 +42,13 @@ INITIAL_STATE_FACTOR = 5.0
 ARX_EXPLAINED = 0.8
 #: Samples a current limit holds the current at its peak, per run.
 LIMIT_RUN_SAMPLES = 3
+#: Share of the peak current below which a limit at the peak cannot bind: the electrical
+#: equation of the limit's confirmation is fitted there.
+LIMIT_FREE_SHARE = 0.8
+#: One-sided size of the limit's confirmation (the plateaus' shortfall against its block null).
+LIMIT_TEST_SIZE = 0.01
+#: Draws of the block null (a fixed seed: the same records give the same answer).
+LIMIT_NULL_DRAWS = 999
 #: Effects that on one-direction data are one constant torque with Mc.
 ONE_DIRECTION_CONFOUNDED = ('load_torque', 'coulomb_asymmetry', 'viscous_asymmetry')
 
@@ -334,10 +341,16 @@ def limited_samples(records: Sequence[Any]) -> list[np.ndarray] | None:
     """
     Return, per record, the samples where the current sits at an amplifier limit (or None).
 
-    A limit shows as plateaus at the largest ``|i|``: the current jumps into them within one
-    sample (from below 80 % of the level), stays within a few noise levels for at least
+    A limit shows as plateaus at the largest ``|i|``: the current jumps into them within two
+    samples (from below 80 % of the level: an armature time constant near the sample period
+    leaves the first sample short of the limit), stays within a few noise levels for at least
     :data:`LIMIT_RUN_SAMPLES` samples, and this happens at least twice.  The peaks of a
     smooth current approach the top gradually; an unlimited current step spikes and decays.
+    A current that merely peaks after each switch of a binary input (a slow mechanical time
+    constant) looks the same, so the plateaus are confirmed by a test of the physics
+    (:func:`limit_shortfall_p` at the one-sided size :data:`LIMIT_TEST_SIZE`): on them the
+    electrical equation predicts more current than flows.  ``bench/bench_current_limit.py``
+    measures the rule's false alarms and power.
     """
     currents = [np.abs(np.asarray(rec.current, dtype=float)) for rec in records]
     joined = np.concatenate(currents)
@@ -355,14 +368,91 @@ def limited_samples(records: Sequence[Any]) -> list[np.ndarray] | None:
         starts = np.flatnonzero(np.diff(padded) == 1)
         stops = np.flatnonzero(np.diff(padded) == -1)
         for first, last in zip(starts, stops):
-            jump = first > 0 and current[first - 1] < 0.8 * threshold
+            jump = first > 0 and min(current[max(first - 2, 0):first]) < 0.8 * threshold
             if jump and last - first >= LIMIT_RUN_SAMPLES:
                 plateaus += 1
                 mask[first:last] = True
         masks.append(mask)
     if plateaus < 2 or np.mean(np.concatenate(masks)) > 0.5:
         return None
-    return masks
+    p_value = limit_shortfall_p(records, masks, LIMIT_FREE_SHARE * peak)
+    return None if p_value is not None and p_value > LIMIT_TEST_SIZE else masks
+
+
+def _free_fit(record: Any, mask: np.ndarray, free_below: float
+              ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """
+    Fit ``i[k+1]`` on ``i[k], u[k], w[k], w[k+1], 1`` where ``|i|`` stays below ``free_below``.
+
+    Return ``sign(i) (prediction - i)`` at ``k+1`` (all samples), the mask of the fitted ones
+    (robust: beyond 5 noise levels left out) and the variance of its sum over the plateau
+    samples (``mask``) that the fit's own uncertainty gives; None when it cannot be fitted (too
+    few samples, no speed or voltage).
+    """
+    if record.speed is None or record.voltage is None:
+        return None
+    current, volts, speed = (np.asarray(channel, dtype=float) for channel
+                             in (record.current, record.voltage, record.speed))
+    matrix = np.column_stack([current[:-1], volts[:-1], speed[:-1], speed[1:],
+                              np.ones(current.size - 1)])
+    free = np.abs(current) < free_below
+    keep = free[:-1] & free[1:]
+    for _ in range(4):
+        if np.count_nonzero(keep) < 4 * matrix.shape[1]:
+            return None
+        solution = np.linalg.lstsq(matrix[keep], current[1:][keep], rcond=None)[0]
+        residual = current[1:] - matrix @ solution
+        centred = residual[keep] - np.median(residual[keep])
+        sigma = max(1.4826 * float(np.median(np.abs(centred))), 1e-12)
+        keep = free[:-1] & free[1:] & (np.abs(residual) <= 5.0 * sigma)
+    sign = np.sign(current[1:])
+    gradient = (sign[mask[1:], None] * matrix[mask[1:]]).sum(axis=0)
+    covariance = sigma ** 2 * np.linalg.pinv(matrix[keep].T @ matrix[keep])
+    return -sign * residual, keep, float(gradient @ covariance @ gradient)
+
+
+def limit_shortfall_p(records: Sequence[Any], masks: Sequence[np.ndarray],
+                      free_below: float) -> float | None:
+    """
+    Return the p-value of the plateaus' shortfall against the electrical equation, or None.
+
+    At a limit the current stays flat while the electrical equation, fitted where the current
+    is below ``free_below`` (the limit cannot bind there, :func:`_free_fit`), predicts more:
+    the statistic is the mean of ``sign(i) (prediction - i)`` over the plateau samples.  Its
+    null is the same mean over windows of the fitted samples' own residual with the plateaus'
+    lengths, at :data:`LIMIT_NULL_DRAWS` random places (a block null: the misfit of the
+    equation on this record counts in it), plus a normal draw of the fit's own uncertainty in
+    the plateaus' prediction.  None when a record with plateaus cannot be fitted.
+    """
+    fits = [_free_fit(record, mask, free_below) if mask.any() else None
+            for record, mask in zip(records, masks)]
+    if any(fit is None for fit, mask in zip(fits, masks) if mask.any()):
+        return None
+    rng = np.random.default_rng(0)
+    observed, count, variance = 0.0, 0, 0.0
+    null = np.zeros(LIMIT_NULL_DRAWS)
+    counts = np.zeros(LIMIT_NULL_DRAWS)
+    for mask, fit in zip(masks, fits):
+        if fit is None:
+            continue
+        towards, keep, spread = fit
+        observed += float(np.sum(towards[mask[1:]]))
+        count += int(np.count_nonzero(mask[1:]))
+        variance += spread
+        padded = np.concatenate([[0], mask[1:].astype(int), [0]])
+        lengths = np.flatnonzero(np.diff(padded) == -1) - np.flatnonzero(np.diff(padded) == 1)
+        sums = np.cumsum(np.concatenate([[0.0], np.where(keep, towards, 0.0)]))
+        kept = np.cumsum(np.concatenate([[0], keep.astype(int)]))
+        for length in lengths:
+            starts = rng.integers(0, towards.size - length + 1, LIMIT_NULL_DRAWS)
+            null += sums[starts + length] - sums[starts]
+            counts += kept[starts + length] - kept[starts]
+    if count == 0:
+        return None
+    null_means = (null / np.maximum(counts, 1)
+                  + rng.normal(0.0, np.sqrt(variance), LIMIT_NULL_DRAWS) / count)
+    exceed = int(np.count_nonzero(null_means >= observed / count))
+    return (1 + exceed) / (1 + LIMIT_NULL_DRAWS)
 
 
 def current_limit_warning(records: Sequence[Any]) -> str | None:
