@@ -33,7 +33,7 @@ from dcmotor_id.simulation import lab_scenarios
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_random_motors  # noqa: E402,I100  (beside this script)
-from common import markdown_table  # noqa: E402,I100
+from common import markdown_table, write_report  # noqa: E402,I100
 
 NAMES = ('Ra', 'CPhi', 'J')
 #: What the stage received, for the run in progress (the wrapper fills it).
@@ -146,10 +146,7 @@ def main(argv=None):
     lines += ['', '## Every quasi-static case', '']
     lines += markdown_table(['case'] + [f'{key} % (z without / with)' for key in NAMES]
                             + ['named by the warning'], detail_rows(rows)).splitlines()
-    text = '\n'.join(lines) + '\n'
-    with open(args.out, 'w') as stream:
-        stream.write(text)
-    print(text)
+    write_report(lines, args.out)
     return 0
 
 

@@ -48,7 +48,7 @@ from dcmotor_id.simulation.lab_scenarios import (SCENARIOS, simulate_drive,
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_random_motors import case, command_of, random_motor  # noqa: E402,I100
-from common import markdown_table  # noqa: E402
+from common import markdown_table, write_report  # noqa: E402
 
 LIMITS_A = (1.0, 1.5, 2.0, 2.5, 3.0)
 PERIODS_S = (1e-3, 2e-3, 3e-3, 4e-3, 5e-3)
@@ -227,11 +227,7 @@ def main(argv: list[str] | None = None) -> int:
              'alone: the test at size 1) and with the rule; errors against the truth [%].', '',
              markdown_table(['record', 'detector alone: Ra, CPhi, J', 'the rule: Ra, CPhi, J'],
                             effect), '']
-    text = '\n'.join(lines)
-    print(text)
-    if args.out:
-        with open(args.out, 'w', encoding='utf-8') as handle:
-            handle.write(text)
+    write_report(lines, args.out)
     return 0
 
 

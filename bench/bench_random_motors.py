@@ -44,7 +44,7 @@ from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.simulation.lab_scenarios import simulate_drive, step_levels
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import markdown_table  # noqa: E402,I100  (bench/common.py, beside this script)
+from common import markdown_table, write_report  # noqa: E402,I100  (bench/common.py)
 
 KINDS = ('step', 'stairs', 'prbs', 'sysid')
 #: The issue's goals on each parameter [%].
@@ -206,10 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     lines += markdown_table(['case', 'experiment', 'dt [ms]', 'sensor', 'La/Ra [ms]',
                              'J Ra/CPhi^2 [ms]', 'errors [%]', 'outcome', 'reason'],
                             detail_rows(rows)).splitlines()
-    text = '\n'.join(lines) + '\n'
-    with open(args.out, 'w') as stream:
-        stream.write(text)
-    print(text)
+    write_report(lines, args.out)
     return 0
 
 

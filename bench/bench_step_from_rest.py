@@ -33,7 +33,8 @@ from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.pipeline.floor import regression_floor
 from dcmotor_id.simulation.lab_scenarios import encoder_speed, simulate_drive
 
-from common import environment, markdown_table  # noqa: I100  (bench/common.py, beside this script)
+# bench/common.py, beside this script
+from common import environment, markdown_table, write_report  # noqa: I100
 
 #: Goals of the class: largest relative error [%] of Ra and CPhi, of J.
 GOAL_PCT = {'Ra': 5.0, 'CPhi': 5.0, 'J': 10.0}
@@ -124,11 +125,7 @@ def main(argv=None) -> int:
              markdown_table(['case', 'method (or refusal)', 'Ra / CPhi / J error [%]',
                              'goal met', 'effects found', 'regression Ra / CPhi / J [%]',
                              'CPU s'], rows)]
-    text = '\n'.join(lines) + '\n'
-    print(text)
-    if args.out:
-        with open(args.out, 'w', encoding='utf-8') as handle:
-            handle.write(text)
+    write_report(lines, args.out)
     return 0
 
 

@@ -93,6 +93,15 @@ def markdown_table(header, rows):
     return '\n'.join(lines)
 
 
+def write_report(lines, path):
+    """Print the report's lines and write them to ``path`` (None: print only)."""
+    text = '\n'.join(lines) + '\n'
+    print(text)
+    if path:
+        with open(path, 'w', encoding='utf-8') as stream:
+            stream.write(text)
+
+
 def environment():
     """One line naming the machine and the library versions the figures come from."""
     return (f'{datetime.date.today().isoformat()}, {platform.machine()} with '
