@@ -21,6 +21,7 @@ from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import NotIdentifiableError
 from dcmotor_id.core.model import UNITS
 from dcmotor_id.identification.checks.input_noise import input_noise_warning
+from dcmotor_id.identification.checks.ramp import robust_lstsq
 from dcmotor_id.identification.effects.base import torque_spread
 from dcmotor_id.identification.error_model.criterion import noise_level
 from dcmotor_id.signals.filters import low_pass, noise_std
@@ -396,15 +397,10 @@ def _free_fit(record: Any, mask: np.ndarray, free_below: float
     matrix = np.column_stack([current[:-1], volts[:-1], speed[:-1], speed[1:],
                               np.ones(current.size - 1)])
     free = np.abs(current) < free_below
-    keep = free[:-1] & free[1:]
-    for _ in range(4):
-        if np.count_nonzero(keep) < 4 * matrix.shape[1]:
-            return None
-        solution = np.linalg.lstsq(matrix[keep], current[1:][keep], rcond=None)[0]
-        residual = current[1:] - matrix @ solution
-        centred = residual[keep] - np.median(residual[keep])
-        sigma = max(1.4826 * float(np.median(np.abs(centred))), 1e-12)
-        keep = free[:-1] & free[1:] & (np.abs(residual) <= 5.0 * sigma)
+    fit = robust_lstsq(matrix, current[1:], free[:-1] & free[1:], 4)
+    if fit is None:
+        return None
+    _, residual, sigma, keep = fit
     sign = np.sign(current[1:])
     gradient = (sign[mask[1:], None] * matrix[mask[1:]]).sum(axis=0)
     covariance = sigma ** 2 * np.linalg.pinv(matrix[keep].T @ matrix[keep])

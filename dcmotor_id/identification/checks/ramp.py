@@ -69,25 +69,38 @@ class Shortfall:
     ramp: bool
 
 
-def _arx(current: np.ndarray, volts: np.ndarray, speed: np.ndarray
-         ) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """Return the ARX coefficients, the one-step residual and its robust noise level."""
-    matrix = np.column_stack([current[:-1], volts[:-1], speed[:-1], np.ones(current.size - 1)])
-    target = current[1:]
-    keep = np.ones(target.size, dtype=bool)
-    solution, residual, sigma = np.zeros(4), target, 0.0
-    for _ in range(3):
+def robust_lstsq(matrix: np.ndarray, target: np.ndarray, allowed: np.ndarray, passes: int
+                 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray] | None:
+    """
+    Fit by least squares on the allowed rows, refitting without the outliers; or None.
+
+    Each pass fits the rows kept, then keeps the allowed rows within :data:`OUTLIER_SIGMAS`
+    robust noise levels (the median absolute deviation of the kept residual) of the fit.
+    Return the last fit's coefficients, its residual on every row, its noise level and the
+    rows it keeps; None when fewer than four rows per coefficient are left.
+    """
+    keep = allowed
+    solution, residual, sigma = np.zeros(matrix.shape[1]), target, 1e-12
+    for _ in range(passes):
         if np.count_nonzero(keep) < 4 * matrix.shape[1]:
             return None
         solution = np.linalg.lstsq(matrix[keep], target[keep], rcond=None)[0]
         residual = target - matrix @ solution
         centred = residual[keep] - np.median(residual[keep])
-        sigma = 1.4826 * float(np.median(np.abs(centred)))
-        kept = np.abs(residual) <= OUTLIER_SIGMAS * max(sigma, 1e-12)
+        sigma = max(1.4826 * float(np.median(np.abs(centred))), 1e-12)
+        kept = allowed & (np.abs(residual) <= OUTLIER_SIGMAS * sigma)
         if np.array_equal(kept, keep):
-            break  # the same samples kept: a further pass repeats this one exactly
+            break  # the same rows kept: a further pass repeats this one exactly
         keep = kept
-    return solution, residual, max(sigma, 1e-12)
+    return solution, residual, sigma, keep
+
+
+def _arx(current: np.ndarray, volts: np.ndarray, speed: np.ndarray
+         ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """Return the ARX coefficients, the one-step residual and its robust noise level."""
+    matrix = np.column_stack([current[:-1], volts[:-1], speed[:-1], np.ones(current.size - 1)])
+    fit = robust_lstsq(matrix, current[1:], np.ones(current.size - 1, dtype=bool), 3)
+    return None if fit is None else fit[:3]
 
 
 def record_shortfalls(record: Record, steps: Sequence[tuple[int, float]],
