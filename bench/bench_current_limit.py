@@ -129,6 +129,8 @@ def size_rows(random_n: int, sweep_n: int, corpus: str | None) -> tuple[list, li
                 details.append([name, 'yes' if kept else 'no',
                                 'n/a' if p_value is None else f'{p_value:.3g}'])
                 p_values += [] if p_value is None else [p_value]
+        print(f'size: {title}: {total} records, {detected} flagged by the detector, '
+              f'{confirmed} by the rule', file=sys.stderr, flush=True)
         rows.append([title, str(total), str(detected), str(confirmed),
                      str(sum(p <= 0.05 for p in p_values)),
                      f'{min(p_values):.3g}' if p_values else 'n/a'])
@@ -202,7 +204,10 @@ def main(argv: list[str] | None = None) -> int:
     details = sorted(details, key=lambda row: (row[1] != 'yes', float(row[2].replace('n/a', '0'))))
     shown = [row for row in details if row[1] == 'yes' or row[2] == 'n/a'] + \
         [row for row in details if row[1] == 'no' and row[2] != 'n/a'][:DETAIL_ROWS]
+    print('power: small_motor_pwm_steps over limits and periods ...', file=sys.stderr,
+          flush=True)
     power = power_rows(args.seeds)
+    print(f'identify: {args.identify} sweep records ...', file=sys.stderr, flush=True)
     effect = identify_rows(args.identify)
     lines = ['# Current limit: the detector and its confirming test', '',
              'Command: `PYTHONPATH=$PWD .venv/bin/python bench/bench_current_limit.py '
