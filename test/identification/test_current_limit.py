@@ -8,7 +8,10 @@ from dcmotor_id.core.records import Record
 from dcmotor_id.identification.checks import identifiability
 from dcmotor_id.identification.checks.identifiability import (current_limit_warning,
                                                               limited_samples)
-from dcmotor_id.identification.identify import prepare_records
+from dcmotor_id.identification.identify import identify, prepare_records
+from dcmotor_id.identification.pipeline.current_limited import (la_shift,
+                                                                noise_corrected_lstsq,
+                                                                off_the_limit)
 from dcmotor_id.simulation.lab_scenarios import simulate_drive, small_motor_pwm_steps
 
 #: Motors whose current peaks after each switch of a PRBS (mechanical time constant, rating,
@@ -76,3 +79,50 @@ def test_the_test_keeps_the_detector_where_the_equation_cannot_be_fitted():
     # null, leaves the shortfall unconfirmed rather than confirmed.
     peak = float(np.max(np.abs(records[0].current)))
     assert identifiability.limit_shortfall_p(records, masks, 0.01 * peak) > 0.05
+
+
+@pytest.mark.parametrize('limit', [1.0, 2.0])
+def test_the_electrical_regression_leaves_out_every_sample_the_limit_binds(limit):
+    # The current's noise breaks a plateau below the detector's threshold (counted from the
+    # peak, noise included): the stretches after the break went into the regression and gave
+    # Ra +120 % at 1 A.  The truth: the drive clamped its voltage over the previous sample.
+    scenario = small_motor_pwm_steps(seed=0, current_limit_a=limit)
+    record = prepare_records(scenario.records)[0]
+    masks = limited_samples([record])
+    assert masks is not None
+    out = simulate_drive(scenario.truth, record.voltage, 2e-3, current_limit_a=limit,
+                         bus_voltage_v=12.0)
+    clamped = np.concatenate([[False], out['applied'][:-1] < record.voltage[:-1] - 1e-9])
+    keep = off_the_limit(record.current, masks[0])
+    assert clamped.sum() > 30
+    assert not np.any(keep & clamped)
+    assert keep.sum() > 0.8 * (~clamped).sum()
+
+
+def test_the_regression_is_corrected_for_the_noise_of_its_regressors():
+    rng = np.random.default_rng(0)
+    current = rng.normal(0.0, 0.1, 20000)
+    speed = rng.uniform(0.0, 500.0, 20000)
+    volts = 2.0 * current + 0.02 * speed
+    noisy = np.column_stack([current + rng.normal(0.0, 0.05, current.size), speed])
+    plain = np.linalg.lstsq(noisy, volts, rcond=None)[0]
+    corrected = noise_corrected_lstsq(noisy, volts, np.array([0.05 ** 2, 0.0]))
+    assert plain[0] < 1.65  # attenuated by 1 / (1 + 0.25)
+    assert corrected[0] == pytest.approx(2.0, rel=0.02)
+    assert corrected[1] == pytest.approx(0.02, rel=1e-3)
+
+
+@pytest.mark.parametrize('limit', [1.0, 1.5, 2.5])
+def test_ra_through_a_current_limit_is_right_and_its_error_covers_la(limit):
+    for seed in range(3):
+        scenario = small_motor_pwm_steps(seed=seed, current_limit_a=limit)
+        result = identify(scenario.records)
+        error = result.parameters['Ra'] - scenario.truth.Ra
+        assert abs(error) < 0.05 * scenario.truth.Ra, (seed, error)
+        assert abs(error) < 3.0 * result.stderr['Ra'], (seed, error)
+        # La, not resolved, lowers the quasi-static Ra by up to dt CPhi^2 / J: the error says
+        # it and covers it.
+        shift = la_shift(result.parameters['CPhi'], result.parameters['J'], 2e-3)
+        assert result.stderr['Ra'] >= 0.5 * shift
+        assert any("La's part" in text for text in result.warnings)
+        assert "La's part" in result.uncertainty_method
