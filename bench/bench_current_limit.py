@@ -19,6 +19,12 @@ flags:
 * **power**: ``small_motor_pwm_steps`` through a current limit of 1.0-3.0 A, sample periods
   1-5 ms, seeds 0-9.
 
+And what the default ``identify`` gives for Ra through the limit (``--ra-seeds``, table "Ra
+through the limit": limits 1-2.5 A, periods 1, 2 and 5 ms), against the electrical regression
+of an earlier revision on the same records (``--before REV``: its
+``pipeline/current_limited.py`` read with ``git show``; Ra and its standard error come from
+that regression alone on the limited path, so the pair is exact).
+
 The records go through ``prepare_records`` and ``split_tests`` as ``identify`` does.  The real
 recordings of the scorecard have no voltage with a current (HSM150, MECH 467, EMPS and the wheel
 log give the current as the input; SysIdOpt and the QUBE-Servo give no current): no limit is
@@ -31,8 +37,10 @@ the repository root (about a minute)::
 import argparse
 import glob
 import os
+import subprocess
 import sys
 import time
+import types
 import warnings
 
 import numpy as np
@@ -52,6 +60,11 @@ from common import markdown_table, write_report  # noqa: E402
 
 LIMITS_A = (1.0, 1.5, 2.0, 2.5, 3.0)
 PERIODS_S = (1e-3, 2e-3, 3e-3, 4e-3, 5e-3)
+#: Limits and sample periods of the table "Ra through the limit".
+RA_LIMITS_A = (1.0, 1.5, 2.0, 2.5)
+RA_PERIODS_S = (1e-3, 2e-3, 5e-3)
+#: The module whose regression ``--before`` reads at an earlier revision.
+REGRESSION_PATH = 'dcmotor_id/identification/pipeline/current_limited.py'
 #: Rows of the detail table (records without a limit the detector flags, smallest p first).
 DETAIL_ROWS = 10
 
@@ -187,6 +200,83 @@ def identify_rows(count: int) -> list:
     return rows
 
 
+def before_regression(revision: str):
+    """Return the ``electrical_regression`` of ``revision`` (its module read by ``git show``)."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    source = subprocess.run(['git', 'show', f'{revision}:{REGRESSION_PATH}'], cwd=root,
+                            check=True, capture_output=True, text=True).stdout
+    module = types.ModuleType(f'current_limited_{revision}')
+    exec(compile(source, f'{revision}:{REGRESSION_PATH}', 'exec'), module.__dict__)
+    return module.electrical_regression
+
+
+def ra_cell(limit: float, period: float, seeds: int, before) -> list:
+    """Return one row of "Ra through the limit": before and after over ``seeds`` seeds."""
+    after, earlier = [], []
+    for seed in range(seeds):
+        scenario = small_motor_pwm_steps(seed=seed, sample_period_s=period,
+                                         current_limit_a=limit)
+        truth = scenario.truth.Ra
+        records = prepare_records(scenario.records)
+        masks = identifiability.limited_samples(records)
+        if masks is not None and before is not None:
+            values, robust = before(records, masks)
+            earlier.append((values['Ra'] / truth - 1, (values['Ra'] - truth)
+                            / robust['stderr'][0], False, robust['stderr'][0] / values['Ra']))
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            result = identify(scenario.records)
+        warned = any("La's part" in text for text in result.warnings)
+        error = result.parameters['Ra'] - truth
+        after.append((error / truth, error / result.stderr['Ra'], warned,
+                      result.stderr['Ra'] / result.parameters['Ra']))
+    return [f'{limit:g}', f'{period * 1e3:g}', *ra_summary(earlier, seeds),
+            *ra_summary(after, seeds)]
+
+
+def ra_summary(rows: list, seeds: int) -> list:
+    """Return Ra's error range, its stated error, the largest ratio and the goal's counts."""
+    if not rows:
+        return ['no limit found', '', '', '', '']
+    errors = [100 * row[0] for row in rows]
+    met = sum(abs(e) < 0.05 or (abs(z) <= 3 and warned) for e, z, warned, _ in rows)
+    return [f'{min(errors):+.1f} .. {max(errors):+.1f}',
+            f'{100 * float(np.median([row[3] for row in rows])):.2g}',
+            f'{max(abs(row[1]) for row in rows):.2g}',
+            f'{sum(abs(row[1]) <= 3 for row in rows)} of {len(rows)}',
+            f'{met} of {seeds}']
+
+
+def ra_rows(seeds: int, revision: str | None) -> list:
+    """Return the table "Ra through the limit" (before: ``revision``'s regression)."""
+    if seeds <= 0:
+        return []
+    before = before_regression(revision) if revision else None
+    rows = []
+    for period in RA_PERIODS_S:
+        for limit in RA_LIMITS_A:
+            print(f'Ra: {limit:g} A, {period * 1e3:g} ms ...', file=sys.stderr, flush=True)
+            rows.append(ra_cell(limit, period, seeds, before))
+    return rows
+
+
+def ra_lines(rows: list, args: argparse.Namespace) -> list:
+    """Return the section "Ra through the limit" of the report (none without rows)."""
+    if not rows:
+        return []
+    head = ['Ra error [%], min .. max', 'stated error [% of Ra], median',
+            'largest error [stated errors]',
+            'within 3 stated errors', 'goal met']
+    return ['## Ra through the limit', '',
+            f'`small_motor_pwm_steps` (Ra {2.0:g} Ohm), seeds 0-{args.ra_seeds - 1}. Before: '
+            f'the electrical regression of revision `{args.before}` on the same records (Ra '
+            'and its standard error on the limited path come from it alone). After: the '
+            'default `identify`. Goal: Ra within 5 %, or within 3 stated standard errors '
+            "with the warning of La's part.", '',
+            markdown_table(['limit [A]', 'period [ms]', *[f'before: {h}' for h in head],
+                            *[f'after: {h}' for h in head]], rows), '']
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the sets and write the tables."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
@@ -197,6 +287,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="identify_equivalence.py's data directory (its CSV records)")
     parser.add_argument('--identify', type=int, default=0,
                         help='identify the sweep records below this the test turns down')
+    parser.add_argument('--ra-seeds', type=int, default=10,
+                        help='seeds per cell of the table "Ra through the limit" (0: none)')
+    parser.add_argument('--before', default=None, metavar='REV',
+                        help="the revision whose electrical regression is the table's before")
     parser.add_argument('--out', default=None, help='write the tables to this markdown file')
     args = parser.parse_args(argv)
     started, load = time.perf_counter(), os.getloadavg()
@@ -209,10 +303,11 @@ def main(argv: list[str] | None = None) -> int:
     power = power_rows(args.seeds)
     print(f'identify: {args.identify} sweep records ...', file=sys.stderr, flush=True)
     effect = identify_rows(args.identify)
+    ra_table = ra_rows(args.ra_seeds, args.before)
     lines = ['# Current limit: the detector and its confirming test', '',
              'Command: `PYTHONPATH=$PWD .venv/bin/python bench/bench_current_limit.py '
              f'--random {args.random} --sweep {args.sweep} --seeds {args.seeds} --identify '
-             f'{args.identify} --corpus-data '
+             f'{args.identify} --ra-seeds {args.ra_seeds} --before {args.before} --corpus-data '
              'DATA` (DATA: `identify_equivalence.py data DATA`); load average '
              f"{load[0]:.2f} at the start, {time.perf_counter() - started:.0f} s. The test's "
              f'one-sided size {identifiability.LIMIT_TEST_SIZE:g} '
@@ -231,7 +326,7 @@ def main(argv: list[str] | None = None) -> int:
              'Default `identify` (discovery on) with the plateaus taken for a limit (the detector '
              'alone: the test at size 1) and with the rule; errors against the truth [%].', '',
              markdown_table(['record', 'detector alone: Ra, CPhi, J', 'the rule: Ra, CPhi, J'],
-                            effect), '']
+                            effect), '', *ra_lines(ra_table, args)]
     write_report(lines, args.out)
     return 0
 
