@@ -3,13 +3,15 @@
 import numpy as np
 import pytest
 
+from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import MotorParameters
 from dcmotor_id.core.records import Record
 from dcmotor_id.identification.checks import identifiability
 from dcmotor_id.identification.checks.identifiability import (current_limit_warning,
                                                               limited_samples)
 from dcmotor_id.identification.identify import identify, prepare_records
-from dcmotor_id.identification.pipeline.current_limited import (la_shift,
+from dcmotor_id.identification.pipeline.current_limited import (electrical_regression,
+                                                                la_shift,
                                                                 noise_corrected_lstsq,
                                                                 off_the_limit)
 from dcmotor_id.simulation.lab_scenarios import simulate_drive, small_motor_pwm_steps
@@ -126,3 +128,16 @@ def test_ra_through_a_current_limit_is_right_and_its_error_covers_la(limit):
         assert result.stderr['Ra'] >= 0.5 * shift
         assert any("La's part" in text for text in result.warnings)
         assert "La's part" in result.uncertainty_method
+
+
+def test_a_record_wholly_at_the_limit_adds_nothing_and_too_few_samples_are_refused():
+    record = prepare_records(small_motor_pwm_steps(seed=0, current_limit_a=1.0).records)[0]
+    mask = limited_samples([record])[0]
+    alone = electrical_regression([record], [mask])[0]
+    # A second record held at the limit throughout: none of its samples is off the limit.
+    held = Record(np.arange(40) * 2e-3, current=np.ones(40), voltage=np.full(40, 12.0),
+                  speed=np.linspace(0.0, 100.0, 40))
+    both = electrical_regression([record, held], [mask, np.ones(40, dtype=bool)])[0]
+    assert both == alone
+    with pytest.raises(FitError, match='too few'):
+        electrical_regression([held], [np.ones(40, dtype=bool)])

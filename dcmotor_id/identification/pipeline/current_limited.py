@@ -39,6 +39,8 @@ JACKKNIFE_GROUPS = 8
 #: Noise levels below the limit's level within which a sample is the limit's
 #: (:func:`off_the_limit`): the detector's threshold counts from the peak, noise included.
 LIMIT_BAND = 5.0
+#: Fewest samples off the limit the electrical regression is fitted on.
+MINIMUM_SAMPLES = 10
 
 
 def electrical_part(records: Sequence[Record],
@@ -83,10 +85,16 @@ def electrical_regression(
     for rec, mask in zip(records, limited):
         assert rec.current is not None and rec.speed is not None  # a full-mode record
         keep = off_the_limit(np.asarray(rec.current, dtype=float), mask)
+        if not keep.any():
+            continue
         rows.append(np.column_stack([rec.current, rec.speed])[keep])
         targets.append(np.asarray(rec.voltage, dtype=float)[np.flatnonzero(keep) - 1])
         lengths.append(int(keep.sum()))
         noise.append([noise_std(rec.current) ** 2, noise_std(rec.speed) ** 2])
+    if sum(lengths) < MINIMUM_SAMPLES:
+        raise FitError(f'the current sits at an amplifier limit and only {sum(lengths)} samples '
+                       'are off it: too few for the electrical part (record the drive below '
+                       'its current limit too)')
     x, y = np.vstack(rows), np.concatenate(targets)
     variance = np.average(noise, axis=0, weights=np.maximum(lengths, 1))
     beta = noise_corrected_lstsq(x, y, variance)
@@ -119,13 +127,17 @@ def off_the_limit(current: np.ndarray, mask: np.ndarray) -> np.ndarray:
     below the detector's threshold goes on at the limit, so every sample within
     :data:`LIMIT_BAND` noise levels of the plateaus' level (their median ``|i|``) is the
     limit's too.  A sample next to one at the limit is left out (the limit binds within the
-    sample period before or after it), and so is the first (no voltage before it).
+    sample period before or after it), and so is the first (no voltage before it).  A band
+    over more than half of the record is no plateau's (the detector's own rule): the
+    detector's samples are then the limit's.
     """
     magnitude = np.abs(current)
     band = mask.copy()
     if mask.any():
         level = float(np.median(magnitude[mask]))
-        band |= magnitude >= level - LIMIT_BAND * max(noise_std(current), 1e-3 * level)
+        wide = band | (magnitude >= level - LIMIT_BAND * max(noise_std(current), 1e-3 * level))
+        # As the detector: a level held over most of the record is no limit's plateau.
+        band = wide if wide.mean() <= 0.5 else band
     keep = ~band
     keep[1:] &= ~band[:-1]
     keep[:-1] &= ~band[1:]
