@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from dcmotor_id.core.noise import noise_std
+
 FloatArray = NDArray[np.float64]
 
 #: Shortest signal that is filtered at all (shorter ones are returned as they are).
@@ -147,27 +149,16 @@ def smooth(values: ArrayLike, sample_period_s: float | None = None) -> FloatArra
     return low_pass(values, 0.1, order=4)
 
 
-def noise_std(values: ArrayLike) -> float:
+def dead_sign(values: ArrayLike, sample_period_s: float | None = None,
+              noise: float | None = None) -> FloatArray:
     """
-    Robust standard deviation of white noise on a smooth signal.
+    Sign of a smoothed measured signal, zero within twice its noise level of zero.
 
-    Second differences remove a smooth signal up to its curvature; for white noise of variance
-    ``s^2`` they have variance ``6 s^2``.  The median absolute deviation makes the estimate
-    insensitive to jumps (switching inputs, speed reversals).
+    ``noise``: :func:`noise_std` of ``values`` when the caller has it (a record's
+    :meth:`~dcmotor_id.core.records.Record.noise_std`; else measured here).
     """
-    values = np.asarray(values, dtype=float)
-    if values.shape[0] < 5:
-        return 0.0
-    second = np.diff(values, 2)
-    second -= np.median(second)  # in place: one N-sized temporary
-    mad = np.median(np.abs(second, out=second))
-    return float(mad / 0.6745 / np.sqrt(6.0))
-
-
-def dead_sign(values: ArrayLike, sample_period_s: float | None = None) -> FloatArray:
-    """Sign of a smoothed measured signal, zero within twice its noise level of zero."""
     smoothed = smooth(values)
-    deadband = 2.0 * noise_std(values)
+    deadband = 2.0 * (noise_std(values) if noise is None else noise)
     return np.where(np.abs(smoothed) > deadband, np.sign(smoothed), 0.0)
 
 

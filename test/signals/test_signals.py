@@ -39,3 +39,31 @@ def test_odd_orders_fall_back_to_scipy():
 
     from dcmotor_id.signals.filters import butter_sos
     assert np.array_equal(butter_sos(3, 0.2), butter(3, 0.2, output='sos'))
+
+
+def test_a_record_measures_each_channels_noise_once(monkeypatch):
+    # Record.noise_std / noise_level equal the functions on the channel, measured on first
+    # use and kept (issue 29, speed); a replaced record measures its own.
+    from dcmotor_id.core import noise as core_noise
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.error_model.criterion import noise_level
+    from dcmotor_id.signals.filters import noise_std
+
+    rng = np.random.default_rng(3)
+    t = np.arange(2000) * 1e-3
+    speed = np.sin(2 * np.pi * t) + 0.01 * rng.standard_normal(t.size)
+    current = np.round(np.cos(2 * np.pi * t) / 0.05) * 0.05
+    record = Record(t, current, np.ones_like(t), speed)
+    expected = [noise_std(speed), noise_level(speed), noise_level(current), noise_std(current),
+                noise_std(2.0 * speed)]
+    assert expected[2] > expected[3]  # quantised: the floor decides
+    calls = []
+    std = core_noise.noise_std
+    monkeypatch.setattr(core_noise, 'noise_std', lambda values: calls.append(1) or std(values))
+    assert [record.noise_std('speed'), record.noise_level('speed'),
+            record.noise_level('current'), record.noise_std('current')] == expected[:4]
+    assert record.noise_std('speed') == expected[0]
+    assert len(calls) == 2
+    other = record.replace(speed=2.0 * speed)
+    assert other.noise_std('speed') == expected[4]
+    assert len(calls) == 3
