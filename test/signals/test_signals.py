@@ -67,3 +67,27 @@ def test_a_record_measures_each_channels_noise_once(monkeypatch):
     other = record.replace(speed=2.0 * speed)
     assert other.noise_std('speed') == expected[4]
     assert len(calls) == 3
+
+
+def test_low_pass_designs_each_cut_off_once(monkeypatch):
+    # identify low-passes about thirty signals at five cut-offs: each design (sections and
+    # their step states) is made once, the filtered signals as before (issue 29, speed).
+    from dcmotor_id.signals import filters
+
+    filters._design.cache_clear()
+    design = filters.butter_sos
+    calls = []
+
+    def counted(order, cutoff):
+        calls.append((order, cutoff))
+        return design(order, cutoff)
+
+    monkeypatch.setattr(filters, 'butter_sos', counted)
+    values = np.cumsum(np.random.default_rng(5).standard_normal(3000))
+    first = low_pass(values, 0.1)
+    assert np.array_equal(first, filters.zero_phase(design(4, 0.2), values))
+    assert np.array_equal(low_pass(values, 0.1), first)
+    assert np.array_equal(low_pass(values, 0.05, order=2),
+                          filters.zero_phase(design(2, 0.1), values))
+    assert calls == [(4, 0.2), (2, 0.1)]
+    filters._design.cache_clear()
