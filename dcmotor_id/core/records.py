@@ -77,6 +77,39 @@ class Record:
         """Median sample period [s] (computed on first use and kept: a record is frozen)."""
         return float(np.median(np.diff(self.time_s)))
 
+    def noise_std(self, channel: str) -> float:
+        """
+        White-noise level of a channel (:func:`~dcmotor_id.core.noise.noise_std`).
+
+        Measured on first use and kept, as :attr:`sample_period_s` (a record is frozen): the
+        checks around a fit ask for the current's and the speed's about twenty times per
+        ``identify`` call.
+        """
+        return self._channel_noise(channel)[0]
+
+    def noise_level(self, channel: str) -> float:
+        """
+        Noise level of a channel with its quantisation floor (kept as :meth:`noise_std`).
+
+        :func:`~dcmotor_id.core.noise.noise_level` of the channel.
+        """
+        return self._channel_noise(channel)[1]
+
+    def _channel_noise(self, channel: str) -> list[float]:
+        """Return ``[noise_std, noise_level]`` of a channel, measured on first use."""
+        from dcmotor_id.core.noise import noise_level, noise_std
+
+        if channel not in self._noise_levels:
+            values = np.asarray(getattr(self, channel), dtype=float)
+            std = noise_std(values)
+            self._noise_levels[channel] = [std, noise_level(values, std)]
+        return self._noise_levels[channel]
+
+    @cached_property
+    def _noise_levels(self) -> dict[str, list[float]]:
+        """Return the noise levels measured so far, by channel (:meth:`_channel_noise`)."""
+        return {}
+
     def __len__(self) -> int:
         """Return the number of samples."""
         return int(self.time_s.shape[0])

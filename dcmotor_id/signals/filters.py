@@ -14,8 +14,12 @@ the package does not use, fall back to scipy.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from dcmotor_id.core.noise import noise_std
 
 FloatArray = NDArray[np.float64]
 
@@ -45,7 +49,22 @@ def low_pass(values: ArrayLike, cutoff_fraction: float, order: int = 4) -> Float
     values = np.asarray(values, dtype=float)
     if values.shape[0] < MIN_FILTER_SAMPLES:
         return values.copy()
-    return zero_phase(butter_sos(order, 2.0 * cutoff_fraction), values)
+    sos, zi = _design(int(order), float(2.0 * cutoff_fraction))
+    return _forward_backward(sos, zi, values)
+
+
+@functools.lru_cache(maxsize=64)
+def _design(order: int, cutoff: float) -> tuple[FloatArray, FloatArray]:
+    """
+    Return :func:`butter_sos` and its step states (:func:`_sections_zi`) for one cut-off.
+
+    A pure function of two numbers, kept for the cut-offs in use: ``identify`` low-passes
+    about thirty signals at five cut-offs (the design is a tenth of a filter's CPU).  The
+    arrays are the package's own (:func:`low_pass` passes them to the kernel, which reads
+    them), never returned to a caller.
+    """
+    sos = np.ascontiguousarray(butter_sos(order, cutoff), dtype=float)
+    return sos, _sections_zi(sos)
 
 
 def butter_sos(order: int, cutoff: float) -> FloatArray:
@@ -127,6 +146,11 @@ def zero_phase(sos: FloatArray, values: ArrayLike) -> FloatArray:
 
     """
     sos = np.ascontiguousarray(sos, dtype=float)
+    return _forward_backward(sos, _sections_zi(sos), values)
+
+
+def _forward_backward(sos: FloatArray, zi: FloatArray, values: ArrayLike) -> FloatArray:
+    """Return :func:`zero_phase` of ``values`` with the sections' step states ``zi``."""
     x = np.asarray(values, dtype=float)
     taps = 2 * sos.shape[0] + 1 - min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum()))
     edge = 3 * taps
@@ -135,7 +159,6 @@ def zero_phase(sos: FloatArray, values: ArrayLike) -> FloatArray:
     ext = np.concatenate((2 * x[:1] - x[edge:0:-1], x, 2 * x[-1:] - x[-2:-(edge + 2):-1]))
     from dcmotor_id.simulation.compiled import kernel  # lazily: no import cycle
     sosfilt = kernel('sosfilt_kernel')
-    zi = _sections_zi(sos)
     sosfilt(sos, ext, zi * ext[0])
     ext = ext[::-1].copy()
     sosfilt(sos, ext, zi * ext[0])
@@ -147,27 +170,16 @@ def smooth(values: ArrayLike, sample_period_s: float | None = None) -> FloatArra
     return low_pass(values, 0.1, order=4)
 
 
-def noise_std(values: ArrayLike) -> float:
+def dead_sign(values: ArrayLike, sample_period_s: float | None = None,
+              noise: float | None = None) -> FloatArray:
     """
-    Robust standard deviation of white noise on a smooth signal.
+    Sign of a smoothed measured signal, zero within twice its noise level of zero.
 
-    Second differences remove a smooth signal up to its curvature; for white noise of variance
-    ``s^2`` they have variance ``6 s^2``.  The median absolute deviation makes the estimate
-    insensitive to jumps (switching inputs, speed reversals).
+    ``noise``: :func:`noise_std` of ``values`` when the caller has it (a record's
+    :meth:`~dcmotor_id.core.records.Record.noise_std`; else measured here).
     """
-    values = np.asarray(values, dtype=float)
-    if values.shape[0] < 5:
-        return 0.0
-    second = np.diff(values, 2)
-    second -= np.median(second)  # in place: one N-sized temporary
-    mad = np.median(np.abs(second, out=second))
-    return float(mad / 0.6745 / np.sqrt(6.0))
-
-
-def dead_sign(values: ArrayLike, sample_period_s: float | None = None) -> FloatArray:
-    """Sign of a smoothed measured signal, zero within twice its noise level of zero."""
     smoothed = smooth(values)
-    deadband = 2.0 * noise_std(values)
+    deadband = 2.0 * (noise_std(values) if noise is None else noise)
     return np.where(np.abs(smoothed) > deadband, np.sign(smoothed), 0.0)
 
 

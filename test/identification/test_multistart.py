@@ -222,10 +222,12 @@ def test_the_start_doubts_state_both_tests_in_one_place(collapsed, monkeypatch):
     assert both.further_starts == both.second_start and len(both.second_start) == 2
 
 
-def test_a_run_measures_each_channels_noise_once_for_all_its_start_checks(monkeypatch):
-    # The further starts' check and the second start's check judge the misfit on the same
-    # records: the noise (medians of whole records) is measured once per channel.  A check
-    # on other records measures its own.
+def test_a_run_measures_each_channels_noise_once(monkeypatch):
+    # The checks around the fits (tests, start checks, identifiability, the training parts,
+    # the effects' regressors, held-out errors) ask for the noise of the records' current
+    # and speed about twenty times; the record measures each channel once (issue 29, speed).
+    # A check on other records measures their own.
+    from dcmotor_id.core import noise as core_noise
     from dcmotor_id.core.model import PAPER_MOTORS
     from dcmotor_id.core.records import Record
     from dcmotor_id.simulation import simulate_motor
@@ -236,19 +238,26 @@ def test_a_run_measures_each_channels_noise_once_for_all_its_start_checks(monkey
     rng = np.random.default_rng(1)
     records = prepare_records([Record(t, current + 0.01 * rng.standard_normal(t.size), voltage,
                                       speed + 0.1 * rng.standard_normal(t.size))])
+    others = [records[0].slice(0, 2000)]
+    whole, part = (core_noise.noise_level(records[0].speed),
+                   core_noise.noise_level(records[0].speed[:2000]))
     measured = []
-    level = start_check.noise_level
-    monkeypatch.setattr(start_check, 'noise_level',
-                        lambda values: measured.append(1) or level(values))
-    identify(records, discover=False)
-    assert len(measured) == 2  # current and speed, once for the two start checks
+    std = core_noise.noise_std
+
+    def counted(values):
+        measured.append(next((name for name in ('current', 'speed') if np.array_equal(
+            values, getattr(records[0], name))), 'other'))
+        return std(values)
+
+    monkeypatch.setattr(core_noise, 'noise_std', counted)
+    identify(records, discover=True)
+    assert sorted(name for name in measured if name != 'other') == ['current', 'speed']
     noise = start_check.ChannelNoise(records)
     first = noise.of(records, 'speed')
     assert noise.of(records, 'speed') == first == start_check.pooled_noise(records, 'speed')
-    assert len(measured) == 4
-    others = [records[0].slice(0, 2000)]
-    assert noise.of(others, 'speed') == start_check.pooled_noise(others, 'speed')
-    assert len(measured) == 6
+    assert first == whole and len(measured) == 2
+    assert noise.of(others, 'speed') == start_check.pooled_noise(others, 'speed') == part
+    assert len(measured) == 3
 
 
 def test_the_start_search_solves_each_admissible_regression_once(monkeypatch):

@@ -5,8 +5,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from dcmotor_id.core.noise import noise_level
 from dcmotor_id.core.records import Record
-from dcmotor_id.identification.checks.identifiability import initial_state_warnings, noise_level
+from dcmotor_id.identification.checks.identifiability import initial_state_warnings
 from dcmotor_id.identification.checks.start import (correlation_time, offset_supported,
                                                     regression_evidence)
 from dcmotor_id.identification.discovery import DiscoveryLoop, excited_stop, Structure

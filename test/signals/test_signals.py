@@ -39,3 +39,55 @@ def test_odd_orders_fall_back_to_scipy():
 
     from dcmotor_id.signals.filters import butter_sos
     assert np.array_equal(butter_sos(3, 0.2), butter(3, 0.2, output='sos'))
+
+
+def test_a_record_measures_each_channels_noise_once(monkeypatch):
+    # Record.noise_std / noise_level equal the functions on the channel, measured on first
+    # use and kept (issue 29, speed); a replaced record measures its own.
+    from dcmotor_id.core import noise as core_noise
+    from dcmotor_id.core.records import Record
+    from dcmotor_id.identification.error_model.criterion import noise_level
+    from dcmotor_id.signals.filters import noise_std
+
+    rng = np.random.default_rng(3)
+    t = np.arange(2000) * 1e-3
+    speed = np.sin(2 * np.pi * t) + 0.01 * rng.standard_normal(t.size)
+    current = np.round(np.cos(2 * np.pi * t) / 0.05) * 0.05
+    record = Record(t, current, np.ones_like(t), speed)
+    expected = [noise_std(speed), noise_level(speed), noise_level(current), noise_std(current),
+                noise_std(2.0 * speed)]
+    assert expected[2] > expected[3]  # quantised: the floor decides
+    calls = []
+    std = core_noise.noise_std
+    monkeypatch.setattr(core_noise, 'noise_std', lambda values: calls.append(1) or std(values))
+    assert [record.noise_std('speed'), record.noise_level('speed'),
+            record.noise_level('current'), record.noise_std('current')] == expected[:4]
+    assert record.noise_std('speed') == expected[0]
+    assert len(calls) == 2
+    other = record.replace(speed=2.0 * speed)
+    assert other.noise_std('speed') == expected[4]
+    assert len(calls) == 3
+
+
+def test_low_pass_designs_each_cut_off_once(monkeypatch):
+    # identify low-passes about thirty signals at five cut-offs: each design (sections and
+    # their step states) is made once, the filtered signals as before (issue 29, speed).
+    from dcmotor_id.signals import filters
+
+    filters._design.cache_clear()
+    design = filters.butter_sos
+    calls = []
+
+    def counted(order, cutoff):
+        calls.append((order, cutoff))
+        return design(order, cutoff)
+
+    monkeypatch.setattr(filters, 'butter_sos', counted)
+    values = np.cumsum(np.random.default_rng(5).standard_normal(3000))
+    first = low_pass(values, 0.1)
+    assert np.array_equal(first, filters.zero_phase(design(4, 0.2), values))
+    assert np.array_equal(low_pass(values, 0.1), first)
+    assert np.array_equal(low_pass(values, 0.05, order=2),
+                          filters.zero_phase(design(2, 0.1), values))
+    assert calls == [(4, 0.2), (2, 0.1)]
+    filters._design.cache_clear()

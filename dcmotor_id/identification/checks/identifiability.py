@@ -23,8 +23,7 @@ from dcmotor_id.core.model import UNITS
 from dcmotor_id.identification.checks.input_noise import input_noise_warning
 from dcmotor_id.identification.checks.ramp import robust_lstsq
 from dcmotor_id.identification.effects.base import torque_spread
-from dcmotor_id.identification.error_model.criterion import noise_level
-from dcmotor_id.signals.filters import low_pass, noise_std
+from dcmotor_id.signals.filters import low_pass
 
 if TYPE_CHECKING:
     from dcmotor_id.identification.checks.answer import FinalFit
@@ -114,7 +113,7 @@ def assess_excitation(records: Sequence[Any], mechanical_only: bool) -> Excitati
     measured = [np.asarray(rec.speed, dtype=float) for rec in records]
     speeds = np.concatenate(measured)
     smooth = np.concatenate([_smooth_speed(speed) for speed in measured])
-    noise = max(max(noise_std(speed) for speed in measured),
+    noise = max(max(rec.noise_std('speed') for rec in records),
                 1e-12 * max(float(np.max(np.abs(speeds))), 1e-300))
     spread = max(float(np.std(speed)) for speed in measured)
     moves = bool(np.max(np.abs(smooth)) > 10.0 * noise or spread > 4.0 * noise)
@@ -258,7 +257,7 @@ def initial_state_warnings(estimate: Any, records: Sequence[Any],
             if channel == 'speed' and getattr(rec, 'speed_derived', False):
                 continue
             measured = np.asarray(getattr(rec, channel), dtype=float)
-            noise = max(noise_level(measured), 1e-12)
+            noise = max(rec.noise_level(channel), 1e-12)
             first = float(measured[0])
             gap = abs(float(value) - first)
             if gap > INITIAL_STATE_FACTOR * noise and gap > 0.02 * float(np.ptp(measured)):
@@ -276,7 +275,7 @@ def misfit_ratios(records: Sequence[Any], outputs: Sequence[str],
     """Return the channels whose residual is beyond :data:`MISFIT_FACTOR` sensor noises."""
     ratios = {}
     for channel in outputs:
-        noise = np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2 for rec in records]))
+        noise = np.sqrt(np.mean([rec.noise_level(channel) ** 2 for rec in records]))
         if noise > 0 and residual_rms.get(channel) is not None:
             ratios[channel] = residual_rms[channel] / noise
     return {channel: ratio for channel, ratio in ratios.items() if ratio > MISFIT_FACTOR}
@@ -358,7 +357,7 @@ def limited_samples(records: Sequence[Any]) -> list[np.ndarray] | None:
     if joined.shape[0] < 20:
         return None
     peak = float(np.max(joined))
-    noise = max(float(np.sqrt(np.mean([noise_std(rec.current) ** 2 for rec in records]))),
+    noise = max(float(np.sqrt(np.mean([rec.noise_std('current') ** 2 for rec in records]))),
                 2e-3 * peak)
     threshold = peak - 5.0 * noise
     masks, plateaus = [], 0

@@ -36,7 +36,7 @@ import numpy as np
 from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.model import make_admissible
 from dcmotor_id.identification.checks.identifiability import (initial_state_warnings,
-                                                              MISFIT_FACTOR, noise_level)
+                                                              MISFIT_FACTOR)
 from dcmotor_id.identification.error_model.residuals import output_channels, simulate_records
 from dcmotor_id.signals.filters import low_pass
 
@@ -183,7 +183,7 @@ def offset_supported(evidence: dict[str, float] | None) -> bool:
 
 def pooled_noise(records: Sequence[Record], channel: str) -> float:
     """Sensor noise of a channel over the records: the RMS of their :func:`noise_level`."""
-    return float(np.sqrt(np.mean([noise_level(getattr(rec, channel)) ** 2 for rec in records])))
+    return float(np.sqrt(np.mean([rec.noise_level(channel) ** 2 for rec in records])))
 
 
 @dataclass(frozen=True)

@@ -516,7 +516,7 @@ def own_part(loop: LoopState, candidate: Candidate) -> tuple[float, str] | None:
     it brings comes from moving the other parameters (extra freedom, not an effect).  None
     for data effects (delays), which are not judged so.
     """
-    from dcmotor_id.identification.checks.identifiability import noise_level
+    from dcmotor_id.core.noise import noise_level
 
     fitted = candidate.fitted
     prefix = f'{candidate.name}.'

@@ -35,7 +35,8 @@ def excited_stop(record: Record, holdout_fraction: float = HOLDOUT_FRACTION,
     within :data:`TRAIN_SHARE_BOUNDS` of the moving extent; without measurable excitation,
     at ``1 - holdout_fraction`` of the extent.
     """
-    first, last = moving_extent(np.asarray(record.speed, dtype=float))
+    first, last = moving_extent(np.asarray(record.speed, dtype=float),
+                                record.noise_std('speed'))
     size = last - first
     fallback = first + size * (1.0 - holdout_fraction)
     blocks = min(EXCITATION_BLOCKS, size // 5)
@@ -46,8 +47,10 @@ def excited_stop(record: Record, holdout_fraction: float = HOLDOUT_FRACTION,
         for channel in channels:
             values = np.asarray(getattr(record, channel), dtype=float)[first:last]
             means = np.add.reduceat(values, edges[:-1]) / np.diff(edges)
-            floor = 4.0 * noise_level(values) * np.sqrt(2.0 / max(int(np.min(np.diff(edges))),
-                                                                  1))
+            # The record's own level when the extent is the whole record (measured once).
+            level = record.noise_level(channel) if (first, last) == (0, len(record)) \
+                else noise_level(values)
+            floor = 4.0 * level * np.sqrt(2.0 / max(int(np.min(np.diff(edges))), 1))
             change = np.abs(np.diff(means))
             change[change <= floor] = 0.0
             if change.sum() > 0:
@@ -61,17 +64,19 @@ def excited_stop(record: Record, holdout_fraction: float = HOLDOUT_FRACTION,
     return min(max(int(round(stop)), 1), len(record) - 1)
 
 
-def moving_extent(speed: np.ndarray) -> tuple[int, int]:
+def moving_extent(speed: np.ndarray, noise: float | None = None) -> tuple[int, int]:
     """
     Return the first and one past the last sample where a speed moves beyond its noise.
 
     The whole record when it never leaves the noise band (the caller decides then).
+    ``noise``: the speed's :func:`~dcmotor_id.signals.filters.noise_std` when the caller has
+    it (a record's :meth:`~dcmotor_id.core.records.Record.noise_std`; else measured here).
     """
     from dcmotor_id.signals.filters import low_pass, noise_std
 
     speed = np.asarray(speed, dtype=float)
     smooth = low_pass(speed, 0.05, order=2)
-    noise = noise_std(speed)
+    noise = noise_std(speed) if noise is None else noise
     level = max(min(10.0 * noise, 0.2 * float(np.max(np.abs(smooth)))), 1e-300)
     moving = np.flatnonzero(np.abs(smooth - smooth[0]) > level)
     if moving.shape[0] < 2:

@@ -34,7 +34,8 @@ class BrushDrop(Effect):
         """
         spread = float(np.std(np.concatenate([rec.voltage for rec in records])))
         return (cls._term(cls.term_name('drop_V'), 'state',
-                          [-dead_sign(rec.current, rec.sample_period_s) for rec in records],
+                          [-dead_sign(rec.current, rec.sample_period_s, rec.noise_std('current'))
+                           for rec in records],
                           max(0.01 * spread, 1e-9), initial, field='brush_drop_V'),)
 
     def problem(self, base: Values, records: Records) -> str | None:

@@ -53,7 +53,7 @@ class Stribeck(Effect):
         for rec in records:
             speed = smooth(rec.speed, rec.sample_period_s)
             regressors.append(-np.exp(-(speed / velocity) ** 2)
-                              * dead_sign(rec.speed, rec.sample_period_s))
+                              * dead_sign(rec.speed, rec.sample_period_s, rec.noise_std('speed')))
         scale = max(0.1 * base.get('Mc', 0.0), 0.01 * torque_spread(records, base,
                                                                     torque_constant))
         name = cls.term_name('velocity_rad_s')

@@ -31,7 +31,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
-from dcmotor_id.signals.filters import noise_std
+from dcmotor_id.core.noise import noise_level
 
 #: Choices of ``--criterion``.
 CRITERIA = ('auto', 'speed', 'position', 'both')
@@ -158,23 +158,6 @@ def position_ar(error: np.ndarray, sensor_noise: float, model: str = 'adaptive')
     if lagged <= 0.0:
         return 0.0
     return float(np.clip(float(error[1:] @ error[:-1]) / lagged, 0.0, MAX_POSITION_AR))
-
-
-def noise_level(values: np.ndarray) -> float:
-    """
-    Noise level of a channel, at least the rounding noise of a quantised signal.
-
-    :func:`~dcmotor_id.signals.filters.noise_std` reads zero on a quantised signal (its second
-    differences are mostly zero); the quantisation step ``q`` (the small end of the nonzero
-    differences between samples) gives the floor ``q / sqrt(12)``.
-    """
-    values = np.asarray(values, dtype=float)
-    level = noise_std(values)
-    steps = np.abs(np.diff(values))
-    steps = steps[steps > 0]
-    if steps.shape[0]:
-        level = max(level, float(np.percentile(steps, 5)) / np.sqrt(12.0))
-    return level
 
 
 def ar_settled(old: float, new: float) -> bool:

@@ -181,7 +181,7 @@ def moving_voltage(records: Sequence[Record]) -> tuple[np.ndarray, np.ndarray]:
     voltages, signs = [], []
     for record in records:
         voltage, speed = channels(record)
-        moving = np.abs(speed) > 3.0 * noise_std(speed)
+        moving = np.abs(speed) > 3.0 * record.noise_std('speed')
         voltages.append(voltage[moving])
         signs.append(np.sign(speed[moving]))
     return np.concatenate(voltages), np.concatenate(signs)

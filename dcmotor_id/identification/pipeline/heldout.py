@@ -18,7 +18,6 @@ import numpy as np
 from dcmotor_id.identification.error_model.residuals import output_channels, simulation_error_pct
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
-from dcmotor_id.signals.filters import noise_std
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -67,7 +66,7 @@ def _heldout_item(item, rec, index, found, outputs):
     stop = found.final.stops[index]
     speed = np.asarray(rec.speed, dtype=float)
     held = speed[stop:]
-    noise = max(noise_std(speed), 1e-12)
+    noise = max(rec.noise_std('speed'), 1e-12)
     moves = held.shape[0] > 5 and float(np.ptp(held)) > 10.0 * noise
     item['heldout_samples'] = int(len(rec) - stop)
     item['heldout_moves'] = bool(moves)

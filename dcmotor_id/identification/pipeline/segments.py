@@ -23,7 +23,6 @@ import numpy as np
 
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import MIN_SAMPLES
-from dcmotor_id.signals.filters import noise_std
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -62,7 +61,7 @@ def idle_samples(record: Record) -> np.ndarray | None:
     zero = (voltage == 0.0) & (current == 0.0)
     idle = np.zeros(zero.shape[0], dtype=bool)
     braked = False
-    noise = max(noise_std(speed), 1e-12)
+    noise = max(record.noise_std('speed'), 1e-12)
     for start, stop in _runs(zero):
         if stop - start >= IDLE_MIN_SAMPLES:
             idle[start:stop] = True
