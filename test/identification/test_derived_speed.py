@@ -1,6 +1,7 @@
 """A speed derived from an encoder's position on fast motors at slow rates (issue 29)."""
 
 import numpy as np
+import pytest
 from support import assert_near_truth
 
 from dcmotor_id.core.model import MotorParameters
@@ -51,3 +52,16 @@ def test_a_motion_faster_than_the_derived_speed_is_judged_over_the_sample_period
     said = [text for text in result.warnings if 'smoother than the motion' in text]
     assert len(said) == 1 and '--speed-cutoff' in said[0]
     assert_near_truth(result.parameters, motor, Ra=0.05, CPhi=0.05, J=0.1)
+
+
+def test_an_encoder_angle_wrapped_at_a_turn_gives_the_answer_of_the_unwrapped_one():
+    # An absolute encoder (or a continuous joint's angle) reads within one turn.
+    motor = MotorParameters(Ra=17.55, La=0.0387, CPhi=0.2011, J=5.33e-5, b=4.75e-5,
+                            Mc=0.00292)
+    record = _encoder_record(motor, np.full(200, 34.29), 0.005, 92, 'wrapped')
+    wrapped = record.replace(position=(record.position + np.pi) % (2 * np.pi) - np.pi)
+    found = identify(prepare_records([wrapped]), discover=False)
+    expected = identify(prepare_records([record]), discover=False)
+    assert found.parameters == pytest.approx(expected.parameters, rel=1e-9)
+    said = [text for text in found.warnings if 'wraps at a turn' in text]
+    assert len(said) == 1 and 'unwrapped' in said[0]
