@@ -343,8 +343,10 @@ def _cmd_validate(args):
     validation = validate(model, records, args.init_samples, options.position_factor)
     result = validation.as_dict()
     result['input_units'] = options.input_units()
+    notes = [note for record in records for note in record.notes]
+    if loss or notes:
+        result['warnings'] = loss + notes + list(result.get('warnings') or [])
     if loss:
-        result['warnings'] = loss + list(result.get('warnings') or [])
         result['data_loss'] = loss
     if args.json:
         _write_result(args, result)

@@ -60,6 +60,9 @@ class Record:
         The tests of the record, as logged (``--segment-column``): a value > 0 marks a
         test's samples (a change of value starts another test), 0 the samples between tests
         (:mod:`dcmotor_id.identification.pipeline.segments`).
+    notes : tuple of str
+        What the preparation changed in the record as read (an angle unwrapped), said first
+        among the warnings of its identification.
 
     """
 
@@ -71,6 +74,7 @@ class Record:
     source: str = ''
     speed_derived: bool = False
     segment: Optional[np.ndarray] = None
+    notes: tuple[str, ...] = ()
 
     @cached_property
     def sample_period_s(self) -> float:
@@ -124,7 +128,7 @@ class Record:
             return None if values is None else values[start:stop]
         return Record(self.time_s[start:stop], cut(self.current), cut(self.voltage),
                       cut(self.speed), cut(self.position), self.source, self.speed_derived,
-                      cut(self.segment))
+                      cut(self.segment), self.notes)
 
     def columns(self) -> dict[str, np.ndarray]:
         """Return the present columns as a dict name -> array (``t`` first)."""

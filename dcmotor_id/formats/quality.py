@@ -29,6 +29,7 @@ from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import InputDataError
 from dcmotor_id.core.records import Record
 from dcmotor_id.formats.mapping import ReadingNote
+from dcmotor_id.signals.filters import unwrap_turns
 
 #: Fraction of the driven samples exactly zero between non-zero neighbours: PWM-sampled.
 PWM_ZERO_FRACTION = 0.1
@@ -197,7 +198,7 @@ def _speed_seen(record: Record, sample_period_s: float) -> Optional[np.ndarray]:
         return np.asarray(record.speed, dtype=float)
     if record.position is None or len(record.position) < 2:
         return None
-    return np.gradient(np.asarray(record.position, dtype=float), sample_period_s)
+    return np.gradient(unwrap_turns(record.position)[0], sample_period_s)
 
 
 def command_voltage(record: Record) -> Optional[str]:

@@ -149,13 +149,27 @@ def identify(records: Sequence[Record], method: str = 'refined',
     """
     records = _checked(records, torque_constant, method, initial_state)
     budget = progress if progress is not None else Progress(max_time_s)
-    if is_voltage_speed(records, torque_constant):  # no current: kS, kV, kA
-        return _voltage_speed_tests(records, discover, budget, structure_bootstrap)
     request = Request(records, method, torque_constant, discover, estimator, vocabulary,
                       budget, initial_state)
+    result = _run(request, criterion, max_time_s, progress, structure_bootstrap)
+    return _with_notes(records, result)
+
+
+def _run(request: Request, criterion: str, max_time_s: float | None,
+         progress: Progress | None, structure_bootstrap: int) -> IdentificationResult:
+    """Run the voltage-speed tests, the structure bootstrap or the pipeline above the floor."""
+    if is_voltage_speed(request.records, request.torque_constant):  # no current: kS, kV, kA
+        return _voltage_speed_tests(request.records, request.discover, request.progress,
+                                    structure_bootstrap)
     if structure_bootstrap:
         return _bootstrapped(request, criterion, max_time_s, progress, structure_bootstrap)
     return identify_above_floor(criterion, request)
+
+
+def _with_notes(records: Sequence[Record], result: IdentificationResult) -> IdentificationResult:
+    """Return the result with what the preparation changed in the records said first."""
+    notes = [note for rec in records for note in rec.notes if note not in result.warnings]
+    return replace(result, warnings=notes + list(result.warnings)) if notes else result
 
 
 def _voltage_speed_tests(records: Sequence[Record], discover: bool, budget: Progress,

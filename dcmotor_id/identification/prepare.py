@@ -18,7 +18,7 @@ from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import InputDataError, NotIdentifiableError
 from dcmotor_id.core.records import check_record
 from dcmotor_id.identification.checks.identifiability import assess_excitation, Excitation
-from dcmotor_id.signals.filters import noise_std, speed_from_position
+from dcmotor_id.signals.filters import noise_std, speed_from_position, unwrap_turns
 
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
@@ -66,6 +66,7 @@ def prepare_records(records: Sequence[Record], torque_constant: float | None = N
                 'only (J, b, Mc) by giving the torque constant: --torque-constant K [N m/A]')
         record = check_record(record, need_voltage=torque_constant is None, resample=resample,
                               need_current=not voltage_speed)
+        record = unwrapped(record)
         if record.speed is None:
             nyquist_hz = 0.5 / record.sample_period_s
             if speed_cutoff_hz is not None and not 0 < speed_cutoff_hz < nyquist_hz:
@@ -78,6 +79,20 @@ def prepare_records(records: Sequence[Record], torque_constant: float | None = N
                 record.position, record.sample_period_s, speed_cutoff_hz), speed_derived=True)
         prepared.append(record)
     return common_period(prepared)
+
+
+def unwrapped(record: Record) -> Record:
+    """Return the record with an angle that wraps at a turn unwrapped, said in its notes."""
+    if record.position is None:
+        return record
+    position, wraps = unwrap_turns(record.position)
+    if not wraps:
+        return record
+    raw = np.asarray(record.position, dtype=float)
+    note = (f'{record.source or "record"}: the position jumps by a whole turn {wraps} times '
+            f'(it reads from {np.min(raw):.4g} to {np.max(raw):.4g} rad): an angle that wraps '
+            "at a turn (an absolute encoder, a continuous joint's angle); it is unwrapped")
+    return record.replace(position=position, notes=record.notes + (note,))
 
 
 def is_voltage_speed(records: Sequence[Record], torque_constant: float | None = None) -> bool:

@@ -195,6 +195,31 @@ def integrate_trapezoid(values: ArrayLike, step: float, start: float = 0.0) -> F
     return start + np.concatenate([[0.0], np.cumsum(0.5 * (values[1:] + values[:-1]) * step)])
 
 
+def unwrap_turns(position: ArrayLike) -> tuple[FloatArray, int]:
+    """
+    Return an angle that wraps at a turn unwrapped, and how many wraps were removed.
+
+    An absolute encoder, or a continuous joint's angle, reads within one turn and jumps by
+    about 2 pi where it wraps.  No motion sampled fast enough to be identified turns more than
+    half a turn in a sample (beyond that the angle aliases), so steps beyond pi that lie
+    within the largest other step (and 0.05 rad) of a whole number of turns are wraps, and
+    ``numpy.unwrap`` removes them.  Otherwise (no such step, other steps beyond pi, values
+    that are not finite) the angle is returned as it is, with 0.
+    """
+    position = np.asarray(position, dtype=float)
+    if position.shape[0] < 2 or not np.all(np.isfinite(position)):
+        return position, 0
+    steps = np.diff(position)
+    jumps = np.abs(steps) > np.pi
+    if not jumps.any() or jumps.all():
+        return position, 0
+    largest = float(np.max(np.abs(steps[~jumps])))
+    turns = np.round(steps[jumps] / (2.0 * np.pi))
+    if np.max(np.abs(steps[jumps] - 2.0 * np.pi * turns)) > max(largest, 0.05):
+        return position, 0
+    return np.unwrap(position), int(np.count_nonzero(jumps))
+
+
 def speed_from_position(position: ArrayLike, sample_period_s: float,
                         cutoff_hz: float | None = None, order: int = 4) -> FloatArray:
     """

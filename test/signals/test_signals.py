@@ -91,3 +91,25 @@ def test_low_pass_designs_each_cut_off_once(monkeypatch):
                           filters.zero_phase(design(2, 0.1), values))
     assert calls == [(4, 0.2), (2, 0.1)]
     filters._design.cache_clear()
+
+
+def test_an_angle_wrapped_at_a_turn_is_unwrapped_and_counted():
+    from dcmotor_id.signals.filters import unwrap_turns
+    angle = np.cumsum(np.full(500, 0.3)) + 0.5 * np.sin(np.arange(500) / 20.0)
+    for wrapped in ((angle + np.pi) % (2 * np.pi) - np.pi, angle % (2 * np.pi)):
+        unwrapped, wraps = unwrap_turns(wrapped)
+        assert wraps > 10
+        assert np.allclose(unwrapped - unwrapped[0], angle - angle[0])
+
+
+def test_an_angle_without_wraps_or_with_jumps_of_no_whole_turn_is_kept():
+    from dcmotor_id.signals.filters import unwrap_turns
+    angle = np.linspace(0.0, 3.0, 300)
+    assert unwrap_turns(angle)[1] == 0
+    jumped = angle.copy()
+    jumped[150:] += 4.0  # a jump of 4 rad is no wrap: left to the checks
+    kept, wraps = unwrap_turns(jumped)
+    assert wraps == 0 and np.array_equal(kept, jumped)
+    with_nan = angle % 1.0 * 7.0
+    with_nan[10] = np.nan
+    assert unwrap_turns(with_nan)[1] == 0

@@ -103,6 +103,22 @@ def _arx(current: np.ndarray, volts: np.ndarray, speed: np.ndarray
     return None if fit is None else fit[:3]
 
 
+def _sample_speed(record: Record) -> np.ndarray:
+    """
+    Return the speed the ARX takes over each sample period: the position's own where it has one.
+
+    A speed derived from the position by a zero-phase filter is smeared over the filter's
+    length at a spin-up from rest (the record's first samples read the motion of the next
+    ones), which the one-step test took for a ramp.  The position's increment over the period
+    ``(theta[k+1] - theta[k]) / dt`` is the period's mean speed, free of that smear; the last
+    sample (not used by the ARX) repeats the one before.
+    """
+    if not record.speed_derived or record.position is None or len(record) < 2:
+        return np.asarray(record.speed, dtype=float)
+    mean = np.diff(np.asarray(record.position, dtype=float)) / record.sample_period_s
+    return np.append(mean, mean[-1])
+
+
 def record_shortfalls(record: Record, steps: Sequence[tuple[int, float]],
                       limited: np.ndarray | None = None) -> list[Shortfall]:
     """
@@ -114,8 +130,7 @@ def record_shortfalls(record: Record, steps: Sequence[tuple[int, float]],
     if record.voltage is None or record.current is None or record.speed is None:
         return []
     volts = np.asarray(record.voltage, dtype=float)
-    fit = _arx(np.asarray(record.current, dtype=float), volts,
-               np.asarray(record.speed, dtype=float))
+    fit = _arx(np.asarray(record.current, dtype=float), volts, _sample_speed(record))
     if fit is None or not steps:
         return []
     solution, residual, sigma = fit

@@ -15,7 +15,7 @@ import numpy as np
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import DERIVED_NAMES, MECHANICAL_NAMES, PARAMETER_NAMES
-from dcmotor_id.identification.error_model.residuals import simulated
+from dcmotor_id.identification.error_model.residuals import simulated, Simulation
 from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
 from dcmotor_id.identification.pipeline.armature import la_reason, with_la_bound
 from dcmotor_id.identification.pipeline.fit_outcome import NO_FIT_NRMSE_PCT
@@ -33,16 +33,42 @@ def final_fit(inputs: Inputs, fit: Fit) -> Answer:
         final, terms, fitted_records = fit.found.estimate, fit.found.terms, fit.found.records
     model = Models(fitted_records, inputs.torque_constant, fit.quasi, terms=tuple(terms))
     simulation = simulated(model.measured, final.parameters, final.initial_states)
-    in_sample = simulation.errors
-    worst = max(value for value in in_sample.values() if value is not None) \
-        if any(value is not None for value in in_sample.values()) else float('inf')
+    judged, said = refusal_errors(simulation)
+    worst = max(value for value in judged.values() if value is not None) \
+        if any(value is not None for value in judged.values()) else float('inf')
     if not np.isfinite(worst) or worst > NO_FIT_NRMSE_PCT:
         raise FitError(
             f'the identified model does not reproduce the data (simulation error {worst:.3g} % '
             'of the signal spread). Check that the columns are what their names say (units, '
             'signs) and that the data come from a DC motor drive.')
-    return Answer(final, terms, fitted_records, fit.warnings, dict(fit.not_identifiable),
+    return Answer(final, terms, fitted_records, fit.warnings + said, dict(fit.not_identifiable),
                   simulation=simulation)
+
+
+def refusal_errors(simulation: Simulation) -> tuple[dict[str, float | None], tuple[str, ...]]:
+    """
+    Return the simulation errors the refusal judges, and a warning when they differ.
+
+    A speed derived from the position is judged over the sample periods
+    (:meth:`~dcmotor_id.identification.error_model.residuals.Simulation.period_mean_speed_error`):
+    its low-pass smooths a motion as fast as the sample rate, and the model that reproduces
+    the position would be refused for the filter's lag.  The warning says so when the derived
+    speed's own error is beyond the refusal's limit.
+    """
+    errors = dict(simulation.errors)
+    over_periods = simulation.period_mean_speed_error()
+    derived = errors.get('speed_nrmse_pct')
+    if over_periods is None or derived is None:
+        return errors, ()
+    errors['speed_nrmse_pct'] = over_periods
+    if derived <= NO_FIT_NRMSE_PCT:
+        return errors, ()
+    return errors, (
+        f'the speed derived from the position is smoother than the motion (its simulation '
+        f'error is {derived:.3g} %, the mean speed over each sample period, from the '
+        f"position's increments, {over_periods:.3g} %): the motion is faster than the "
+        'differentiating low-pass; give a higher --speed-cutoff (below the Nyquist frequency) '
+        'to see the speed, or sample faster',)
 
 
 def uncertainty(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
