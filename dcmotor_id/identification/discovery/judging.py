@@ -63,6 +63,49 @@ HELDOUT_ALPHA = 0.00135
 SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null')
 
 
+def common_instants(current: Fit, fitted: Fit, index: int) -> tuple[slice, slice]:
+    """
+    Return the held-out samples of one record that both fits have, paired by time.
+
+    A data effect (a sensor delay) trims a record: a late sensor's undone delay keeps the
+    record's start and drops its last samples, an early one keeps its end.  The two fits'
+    held-out parts are paired by their time stamps (``slice`` into each fit's record).
+    Paired by their ends, a late sensor's held-out residual was compared with the other
+    fit's ``samples`` samples later: the drop's chance part then held two independent
+    noises and crushed the t of every delay (a 1-sample speed delay on a sine: 0.35).
+    """
+    sizes = [len(next(iter(fit.simulated[index].values()))) for fit in (current, fitted)]
+    if sizes[0] == sizes[1] and current.stops[index] == fitted.stops[index]:
+        same = slice(current.stops[index], sizes[0])  # neither record was trimmed
+        return same, same
+    spans = [(np.asarray(fit.records[index].time_s, dtype=float), fit.stops[index])
+             for fit in (current, fitted)]
+    if any(stop >= times.shape[0] for times, stop in spans):
+        return slice(0, 0), slice(0, 0)
+    first = max(float(times[stop]) for times, stop in spans)
+    last = min(float(times[-1]) for times, _ in spans)
+    half = 0.5 * current.records[index].sample_period_s
+    start_current, start_fitted = (int(np.searchsorted(times, first - half))
+                                   for times, _ in spans)
+    stop_current, stop_fitted = (int(np.searchsorted(times, last + half, side='right'))
+                                 for times, _ in spans)
+    return slice(start_current, stop_current), slice(start_fitted, stop_fitted)
+
+
+def paired_heldout(current: Fit, fitted: Fit, channel: str) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out residuals of one channel under both fits at the same instants, joined."""
+    pairs = []
+    for index in range(len(current.stops)):
+        spans = common_instants(current, fitted, index)
+        pairs.append([fit.simulated[index][channel][span]
+                      - getattr(fit.records[index], channel)[span]
+                      for fit, span in zip((current, fitted), spans)])
+    if not pairs:
+        return np.zeros(0), np.zeros(0)
+    return (np.concatenate([pair[0] for pair in pairs]),
+            np.concatenate([pair[1] for pair in pairs]))
+
+
 def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
                        weights: dict[str, float]) -> float:
     """
@@ -77,12 +120,9 @@ def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
     """
     drop = None
     for channel in outputs:
-        before = current.channel_residual(channel, 'heldout')
-        after = candidate.channel_residual(channel, 'heldout')
-        # A data effect (a sensor delay) shifts the records by a few samples: the common end.
-        common = min(before.shape[0], after.shape[0])
-        before, after = before[before.shape[0] - common:], after[after.shape[0] - common:]
-        if common < 2 * HELDOUT_BLOCKS:
+        # A data effect (a sensor delay) trims the records: the same instants.
+        before, after = paired_heldout(current, candidate, channel)
+        if before.shape[0] < 2 * HELDOUT_BLOCKS:
             return float('inf')
         with np.errstate(over='ignore', invalid='ignore'):  # a diverged candidate: inf below
             term = (before ** 2 - after ** 2) / (max(weights.get(channel, 1.0), 1e-300) ** 2
@@ -243,10 +283,8 @@ def heldout_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]
     weights = loop.weights or {}
     total, variances, dofs = 0.0, [], []
     for channel in loop.outputs:
-        before = current.channel_residual(channel, 'heldout')
-        after = fitted.channel_residual(channel, 'heldout')
-        common = min(before.shape[0], after.shape[0])  # a delay shifts the records
-        before, after = before[before.shape[0] - common:], after[after.shape[0] - common:]
+        before, after = paired_heldout(current, fitted, channel)  # a delay trims records
+        common = before.shape[0]
         scale = max(weights.get(channel, 1.0), 1e-300) ** 2
         drop = (before ** 2 - after ** 2) / scale
         chance = 2.0 * after * (after - before) / scale
@@ -375,6 +413,12 @@ def residual_arma(fit: Fit, channel: str, arma: bool = True
 def _whitened(error: np.ndarray, stop: int, model: tuple[float, float, np.ndarray]
               ) -> np.ndarray:
     """Held-out innovations of one record's residual under ``(rho, phi, theta)``."""
+    return _innovation_series(error, model)[max(stop - 1, 0):]
+
+
+def _innovation_series(error: np.ndarray, model: tuple[float, float, np.ndarray]
+                       ) -> np.ndarray:
+    """Innovations of a whole residual under ``(rho, phi, theta)``: of samples 1 to n - 1."""
     from dcmotor_id.identification.discovery.arma import arma_filter
 
     rho, phi, theta = model
@@ -382,19 +426,21 @@ def _whitened(error: np.ndarray, stop: int, model: tuple[float, float, np.ndarra
     if phi != 0.0 or np.any(theta[1:]):
         innovations = arma_filter(np.where(np.isfinite(innovations), innovations, 0.0),
                                   phi, theta)
-    return innovations[max(stop - 1, 0):]
+    return innovations
 
 
 def _innovations(current: Fit, fitted: Fit, index: int, channel: str,
                  models: Sequence[tuple]) -> tuple[np.ndarray, np.ndarray]:
     """Held-out innovations of one record: the current fit's, the candidate's (each its model)."""
     out = []
-    for fit, model in zip((current, fitted), models):
+    # A data effect (a sensor delay) trims the records: the same instants
+    # (:func:`common_instants`); innovation k is of sample k + 1.
+    spans = common_instants(current, fitted, index)
+    for fit, model, span in zip((current, fitted), models, spans):
         error = fit.simulated[index][channel] - getattr(fit.records[index], channel)
-        out.append(_whitened(error, fit.stops[index], model[:3]))
-    # A data effect (a sensor delay) shifts the records by a few samples: the common end.
-    common = min(out[0].shape[0], out[1].shape[0])
-    return out[0][out[0].shape[0] - common:], out[1][out[1].shape[0] - common:]
+        series = _innovation_series(error, model[:3])
+        out.append(series[max(span.start - 1, 0):max(span.stop - 1, 0)])
+    return out[0], out[1]
 
 
 def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
