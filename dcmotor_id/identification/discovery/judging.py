@@ -63,40 +63,52 @@ HELDOUT_ALPHA = 0.00135
 SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null')
 
 
-def common_instants(current: Fit, fitted: Fit, index: int) -> tuple[slice, slice]:
+def measured_offset(fit: Fit, channel: str) -> int:
     """
-    Return the held-out samples of one record that both fits have, paired by time.
+    Return the raw sample of ``channel`` that a fit's record holds at its index 0.
 
-    A data effect (a sensor delay) trims a record: a late sensor's undone delay keeps the
-    record's start and drops its last samples, an early one keeps its end.  The two fits'
-    held-out parts are paired by their time stamps (``slice`` into each fit's record).
-    Paired by their ends, a late sensor's held-out residual was compared with the other
-    fit's ``samples`` samples later: the drop's chance part then held two independent
-    noises and crushed the t of every delay (a 1-sample speed delay on a sine: 0.35).
+    A data effect (a sensor delay of ``samples``) shifts the delayed channel by ``samples``
+    (its sample ``k`` is the raw ``k + samples``) and trims the record: a late sensor's
+    last samples, an early sensor's first ones (then every channel starts ``-samples``
+    later).  0 for a fit without one.
     """
-    sizes = [len(next(iter(fit.simulated[index].values()))) for fit in (current, fitted)]
-    if sizes[0] == sizes[1] and current.stops[index] == fitted.stops[index]:
-        same = slice(current.stops[index], sizes[0])  # neither record was trimmed
-        return same, same
-    spans = [(np.asarray(fit.records[index].time_s, dtype=float), fit.stops[index])
-             for fit in (current, fitted)]
-    if any(stop >= times.shape[0] for times, stop in spans):
+    offset = 0
+    for cls, inner in fit.structure.items:
+        if cls.TRANSFORM:
+            samples = int(inner.get('samples', 0))
+            offset += max(-samples, 0) + (samples if inner.get('channel') == channel else 0)
+    return offset
+
+
+def common_instants(current: Fit, fitted: Fit, index: int,
+                    channel: str) -> tuple[slice, slice]:
+    """
+    Return the held-out samples of one record and channel that both fits compare.
+
+    A data effect (a sensor delay) shifts and trims a record (:func:`measured_offset`).  The
+    two fits' held-out residuals are paired by the raw measured sample they compare with:
+    on a channel the delay does not shift, the same instant; on the delayed one, the same
+    measurement.  Paired by the records' ends, a late sensor's other channels were compared
+    ``samples`` samples apart: the drop's chance part then held two independent noises and
+    crushed the t of every delay; paired by the instant, so would the delayed channel.
+    """
+    spans = []
+    for fit in (current, fitted):
+        size = len(fit.simulated[index][channel])
+        offset = measured_offset(fit, channel)
+        spans.append((fit.stops[index] + offset, size + offset, offset))
+    first, last = max(span[0] for span in spans), min(span[1] for span in spans)
+    if last <= first:
         return slice(0, 0), slice(0, 0)
-    first = max(float(times[stop]) for times, stop in spans)
-    last = min(float(times[-1]) for times, _ in spans)
-    half = 0.5 * current.records[index].sample_period_s
-    start_current, start_fitted = (int(np.searchsorted(times, first - half))
-                                   for times, _ in spans)
-    stop_current, stop_fitted = (int(np.searchsorted(times, last + half, side='right'))
-                                 for times, _ in spans)
-    return slice(start_current, stop_current), slice(start_fitted, stop_fitted)
+    return (slice(first - spans[0][2], last - spans[0][2]),
+            slice(first - spans[1][2], last - spans[1][2]))
 
 
 def paired_heldout(current: Fit, fitted: Fit, channel: str) -> tuple[np.ndarray, np.ndarray]:
-    """Held-out residuals of one channel under both fits at the same instants, joined."""
+    """Held-out residuals of one channel under both fits on the same measured samples, joined."""
     pairs = []
     for index in range(len(current.stops)):
-        spans = common_instants(current, fitted, index)
+        spans = common_instants(current, fitted, index, channel)
         pairs.append([fit.simulated[index][channel][span]
                       - getattr(fit.records[index], channel)[span]
                       for fit, span in zip((current, fitted), spans)])
@@ -127,6 +139,9 @@ def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
         with np.errstate(over='ignore', invalid='ignore'):  # a diverged candidate: inf below
             term = (before ** 2 - after ** 2) / (max(weights.get(channel, 1.0), 1e-300) ** 2
                                                  * before.shape[0])
+        if drop is not None:  # a delayed channel pairs a few samples fewer: the common start
+            common = min(drop.shape[0], term.shape[0])
+            drop, term = drop[:common], term[:common]
         drop = term if drop is None else drop + term
     if drop is None or not np.all(np.isfinite(drop)) or current.heldout_cost <= 0.0:
         return float('inf')
@@ -433,9 +448,9 @@ def _innovations(current: Fit, fitted: Fit, index: int, channel: str,
                  models: Sequence[tuple]) -> tuple[np.ndarray, np.ndarray]:
     """Held-out innovations of one record: the current fit's, the candidate's (each its model)."""
     out = []
-    # A data effect (a sensor delay) trims the records: the same instants
-    # (:func:`common_instants`); innovation k is of sample k + 1.
-    spans = common_instants(current, fitted, index)
+    # A data effect (a sensor delay) shifts and trims the records: the same measured
+    # samples (:func:`common_instants`); innovation k is of sample k + 1.
+    spans = common_instants(current, fitted, index, channel)
     for fit, model, span in zip((current, fitted), models, spans):
         error = fit.simulated[index][channel] - getattr(fit.records[index], channel)
         series = _innovation_series(error, model[:3])
