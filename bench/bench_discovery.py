@@ -320,7 +320,7 @@ def main(argv=None):
                 rows = [run_case(name, magnitude, noise, rng, mode) for _ in range(trials)]
                 failed += sum(row is None for row in rows)
                 rows = [row for row in rows if row is not None]
-                missed.extend(f"| {mode} | {name} | {magnitude} | {noise * 100:g} % | "
+                missed.extend(f'| {mode} | {name} | {magnitude} | {noise * 100:g} % | '
                               f"{row['oracle numbers']}" for row in rows
                               if row.get('oracle numbers'))
                 if rows:
