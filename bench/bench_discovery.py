@@ -36,6 +36,7 @@ from dcmotor_id.simulation import (held_input, simulate_mechanical_effects, simu
 from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
 
 from common import judged_by  # noqa: I100  (bench/common.py, beside this script)
+from discovery_oracle import oracle, verdict  # noqa: I100  (beside this script)
 
 DT = 1e-3
 DURATION_S = 6.0
@@ -155,7 +156,8 @@ def found_by(rule, mode, records, torque_constant):
     return result.discovery_result
 
 
-def run_case(name, magnitude, noise, rng, mode='current-speed'):
+def make_case(name, magnitude, noise, rng, mode='current-speed'):
+    """Draw one record set: ``(motor, effects, records, torque constant, label)``."""
     motor = random_motor(rng)
     kind, amplitude, t, voltage = random_excitation(rng)
     effects = [] if name is None else [effect_for(name, MAGNITUDES[magnitude], motor, voltage,
@@ -165,6 +167,12 @@ def run_case(name, magnitude, noise, rng, mode='current-speed'):
         speed, angle = mechanical_shaft(motor, current, effects)
     records, torque_constant = measured(mode, t, current, voltage, speed, angle, noise, rng,
                                         motor)
+    return motor, effects, records, torque_constant, f'{kind} {amplitude:.0f} V'
+
+
+def run_case(name, magnitude, noise, rng, mode='current-speed'):
+    motor, effects, records, torque_constant, label = make_case(name, magnitude, noise, rng,
+                                                                mode)
     accepted = ACCEPTED.get(name, (name,))
     by_rule = {}
     for rule in RULES:  # the same data judged by every rule (paired)
@@ -182,9 +190,10 @@ def run_case(name, magnitude, noise, rng, mode='current-speed'):
         by_rule[rule] = {'detected': bool(names) and names[0] in accepted,
                          'wrong': any(item not in accepted for item in names)}
         if rule == DEFAULT_RULE:
-            kept, kept_s = found, elapsed
+            kept, kept_s, kept_names = found, elapsed, names
     found, elapsed = kept, kept_s
     return {
+        **judged_by_oracle(mode, motor, effects, records, kept_names, accepted, label),
         **{f'{key} {rule}': value for rule, row in by_rule.items() for key, value in row.items()},
         'detected': by_rule[DEFAULT_RULE]['detected'],
         'wrong': by_rule[DEFAULT_RULE]['wrong'],
@@ -194,8 +203,41 @@ def run_case(name, magnitude, noise, rng, mode='current-speed'):
         'core_before': core_error_pct(found.base_estimate.parameters, motor),
         'core_after': core_error_pct(found.estimate.parameters, motor),
         'seconds': elapsed,
-        'label': f'{kind} {amplitude:.0f} V',
+        'label': label,
     }
+
+
+def judged_by_oracle(mode, motor, effects, records, names, accepted, label):
+    """
+    Return the oracle's verdict on a record with an effect (current-speed mode): row fields.
+
+    ``oracle``: the true effect refitted from the truth passes the default rule against the
+    loop's base (:func:`discovery_oracle.oracle`), None where there is no oracle (clean
+    records, the other modes); ``verdict`` and ``oracle numbers``: why the default missed it.
+    """
+    if mode != MODES[0] or not effects:
+        return {'oracle': None}
+    found = oracle(records, motor, effects[0], DEFAULT_RULE)
+    why = verdict(found, names, accepted)
+    numbers = None
+    if why is not None and found is not None:
+        numbers = (f"{label} | {found['t']:.2f} / {found['t_needed']:.2f} | "
+                   f"{found['gain_pct']:.3g} % | {found['lr']:.3g} / {found['lr_needed']:.3g} | "
+                   f"{found['part']:.3g} | {', '.join(names) or 'none'} | {why} |")
+    return {'oracle': bool(found and found['detectable']), 'verdict': why,
+            'oracle numbers': numbers or (f'{label} | - | - | - | - | '
+                                          f"{', '.join(names) or 'none'} | {why} |"
+                                          if why else None)}
+
+
+def oracle_cells(rows):
+    """Return the oracle's two cells of a row: records carrying the effect, found of those."""
+    judged = [row for row in rows if row.get('oracle') is not None]
+    if not judged:
+        return '- | - | '
+    shown = [row for row in judged if row['oracle']]
+    found = sum(row['detected'] for row in shown)
+    return f'{len(shown)} of {len(judged)} | {found} of {len(shown)} | '
 
 
 def summarise(rows):
@@ -211,6 +253,7 @@ def summarise(rows):
         'before': median('before'), 'after': median('after'),
         'core_before': median('core_before'), 'core_after': median('core_after'),
         'seconds': median('seconds'),
+        'oracle': oracle_cells(rows),
     }
 
 
@@ -228,7 +271,7 @@ def table_row(mode, name, magnitude, noise, s):
     cells = ''.join(('- | ' if name is None else f"{s[f'detected {rule}']:.0f} % | ")
                     + f"{s[f'wrong {rule}']:.0f} % | " for rule in RULES)
     return (f"| {mode} | {name or 'none (clean)'} | {magnitude} | {noise * 100:g} % | "
-            f"{s['n']} | {cells}{s['unexplained']:.0f} % | "
+            f"{s['n']} | {cells}{s['oracle']}{s['unexplained']:.0f} % | "
             f"{s['before']:.3g} % -> {s['after']:.3g} % | {s['core_before']:.3g} % -> "
             f"{s['core_after']:.3g} % | {s['seconds']:.1f} s |")
 
@@ -259,10 +302,15 @@ def main(argv=None):
     rule_columns = ''.join(f'detected ({rule}) | wrong effect added ({rule}) | '
                            for rule in RULES)
     lines = ['| mode | true effect | magnitude | noise | trials | ' + rule_columns
-             + 'unexplained | held-out error before -> after (sum of channels, median) | '
+             + 'above the noise (oracle) | found of those (default) | '
+             'unexplained | held-out error before -> after (sum of channels, median) | '
              'core-parameter error before -> after (max of the fitted ones, median) | '
              'loop time (median) |',
-             '|---|---|---|---|---|' + '---|---|' * len(RULES) + '---|---|---|---|']
+             '|---|---|---|---|---|' + '---|---|' * len(RULES) + '---|---|---|---|---|---|']
+    missed = ['| mode | true effect | magnitude | noise | record | oracle t / needed | '
+              'oracle held-out gain | oracle training LR / needed | oracle part beyond the '
+              'base (noise levels) | added (default) | why missed |',
+              '|---|---|---|---|---|---|---|---|---|---|---|']
     started = time.perf_counter()
     failed = 0
     for mode in args.modes:
@@ -272,6 +320,9 @@ def main(argv=None):
                 rows = [run_case(name, magnitude, noise, rng, mode) for _ in range(trials)]
                 failed += sum(row is None for row in rows)
                 rows = [row for row in rows if row is not None]
+                missed.extend(f'| {mode} | {name} | {magnitude} | {noise * 100:g} % | '
+                              f"{row['oracle numbers']}" for row in rows
+                              if row.get('oracle numbers'))
                 if rows:
                     lines.append(table_row(mode, name, magnitude, noise, summarise(rows)))
                     print(lines[-1], flush=True)
@@ -309,7 +360,11 @@ def main(argv=None):
         'increments); noise-level = the former rules '
         "(an effect's own part of the outputs above the per-sample noise, a cogging ripple "
         'above the Coulomb friction needing twice the evidence).  Each case is judged by every '
-        'rule on the same data.  Modes: current-speed = current and speed logged with noise, '
+        'rule on the same data.  "above the noise (oracle)" (current-speed): the records '
+        'whose true effect, refitted from the truth (the motor, the effect and its inner '
+        "parameters), passes the default rule against the loop's base "
+        '(`bench/discovery_oracle.py`); "found of those": how many of them the default found '
+        'first.  Modes: current-speed = current and speed logged with noise, '
         'the loop alone (`discover`); position = current and a 4096-count encoder angle, the '
         'speed derived from it, the default `identify` (position criterion); mechanical = the '
         'angle of the shaft driven by that current held over each sample as the fit holds it '
@@ -320,6 +375,12 @@ def main(argv=None):
         'mechanical effects (sensor delays left out); there the base may hold a load torque '
         "from identify's start check (the model-free regression sees an offset; the same for "
         'every rule), which is not counted as added.', '']
+    if len(missed) > 2:
+        lines += ['', 'Records with an effect the default rule did not find first, and what the '
+                  'oracle says (`bench/discovery_oracle.py`: the true effect refitted from the '
+                  "truth, judged by the default rule against the loop's base; (a) not above the "
+                  'noise, (c) the t is there but the least gain or the BIC turns it down, (b) '
+                  'or (d) the loop misses what the oracle shows):', ''] + missed
     text = '\n'.join(header + lines) + '\n'
     with open(args.out, 'w', encoding='utf-8') as stream:
         stream.write(text)

@@ -10,6 +10,7 @@ from dcmotor_id.core.records import Record
 from dcmotor_id.identification.discovery import discover, DiscoveryLoop
 from dcmotor_id.identification.discovery.judging import (heldout_t, heldout_t_threshold,
                                                          innovation_t, residual_ar)
+from dcmotor_id.identification.discovery.structure import Structure
 from dcmotor_id.identification.effects import make_effect
 from dcmotor_id.simulation import simulate_motor_effects
 from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
@@ -58,7 +59,7 @@ def _drift_fit(position, stop):
     """Return a stand-in for a Fit: one position record whose simulation misses by ``position``."""
     record = SimpleNamespace(position=np.zeros(position.shape[0]))
     return SimpleNamespace(stops=[stop], records=[record], simulated=[{'position': position}],
-                           channel_residual=lambda channel, part: (
+                           structure=Structure(), channel_residual=lambda channel, part: (
                                position[stop:] if part == 'heldout' else position[:stop]))
 
 

@@ -63,6 +63,61 @@ HELDOUT_ALPHA = 0.00135
 SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null')
 
 
+def measured_offset(fit: Fit, channel: str) -> int:
+    """
+    Return the raw sample of ``channel`` that a fit's record holds at its index 0.
+
+    A data effect (a sensor delay of ``samples``) shifts the delayed channel by ``samples``
+    (its sample ``k`` is the raw ``k + samples``) and trims the record: a late sensor's
+    last samples, an early sensor's first ones (then every channel starts ``-samples``
+    later).  0 for a fit without one.
+    """
+    offset = 0
+    for cls, inner in fit.structure.items:
+        if cls.TRANSFORM:
+            samples = int(inner.get('samples', 0))
+            offset += max(-samples, 0) + (samples if inner.get('channel') == channel else 0)
+    return offset
+
+
+def common_instants(current: Fit, fitted: Fit, index: int,
+                    channel: str) -> tuple[slice, slice]:
+    """
+    Return the held-out samples of one record and channel that both fits compare.
+
+    A data effect (a sensor delay) shifts and trims a record (:func:`measured_offset`).  The
+    two fits' held-out residuals are paired by the raw measured sample they compare with:
+    on a channel the delay does not shift, the same instant; on the delayed one, the same
+    measurement.  Paired by the records' ends, a late sensor's other channels were compared
+    ``samples`` samples apart: the drop's chance part then held two independent noises and
+    crushed the t of every delay; paired by the instant, so would the delayed channel.
+    """
+    spans = []
+    for fit in (current, fitted):
+        size = len(fit.simulated[index][channel])
+        offset = measured_offset(fit, channel)
+        spans.append((fit.stops[index] + offset, size + offset, offset))
+    first, last = max(span[0] for span in spans), min(span[1] for span in spans)
+    if last <= first:
+        return slice(0, 0), slice(0, 0)
+    return (slice(first - spans[0][2], last - spans[0][2]),
+            slice(first - spans[1][2], last - spans[1][2]))
+
+
+def paired_heldout(current: Fit, fitted: Fit, channel: str) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out residuals of one channel under both fits on the same measured samples, joined."""
+    pairs = []
+    for index in range(len(current.stops)):
+        spans = common_instants(current, fitted, index, channel)
+        pairs.append([fit.simulated[index][channel][span]
+                      - getattr(fit.records[index], channel)[span]
+                      for fit, span in zip((current, fitted), spans)])
+    if not pairs:
+        return np.zeros(0), np.zeros(0)
+    return (np.concatenate([pair[0] for pair in pairs]),
+            np.concatenate([pair[1] for pair in pairs]))
+
+
 def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
                        weights: dict[str, float]) -> float:
     """
@@ -77,16 +132,16 @@ def heldout_gain_noise(current: Fit, candidate: Fit, outputs: Sequence[str],
     """
     drop = None
     for channel in outputs:
-        before = current.channel_residual(channel, 'heldout')
-        after = candidate.channel_residual(channel, 'heldout')
-        # A data effect (a sensor delay) shifts the records by a few samples: the common end.
-        common = min(before.shape[0], after.shape[0])
-        before, after = before[before.shape[0] - common:], after[after.shape[0] - common:]
-        if common < 2 * HELDOUT_BLOCKS:
+        # A data effect (a sensor delay) trims the records: the same instants.
+        before, after = paired_heldout(current, candidate, channel)
+        if before.shape[0] < 2 * HELDOUT_BLOCKS:
             return float('inf')
         with np.errstate(over='ignore', invalid='ignore'):  # a diverged candidate: inf below
             term = (before ** 2 - after ** 2) / (max(weights.get(channel, 1.0), 1e-300) ** 2
                                                  * before.shape[0])
+        if drop is not None:  # a delayed channel pairs a few samples fewer: the common start
+            common = min(drop.shape[0], term.shape[0])
+            drop, term = drop[:common], term[:common]
         drop = term if drop is None else drop + term
     if drop is None or not np.all(np.isfinite(drop)) or current.heldout_cost <= 0.0:
         return float('inf')
@@ -243,10 +298,8 @@ def heldout_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float, float]
     weights = loop.weights or {}
     total, variances, dofs = 0.0, [], []
     for channel in loop.outputs:
-        before = current.channel_residual(channel, 'heldout')
-        after = fitted.channel_residual(channel, 'heldout')
-        common = min(before.shape[0], after.shape[0])  # a delay shifts the records
-        before, after = before[before.shape[0] - common:], after[after.shape[0] - common:]
+        before, after = paired_heldout(current, fitted, channel)  # a delay trims records
+        common = before.shape[0]
         scale = max(weights.get(channel, 1.0), 1e-300) ** 2
         drop = (before ** 2 - after ** 2) / scale
         chance = 2.0 * after * (after - before) / scale
@@ -375,6 +428,12 @@ def residual_arma(fit: Fit, channel: str, arma: bool = True
 def _whitened(error: np.ndarray, stop: int, model: tuple[float, float, np.ndarray]
               ) -> np.ndarray:
     """Held-out innovations of one record's residual under ``(rho, phi, theta)``."""
+    return _innovation_series(error, model)[max(stop - 1, 0):]
+
+
+def _innovation_series(error: np.ndarray, model: tuple[float, float, np.ndarray]
+                       ) -> np.ndarray:
+    """Innovations of a whole residual under ``(rho, phi, theta)``: of samples 1 to n - 1."""
     from dcmotor_id.identification.discovery.arma import arma_filter
 
     rho, phi, theta = model
@@ -382,19 +441,21 @@ def _whitened(error: np.ndarray, stop: int, model: tuple[float, float, np.ndarra
     if phi != 0.0 or np.any(theta[1:]):
         innovations = arma_filter(np.where(np.isfinite(innovations), innovations, 0.0),
                                   phi, theta)
-    return innovations[max(stop - 1, 0):]
+    return innovations
 
 
 def _innovations(current: Fit, fitted: Fit, index: int, channel: str,
                  models: Sequence[tuple]) -> tuple[np.ndarray, np.ndarray]:
     """Held-out innovations of one record: the current fit's, the candidate's (each its model)."""
     out = []
-    for fit, model in zip((current, fitted), models):
+    # A data effect (a sensor delay) shifts and trims the records: the same measured
+    # samples (:func:`common_instants`); innovation k is of sample k + 1.
+    spans = common_instants(current, fitted, index, channel)
+    for fit, model, span in zip((current, fitted), models, spans):
         error = fit.simulated[index][channel] - getattr(fit.records[index], channel)
-        out.append(_whitened(error, fit.stops[index], model[:3]))
-    # A data effect (a sensor delay) shifts the records by a few samples: the common end.
-    common = min(out[0].shape[0], out[1].shape[0])
-    return out[0][out[0].shape[0] - common:], out[1][out[1].shape[0] - common:]
+        series = _innovation_series(error, model[:3])
+        out.append(series[max(span.start - 1, 0):max(span.stop - 1, 0)])
+    return out[0], out[1]
 
 
 def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
