@@ -15,9 +15,10 @@ initial state free) at :func:`settled_inertia`, the J whose mechanical time cons
 hundredth of a sample (the speed settles within the sample: no acceleration term left).  When
 the data do not reject that J at the level :data:`PROFILE_LEVEL` (the ratio below the
 chi-square quantile with one degree of freedom), J is not determined by them; the profile is
-then followed upwards by factors of :data:`PROFILE_STEP` until the data reject J, which gives
-its upper bound.  The ratio counts every record's channel by its effective samples (its length
-over the best fit's residual's correlation time,
+then followed upwards by factors of :data:`PROFILE_STEP` past the J whose time constant is
+:data:`PROFILE_GATE_SAMPLES` samples until the data reject J: the least J rejected above every
+accepted one is its upper bound.  The ratio counts every record's channel by its effective
+samples (its length over the best fit's residual's correlation time,
 :func:`~dcmotor_id.identification.checks.start.correlation_time`): a residual correlated over
 many samples is worth fewer independent ones.
 
@@ -250,7 +251,15 @@ def inertia_profile(spec: ProfileSpec, best: Estimate) -> InertiaProfile | None:
 
 def _upwards(spec: ProfileSpec, best: Estimate, ratio: _Ratio, inertia: float
              ) -> list[tuple[float, float]]:
-    """Follow the profile up from ``inertia`` by :data:`PROFILE_STEP` until J is rejected."""
+    """
+    Follow the profile up from ``inertia`` by :data:`PROFILE_STEP`; return its points.
+
+    Up to the J whose time constant is :data:`PROFILE_GATE_SAMPLES` sample periods at least
+    (the profile may rise and fall again between the corner where La takes the lag and the one
+    where J does), then on until the data reject J (at most :data:`PROFILE_STEPS` points).
+    """
+    top = settled_inertia(best.parameters, spec.sample_period) * (
+        PROFILE_GATE_SAMPLES / SETTLED_SHARE)
     points: list[tuple[float, float]] = []
     start, states = dict(best.parameters), best.initial_states
     floor = 0.0
@@ -261,7 +270,7 @@ def _upwards(spec: ProfileSpec, best: Estimate, ratio: _Ratio, inertia: float
         if fit is not None and math.isfinite(value):
             floor = min(floor, value)
             start, states = dict(fit.parameters), fit.initial_states
-        if value - floor >= PROFILE_THRESHOLD:
+        if inertia >= top and value - floor >= PROFILE_THRESHOLD:
             break
     return points
 
