@@ -24,8 +24,9 @@ many samples is worth fewer independent ones.
 
 The profile costs fits, so it is computed only when the fitted model's slowest time constant
 is below :data:`PROFILE_GATE_SAMPLES` sample periods (:func:`slowest_time_constant`); where it
-is longer the transient spans samples and J is resolved (``bench/bench_inertia.py`` measures the
-test with the gate and without it).
+is longer the transient spans samples and J is resolved (``bench/bench_inertia_profile.py``
+measures where it runs, its false alarms on the random motors and the lab classes, and its
+power over the mechanical time constant).
 """
 
 from __future__ import annotations
