@@ -1,4 +1,4 @@
-"""J's likelihood profile with the voltage as the input: a shaft settling in a sample leaves J open."""
+"""J's likelihood profile with the voltage as the input: a shaft settling in a sample."""
 
 import dataclasses
 import math
