@@ -81,6 +81,26 @@ def test_a_shaft_settling_in_one_frame_keeps_j():
     assert result.parameters['J'] == pytest.approx(motor.J, rel=0.1)
 
 
+def test_a_fit_in_another_optimum_is_rejected_by_the_profile():
+    # tau_m half a frame: the data reject a settled J, but the fit ends with J -93 % (La taking
+    # the lag) and said nothing before; the profile fits better near the truth.
+    motor = dataclasses.replace(FAST, J=FAST.J * 2.0)
+    result = _identified(motor, seed=0)
+    profile = result.estimate.info['inertia_profile']
+    assert not profile['unresolved'] and profile['fitted_rejected']
+    assert 'J' in result.not_identifiable
+    assert 'another optimum' in result.not_identifiable['J']
+    assert abs(result.parameters['J'] - motor.J) <= result.stderr['J']
+
+
+def test_the_accepted_range_of_a_profile():
+    profile = inertia_profile.InertiaProfile(
+        1.0, 20.0, ((3.0, 10.0), (1.0, 20.0), (6.0, 0.0), (12.0, 3.0), (24.0, 40.0)), 24.0,
+        None)
+    assert profile.fitted_rejected and not profile.unresolved
+    assert profile.accepted == (6.0, 24.0)
+
+
 def test_the_profile_is_not_computed_where_the_transient_spans_samples():
     result = identify(prepare_records(lab_scenarios.fast_spin_up_step(seed=0).records))
     assert 'inertia_profile' not in result.estimate.info

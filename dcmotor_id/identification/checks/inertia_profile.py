@@ -17,8 +17,11 @@ the data do not reject that J at the level :data:`PROFILE_LEVEL` (the ratio belo
 chi-square quantile with one degree of freedom), J is not determined by them; the profile is
 then followed upwards by factors of :data:`PROFILE_STEP` past the J whose time constant is
 :data:`PROFILE_GATE_SAMPLES` samples until the data reject J: the least J rejected above every
-accepted one is its upper bound.  The ratio counts every record's channel by its effective
-samples (its length over the best fit's residual's correlation time,
+accepted one is its upper bound.  The profile is followed up from the fitted J also when the
+data reject the settled J: a point that fits better than the fitted J beyond the same level
+rejects the fit's J (the fit ended in another optimum, J and La both shorter than a sample:
+:attr:`InertiaProfile.fitted_rejected`).  The ratio counts every record's channel by its
+effective samples (its length over the best fit's residual's correlation time,
 :func:`~dcmotor_id.identification.checks.start.correlation_time`): a residual correlated over
 many samples is worth fewer independent ones.
 
@@ -109,10 +112,22 @@ class InertiaProfile:
         """Whether the data do not reject the settled J (J is not determined)."""
         return self.statistic < PROFILE_THRESHOLD
 
+    @property
+    def fitted_rejected(self) -> bool:
+        """Whether a point of the profile beats the fitted J (the first point) beyond the test."""
+        return self.points[0][1] >= PROFILE_THRESHOLD
+
+    @property
+    def accepted(self) -> tuple[float, float]:
+        """Return the least and the largest J the data accept (the bound when there is one)."""
+        inside = [inertia for inertia, value in self.points if value < PROFILE_THRESHOLD]
+        return min(inside), self.bound if self.bound is not None else max(inside)
+
     def as_dict(self) -> dict[str, Any]:
         """Return the figures (JSON-ready): the test, its points and the bound."""
         return {'settled_J': self.settled, 'ratio': self.statistic,
                 'threshold': PROFILE_THRESHOLD, 'unresolved': self.unresolved,
+                'fitted_rejected': self.fitted_rejected,
                 'bound': self.bound, 'points': [list(point) for point in self.points]}
 
 
@@ -225,7 +240,7 @@ def _point(spec: ProfileSpec, ratio: _Ratio, starts: Sequence[Mapping[str, float
 
 def inertia_profile(spec: ProfileSpec, best: Estimate) -> InertiaProfile | None:
     """
-    Return J's profile at the settled J and, where J is not determined, upwards to its bound.
+    Return J's profile at the settled J and upwards from the fitted J to its bound.
 
     None: the final fit does not simulate, or the fit at the settled J fails from both starts.
     ``best``: the final fit of ``spec``'s structure.
@@ -244,8 +259,6 @@ def inertia_profile(spec: ProfileSpec, best: Estimate) -> InertiaProfile | None:
         if not math.isfinite(statistic):
             return None
         points.append((settled, statistic))
-        if statistic >= PROFILE_THRESHOLD:  # rejected: J is determined
-            return _profile(points, settled, None, settled_fit)
     points += _upwards(spec, best, ratio, max(fitted, settled))
     return _profile(points, settled, _bound(points), settled_fit)
 
@@ -322,6 +335,19 @@ def shared_la(profile: InertiaProfile, parameters: Mapping[str, float],
             f'within the sample period, and La shares with J the one lag the samples hold '
             f'(with J settled the fit gives La = {settled:.3g} H, with J free {la:.3g} H; its '
             'standard error is raised to that move). Sample faster to determine La and J')
+
+
+def rejected_reason(profile: InertiaProfile, inertia: float, stderr: float) -> str:
+    """Say that the profile of J rejects the fitted J for another, with the range it accepts."""
+    low, high = profile.accepted
+    best = min(profile.points, key=lambda point: point[1])[0]
+    return (f'J is not determined by this fit: the profile of J (the fit repeated with J '
+            f'pinned) fits better at J = {best:.3g} kg m^2 than at the fitted {inertia:.3g} '
+            f'(likelihood ratio {profile.points[0][1]:.3g}, beyond {PROFILE_THRESHOLD:.3g}, '
+            f'the 1 % level): the fit ended in another optimum where the lags of J and La are '
+            f'shorter than a sample; the data accept J from {low:.3g} to {high:.3g} kg m^2 '
+            f'(J = {inertia:.3g} +/- {stderr:.2g}, the standard error reaching that range). '
+            'Sample faster than the speed settles to determine J')
 
 
 def profile_reason(profile: InertiaProfile, dt: float, inertia: float, stderr: float) -> str:

@@ -23,7 +23,7 @@ from dcmotor_id.identification.checks.inertia import (inertia_half_range, inerti
                                                       one_level_reason)
 from dcmotor_id.identification.checks.inertia_profile import (inertia_profile, profile_needed,
                                                               profile_reason, ProfileSpec,
-                                                              shared_la)
+                                                              rejected_reason, shared_la)
 from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.pipeline.state import Answer, Inputs
@@ -120,9 +120,13 @@ def unsettled_inertia(inputs: Inputs, answer: Answer, stderr: dict[str, float],
     if profile is None:
         return None
     notes['inertia_profile'] = profile.as_dict()
-    if not profile.unresolved:
-        return None
     j = answer.parameters['J']
+    if not profile.unresolved:
+        if not profile.fitted_rejected:
+            return None
+        low, high = profile.accepted
+        stderr['J'] = max(stderr['J'], j - low, high - j)
+        return rejected_reason(profile, j, stderr['J'])
     stderr['J'] = max(stderr['J'], profile.bound - j) if profile.bound is not None \
         else float('nan')
     la = shared_la(profile, answer.parameters, stderr) if not quasi else None
