@@ -777,6 +777,40 @@ def sysid_routine(seed: int = 0, sample_period_s: float = 0.02,
             segment)
 
 
+#: A small motor whose shaft settles within a 20 ms frame (La/Ra 0.1 ms, J Ra/CPhi^2 5 ms).
+FAST_SHAFT_MOTOR = MotorParameters(Ra=1.5, La=0.15e-3, CPhi=0.093, J=2.9e-5, b=4.6e-4,
+                                   Mc=0.013)
+
+
+def sysid_fast_shaft(seed: int = 0, sample_period_s: float = 0.02,
+                     motor: MotorParameters | None = None) -> Scenario:
+    """
+    Simulate a SysId routine at 20 ms of a motor whose speed settles within one frame.
+
+    The routine of the random motors' ``sysid`` kind: ramps both ways (0.8 V/s), steps of
+    +-5 V, braked for 1 s between the tests with 0 V and 0 A logged, the current logged as a
+    magnitude with the voltage's sign; the current and the speed carry 0.5 % of the stall
+    current and of the no-load speed at 12 V.  The mechanical time constant (5 ms) is a quarter
+    of a frame: the samples do not determine J (``motor``: another motor on the same routine).
+    """
+    rng = np.random.default_rng(seed)
+    truth = motor or FAST_SHAFT_MOTOR
+    per = int(round(1.0 / sample_period_s))
+    ramp = np.arange(7 * per) * sample_period_s * 0.8
+    pieces = []
+    for test in (ramp, -ramp, np.full(3 * per, 5.0), np.full(3 * per, -5.0)):
+        pieces += [test, np.zeros(per)]
+    command = np.concatenate(pieces)
+    out = simulate_drive(truth, command, sample_period_s)
+    t = np.arange(command.shape[0]) * sample_period_s
+    current = np.abs(_noisy(out['current'], 0.005 * 12.0 / truth.Ra, rng)) * np.sign(command)
+    record = Record(t, current=current, voltage=command,
+                    speed=_noisy(out['speed'], 0.005 * 12.0 / truth.CPhi, rng),
+                    source='sysid_fast_shaft')
+    return Scenario('sysid_fast_shaft', [record], truth,
+                    note='SysId routine, 20 ms frames, J Ra/CPhi^2 5 ms (a quarter frame)')
+
+
 #: A teaching rig's small servo motor (a QUBE-Servo 2 class: 8.4 Ohm, 0.042 V s/rad) with its hub.
 TEACHING_RIG = MotorParameters(Ra=8.4, La=1.16e-3, CPhi=0.042, J=8e-6, b=2e-6, Mc=2e-4)
 
@@ -858,4 +892,5 @@ def wheel_speed_steps_current_magnitude(seed: int = 0, sample_period_s: float = 
 
 SCENARIOS.update({'rig_voltage_step_no_current': rig_voltage_step_no_current,
                   'rig_square_wave_no_current': rig_square_wave_no_current,
-                  'wheel_speed_steps_current_magnitude': wheel_speed_steps_current_magnitude})
+                  'wheel_speed_steps_current_magnitude': wheel_speed_steps_current_magnitude,
+                  'sysid_fast_shaft': sysid_fast_shaft})

@@ -47,7 +47,8 @@ from dcmotor_id.simulation import (combine_contributions, EXACT_FIELDS, held_inp
                                    HybridSystem, motor_forcing, MotorEffects, simulate_mechanical,
                                    simulate_mechanical_effects, simulate_motor_effects)
 
-__all__ = ['OutputErrorModel', 'RefinedEstimator', 'StateTerm', 'STATE_OVERSAMPLE']
+__all__ = ['OutputErrorModel', 'PinnedModel', 'RefinedEstimator', 'StateTerm',
+           'STATE_OVERSAMPLE']
 
 
 #: Channels of exogenous terms: the linear ones of :class:`ExogenousTerm` and ``state``
@@ -246,6 +247,32 @@ class OutputErrorModel:
         return getattr(self.records[index], channel)
 
 
+class PinnedModel(OutputErrorModel):
+    """
+    The output-error model with some base parameters held at given values (a profile's fit).
+
+    ``pinned``: name -> value of the base parameters that are not fitted (e.g. ``{'J': 1e-6}``
+    for a point of J's likelihood profile); the others are the fit's ``base_names``.  Its own
+    :meth:`simulate` leaves the compiled sensitivities to the plain model: the fit takes
+    numeric ones (:func:`has_analytic_sensitivities`).
+    """
+
+    def __init__(self, records: Sequence[Any], torque_constant: float | None,
+                 terms: Sequence[ExogenousTerm], quasi_static: bool, criterion: str,
+                 pinned: Mapping[str, float]) -> None:
+        super().__init__(records, torque_constant, terms, quasi_static, criterion)
+        unknown = set(pinned) - set(self.base_names)
+        if unknown:
+            raise ValueError(f'pinned parameters not in the model: {sorted(unknown)}')
+        self.pinned = {name: float(value) for name, value in pinned.items()}
+        self.base_names = tuple(name for name in self.base_names if name not in self.pinned)
+
+    def simulate(self, values: Mapping[str, float], index: int,
+                 initial_state: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
+        """Simulate record ``index`` with the pinned values added to ``values``."""
+        return super().simulate({**values, **self.pinned}, index, initial_state)
+
+
 def _windows(records, total):
     """Cut :data:`START_WINDOWS` evenly spread windows of ``total`` samples in all."""
     per_record = max(total // len(records), 1)
@@ -356,6 +383,9 @@ class RefinedEstimator:
         :data:`POSITION_NFEV_FACTOR` times ``max_nfev`` (default).  False: the fit keeps its
         bound (the discovery loop's candidate refits with effect terms: a candidate that needs
         more is not the one to keep).
+    pinned : dict, optional
+        Base parameters held at these values, not fitted (:class:`PinnedModel`: a point of a
+        likelihood profile); the estimate gives them with a NaN standard error.
 
     """
 
@@ -370,7 +400,8 @@ class RefinedEstimator:
                  initial_states: Sequence[Sequence[float]] | None = None,
                  criterion: str = 'speed',
                  position_ar: Sequence[float] | None = None, retry: bool = True,
-                 position_error: str = 'adaptive') -> None:
+                 position_error: str = 'adaptive',
+                 pinned: Mapping[str, float] | None = None) -> None:
         if initial_state not in ('estimate', 'measured'):
             raise ValueError(f'initial_state must be estimate or measured, not {initial_state}')
         self.max_nfev = max_nfev
@@ -384,6 +415,7 @@ class RefinedEstimator:
         self.position_ar = position_ar
         self.retry = retry
         self.position_error = check_position_error_model(position_error)
+        self.pinned = dict(pinned or {})
 
     def fit(self, records: Sequence[Any], torque_constant: float | None = None,
             terms: Sequence[ExogenousTerm] = ()) -> Estimate:
@@ -424,8 +456,10 @@ class RefinedEstimator:
              position_ar=None):
         """Fit with the initial states estimated or pinned (``initial_state``)."""
         max_nfev = self.max_nfev if max_nfev is None else max_nfev
-        model = OutputErrorModel(records, torque_constant, terms, self.quasi_static,
-                                 self.criterion)
+        model = (PinnedModel(records, torque_constant, terms, self.quasi_static, self.criterion,
+                             self.pinned) if self.pinned else
+                 OutputErrorModel(records, torque_constant, terms, self.quasi_static,
+                                  self.criterion))
         warm_ar = self.position_ar if position_ar is None else position_ar
         if warm_ar is not None and len(warm_ar) == len(records):
             model.position_ar = [float(value) for value in warm_ar]
@@ -449,7 +483,10 @@ class RefinedEstimator:
         if final is None:
             final = problem.evaluate(z, noise, True)
             total_nfev += 1
-        return problem.estimate(self.name, z, final, noise, total_nfev)
+        estimate = problem.estimate(self.name, z, final, noise, total_nfev)
+        estimate.parameters.update(self.pinned)
+        estimate.stderr.update({name: float('nan') for name in self.pinned})
+        return estimate
 
     def _passes(self, problem, max_nfev):
         """
