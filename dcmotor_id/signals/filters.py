@@ -200,14 +200,16 @@ def unwrap_turns(position: ArrayLike) -> tuple[FloatArray, int]:
     Return an angle that wraps at a turn unwrapped, and how many wraps were removed.
 
     An absolute encoder, or a continuous joint's angle, reads within one turn and jumps by
-    about 2 pi where it wraps.  No motion sampled fast enough to be identified turns more than
-    half a turn in a sample (beyond that the angle aliases), so steps beyond pi that lie
-    within the largest other step (and 0.05 rad) of a whole number of turns are wraps, and
-    ``numpy.unwrap`` removes them.  Otherwise (no such step, other steps beyond pi, values
-    that are not finite) the angle is returned as it is, with 0.
+    about 2 pi where it wraps.  Read within one turn, no motion turns more than half a turn in
+    a sample (beyond that the angle aliases), so in an angle that stays within one turn, steps
+    beyond pi that lie within the largest other step (and 0.05 rad) of a whole number of
+    turns are wraps, and ``numpy.unwrap`` removes them.  Otherwise (an angle over more than a
+    turn: a multi-turn encoder may advance by more than pi a sample; no such step; other
+    steps beyond pi; values that are not finite) the angle is returned as it is, with 0.
     """
     position = np.asarray(position, dtype=float)
-    if position.shape[0] < 2 or not np.all(np.isfinite(position)):
+    if position.shape[0] < 2 or not np.all(np.isfinite(position)) or \
+            float(np.ptp(position)) > 2.0 * np.pi * (1.0 + 1e-6):
         return position, 0
     steps = np.diff(position)
     jumps = np.abs(steps) > np.pi

@@ -110,6 +110,8 @@ def test_an_angle_without_wraps_or_with_jumps_of_no_whole_turn_is_kept():
     jumped[150:] += 4.0  # a jump of 4 rad is no wrap: left to the checks
     kept, wraps = unwrap_turns(jumped)
     assert wraps == 0 and np.array_equal(kept, jumped)
+    fast = np.cumsum(np.full(300, 3.5))  # a multi-turn encoder at 3.5 rad a sample
+    assert unwrap_turns(fast)[1] == 0 and unwrap_turns(-fast)[1] == 0
     with_nan = angle % 1.0 * 7.0
     with_nan[10] = np.nan
     assert unwrap_turns(with_nan)[1] == 0
