@@ -2,6 +2,8 @@
 
 import json
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -148,7 +150,9 @@ def test_gain_below_its_held_out_noise_is_not_a_gain():
         fitted = Structure()
         return type('F', (), {
             'channel_residual': lambda self, channel, part: residual,
-            'heldout_cost': float(np.mean(residual ** 2)), 'structure': fitted})()
+            'heldout_cost': float(np.mean(residual ** 2)), 'structure': fitted,
+            'stops': [0], 'simulated': [{'position': residual}],
+            'records': [SimpleNamespace(position=np.zeros(n))]})()
     before = fit_with(rng.standard_normal(n))
     after = fit_with(before.channel_residual('position', 'heldout')
                      + 0.05 * rng.standard_normal(n))

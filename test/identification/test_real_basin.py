@@ -145,7 +145,7 @@ def _fit(residuals, stop):
     """Return a stand-in for a Fit: one speed record whose simulation misses by ``residuals``."""
     record = SimpleNamespace(speed=np.zeros(residuals.shape[0]))
     fit = SimpleNamespace(stops=[stop], records=[record], simulated=[{'speed': residuals}],
-                          fitted=None, values={'Mc': 1.0}, terms=())
+                          fitted=None, values={'Mc': 1.0}, terms=(), structure=Structure())
     fit.channel_residual = lambda channel, part: (residuals[stop:] if part == 'heldout'
                                                   else residuals[:stop])
     return fit
