@@ -141,6 +141,10 @@ def test_implausible_results_are_refused_and_degenerate_ones_warned(table):
     warnings = check_plausibility({**good, 'Mc': 1.6e-9}, {**errors, 'Mc': 0.0}, records)
     assert any('Mc = 1.6e-09 N m is at the lower bound' in text for text in warnings)
     assert any('standard error of Mc is exactly 0' in text for text in warnings)
+    # Mc already said not identifiable (at its bound zero): its 0 is no degenerate fit's
+    warnings = check_plausibility({**good, 'Mc': 1.6e-9}, {**errors, 'Mc': 0.0}, records,
+                                  said={'Mc'})
+    assert not any('exactly 0' in text for text in warnings)
 
 
 def test_a_batch_with_reversed_time_is_refused_not_fitted_backwards():

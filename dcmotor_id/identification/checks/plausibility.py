@@ -15,7 +15,7 @@ The scales are RMS values of the measured signals, so the checks are invariant t
 
 from __future__ import annotations
 
-from typing import Mapping, Optional, Sequence, TYPE_CHECKING
+from typing import Collection, Mapping, Optional, Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -72,7 +72,8 @@ def _far(value: float, scale: float) -> bool:
 
 def check_plausibility(parameters: Mapping[str, float], stderr: Mapping[str, float],
                        records: Sequence[Record],
-                       torque_constant: Optional[float] = None) -> list[str]:
+                       torque_constant: Optional[float] = None,
+                       said: Collection[str] = ()) -> list[str]:
     """
     Check a result against the data's own scales; return warnings, raise for refusals.
 
@@ -84,6 +85,9 @@ def check_plausibility(parameters: Mapping[str, float], stderr: Mapping[str, flo
         The records identified.
     torque_constant : float, optional
         The mechanical-only mode's torque constant [N m/A].
+    said : collection of str
+        Parameters already said not to be identifiable (at a bound, undetermined): a standard
+        error of zero is theirs to explain, not a degenerate fit's.
 
     Returns
     -------
@@ -113,7 +117,7 @@ def check_plausibility(parameters: Mapping[str, float], stderr: Mapping[str, flo
                        'data imply: ' + '; '.join(problems) + '. The fit did not converge to '
                        'the motor: check the units of the columns (V, A, rad/s; all scaled '
                        'alike is fine up to 1e9) and that the data come from one DC drive')
-    return _degenerate_warnings(values, stderr, scales, torque)
+    return _degenerate_warnings(values, stderr, scales, torque, said)
 
 
 def _scale_problems(values: Mapping[str, float], scales: Mapping[str, float],
@@ -150,7 +154,8 @@ def _scale_problems(values: Mapping[str, float], scales: Mapping[str, float],
 
 
 def _degenerate_warnings(values: Mapping[str, float], stderr: Mapping[str, float],
-                         scales: Mapping[str, float], torque: float) -> list[str]:
+                         scales: Mapping[str, float], torque: float,
+                         said: Collection[str] = ()) -> list[str]:
     """Return warnings for Mc or b at the fit's lower bound and standard errors of 0."""
     warnings = []
     reference = {'Mc': torque, 'b': torque / scales['w'] if scales['w'] > 0 else 0.0}
@@ -160,7 +165,7 @@ def _degenerate_warnings(values: Mapping[str, float], stderr: Mapping[str, float
             warnings.append(f'{name} = {value:.3g} {UNITS[name]} is at the lower bound of the '
                             f'fit (below {BOUND_FRACTION:g} of the scale of the data, '
                             f'{scale:.3g} {UNITS[name]}): not determined, read it as about 0')
-    zero = [name for name in FITTED_NAMES if name in values and
+    zero = [name for name in FITTED_NAMES if name in values and name not in said and
             np.isfinite(stderr.get(name, np.nan)) and stderr[name] == 0.0]
     if zero:
         warnings.append(f'the standard error of {", ".join(zero)} is exactly 0: not a '
@@ -175,5 +180,5 @@ def plausibility_check(fit: FinalFit) -> list[str]:
     A warning on a parameter already said not to be identifiable is not repeated.
     """
     return [text for text in check_plausibility(fit.estimate.parameters, fit.estimate.stderr,
-                                                fit.records, fit.torque_constant)
+                                                fit.records, fit.torque_constant, fit.said)
             if not any(text.startswith(f'{name} = ') for name in fit.said)]
