@@ -222,6 +222,16 @@ def unwrap_turns(position: ArrayLike) -> tuple[FloatArray, int]:
     return np.unwrap(position), int(np.count_nonzero(jumps))
 
 
+def period_mean_speed(position: ArrayLike, sample_period_s: float) -> FloatArray:
+    """
+    Return the mean speed over each sample period: ``(theta[k+1] - theta[k]) / dt``.
+
+    Free of a differentiating filter's smear (one value fewer than the samples): what the
+    one-step test of the electrical equation and the refusal of a derived speed compare.
+    """
+    return np.diff(np.asarray(position, dtype=float)) / sample_period_s
+
+
 def speed_from_position(position: ArrayLike, sample_period_s: float,
                         cutoff_hz: float | None = None, order: int = 4) -> FloatArray:
     """

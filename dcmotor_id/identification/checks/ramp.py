@@ -35,6 +35,8 @@ from typing import Callable, Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.signals.filters import period_mean_speed
+
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
 
@@ -115,7 +117,7 @@ def _sample_speed(record: Record) -> np.ndarray:
     """
     if not record.speed_derived or record.position is None or len(record) < 2:
         return np.asarray(record.speed, dtype=float)
-    mean = np.diff(np.asarray(record.position, dtype=float)) / record.sample_period_s
+    mean = period_mean_speed(record.position, record.sample_period_s)
     return np.append(mean, mean[-1])
 
 

@@ -35,7 +35,7 @@ from typing import Any, Mapping, Protocol, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from dcmotor_id.signals.filters import noise_std
+from dcmotor_id.signals.filters import noise_std, period_mean_speed
 from dcmotor_id.simulation import zoh_matrices
 
 #: Default number of lags of the whiteness test and the correlation plots.
@@ -209,8 +209,7 @@ class Simulation:
             speed = out['speed']
             if _derived(rec):
                 simulated.append(0.5 * (speed[1:] + speed[:-1]))
-                measured.append(np.diff(np.asarray(rec.position, dtype=float))
-                                / rec.sample_period_s)
+                measured.append(period_mean_speed(rec.position, rec.sample_period_s))
             else:
                 simulated.append(speed)
                 measured.append(np.asarray(rec.speed, dtype=float))
