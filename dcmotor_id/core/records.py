@@ -81,6 +81,19 @@ class Record:
         """Median sample period [s] (computed on first use and kept: a record is frozen)."""
         return float(np.median(np.diff(self.time_s)))
 
+    @property
+    def speed_from_position(self) -> bool:
+        """
+        Whether the speed was derived from the position and the position is there to give it.
+
+        True when :attr:`speed_derived` and a position of two samples or more: each sample
+        period's mean speed is then the position's increment over it
+        (:func:`~dcmotor_id.signals.filters.period_mean_speed`), free of the derivative
+        filter's lag and smear, which the ramp check's one-step test and the speed's error
+        over the sample periods compare instead of the derived speed.
+        """
+        return self.speed_derived and self.position is not None and len(self) > 1
+
     def noise_std(self, channel: str) -> float:
         """
         White-noise level of a channel (:func:`~dcmotor_id.core.noise.noise_std`).

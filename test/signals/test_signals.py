@@ -69,6 +69,20 @@ def test_a_record_measures_each_channels_noise_once(monkeypatch):
     assert len(calls) == 3
 
 
+def test_a_speed_from_the_position_needs_the_flag_and_two_positions():
+    # Record.speed_from_position: the one predicate of the ramp check's sample speed and the
+    # speed's error over the sample periods (they wrote it each).
+    from dcmotor_id.core.records import Record
+
+    t = np.arange(3) * 1e-3
+    ones = np.ones_like(t)
+    assert Record(t, ones, ones, ones, ones, speed_derived=True).speed_from_position
+    assert not Record(t, ones, ones, ones, ones).speed_from_position
+    assert not Record(t, ones, ones, ones, None, speed_derived=True).speed_from_position
+    assert not Record(t[:1], ones[:1], ones[:1], ones[:1], ones[:1],
+                      speed_derived=True).speed_from_position
+
+
 def test_low_pass_designs_each_cut_off_once(monkeypatch):
     # identify low-passes about thirty signals at five cut-offs: each design (sections and
     # their step states) is made once, the filtered signals as before (issue 29, speed).

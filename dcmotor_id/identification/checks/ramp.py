@@ -115,8 +115,9 @@ def _sample_speed(record: Record) -> np.ndarray:
     ``(theta[k+1] - theta[k]) / dt`` is the period's mean speed, free of that smear; the last
     sample (not used by the ARX) repeats the one before.
     """
-    if not record.speed_derived or record.position is None or len(record) < 2:
+    if not record.speed_from_position:
         return np.asarray(record.speed, dtype=float)
+    assert record.position is not None  # a speed from the position has one
     mean = period_mean_speed(record.position, record.sample_period_s)
     return np.append(mean, mean[-1])
 

@@ -202,12 +202,13 @@ class Simulation:
         derived speed among the records (or no speed output).
         """
         records = self.model.records
-        if 'speed' not in self.model.outputs or not any(_derived(rec) for rec in records):
+        if 'speed' not in self.model.outputs or \
+                not any(rec.speed_from_position for rec in records):
             return None
         simulated, measured = [], []
         for out, rec in zip(self.outputs, records):
             speed = out['speed']
-            if _derived(rec):
+            if rec.speed_from_position:
                 simulated.append(0.5 * (speed[1:] + speed[:-1]))
                 measured.append(period_mean_speed(rec.position, rec.sample_period_s))
             else:
@@ -227,12 +228,6 @@ def simulated(model: SimulatedModel, values: Mapping[str, float],
               initial_states: Sequence[Sequence[float]]) -> Simulation:
     """Return the :class:`Simulation` of a fitted model over its records."""
     return Simulation(model, simulate_records(model, values, initial_states))
-
-
-def _derived(record: Any) -> bool:
-    """Whether a record's speed was derived from its position (and the position is there)."""
-    return bool(getattr(record, 'speed_derived', False)) and record.position is not None \
-        and len(record) > 1
 
 
 def _joined(arrays: Sequence[FloatArray]) -> FloatArray:
