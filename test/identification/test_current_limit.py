@@ -99,6 +99,9 @@ def test_the_electrical_regression_leaves_out_every_sample_the_limit_binds(limit
     assert clamped.sum() > 30
     assert not np.any(keep & clamped)
     assert keep.sum() > 0.8 * (~clamped).sum()
+    # The record's own (cached) noise level of its current gives the same band.
+    assert np.array_equal(off_the_limit(record.current, masks[0], record.noise_std('current')),
+                          keep)
 
 
 def test_the_regression_is_corrected_for_the_noise_of_its_regressors():

@@ -84,13 +84,13 @@ def electrical_regression(
     rows, targets, lengths, noise = [], [], [], []
     for rec, mask in zip(records, limited):
         assert rec.current is not None and rec.speed is not None  # a full-mode record
-        keep = off_the_limit(np.asarray(rec.current, dtype=float), mask)
+        keep = off_the_limit(np.asarray(rec.current, dtype=float), mask, rec.noise_std('current'))
         if not keep.any():
             continue
         rows.append(np.column_stack([rec.current, rec.speed])[keep])
         targets.append(np.asarray(rec.voltage, dtype=float)[np.flatnonzero(keep) - 1])
         lengths.append(int(keep.sum()))
-        noise.append([noise_std(rec.current) ** 2, noise_std(rec.speed) ** 2])
+        noise.append([rec.noise_std('current') ** 2, rec.noise_std('speed') ** 2])
     if sum(lengths) < MINIMUM_SAMPLES:
         raise FitError(f'the current sits at an amplifier limit and only {sum(lengths)} samples '
                        'are off it: too few for the electrical part (record the drive below '
@@ -119,7 +119,8 @@ def electrical_regression(
     return {'Ra': float(beta[0]), 'CPhi': float(beta[1])}, robust
 
 
-def off_the_limit(current: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def off_the_limit(current: np.ndarray, mask: np.ndarray, noise: float | None = None
+                  ) -> np.ndarray:
     """
     Return the samples the electrical regression may use: off the limit's band, not next to it.
 
@@ -129,13 +130,16 @@ def off_the_limit(current: np.ndarray, mask: np.ndarray) -> np.ndarray:
     limit's too.  A sample next to one at the limit is left out (the limit binds within the
     sample period before or after it), and so is the first (no voltage before it).  A band
     over more than half of the record is no plateau's (the detector's own rule): the
-    detector's samples are then the limit's.
+    detector's samples are then the limit's.  ``noise``: :func:`noise_std` of ``current``
+    when the caller has it (a record's :meth:`~dcmotor_id.core.records.Record.noise_std`;
+    else measured here).
     """
     magnitude = np.abs(current)
     band = mask.copy()
     if mask.any():
         level = float(np.median(magnitude[mask]))
-        wide = band | (magnitude >= level - LIMIT_BAND * max(noise_std(current), 1e-3 * level))
+        noise = noise_std(current) if noise is None else noise
+        wide = band | (magnitude >= level - LIMIT_BAND * max(noise, 1e-3 * level))
         # As the detector: a level held over most of the record is no limit's plateau.
         band = wide if wide.mean() <= 0.5 else band
     keep = ~band
@@ -266,7 +270,7 @@ def _warnings(mechanical, robust, records):
 def _with_current(mechanical, records):
     """Return the initial states and the noise levels with the current's (the fit's input)."""
     noise = dict(mechanical.noise_std)
-    noise['current'] = float(np.sqrt(np.mean([noise_std(rec.current) ** 2
+    noise['current'] = float(np.sqrt(np.mean([rec.noise_std('current') ** 2
                                               for rec in records])))
     initial_states = [[float(rec.current[0]), *state]
                       for rec, state in zip(records, mechanical.initial_states)]
