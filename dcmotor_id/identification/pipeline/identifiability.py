@@ -12,7 +12,6 @@ correlations, initial states, misfit).
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
 
 from dcmotor_id.core.model import POSITIVE_NAMES
 from dcmotor_id.identification.checks.answer import answer_warnings, FinalFit
@@ -21,9 +20,10 @@ from dcmotor_id.identification.checks.identifiability import (at_bound, loose,
 from dcmotor_id.identification.checks.inertia import (inertia_half_range, inertia_reason,
                                                       inertia_unresolved, one_level_range,
                                                       one_level_reason)
-from dcmotor_id.identification.checks.inertia_profile import (inertia_profile, profile_needed,
-                                                              profile_reason, ProfileSpec,
-                                                              rejected_reason, shared_la)
+from dcmotor_id.identification.checks.inertia_profile import (inertia_profile, InertiaProfile,
+                                                              profile_needed, profile_reason,
+                                                              ProfileSpec, rejected_reason,
+                                                              shared_la)
 from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
 from dcmotor_id.identification.pipeline.state import Answer, Inputs
@@ -47,10 +47,11 @@ def identifiability(inputs: Inputs, answer: Answer) -> Answer:
         not_identifiable[name] = reason
         stderr[name] = float('nan')
     inertia: str | None = None
-    notes: dict[str, Any] = {}  # the profile of J, for the final fit's info
-    if 'J' not in not_identifiable:
-        inertia = (unresolved_inertia(inputs, answer, stderr) if inputs.mechanical_only else
-                   unsettled_inertia(inputs, answer, stderr, not_identifiable, notes))
+    profile: InertiaProfile | None = None  # J's likelihood profile, for the final fit's info
+    if 'J' not in not_identifiable and inputs.mechanical_only:
+        inertia = unresolved_inertia(inputs, answer, stderr)
+    elif 'J' not in not_identifiable:
+        inertia, profile = unsettled_inertia(inputs, answer, stderr, not_identifiable)
     checked = [name for name in answer.names if name not in not_identifiable and name not in
                answer.upper_bounds and name not in ('Ka',) and not (name == 'J' and inertia)]
     not_identifiable.update(loose(final, [name for name in checked if name in POSITIVE_NAMES
@@ -66,8 +67,8 @@ def identifiability(inputs: Inputs, answer: Answer) -> Answer:
         warnings += (inertia,)
     elif 'J' not in not_identifiable:
         warnings += one_level_inertia(inputs, answer, stderr)
-    if notes:
-        final = replace(final, info={**final.info, **notes})
+    if profile is not None:
+        final = replace(final, info={**final.info, 'inertia_profile': profile.as_dict()})
     return replace(answer, final=final, bound=bound, not_identifiable=not_identifiable,
                    stderr=stderr, combined=combined, warnings=warnings)
 
@@ -93,7 +94,8 @@ def unresolved_inertia(inputs: Inputs, answer: Answer, stderr: dict[str, float])
 
 
 def unsettled_inertia(inputs: Inputs, answer: Answer, stderr: dict[str, float],
-                      not_identifiable: dict[str, str], notes: dict[str, Any]) -> str | None:
+                      not_identifiable: dict[str, str]
+                      ) -> tuple[str | None, InertiaProfile | None]:
     """
     Say why J is not determined when the voltage is the input and the lags settle in a sample.
 
@@ -102,37 +104,37 @@ def unsettled_inertia(inputs: Inputs, answer: Answer, stderr: dict[str, float],
     when the fitted model's slowest time constant is below two sample periods; J's standard
     error in ``stderr`` is raised to reach the profile's upper bound.  La, when the fit with
     J settled moves it beyond its standard error, is not determined either (the lag is theirs
-    to share): named in ``not_identifiable``, its standard error raised to that move.  The
-    profile's figures go to ``notes['inertia_profile']`` (the final fit's ``info``).  None: J
-    resolved, the profile not needed, or the estimator not the refined one.
+    to share): named in ``not_identifiable``, its standard error raised to that move.
+    Returns the reason (None: J resolved, the profile not needed, or the estimator not the
+    refined one) and the profile when one was computed (its figures go to the final fit's
+    ``info['inertia_profile']``).
     """
     final = answer.final
     quasi = bool(final.info.get('quasi_static'))
     dt = answer.fitted_records[0].sample_period_s if answer.fitted_records else 0.0
     if not isinstance(inputs.estimator, RefinedEstimator) or not answer.fitted_records or \
             not profile_needed(final.parameters, quasi, dt):
-        return None
+        return None, None
     inputs.progress.set_stage("J's likelihood profile")
     estimator = inputs.estimator
     profile = inertia_profile(ProfileSpec(
         answer.fitted_records, tuple(answer.terms), quasi, estimator.criterion,
         estimator.position_error, estimator.initial_state, inputs.progress), final)
     if profile is None:
-        return None
-    notes['inertia_profile'] = profile.as_dict()
+        return None, None
     j = answer.parameters['J']
     if not profile.unresolved:
         if not profile.fitted_rejected:
-            return None
+            return None, profile
         low, high = profile.accepted
         stderr['J'] = max(stderr['J'], j - low, high - j)
-        return rejected_reason(profile, j, stderr['J'])
+        return rejected_reason(profile, j, stderr['J']), profile
     stderr['J'] = max(stderr['J'], profile.bound - j) if profile.bound is not None \
         else float('nan')
     la = shared_la(profile, answer.parameters, stderr) if not quasi else None
     if la is not None:
         not_identifiable['La'] = la
-    return profile_reason(profile, dt, j, stderr['J'])
+    return profile_reason(profile, dt, j, stderr['J']), profile
 
 
 def one_level_inertia(inputs: Inputs, answer: Answer, stderr: dict[str, float]) -> tuple:
