@@ -28,7 +28,7 @@ the data is kept (:func:`bic`), counting the samples the residuals are worth
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Sequence, TYPE_CHECKING
 
 import numpy as np
@@ -186,43 +186,19 @@ def pooled_noise(records: Sequence[Record], channel: str) -> float:
     return float(np.sqrt(np.mean([rec.noise_level(channel) ** 2 for rec in records])))
 
 
-@dataclass(frozen=True)
-class ChannelNoise:
-    """
-    The :func:`pooled_noise` of some records' channels, each computed when first asked.
-
-    A run checks its start two or three times on the same records: each channel's noise is
-    measured once (the median of a whole record's differences, twice) and kept here, in the
-    run's state, for the checks on these very records (:meth:`of`).
-    """
-
-    records: Sequence[Record]
-    levels: dict[str, float] = field(default_factory=dict)
-
-    def of(self, records: Sequence[Record], channel: str) -> float:
-        """Return the pooled noise of ``channel`` on ``records`` (kept when they are ours)."""
-        if len(records) != len(self.records) or any(
-                mine is not theirs for mine, theirs in zip(self.records, records)):
-            return pooled_noise(records, channel)
-        if channel not in self.levels:
-            self.levels[channel] = pooled_noise(records, channel)
-        return self.levels[channel]
-
-
-def misfit_ratio(estimate: Estimate, records: Sequence[Record], model: Any,
-                 noise: ChannelNoise | None = None) -> float:
+def misfit_ratio(estimate: Estimate, records: Sequence[Record], model: Any) -> float:
     """
     Largest residual RMS over the sensor noise among the output channels.
 
-    ``noise``: the run's :class:`ChannelNoise`, when the caller has it (else measured here).
+    The sensor noise is the :func:`pooled_noise` of the records' own levels, each measured
+    once per record (:meth:`~dcmotor_id.core.records.Record.noise_level`).
     """
     simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
     worst = 0.0
     for channel in model.outputs:
         residual = np.concatenate([out[channel] - getattr(rec, channel)
                                    for out, rec in zip(simulated, records)])
-        noise_std = (pooled_noise(records, channel) if noise is None
-                     else noise.of(records, channel))
+        noise_std = pooled_noise(records, channel)
         rms = float(np.sqrt(np.mean(residual ** 2))) if residual.shape[0] else 0.0
         worst = max(worst, rms / max(noise_std, 1e-300))
     return worst
@@ -244,8 +220,7 @@ class StartDoubts:
 
 
 def start_doubts(estimate: Estimate, records: Sequence[Record], model: Any,
-                 evidence: dict[str, float] | None,
-                 noise: ChannelNoise | None = None) -> StartDoubts:
+                 evidence: dict[str, float] | None) -> StartDoubts:
     """
     Say why a fit may have settled in a wrong basin, for both remedies (one place, one test).
 
@@ -258,10 +233,9 @@ def start_doubts(estimate: Estimate, records: Sequence[Record], model: Any,
     * a second start (a discovery loop of its own): the misfit, and besides it initial states
       moved far from the first samples or J or b far from the regression.
 
-    Every list starts with the misfit when it is beyond the threshold.  ``noise``: the run's
-    :class:`ChannelNoise` (:func:`misfit_ratio`).
+    Every list starts with the misfit when it is beyond the threshold.
     """
-    ratio = misfit_ratio(estimate, records, model, noise)
+    ratio = misfit_ratio(estimate, records, model)
     misfit = [f'the misfit is {ratio:.3g}x the sensor noise'] if ratio > MISFIT_FACTOR else []
     far = far_from_evidence(estimate.parameters, evidence)
     if not misfit:

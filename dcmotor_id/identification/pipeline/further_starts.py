@@ -40,9 +40,8 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.progress import Progress, TimeBudgetExceeded
 from dcmotor_id.core.records import record_names
-from dcmotor_id.identification.checks.start import (bic_scores, ChannelNoise, FROM_RECORDS,
-                                                    known_evidence, regression_start,
-                                                    start_doubts)
+from dcmotor_id.identification.checks.start import (bic_scores, FROM_RECORDS, known_evidence,
+                                                    regression_start, start_doubts)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 from dcmotor_id.identification.pipeline.fit_outcome import check_physical
 from dcmotor_id.identification.pipeline.state import Models
@@ -92,8 +91,8 @@ NOT_CHOSEN_EARLIER = 'not chosen in an earlier run of this identification (fitte
 
 def several_starts(estimate: Estimate, models: Models, progress: Progress,
                    evidence: dict[str, float] | None | str = FROM_RECORDS,
-                   earlier: dict[str, Any] | None = None, position_error: str = 'adaptive',
-                   noise: ChannelNoise | None = None) -> tuple[Estimate, dict[str, Any] | None]:
+                   earlier: dict[str, Any] | None = None, position_error: str = 'adaptive'
+                   ) -> tuple[Estimate, dict[str, Any] | None]:
     """
     Fit the base model from further starts when the default's fit is doubted; keep the best.
 
@@ -108,12 +107,11 @@ def several_starts(estimate: Estimate, models: Models, progress: Progress,
     (:func:`~dcmotor_id.identification.checks.start.known_evidence`).  ``earlier``: the
     account of an earlier run of the same identification (the records and the regression
     the same), whose chosen start alone is fitted again.  ``position_error``: the model of
-    the position error of the fits.  ``noise``: the run's channel noise
-    (:class:`~dcmotor_id.identification.checks.start.ChannelNoise`), when the caller has it.
+    the position error of the fits.
     """
     records, torque_constant, model = models.records, models.torque_constant, models.compared
     evidence = known_evidence(records, torque_constant, evidence)
-    reasons = start_doubts(estimate, records, model, evidence, noise).further_starts
+    reasons = start_doubts(estimate, records, model, evidence).further_starts
     if not reasons:
         return estimate, None
     began = progress.now()

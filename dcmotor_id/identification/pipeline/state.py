@@ -18,7 +18,7 @@ from typing import Any, Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.checks.identifiability import Excitation
-from dcmotor_id.identification.checks.start import ChannelNoise, regression_evidence
+from dcmotor_id.identification.checks.start import regression_evidence
 from dcmotor_id.identification.estimators.base import Estimator
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 
@@ -93,11 +93,6 @@ class Inputs:
     def evidence(self) -> dict[str, float] | None:
         """Return the model-free regression on the records (computed once, for every check)."""
         return regression_evidence(self.records, self.torque_constant)
-
-    @cached_property
-    def channel_noise(self) -> ChannelNoise:
-        """Return the records' channel noise, measured once for every start check."""
-        return ChannelNoise(self.records)
 
     @property
     def checkable(self) -> bool:
