@@ -233,6 +233,14 @@ def command_voltage(record: Record) -> Optional[str]:
         return None
     seen = ('no positive Ra with a visible back-EMF balances it' if residual is None else
             f'the best balance leaves {100 * residual:.0f} % of it unexplained')
+    degrees = wrapping_degrees(record)
+    if degrees is not None:
+        return (f"{record.source or 'record'}: channel 'voltage' is constant "
+                f'({voltage[0]:.6g} V) and the speed derived from the position does not follow '
+                f'it as a motor does ({seen}): {degrees}, read here as radians. Pass '
+                '--position-unit deg (if the position is in radians, the voltage looks like a '
+                'command that never reaches the motor: record the armature voltage at the '
+                'motor terminals)')
     return (f"{record.source or 'record'}: channel 'voltage' is constant ({voltage[0]:.6g} V) "
             f'while the current or speed changes (current {spread:.4g} A peak to peak), and '
             'the current and '
@@ -242,6 +250,32 @@ def command_voltage(record: Record) -> Optional[str]:
             'terminals (or the PWM duty with --voltage-from-duty BUS_V), or identify the '
             'mechanical part only with --torque-constant K (the voltage column is then not '
             'used)')
+
+
+def wrapping_degrees(record: Record) -> Optional[str]:
+    """
+    Say how the position looks like an angle in degrees that wraps at 360, or None.
+
+    An absolute encoder read in degrees (0 to 360, or -180 to 180) and taken for radians
+    spans more than a turn, so it is not unwrapped
+    (:func:`~dcmotor_id.signals.filters.unwrap_turns`), and the speed derived from it spikes
+    at every wrap.  Said when the record has a position and no speed, the position stays
+    within [0, 360] or [-180, 180], and read in degrees its jumps are wraps (those
+    :func:`~dcmotor_id.signals.filters.unwrap_turns` removes).
+    """
+    if record.speed is not None or record.position is None or len(record.position) < 2:
+        return None
+    position = np.asarray(record.position, dtype=float)
+    if not np.all(np.isfinite(position)):
+        return None
+    low, high = float(np.min(position)), float(np.max(position))
+    if not (0.0 <= low and high <= 360.0 or -180.0 <= low and high <= 180.0):
+        return None
+    wraps = unwrap_turns(np.deg2rad(position))[1]
+    if wraps == 0:
+        return None
+    return (f'the position reads from {low:.4g} to {high:.4g} and jumps by about 360 {wraps} '
+            'times: an angle in degrees that wraps at 360 (an absolute encoder)')
 
 
 #: Share of the moving samples in each direction that makes a speed reverse (not a blip).

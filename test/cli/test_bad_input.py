@@ -215,6 +215,28 @@ def test_constant_voltage(tmp_path, out, capsys):
                    'not identifiable', 'La, J, b and Mc', 'changing voltage')
 
 
+def test_an_angle_in_degrees_wrapping_at_360_is_named_with_its_unit_option(tmp_path, out,
+                                                                           capsys):
+    # An absolute encoder read in degrees (0-360) without --position-unit deg was refused as a
+    # voltage command that never reaches the motor: the message names the unit instead.
+    voltage = np.full(3000, 100.0)
+    current, speed = simulate_motor(MOTOR, voltage, DT)
+    current = current + np.random.default_rng(0).normal(0.0, 0.01, current.shape)
+    angle = np.degrees(np.cumsum(speed) * DT) % 360.0
+    rows = np.column_stack([np.arange(3000) * DT, voltage, current, angle])
+    header = ['t', 'voltage', 'current', 'position']
+    path = write(tmp_path / 'degrees.csv', header, rows)
+    message = expect_refusal(capsys, [path, '--json', out], 'jumps by about 360',
+                             'an angle in degrees that wraps at 360', 'pass --position-unit deg')
+    assert message.index('--position-unit deg') < message.index('never reaches the motor')
+    code, message = run(capsys, path, '--position-unit', 'deg', '--json', out)
+    assert code == 0, message
+    # The same jumps beyond [0, 360] are no angle in degrees: the voltage is the suspect.
+    path = write(tmp_path / 'beyond.csv', header, np.column_stack([rows[:, :3], angle + 400.0]))
+    message = expect_refusal(capsys, [path, '--json', out], 'never reaches the motor')
+    assert '--position-unit' not in message
+
+
 def test_motor_never_moves(tmp_path, out, capsys):
     # 1 V gives a stall torque CPhi u / Ra = 0.44 N m below Mc = 1 N m: the shaft never moves.
     t = np.arange(3000) * DT
