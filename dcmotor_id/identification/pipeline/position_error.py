@@ -108,13 +108,7 @@ def white_base_far(parameters: dict[str, float], records: Sequence[Record],
 
 def white_if_agreeing(white: IdentificationResult) -> IdentificationResult | None:
     """Return the white result with its account when it agrees with the regression, else None."""
-    evidence = _evidence(white)
-    distance = disagreement(white.parameters, evidence)
-    if distance > np.log(AGREEMENT_FACTOR):
-        return None
-    return replace(white, position_error={
-        'model': 'white', 'evidence': _compared(evidence),
-        'agreement_factor': AGREEMENT_FACTOR, 'disagreement': _factors({'white': distance})})
+    return _if_agreeing(white, 'white')
 
 
 def adaptive_after_white_failed(adaptive: IdentificationResult,
@@ -148,16 +142,7 @@ def adaptive_agreeing(adaptive: IdentificationResult | None,
     ``adaptive``: the adaptive run that came first after the white base ``left`` (None: it
     failed).
     """
-    if adaptive is None:
-        return None
-    evidence = _evidence(adaptive)
-    distance = disagreement(adaptive.parameters, evidence)
-    if distance > np.log(AGREEMENT_FACTOR):
-        return None
-    return replace(adaptive, position_error={
-        'model': 'adaptive', 'evidence': _compared(evidence),
-        'agreement_factor': AGREEMENT_FACTOR,
-        'disagreement': _factors({'adaptive': distance}), 'white': left.note()})
+    return None if adaptive is None else _if_agreeing(adaptive, 'adaptive', white=left.note())
 
 
 def after_a_far_white_base(adaptive: IdentificationResult | None,
@@ -176,6 +161,23 @@ def after_a_far_white_base(adaptive: IdentificationResult | None,
     if adaptive is None:
         return replace(white, position_error={'model': 'white', 'adaptive': 'failed'})
     return _closer(white, adaptive, evidence)
+
+
+def _if_agreeing(result: IdentificationResult, model: str, **more: Any
+                 ) -> IdentificationResult | None:
+    """
+    Return a result of the position error ``model`` with its account when it agrees, else None.
+
+    Agreeing: within :data:`AGREEMENT_FACTOR` of the regression on its records.  ``more``:
+    further entries of the account (after the agreement's).
+    """
+    evidence = _evidence(result)
+    distance = disagreement(result.parameters, evidence)
+    if distance > np.log(AGREEMENT_FACTOR):
+        return None
+    return replace(result, position_error={
+        'model': model, 'evidence': _compared(evidence), 'agreement_factor': AGREEMENT_FACTOR,
+        'disagreement': _factors({model: distance}), **more})
 
 
 def _evidence(result: IdentificationResult) -> dict[str, float] | None:
