@@ -7,6 +7,7 @@ import pytest
 from support import assert_near_truth
 
 from dcmotor_id.core.errors import FitError, NotIdentifiableError
+from dcmotor_id.core.model import MotorParameters
 from dcmotor_id.core.records import Record
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.pipeline import floor as floor_module
@@ -272,3 +273,60 @@ def test_a_simulation_that_overflows_is_an_infinite_cost_the_search_rejects(monk
     assert evaluate(problem.z0, True).cost == np.inf
     with pytest.raises(FitError, match='non-finite residuals at the start'):
         least_squares.levenberg_marquardt(evaluate, problem.z0, 10)
+
+
+def test_a_spin_up_within_three_samples_is_answered_from_its_transient_not_refused():
+    # Case 296 of the random motors: the regression's trim left only the steady state (Ra
+    # below zero), the full armature diverged and bounded La by 1e4 H: refused as implausible.
+    scenario = lab_scenarios.spin_up_in_three_samples()
+    records = prepare_records(scenario.records)
+    floor = regression_floor(records)
+    assert floor is not None and floor.usable and floor.static_electrical
+    assert_near_truth(floor.parameters, scenario.truth, Ra=0.05, CPhi=0.05)
+    result = identify(records)
+    assert_near_truth(result.parameters, scenario.truth, Ra=0.05, CPhi=0.05, J=0.1)
+    assert result.upper_bounds['La'] < 10.0 * scenario.truth.Ra * 5e-3
+
+
+def test_the_static_electrical_equation_is_fitted_on_the_samples_as_logged():
+    # Without a derivative it needs no low-pass: every sample counts, none is trimmed.
+    scenario = lab_scenarios.spin_up_in_three_samples()
+    records = prepare_records(scenario.records)
+    masks = [np.zeros(len(rec), dtype=bool) for rec in records]
+    fit = floor_module._static_on_samples(records, masks)
+    rec = records[0]
+    expected = np.linalg.lstsq(np.column_stack([rec.current, rec.speed]), rec.voltage,
+                               rcond=None)[0]
+    assert [fit.values['Ra'], fit.values['CPhi']] == pytest.approx(expected, rel=1e-9)
+    derived = [rec.replace(speed_derived=True)]
+    assert floor_module._static_on_samples(derived, masks) is None
+
+
+def _sysid_record(motor, volts, ramp_top_v, step_v, seed=0, frame_s=0.02):
+    """Log a SysId routine as the random motors' ``sysid`` kind does (bench_random_motors)."""
+    rng = np.random.default_rng(seed)
+    per = int(round(1.0 / frame_s))
+    ramp = np.arange(7 * per) * frame_s * ramp_top_v / 7.0
+    pieces = []
+    for test in (ramp, -ramp, np.full(3 * per, step_v), np.full(3 * per, -step_v)):
+        pieces += [test, np.zeros(per)]
+    command = np.concatenate(pieces)
+    out = lab_scenarios.simulate_drive(motor, command, frame_s)
+    current = out['current'] + rng.normal(0.0, 0.005 * volts / motor.Ra, command.size)
+    speed = out['speed'] + rng.normal(0.0, 0.005 * volts / motor.CPhi, command.size)
+    return Record(np.arange(command.size) * frame_s, current=np.abs(current) * np.sign(command),
+                  voltage=command, speed=speed, source='sysid')
+
+
+def test_a_sysid_routine_whose_shaft_settles_within_a_frame_falls_back_naming_j():
+    # The motor of case 207 of the random motors (this noise: seed 4): the fit ran J to a time
+    # constant of 1e-84 s and was refused as implausible, while the regression determines
+    # CPhi, b and Mc; the regression's answer, J named (its standard error above half).
+    motor = MotorParameters(Ra=0.457, La=1.52e-3, CPhi=0.0060, J=4.61e-7, b=1.53e-5, Mc=7.97e-3)
+    record = _sysid_record(motor, 13.1, 8.86, 7.65, seed=4)
+    result = identify(prepare_records([record]))
+    assert result.method == 'regression'
+    assert_near_truth(result.parameters, motor, CPhi=0.05, b=0.1, Mc=0.1)
+    assert 'the regression does not determine J' in result.not_identifiable['J']
+    assert any(text.startswith('the output-error fit failed (the result is implausible')
+               for text in result.warnings)

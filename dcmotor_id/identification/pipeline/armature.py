@@ -110,9 +110,14 @@ def with_la_bound(quasi: Estimate, la: float, la_stderr: float, ra_full: float,
     Give a quasi-static estimate La, Ka and Ta: La by its upper bound, Ta from it.
 
     The bound is the larger of ``Ra dt`` (a time constant below the sample period) and the
-    full fit's ``La + 2 stderr``; ``stderr`` of La and Ta is NaN, Ka's follows Ra's.
+    full fit's ``La + 2 stderr`` where that La is inside the range the sample period does not
+    resolve (as the regression's bound, :func:`~dcmotor_id.identification.pipeline.floor.
+    regression_floor`): a full fit's La beyond it, which the quasi-static refit does without,
+    ran off where the data hold no trace of it (a diverged fit: La/Ra of 1e5 s on a 1 s
+    record) and bounds nothing.  ``stderr`` of La and Ta is NaN, Ka's follows Ra's.
     """
-    bound = max(quasi.parameters['Ra'] * dt, la + 2.0 * la_stderr)
+    resolved = 0.0 < la < abs(ra_full) * dt
+    bound = max(quasi.parameters['Ra'] * dt, la + 2.0 * la_stderr if resolved else 0.0)
     parameters = dict(quasi.parameters)
     parameters['La'] = bound
     parameters.update(derived_values(parameters))

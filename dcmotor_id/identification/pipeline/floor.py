@@ -29,14 +29,15 @@ keeps the output-error result only where it predicts at least as well as the reg
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Sequence, TYPE_CHECKING
+from typing import Callable, Sequence, TYPE_CHECKING
 
 import numpy as np
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (DERIVED_NAMES, derived_values, MECHANICAL_NAMES,
                                    PARAMETER_NAMES, UNITS)
-from dcmotor_id.identification.checks.identifiability import limited_samples
+from dcmotor_id.identification.checks.identifiability import (IDENTIFIABLE_REL_STDERR,
+                                                              limited_samples)
 from dcmotor_id.identification.checks.ramp import (bonferroni_bound, ramp_masks,
                                                    record_shortfalls)
 from dcmotor_id.identification.checks.start import (both_directions, correlation_time,
@@ -329,8 +330,14 @@ def _left_out(records: Sequence[Record], masks: Sequence[np.ndarray]) -> tuple[L
     return tuple(items)
 
 
-def _electrical(rows_e, rhs_e, dt) -> tuple[EquationFit | None, bool, float | None]:
-    """Fit the electrical equation: dynamic, or static (La a bound) when La is unresolved."""
+def _electrical(rows_e, rhs_e, dt, on_samples: Callable[[], EquationFit | None]
+                ) -> tuple[EquationFit | None, bool, float | None]:
+    """
+    Fit the electrical equation: dynamic, or static (La a bound) when La is unresolved.
+
+    The choice is made on the filtered rows; the static values are ``on_samples()``'s (the
+    static equation on the samples as logged, :func:`_static_on_samples`) where it has them.
+    """
     matrix, rhs = np.vstack(rows_e), np.concatenate(rhs_e)
     dynamic = _solve(matrix, rhs, ('La', 'Ra', 'CPhi'))
     if dynamic is None:
@@ -347,6 +354,7 @@ def _electrical(rows_e, rhs_e, dt) -> tuple[EquationFit | None, bool, float | No
     if ra > 0 and la > 0 and la / ra >= dt and la_se <= LA_UNDETERMINED_REL * la and \
             gain > LA_CHI2:
         return dynamic, False, None
+    static = on_samples() or static
     ra = static.values['Ra']
     # A dynamic La inside the resolved range that the data do not confirm bounds La; one
     # beyond it (a time constant the records would show) says nothing.
@@ -356,6 +364,33 @@ def _electrical(rows_e, rhs_e, dt) -> tuple[EquationFit | None, bool, float | No
     stderr = {'La': float('nan'), **static.stderr}
     return (EquationFit(values, stderr, static.residual_rms, static.effective_samples), True,
             bound)
+
+
+def _static_on_samples(records: Sequence[Record],
+                       masks: Sequence[np.ndarray]) -> EquationFit | None:
+    """
+    Fit the static electrical equation ``u = Ra i + CPhi w`` on the samples as logged.
+
+    It has no derivative, so it needs neither the low-pass nor the trim of the filter's
+    settling at the records' ends, which on a short spin-up (a step from rest on a motor whose
+    mechanical time constant is a few samples) would leave only the steady state, where ``i``
+    and ``w`` are constant and Ra and CPhi not separable.  Every sample but the left-out ones
+    (``masks``) counts; None when a record's speed was derived from its position (that speed
+    is low-passed, the current is not: the filtered equation pairs them) or the fit fails.
+    """
+    if any(getattr(rec, 'speed_derived', False) for rec in records):
+        return None
+    keep = [~mask & np.isfinite(rec.current) & np.isfinite(rec.speed) & np.isfinite(rec.voltage)
+            for rec, mask in zip(records, masks)]
+    matrix = np.vstack([np.column_stack([np.asarray(rec.current, dtype=float)[kept],
+                                         np.asarray(rec.speed, dtype=float)[kept]])
+                        for rec, kept in zip(records, keep)])
+    rhs = np.concatenate([np.asarray(rec.voltage, dtype=float)[kept]
+                          for rec, kept in zip(records, keep)])
+    fit = _solve(matrix, rhs, ('Ra', 'CPhi'))
+    if fit is None or not (fit.values['Ra'] > 0 and fit.values['CPhi'] != 0):
+        return None
+    return fit
 
 
 def regression_floor(records: Sequence[Record],
@@ -374,7 +409,7 @@ def regression_floor(records: Sequence[Record],
     if not rows_m or (not mechanical_only and not rows_e):
         return None
     electrical, static, bound = (None, False, None) if mechanical_only else _electrical(
-        rows_e, rhs_e, records[0].sample_period_s)
+        rows_e, rhs_e, records[0].sample_period_s, lambda: _static_on_samples(records, masks))
     names = ('J', 'b', 'Mc') + (('offset',) if offset else ())
     mechanical = _solve_admissible(np.vstack(rows_m), np.concatenate(rhs_m), names)
     if mechanical is None or (not mechanical_only and electrical is None):
@@ -567,6 +602,11 @@ def _floor_values(floor: RegressionFloor, names: Sequence[str]
                              'fall below zero): the data do not separate it (one direction or '
                              'one speed level)')
             values[name], stderr[name] = 0.0, float('nan')
+    for name in ('J', 'b', 'Mc'):
+        if name in values and name not in reasons and \
+                not stderr[name] <= IDENTIFIABLE_REL_STDERR * abs(values[name]):
+            reasons[name] = (f'the regression does not determine {name} (standard error '
+                             f'{stderr[name]:.3g} of {values[name]:.3g})')
     if floor.static_electrical and 'La' in values:
         reasons['La'] = (f'the electrical equation shows no La the data resolve: La < '
                          f'{floor.la_upper_bound:.3g} H (upper bound); Ra and CPhi from the '
@@ -694,8 +734,11 @@ def floor_fallback(floor: RegressionFloor | None, records: Sequence[Record],
         errors = simulation_errors(estimate, records, torque_constant,
                                    quasi_static=floor.static_electrical)
     worst = max([value for value in errors.values() if value is not None] or [np.inf])
-    determined = all(stderr[name] < 0.5 * abs(values[name])
-                     for name in ('Ra', 'CPhi', 'J') if name in values)
+    # Ra and CPhi carry the answer (J too without the electrical equation); an undetermined
+    # J is named (:func:`_floor_values`), not a reason to give no answer.
+    needed = ('J',) if mechanical_only else ('Ra', 'CPhi')
+    determined = all(stderr[name] < IDENTIFIABLE_REL_STDERR * abs(values[name])
+                     for name in needed)
     if not (worst <= FALLBACK_NRMSE_PCT and determined):
         return None  # the regression does not reproduce the data either
     reason = str(error).split('. ')[0]
