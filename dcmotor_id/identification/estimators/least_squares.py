@@ -438,11 +438,13 @@ def levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gtol
     sample instant: a quadratic model is trusted less), convergence
     when the relative cost reduction, actual and predicted, is below ``ftol``, the scaled step
     below ``xtol`` of the scaled point, or the largest cosine between the residual and a
-    column of the Jacobian below ``gtol``.  After a rejected step the next trial is simulated
-    without sensitivities (a fifth of the cost) and only an accepted one with them.
+    column of the Jacobian below ``gtol``.  Every trial is simulated without sensitivities
+    (a tenth of the cost: the same states and cost) and only an accepted one with them
+    (:func:`_accept`).
 
     Returns ``(z, pass, evaluations, converged, damping)``; ``current`` (the pass at ``z``)
     and ``damping`` continue an earlier run (a reweighted pass starts from its optimum).
+    ``max_evaluations`` bounds the evaluations counted as :func:`_accept` says.
     """
     nfev = 0
     if current is None:
@@ -453,33 +455,51 @@ def levenberg_marquardt(evaluate, z, max_evaluations, xtol=1e-8, ftol=1e-8, gtol
                        + MISFIT)
     scale = np.maximum(np.diag(current.hessian), 0.0)
     mu = 1e-3 if damping is None else damping
-    cheap = False
+    after_rejection = False
     while nfev < max(int(max_evaluations), 2):
         cost = current.cost
         scale = np.maximum(scale, np.diag(current.hessian))
         if _stationary(current, gtol):
             return z, current, nfev, True, mu
         step, predicted, small = _damped_step(current, z, mu, scale, xtol)
-        trial = evaluate(z + step, not cheap)
+        trial = evaluate(z + step, False)
         nfev += 1
         actual = cost - trial.cost if np.isfinite(trial.cost) else -np.inf
         ratio = actual / predicted if predicted > 0.0 else -1.0
+        accepted = None
         if ratio > 1e-4:
-            z = z + step
-            if cheap:
-                trial = evaluate(z, True)
-                nfev += 1
-            current = trial
-            cheap = False
+            accepted, counted = _accept(evaluate, z + step, after_rejection)
+            nfev += counted
+        if accepted is not None:
+            z, current, after_rejection = z + step, accepted, False
             mu *= max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3)
             if (abs(actual) <= ftol * cost and predicted <= ftol * cost) or small:
                 return z, current, nfev, True, mu
         else:
-            cheap = True
+            after_rejection = True
             mu *= 10.0
             if small or mu > 1e16:
                 return z, current, nfev, True, mu
     return z, current, nfev, False, mu
+
+
+def _accept(evaluate, point, after_rejection):
+    """
+    Return the pass with sensitivities at an accepted trial ``point`` (or None) and its count.
+
+    The count keeps the evaluation budget of the search that simulated a trial with its
+    sensitivities unless the step before it was rejected: the sensitivities of a point
+    reached after a rejected step count one evaluation, those of any other accepted point
+    none (its trial counted).  So a budget stops a search at the same step as before the
+    trials were simulated without sensitivities.  The sensitivities can fail where the
+    states alone did not (a division by zero on an event): then, unless a rejected step came
+    before, the step is rejected, as it was when its trial carried them; after one, the
+    non-finite pass is returned as it was.
+    """
+    accepted = evaluate(point, True)
+    if after_rejection:
+        return accepted, 1
+    return (accepted if np.isfinite(accepted.cost) else None), 0
 
 
 def _stationary(current, gtol):
