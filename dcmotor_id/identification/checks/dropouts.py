@@ -29,7 +29,8 @@ LEVEL_SHARE = 0.05
 __all__ = ['find_isolated', 'repair_dropouts']
 
 
-def find_isolated(values: np.ndarray, guard: np.ndarray | None = None) -> np.ndarray:
+def find_isolated(values: np.ndarray,
+                  guard: np.ndarray | Sequence[np.ndarray | None] | None = None) -> np.ndarray:
     """
     Return the indices of isolated samples far off both neighbours that agree.
 
@@ -37,9 +38,12 @@ def find_isolated(values: np.ndarray, guard: np.ndarray | None = None) -> np.nda
     ----------
     values : numpy.ndarray
         One channel.
-    guard : numpy.ndarray, optional
-        Another channel (the voltage): a sample where it also jumps is left alone (a
-        one-sample pulse of the input moves the output legitimately).
+    guard : numpy.ndarray or sequence of them, optional
+        Other channels (the voltage; the other measured output): a sample where one of them
+        also jumps is left alone.  A one-sample pulse of the input moves the output
+        legitimately, and so does a current that spins the shaft up within a sample or two
+        (a step from rest on a motor as fast as the sample rate): the speed bends there too,
+        where a sensor's glitch leaves it smooth.
 
     """
     x = np.asarray(values, dtype=float)
@@ -51,13 +55,19 @@ def find_isolated(values: np.ndarray, guard: np.ndarray | None = None) -> np.nda
     level = float(np.percentile(np.abs(x), 99))
     threshold = max(NOISE_FACTOR * noise, LEVEL_SHARE * level, 1e-300)
     candidates = (np.abs(second) > threshold) & (np.abs(spread) < 0.25 * np.abs(second))
-    if guard is not None:
-        g = np.asarray(guard, dtype=float)
-        g_second = np.abs(g[:-2] - 2.0 * g[1:-1] + g[2:])
-        g_level = max(float(np.percentile(np.abs(g), 99)), 1e-300)
-        quiet = g_second < LEVEL_SHARE * g_level
-        candidates &= quiet & np.roll(quiet, 1) & np.roll(quiet, -1)
+    guards = [guard] if isinstance(guard, np.ndarray) else list(guard or [])
+    for other in guards:
+        if other is not None:
+            candidates &= _quiet_around(np.asarray(other, dtype=float))
     return np.flatnonzero(candidates) + 1
+
+
+def _quiet_around(channel: np.ndarray) -> np.ndarray:
+    """Return, per inner sample, whether ``channel`` does not jump at it or its neighbours."""
+    second = np.abs(channel[:-2] - 2.0 * channel[1:-1] + channel[2:])
+    level = max(float(np.percentile(np.abs(channel), 99)), 1e-300)
+    quiet = second < LEVEL_SHARE * level
+    return quiet & np.roll(quiet, 1) & np.roll(quiet, -1)
 
 
 def repair_dropouts(record: Record) -> tuple[Record, list[str]]:
@@ -73,7 +83,8 @@ def repair_dropouts(record: Record) -> tuple[Record, list[str]]:
         values = getattr(record, channel, None)
         if values is None:
             continue
-        found = find_isolated(values, record.voltage)
+        other = getattr(record, 'speed' if channel == 'current' else 'current', None)
+        found = find_isolated(values, [record.voltage, other])
         if found.size == 0:
             continue
         x = np.array(values, dtype=float)
