@@ -722,7 +722,7 @@ THREE_SAMPLE_SPIN_UP_MOTOR = MotorParameters(Ra=0.313, La=1.34e-4, CPhi=0.126, J
                                              b=1.26e-3, Mc=7.7e-3)
 
 
-def spin_up_in_three_samples(seed: int = 0) -> Scenario:
+def spin_up_in_three_samples(seed: int = 0, sample_period_s: float = 5e-3) -> Scenario:
     """
     Simulate a 6.5 V step from rest logged at 200 Hz for 1 s, the speed settling in 3 samples.
 
@@ -731,7 +731,7 @@ def spin_up_in_three_samples(seed: int = 0) -> Scenario:
     armature's fit diverged (La/Ra of 1e5 s), its La then bounded La and the answer was
     refused as implausible.
     """
-    scenario = fast_spin_up_step(seed, 5e-3, 6.5, 1.0, THREE_SAMPLE_SPIN_UP_MOTOR)
+    scenario = fast_spin_up_step(seed, sample_period_s, 6.5, 1.0, THREE_SAMPLE_SPIN_UP_MOTOR)
     return replace(scenario, name='spin_up_in_three_samples',
                    records=[rec.replace(source='spin_up_in_three_samples')
                             for rec in scenario.records],

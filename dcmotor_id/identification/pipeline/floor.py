@@ -380,7 +380,9 @@ def _static_on_samples(records: Sequence[Record],
     """
     if any(getattr(rec, 'speed_derived', False) for rec in records):
         return None
-    keep = [~mask & np.isfinite(rec.current) & np.isfinite(rec.speed) & np.isfinite(rec.voltage)
+    keep = [~mask & np.isfinite(np.asarray(rec.current, dtype=float))
+            & np.isfinite(np.asarray(rec.speed, dtype=float))
+            & np.isfinite(np.asarray(rec.voltage, dtype=float))
             for rec, mask in zip(records, masks)]
     matrix = np.vstack([np.column_stack([np.asarray(rec.current, dtype=float)[kept],
                                          np.asarray(rec.speed, dtype=float)[kept]])
