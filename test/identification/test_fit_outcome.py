@@ -39,8 +39,7 @@ def test_the_quasi_static_refit_gives_its_errors_with_it(monkeypatch):
                         lambda **options: SimpleNamespace(fit=lambda records: quasi))
     progress = SimpleNamespace(set_stage=lambda *args: None)
     models = Models([], None, True, 'speed')
-    refit = armature.quasi_static_refit(quasi, {'current_nrmse_pct': 1.0}, models, 'estimate',
-                                        progress)
+    refit = armature.quasi_static_fit(quasi, models, 'estimate', progress)
     assert refit == (quasi, {'current_nrmse_pct': 1.0, 'speed_nrmse_pct': 2.0})
     # measured once on the run's quasi-static base model, carried to the stage's fit
     assert measured == [(models.measured, VALUES)]
