@@ -8,7 +8,7 @@ what each rule would choose:
 
 * *gate alone*: ``la_unresolved`` (La/Ra below the sample period, or La's relative standard
   error above 0.5), which alone lets a refit happen, and the refit kept whenever it fits;
-* *margin* (the default, ``ARMATURE_CHOICE``): the gate, then the refit kept when its
+* *margin* (what the stage uses, ``quasi_kept``'s default): the gate, then the refit kept when its
   current simulation error is at most ``1.25 full + 0.5`` points (``QUASI_MARGIN``);
 * *likelihood-ratio*: the gate, then the refit kept unless the likelihood ratio of the full
   equation over the quasi-static one on the current's effective samples

@@ -1,5 +1,6 @@
 """The armature's choice: the quasi-static equation unless the full one fits the current better."""
 
+from functools import partial
 from types import SimpleNamespace
 import warnings
 
@@ -40,7 +41,7 @@ def identified(record: Record):
 
 @pytest.mark.parametrize('choice', armature.ARMATURE_CHOICES)
 def test_la_well_above_the_sample_period_keeps_the_full_equation(monkeypatch, choice):
-    monkeypatch.setattr(armature, 'ARMATURE_CHOICE', choice)
+    monkeypatch.setattr(armature, 'quasi_kept', partial(armature.quasi_kept, choice=choice))
     motor, record = stairs_record(4.0)
     result = identified(record)
     assert 'La' not in result.upper_bounds and 'La' not in result.not_identifiable
@@ -49,7 +50,7 @@ def test_la_well_above_the_sample_period_keeps_the_full_equation(monkeypatch, ch
 
 @pytest.mark.parametrize('choice', armature.ARMATURE_CHOICES)
 def test_la_far_below_the_sample_period_gets_the_quasi_static_equation(monkeypatch, choice):
-    monkeypatch.setattr(armature, 'ARMATURE_CHOICE', choice)
+    monkeypatch.setattr(armature, 'quasi_kept', partial(armature.quasi_kept, choice=choice))
     motor, record = stairs_record(0.02)
     result = identified(record)
     assert motor.La <= result.upper_bounds['La']
@@ -63,7 +64,6 @@ def test_a_la_of_a_third_of_a_sample_is_resolved_by_the_ratio_not_by_the_margin(
         monkeypatch, choice, quasi_static):
     # La/Ra 0.3 samples: the quasi-static current error is within the margin (1.25 full +
     # 0.5 points), but the full equation fits the current significantly better.
-    monkeypatch.setattr(armature, 'ARMATURE_CHOICE', choice)
     motor, record = stairs_record(0.3)
     seen = []
     original = armature.quasi_kept
@@ -72,7 +72,7 @@ def test_a_la_of_a_third_of_a_sample_is_resolved_by_the_ratio_not_by_the_margin(
         seen.append((fit.errors['current_nrmse_pct'], refit[1]['current_nrmse_pct'],
                      armature.armature_likelihood_ratio(fit.estimate, refit[0], fit.models,
                                                         models)))
-        return original(fit, refit, models, initial_state)
+        return original(fit, refit, models, initial_state, choice)
     monkeypatch.setattr(armature, 'quasi_kept', spy)
     result = identified(record)
     (full, quasi, (ratio, needed)), = seen

@@ -6,7 +6,7 @@ When the electrical time constant La/Ra is below the sample period, or La is und
 (:func:`quasi_static_fit`), and kept unless its current simulation error is much worse than
 the full fit's (:func:`quasi_kept`; the likelihood ratio of the two equations on the
 current's effective samples, :func:`full_resolved`, is the measured alternative,
-:data:`ARMATURE_CHOICE`).  Kept, it is the model of everything that follows, and the final
+:data:`ARMATURE_CHOICES`).  Kept, it is the model of everything that follows, and the final
 estimate gives La by its upper bound (:func:`with_la_bound`) with the reason
 (:func:`la_reason`).  The data do not decide between the two equations (a speed averaged over
 the sample passes for La as well as a real La does), so the standard errors of the parameters
@@ -39,16 +39,15 @@ if TYPE_CHECKING:
     from dcmotor_id.identification.estimators.base import Estimate
 
 
-#: How the quasi-static refit is kept or not (:func:`quasi_kept`): by the margin on its current
-#: simulation error (the default), or by the likelihood ratio of the full equation
-#: (:func:`full_resolved`).  Measured side by side by ``bench/bench_armature_choice.py``
+#: How the quasi-static refit is kept or not (:func:`quasi_kept`'s ``choice``): by the margin on
+#: its current simulation error (what the stage uses), or by the likelihood ratio of the full
+#: equation (:func:`full_resolved`).  Measured side by side by ``bench/bench_armature_choice.py``
 #: (``bench/armature_results.md``, wave 10): the ratio resolves a La of a fifth of a sample in
 #: the current (the simulator is exact) and keeps the full equation on 39 of 150 records whose
 #: La/Ra is below the sample period where the margin kept the quasi-static one (issue 29 asks
 #: for the static form and La's upper bound there), and slows the run after it (+29 % on the
-#: random motors); not the default.
+#: random motors); not what the stage uses.
 ARMATURE_CHOICES = ('current-error-margin', 'likelihood-ratio')
-ARMATURE_CHOICE = 'current-error-margin'
 #: The margin of ``current-error-margin``: the refit's current error at most ``factor`` times
 #: the full fit's plus ``points`` percentage points.
 QUASI_MARGIN = (1.25, 0.5)
@@ -82,10 +81,55 @@ def armature(inputs: Inputs, fit: Fit) -> Fit:
         return replace(fit, not_identifiable={**fit.not_identifiable,
                                               'La': la_reason(*full_la, dt, None)})
     estimate, errors = refit
+    full = fit.estimate
+    if not full_reached_its_limit(fit.errors, errors):
+        # The full fit ran off (an La of 1e4 H, its current 100 % off) where its own limit
+        # La -> 0 fits the data: its values are no equation the data leave open.  The full
+        # equation with La at its upper bound is one (:func:`la_at_its_bound`).
+        bounded = la_at_its_bound(estimate, fit.models, dt, inputs)
+        if bounded is None:
+            return replace(fit, estimate=estimate, quasi=True, errors=errors, models=models)
+        full, robust = bounded, with_robust_stderr(bounded)
     return replace(fit, estimate=estimate, quasi=True, errors=errors, models=models,
-                   structure_spread=structure_spread(fit.estimate, estimate),
+                   structure_spread=structure_spread(full, estimate),
                    full_stderr={name: float(robust.stderr[name]) for name in SHARED_NAMES
                                 if name in robust.stderr})
+
+
+def la_at_its_bound(quasi: Estimate, full_models: Models, dt: float,
+                    inputs: Inputs) -> Estimate | None:
+    """
+    Fit the full armature equation with La pinned at its upper bound ``Ra dt``; None if it fails.
+
+    Where the free full fit did not converge, this is the other end of what the data leave
+    open (La between 0 and its bound; the bound from the quasi-static refit ``quasi``).  It
+    starts from the estimator's own search: the refit's values can hold b or Mc at exactly 0,
+    which the search of positive parameters (on their logarithms) cannot leave.
+    """
+    bound = float(quasi.parameters['Ra']) * dt
+    try:
+        return RefinedEstimator(pinned={'La': bound},
+                                initial_state=inputs.initial_state, progress=inputs.progress,
+                                criterion=full_models.criterion,
+                                position_error=inputs.on.position_error).fit(full_models.records)
+    except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
+        return None
+
+
+def full_reached_its_limit(full: ChannelErrors, quasi: ChannelErrors) -> bool:
+    """
+    Whether the full fit's current is not far worse than the quasi-static refit's.
+
+    The quasi-static equation is the full one's limit La -> 0, so a full fit at its optimum
+    fits at least as well; one whose current simulation error exceeds the refit's beyond the
+    margin the refit is kept by (:data:`QUASI_MARGIN`, the other way round) did not converge.
+    """
+    factor, points = QUASI_MARGIN
+    full_current = full.get('current_nrmse_pct')
+    quasi_current = quasi.get('current_nrmse_pct')
+    if full_current is None or quasi_current is None:
+        return True
+    return bool(full_current <= factor * quasi_current + points)
 
 
 def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
@@ -94,15 +138,15 @@ def la_unresolved(la: float, la_stderr: float, ra: float, dt: float) -> bool:
 
 
 def quasi_kept(fit: Fit, refit: tuple[Estimate, ChannelErrors], quasi_models: Models,
-               initial_state: str, choice: str | None = None) -> bool:
+               initial_state: str, choice: str = 'current-error-margin') -> bool:
     """
-    Whether the quasi-static refit is kept, by ``choice`` (default :data:`ARMATURE_CHOICE`).
+    Whether the quasi-static refit is kept, by ``choice`` (one of :data:`ARMATURE_CHOICES`).
 
     ``current-error-margin``: its current simulation error is at most 25 % (and 0.5 points)
     worse than the full model's (:data:`QUASI_MARGIN`); ``likelihood-ratio``: the full
     equation does not fit the current significantly better (:func:`full_resolved`).
     """
-    if (choice or ARMATURE_CHOICE) == 'likelihood-ratio':
+    if choice == 'likelihood-ratio':
         return not full_resolved(fit, refit[0], quasi_models, initial_state)
     factor, points = QUASI_MARGIN
     full_current = fit.errors.get('current_nrmse_pct') or 0.0
