@@ -42,9 +42,14 @@ MAX_EFFECTS = 4
 #: innovations (measured beside the default, not the default); ``input-noise-null`` (the default
 #: since round 8), the test of ``innovation-t-alone`` and then the effect's coefficients against
 #: their fits to draws of the input current's noise (the mechanical mode's output-error loop;
-#: :mod:`~dcmotor_id.identification.discovery.input_null`; elsewhere ``innovation-t-alone``).
+#: :mod:`~dcmotor_id.identification.discovery.input_null`; elsewhere ``innovation-t-alone``);
+#: ``input-noise-null-any-gain``, that rule without the least gain (its t test the criterion);
+#: ``all-data-lr``, a likelihood-ratio test on effective samples over the training parts, the
+#: held-out part a guard against a contradiction
+#: (:mod:`~dcmotor_id.identification.discovery.likelihood`; both measured in round 10).
 ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level', 'innovation-t-alone',
-                    'innovation-arma', 'input-noise-null')
+                    'innovation-arma', 'input-noise-null', 'input-noise-null-any-gain',
+                    'all-data-lr')
 #: The rule of every identification.
 DEFAULT_ACCEPTANCE = 'input-noise-null'
 
