@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 
+from dcmotor_id.core.model import PAPER_MOTORS
+from dcmotor_id.core.records import Record
 from dcmotor_id.identification.discovery import discover
 from dcmotor_id.identification.discovery.judging import (heldout_t_threshold, innovation_t,
                                                          score, unearned)
@@ -13,7 +15,8 @@ from dcmotor_id.identification.discovery.loop import base_fit, DiscoveryLoop
 from dcmotor_id.identification.discovery.refitting import fit_structure
 from dcmotor_id.identification.discovery.structure import Candidate, Structure
 from dcmotor_id.identification.effects import LoadTorque, make_effect
-from test_discovery import motor_records
+from dcmotor_id.simulation import simulate_motor_effects
+from dcmotor_id.simulation.excitation import add_sensor_noise, make_excitation
 
 #: A held-out end of 15 % (the default 30 %): a load torque of 0.05 N m on the paper's motor 2
 #: (sine, 1 % noise, 6 s at 1 kHz) gives a held-out t of about 2.8 (3.0 needed) there, a
@@ -21,6 +24,16 @@ from test_discovery import motor_records
 SHORT_HOLDOUT = 0.15
 NOISE = 0.01
 ORDER = {'load_torque': 0}
+
+
+def motor_records(effects, noise=NOISE, seed=0):
+    """Return the paper's motor 2 under a sine (6 s at 1 kHz) with ``effects``, noisy."""
+    t, voltage = make_excitation('sine', 6.0, 1e-3)
+    current, speed, _ = simulate_motor_effects(PAPER_MOTORS['paper2'], voltage, 1e-3,
+                                               list(effects))
+    rng = np.random.default_rng(seed)
+    return [Record(t, add_sensor_noise(current, noise, rng), voltage,
+                   add_sensor_noise(speed, noise, rng), source='sine')]
 
 
 def _judged(torque_nm):

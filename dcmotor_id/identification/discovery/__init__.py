@@ -48,6 +48,8 @@ One module per seam of the loop; each imports only the modules before it in this
   innovations (the rule ``innovation-arma``);
 - :mod:`~dcmotor_id.identification.discovery.input_null`: an effect's coefficients against
   their fits to draws of the input current's noise (the default rule ``input-noise-null``);
+- :mod:`~dcmotor_id.identification.discovery.likelihood`: the training parts' likelihood ratio
+  on effective samples, the held-out part a guard (the rule ``all-data-lr``, measured);
 - :mod:`~dcmotor_id.identification.discovery.judging`: the held-out gain, its noise, the
   choice and the round's report (step 4);
 - :mod:`~dcmotor_id.identification.discovery.result`: :class:`DiscoveryResult`;
