@@ -154,7 +154,7 @@ def verdict(found, names, accepted):
 
 
 def _why(found, names):
-    """The oracle's part of :func:`verdict`: ``(a)`` to ``(d)``."""
+    """Return the oracle's part of :func:`verdict`: ``(a)`` to ``(d)``."""
     if found['detectable']:
         return '(d) another effect first' if names else '(b) screen or refit'
     if found['t'] < found['t_needed']:

@@ -19,17 +19,17 @@ down evidence gathered at a few instants (a sensor delay at a sawtooth's jumps).
 structure's AR(1) innovations (:func:`innovation_arma_t`, :mod:`.arma`: the input noise a
 mechanical model integrates leaves a wandering speed error under the rounding's increments),
 measured beside the default (``bench/discovery_results.md``, round 7).  Rule
-``input-noise-null`` (the default in rounds 8 and 9): the test of ``innovation-t-alone``, then, where the
-measured current drives the model, the effect's coefficients against their fits to draws of
-the current's noise (:mod:`.input_null`: a fit that bends to the input noise's drift leaves a
-candidate a real held-out gain, ``bench/discovery_results.md``, round 8).  Rule
-``input-noise-null-any-gain`` (the default since round 10): those tests without the loop's
-least gain of 5 % (:func:`least_gain`): the t test on the effective innovations is the
-criterion, its size measured; a fixed least gain turned down effects whose t passed (round 9's
-oracle: 3 records).  Rule ``all-data-lr`` (measured, not the default: it adds effects to real
-records): the training parts' likelihood ratio on effective samples, the held-out part a guard
-(:mod:`.likelihood`).  The former
-rules (``noise-level``: an effect's own part of the outputs against the per-sample noise,
+``input-noise-null`` (the default in rounds 8 and 9): the test of ``innovation-t-alone``,
+then, where the measured current drives the model, the effect's coefficients against their
+fits to draws of the current's noise (:mod:`.input_null`: a fit that bends to the input
+noise's drift leaves a candidate a real held-out gain, ``bench/discovery_results.md``, round
+8).  Rule ``input-noise-null-any-gain`` (the default since round 10): those tests
+without the loop's least gain of 5 % (:func:`least_gain`): the t test on the effective
+innovations is the criterion, its size measured; the fixed least gain turned down an effect
+whose t passed (``bench/discovery_results.md``, round 10).  Rule ``all-data-lr`` (measured,
+not the default: it adds effects to real records): the training parts' likelihood ratio on
+effective samples, the held-out part a guard (:mod:`.likelihood`).  The former rules
+(``noise-level``: an effect's own part of the outputs against the per-sample noise,
 :func:`own_part`, and a cogging ripple above the Coulomb friction needing twice the evidence)
 are kept to be measured against (``bench/bench_discovery.py``, a column per rule).
 """

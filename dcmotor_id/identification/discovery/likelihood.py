@@ -1,24 +1,28 @@
 """
 Rule ``all-data-lr``: a likelihood-ratio test on effective samples over the training parts.
 
-The held-out tests (``innovation-t-alone``, ``input-noise-null``) see the 30 % of the excitation
-held out: an effect in the 70 % the fits train on may not stand out there
+The held-out tests (``innovation-t-alone``, ``input-noise-null``) see the 30 % of the
+excitation held out: an effect in the 70 % the fits train on may not stand out there
 (``bench/discovery_results.md``, round 9: 8 records whose true effect's training likelihood
-ratio is 20-133 against 10.3 or 13.2 needed while its held-out t is -0.6 to 2.6), and the fixed
-least gain of 5 % turns down 3 more whose held-out t passes.  This rule judges a candidate on
-the training parts instead (:func:`training_ratio`): per output channel ``n_eff log(mse_current
-/ mse_candidate)``, ``n_eff`` the training samples over the candidate residual's integrated
-correlation time, summed over the channels; under no effect it follows chi-square with the
-effect's coefficients as degrees of freedom (:func:`coefficient_count`), judged at the held-out
-test's size (:data:`~dcmotor_id.identification.discovery.judging.HELDOUT_ALPHA`,
-:func:`ratio_needed`).  The round's winner is the candidate with the strongest evidence
-(:func:`choose_by_ratio`); the held-out part only guards against a contradiction: its
-innovations' drop must not be significantly negative (:func:`heldout_guard`, one-sided
-:data:`GUARD_ALPHA`).  No least gain and no BIC: the test is the criterion.  Where the measured
-current drives the model, the effect's coefficients must also stand out of the input noise's
-null (:func:`~dcmotor_id.identification.discovery.input_null.input_noise_doubt`), as under the
-default rule.  Its false-effect rate and power: ``bench/bench_discovery.py`` and
-``bench/bench_discovery_real.py`` (a column per rule; ``bench/discovery_results.md``, round 10).
+ratio is 20-133 against 10.3 or 13.2 needed while its held-out t is -0.6 to 2.6). This rule
+judges a candidate on the training parts instead (:func:`training_ratio`): per output channel
+``n_eff log(mse_current / mse_candidate)``, ``n_eff`` the training samples over the candidate
+residual's integrated correlation time, summed over the channels; under no effect it follows
+chi-square with the effect's coefficients as degrees of freedom (:func:`coefficient_count`),
+judged at the held-out test's size
+(:data:`~dcmotor_id.identification.discovery.judging.HELDOUT_ALPHA`, :func:`ratio_needed`). The
+round's winner is the candidate with the strongest evidence (:func:`choose_by_ratio`); the
+held-out part only guards against a contradiction: its innovations' drop must not be
+significantly negative (:func:`heldout_guard`, one-sided :data:`GUARD_ALPHA`). No least gain
+and no BIC: the test is the criterion. Where the measured current drives the model, the
+effect's coefficients must also stand out of the input noise's null
+(:func:`~dcmotor_id.identification.discovery.input_null.input_noise_doubt`), as under the
+default rule. Its false-effect rate and power: ``bench/bench_discovery.py`` and
+``bench/bench_discovery_real.py`` (a column per rule; ``bench/discovery_results.md``, round 10:
+false effects on real records and logs, where a misfit model gains on the training parts and on
+the held-out part with any effect that takes the misfit up; not the default). The loop judges
+no candidate where the base's held-out residual is white, which is where the effects of round 9
+that only the training data show lie.
 """
 
 from __future__ import annotations

@@ -40,9 +40,10 @@ MAX_EFFECTS = 4
 #: spread over 8 blocks of the held-out part (evidence gathered at a few instants is not);
 #: ``innovation-arma``, that test alone on the innovations of an ARMA(1, 2) model of the AR(1)
 #: innovations (measured beside the default, not the default); ``input-noise-null`` (the default
-#: in rounds 8 and 9), the test of ``innovation-t-alone`` and then the effect's coefficients against
-#: their fits to draws of the input current's noise (the mechanical mode's output-error loop;
-#: :mod:`~dcmotor_id.identification.discovery.input_null`; elsewhere ``innovation-t-alone``);
+#: in rounds 8 and 9), the test of ``innovation-t-alone`` and then the effect's coefficients
+#: against their fits to draws of the input current's noise (the mechanical mode's output-error
+#: loop; :mod:`~dcmotor_id.identification.discovery.input_null`; elsewhere
+#: ``innovation-t-alone``);
 #: ``input-noise-null-any-gain`` (the default since round 10), that rule without the least gain
 #: (its t test the criterion: ``bench/discovery_results.md``, round 10);
 #: ``all-data-lr``, a likelihood-ratio test on effective samples over the training parts, the
