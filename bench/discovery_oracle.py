@@ -16,7 +16,7 @@ changes in the held-out outputs beyond the base in noise levels (:func:`part_bey
 and the likelihood ratio of the same two fits on the training parts, on effective samples
 (:func:`insample_ratio`: what all of the training data say).  And whether the loop judges at
 all: it stops before any rule where the base's held-out residual is white (``white``; round 10:
-10 of the 11 misses of round 9 that the training data show).  Current-speed mode only (the
+every current-speed record the default misses).  Current-speed mode only (the
 loop alone, :func:`~dcmotor_id.identification.discovery.discover`).
 """
 
