@@ -357,7 +357,11 @@ def main(argv=None):
         'not asked to be spread over blocks); innovation-arma = that t test alone on the '
         "innovations of an ARMA(1, 2) model of each structure's AR(1) innovations (the "
         "wandering speed error of an integrated input noise under the rounding's "
-        'increments); noise-level = the former rules '
+        "increments); input-noise-null-any-gain = the default's tests without the least gain "
+        "of 5 %; all-data-lr = the training parts' likelihood ratio on effective samples "
+        "(chi-square at the held-out test's size, the effect's coefficients as degrees of "
+        "freedom), the held-out innovations' drop not significantly negative (one-sided 5 %), "
+        "the input noise's null of the default; noise-level = the former rules "
         "(an effect's own part of the outputs above the per-sample noise, a cogging ripple "
         'above the Coulomb friction needing twice the evidence).  Each case is judged by every '
         'rule on the same data.  "above the noise (oracle)" (current-speed): the records '

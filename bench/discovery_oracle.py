@@ -14,7 +14,9 @@ against its threshold (the effect is not above the noise over the effective samp
 least gain (the t is there, the gain under the loop's ``min_gain``), what the true structure
 changes in the held-out outputs beyond the base in noise levels (:func:`part_beyond_base`),
 and the likelihood ratio of the same two fits on the training parts, on effective samples
-(:func:`insample_ratio`: what all of the training data say).  Current-speed mode only (the
+(:func:`insample_ratio`: what all of the training data say).  And whether the loop judges at
+all: it stops before any rule where the base's held-out residual is white (``white``; round 10:
+every current-speed record the default misses).  Current-speed mode only (the
 loop alone, :func:`~dcmotor_id.identification.discovery.discover`).
 """
 
@@ -25,9 +27,10 @@ from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import PARAMETER_NAMES
 
 from dcmotor_id.identification.checks.start import correlation_time
+from dcmotor_id.identification.discovery.analysis import analyse, explained
 from dcmotor_id.identification.discovery.judging import (HELDOUT_ALPHA, heldout_t_threshold,
-                                                         innovation_t, paired_heldout, score,
-                                                         unearned)
+                                                         innovation_t, least_gain,
+                                                         paired_heldout, score, unearned)
 from dcmotor_id.identification.discovery.loop import base_fit, DiscoveryLoop
 from dcmotor_id.identification.discovery.refitting import fit_structure
 from dcmotor_id.identification.discovery.structure import Candidate, Structure
@@ -99,8 +102,8 @@ def oracle(records, motor, effect, rule):
     and its threshold), ``gain_pct``, ``bic_delta``, ``part``
     (:func:`part_beyond_base`), ``why`` (the rule's reason, or None), ``lr`` and
     ``lr_needed`` (:func:`insample_ratio` and its chi-square threshold at the held-out
-    test's size).  None when the
-    base or the oracle's refit has no fit.
+    test's size), ``white`` (the base's held-out residual is white: the loop stops before
+    judging any candidate).  None when the base or the oracle's refit has no fit.
     """
     inner, coefficients = true_start(motor, effect)
     truth = {name: float(getattr(motor, name)) for name in PARAMETER_NAMES}
@@ -119,14 +122,15 @@ def oracle(records, motor, effect, rule):
     lr = insample_ratio(loop, base, fitted)
     dof = max(len(coefficients), 1)
     why = None
-    if not (candidate.gain >= loop.min_gain and candidate.bic_delta < 0):
-        why = (f'gain {100 * candidate.gain:.3g} % (least {100 * loop.min_gain:g} %), '
+    if not (candidate.gain >= least_gain(loop) and candidate.bic_delta < 0):
+        why = (f'gain {100 * candidate.gain:.3g} % (least {100 * least_gain(loop):g} %), '
                f'BIC change {candidate.bic_delta:.4g}')
     why = why or unearned(loop, base, candidate)
     return {'detectable': why is None, 't': t, 't_needed': heldout_t_threshold(effective),
             'gain_pct': 100.0 * candidate.gain, 'bic_delta': candidate.bic_delta,
             'part': part_beyond_base(loop, base, fitted), 'why': why,
-            'lr': lr, 'lr_needed': float(chi2.ppf(1.0 - HELDOUT_ALPHA, dof))}
+            'lr': lr, 'lr_needed': float(chi2.ppf(1.0 - HELDOUT_ALPHA, dof)),
+            'white': explained(loop, analyse(loop, base))}
 
 
 def verdict(found, names, accepted):
@@ -136,13 +140,21 @@ def verdict(found, names, accepted):
     ``(a)``: not above the noise (the oracle's held-out t below its threshold; "in all the
     data" too when the training part's likelihood ratio is below its own); ``(c)``: the t is
     there but the rule's least gain or BIC turns the oracle down; ``(b)``/``(d)``: the oracle
-    passes and the loop missed it (``(d)``: it added another effect first).  None when the
-    loop found it.
+    passes and the loop missed it (``(d)``: it added another effect first); ``(e)`` is added
+    where the loop added nothing and the base's held-out residual is white: the loop stopped
+    before any rule judged.  None when the loop found it.
     """
     if names and names[0] in accepted:
         return None
     if found is None:
         return 'no oracle fit'
+    gate = '; (e) the loop stopped: white held-out residual' if (
+        not names and found.get('white')) else ''
+    return _why(found, names) + gate
+
+
+def _why(found, names):
+    """Return the oracle's part of :func:`verdict`: ``(a)`` to ``(d)``."""
     if found['detectable']:
         return '(d) another effect first' if names else '(b) screen or refit'
     if found['t'] < found['t_needed']:

@@ -34,7 +34,7 @@ def test_the_oracle_shows_a_load_torque_the_record_carries():
     effect = make_effect('load_torque', torque_Nm=0.5)
     motor, records = _records(effect)
     found = discovery_oracle.oracle(records, motor, effect, DEFAULT_ACCEPTANCE)
-    assert found['detectable'] and found['t'] > found['t_needed']
+    assert found['detectable'] and found['t'] > found['t_needed'] and not found['white']
     assert found['lr'] > found['lr_needed'] and found['gain_pct'] > 5.0
     assert discovery_oracle.verdict(found, [], ('load_torque',)) == '(b) screen or refit'
     assert discovery_oracle.verdict(found, ['load_torque'], ('load_torque',)) is None
@@ -47,7 +47,11 @@ def test_the_oracle_turns_down_an_effect_far_below_the_noise():
     motor, records = _records(effect)
     found = discovery_oracle.oracle(records, motor, effect, DEFAULT_ACCEPTANCE)
     assert not found['detectable'] and found['part'] < 0.05
+    # and the loop does not judge at all: the base's held-out residual is white
+    assert found['white']
     assert discovery_oracle.verdict(found, [], ('load_torque',)) == (
+        '(a) below the noise in all the data; (e) the loop stopped: white held-out residual')
+    assert discovery_oracle.verdict(found, ['cogging'], ('load_torque',)) == (
         '(a) below the noise in all the data')
 
 

@@ -14,10 +14,12 @@ The effect discovery loop: trace the residual to an effect the model lacks, add 
    each candidate's inner parameters (Stribeck velocity, cogging period, delay); then *all*
    parameters are refitted on the training part and the candidate is scored by the weighted
    mean squared simulation error on the **held-out** part.
-4. The best candidate is added when it lowers the held-out error by at least ``min_gain``
-   (5 %) and the Bayesian information criterion of the training fit; candidates within 2 % of
-   the best one's improvement are a tie, won by the earlier in the vocabulary and reported as
-   equivalent.  Repeat until the residual is white or nothing helps.
+4. The best candidate is added when it lowers the held-out error significantly (the loop's
+   rule, :mod:`~dcmotor_id.identification.discovery.judging`: by default the t test of its
+   held-out innovations on their effective number; some rules also ask a least gain,
+   ``min_gain``, 5 %) and the Bayesian information criterion of the training fit; candidates
+   within 2 % of the best one's improvement are a tie, won by the earlier in the vocabulary
+   and reported as equivalent.  Repeat until the residual is white or nothing helps.
 5. Refit the final structure on all the data (the reported parameters).
 
 ``unexplained`` is true when the final held-out residual is still not white *and* an
@@ -47,7 +49,10 @@ One module per seam of the loop; each imports only the modules before it in this
 - :mod:`~dcmotor_id.identification.discovery.arma`: ARMA(1, q) error models of the held-out
   innovations (the rule ``innovation-arma``);
 - :mod:`~dcmotor_id.identification.discovery.input_null`: an effect's coefficients against
-  their fits to draws of the input current's noise (the default rule ``input-noise-null``);
+  their fits to draws of the input current's noise (the rule ``input-noise-null`` and the
+  default ``input-noise-null-any-gain``);
+- :mod:`~dcmotor_id.identification.discovery.likelihood`: the training parts' likelihood ratio
+  on effective samples, the held-out part a guard (the rule ``all-data-lr``, measured);
 - :mod:`~dcmotor_id.identification.discovery.judging`: the held-out gain, its noise, the
   choice and the round's report (step 4);
 - :mod:`~dcmotor_id.identification.discovery.result`: :class:`DiscoveryResult`;

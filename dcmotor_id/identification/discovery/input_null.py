@@ -8,7 +8,8 @@ better (a load torque takes up the drift's slope): the held-out part, which inhe
 training fit, then shows a real gain, and a held-out test accepts an effect that is not there
 (``bench/discovery_results.md``, rounds 7 and 8).
 
-Rule ``input-noise-null`` (the default since round 8): the held-out test of
+Rule ``input-noise-null`` (the default in rounds 8 and 9; since round 10 the default is the
+same tests without the least gain, ``input-noise-null-any-gain``): the held-out test of
 ``innovation-t-alone``, and then the candidate's coefficients
 must stand out of their null distribution under the noise of the input and of the outputs
 (:func:`input_noise_doubt`).  The null is the fit's linear response to the noise: the

@@ -19,11 +19,17 @@ down evidence gathered at a few instants (a sensor delay at a sawtooth's jumps).
 structure's AR(1) innovations (:func:`innovation_arma_t`, :mod:`.arma`: the input noise a
 mechanical model integrates leaves a wandering speed error under the rounding's increments),
 measured beside the default (``bench/discovery_results.md``, round 7).  Rule
-``input-noise-null`` (the default): the test of ``innovation-t-alone``, then, where the
-measured current drives the model, the effect's coefficients against their fits to draws of
-the current's noise (:mod:`.input_null`: a fit that bends to the input noise's drift leaves a
-candidate a real held-out gain, ``bench/discovery_results.md``, round 8).  The former
-rules (``noise-level``: an effect's own part of the outputs against the per-sample noise,
+``input-noise-null`` (the default in rounds 8 and 9): the test of ``innovation-t-alone``,
+then, where the measured current drives the model, the effect's coefficients against their
+fits to draws of the current's noise (:mod:`.input_null`: a fit that bends to the input
+noise's drift leaves a candidate a real held-out gain, ``bench/discovery_results.md``, round
+8).  Rule ``input-noise-null-any-gain`` (the default since round 10): those tests
+without the loop's least gain of 5 % (:func:`least_gain`): the t test on the effective
+innovations is the criterion, its size measured; the fixed least gain turned down an effect
+whose t passed (``bench/discovery_results.md``, round 10).  Rule ``all-data-lr`` (measured,
+not the default: it adds effects to real records): the training parts' likelihood ratio on
+effective samples, the held-out part a guard (:mod:`.likelihood`).  The former rules
+(``noise-level``: an effect's own part of the outputs against the per-sample noise,
 :func:`own_part`, and a cogging ripple above the Coulomb friction needing twice the evidence)
 are kept to be measured against (``bench/bench_discovery.py``, a column per rule).
 """
@@ -60,7 +66,15 @@ GAIN_T = 2.0
 #: ``bench/bench_discovery.py`` (a column per rule) and ``bench/bench_discovery_real.py``.
 HELDOUT_ALPHA = 0.00135
 #: Rules that do not ask the gain to be spread over the held-out part.
-SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null')
+SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null',
+               'input-noise-null-any-gain', 'all-data-lr')
+#: Rules without the loop's least gain: their test is the criterion (round 10).
+GAIN_FREE = ('input-noise-null-any-gain', 'all-data-lr')
+
+
+def least_gain(loop: LoopState) -> float:
+    """Return the least held-out gain of the loop's rule: ``min_gain``, 0 for :data:`GAIN_FREE`."""
+    return 0.0 if loop.acceptance in GAIN_FREE else loop.min_gain
 
 
 def measured_offset(fit: Fit, channel: str) -> int:
@@ -184,7 +198,16 @@ def score(loop: LoopState, current: Fit, candidate: Candidate) -> Candidate:
 
 def choose(loop: LoopState, current: Fit, admissible: list[Candidate],
            order: dict[str, int]) -> tuple[Candidate | None, list[Candidate]]:
-    """Return the best admissible candidate when it gains enough (and its ties), else None."""
+    """
+    Return the best admissible candidate when it gains enough (and its ties), else None.
+
+    Rule ``all-data-lr``: the strongest evidence on the training parts
+    (:func:`~dcmotor_id.identification.discovery.likelihood.choose_by_ratio`).
+    """
+    if loop.acceptance == 'all-data-lr':
+        from dcmotor_id.identification.discovery.likelihood import choose_by_ratio
+
+        return choose_by_ratio(loop, current, admissible, order)
     drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
     if not drop > 0:
         return None, []
@@ -194,7 +217,7 @@ def choose(loop: LoopState, current: Fit, admissible: list[Candidate],
     # Refitted candidates are scored: gain, bic_delta and gain_noise are set.
     gain, bic_delta = cast(float, winner.gain), cast(float, winner.bic_delta)
     noise = None if loop.acceptance in SPREAD_FREE else winner.gain_noise
-    if gain >= loop.min_gain and bic_delta < 0 and (noise is None or gain > noise):
+    if gain >= least_gain(loop) and bic_delta < 0 and (noise is None or gain > noise):
         return winner, [candidate for candidate in ties if candidate is not winner]
     return None, []
 
@@ -468,11 +491,15 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     the residuals' AR(1) error models (:func:`innovation_t`); ``innovation-t-alone``:
     that t test without the spread over blocks; ``innovation-arma``: that test
     on the innovations of the ARMA(1, 2) error models (:func:`innovation_arma_t`);
-    ``input-noise-null`` (default): that test, then the effect's coefficients against their
+    ``input-noise-null``: that test, then the effect's coefficients against their
     fits to draws of the input current's noise
     (:func:`~dcmotor_id.identification.discovery.input_null.input_noise_doubt`);
-    ``noise-level`` (the former rules, kept to measure against):
-    :func:`unearned_noise_level`.
+    ``input-noise-null-any-gain`` (default): the same without the least gain
+    (:func:`least_gain`);
+    ``all-data-lr``: the held-out guard and the input noise's null of
+    :func:`~dcmotor_id.identification.discovery.likelihood.unearned_ratio` (the training
+    parts' likelihood ratio chose it); ``noise-level`` (the former rules, kept to measure
+    against): :func:`unearned_noise_level`.
     """
     if loop.acceptance == 'noise-level':
         return unearned_noise_level(loop, current, candidate)
@@ -482,7 +509,11 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
         return unearned_heldout_t(loop, current, candidate, innovation_t, spread=False)
     if loop.acceptance == 'innovation-arma':
         return unearned_heldout_t(loop, current, candidate, innovation_arma_t, spread=False)
-    if loop.acceptance == 'input-noise-null':
+    if loop.acceptance == 'all-data-lr':
+        from dcmotor_id.identification.discovery.likelihood import unearned_ratio
+
+        return unearned_ratio(loop, current, candidate)
+    if loop.acceptance in ('input-noise-null', 'input-noise-null-any-gain'):
         from dcmotor_id.identification.discovery.input_null import input_noise_doubt
 
         return (unearned_heldout_t(loop, current, candidate, innovation_t, spread=False)
@@ -506,7 +537,7 @@ def unearned_heldout_t(loop: LoopState, current: Fit, candidate: Candidate,
     t, effective = (test or heldout_t)(loop, current, candidate.fitted)
     achieved = float(candidate.gain or 0.0)
     required = heldout_t_threshold(effective)
-    if t >= required and achieved >= loop.min_gain:
+    if t >= required and achieved >= least_gain(loop):
         blocks = gain_t(loop, current, candidate.fitted) if spread else GAIN_T
         if blocks >= GAIN_T:
             return None

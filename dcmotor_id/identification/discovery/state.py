@@ -40,13 +40,23 @@ MAX_EFFECTS = 4
 #: spread over 8 blocks of the held-out part (evidence gathered at a few instants is not);
 #: ``innovation-arma``, that test alone on the innovations of an ARMA(1, 2) model of the AR(1)
 #: innovations (measured beside the default, not the default); ``input-noise-null`` (the default
-#: since round 8), the test of ``innovation-t-alone`` and then the effect's coefficients against
-#: their fits to draws of the input current's noise (the mechanical mode's output-error loop;
-#: :mod:`~dcmotor_id.identification.discovery.input_null`; elsewhere ``innovation-t-alone``).
+#: in rounds 8 and 9), the test of ``innovation-t-alone`` and then the effect's coefficients
+#: against their fits to draws of the input current's noise (the mechanical mode's output-error
+#: loop; :mod:`~dcmotor_id.identification.discovery.input_null`; elsewhere
+#: ``innovation-t-alone``);
+#: ``input-noise-null-any-gain`` (the default since round 10), that rule without the least gain
+#: (its t test the criterion: ``bench/discovery_results.md``, round 10);
+#: ``all-data-lr``, a likelihood-ratio test on effective samples over the training parts, the
+#: held-out part a guard against a contradiction
+#: (:mod:`~dcmotor_id.identification.discovery.likelihood`; measured, not the default: false
+#: effects on real records).
+#: The least gain: the screen's share and the rules that ask it
+#: (:func:`~dcmotor_id.identification.discovery.judging.least_gain`).
 ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level', 'innovation-t-alone',
-                    'innovation-arma', 'input-noise-null')
+                    'innovation-arma', 'input-noise-null', 'input-noise-null-any-gain',
+                    'all-data-lr')
 #: The rule of every identification.
-DEFAULT_ACCEPTANCE = 'input-noise-null'
+DEFAULT_ACCEPTANCE = 'input-noise-null-any-gain'
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,7 +75,10 @@ class LoopState:
     holdout_fraction : float
         Share of each record held out.
     min_gain : float
-        Least relative drop of the held-out error to add an effect.
+        Least relative drop of the held-out error to add an effect, under the rules that
+        ask one (not those of
+        :data:`~dcmotor_id.identification.discovery.judging.GAIN_FREE`, the default among
+        them); a candidate is refitted when its screen explains a share of it.
     max_effects : int
         Most effects added.
     max_lag : int
