@@ -22,6 +22,10 @@ issue's goals (Ra, CPhi 5 %, J 10 %) is covered by its stated standard errors (w
 names the parameter not identifiable, or warns that the fit misfits or disagrees with the
 model-free evidence.
 
+``--cli`` identifies each case as a user does: the record written to a CSV file and read by
+``dcmotor-id identify FILE --json OUT`` in its own process (the reader's checks, the dropout
+repair, the exit code), graded from the JSON.
+
 Run from the repository root (about 15 minutes on 2 cores)::
 
     PYTHONPATH=$PWD .venv/bin/python bench/bench_random_motors.py \
@@ -29,10 +33,14 @@ Run from the repository root (about 15 minutes on 2 cores)::
 """
 
 import argparse
+import json
 import os
+import subprocess
 import sys
+import tempfile
 import time
 import traceback
+from types import SimpleNamespace
 import warnings
 
 import numpy as np
@@ -135,18 +143,49 @@ def judge(index: int) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')
             result = identify(prepare_records([record]))
-        row['errors'] = {name: 100.0 * (result.parameters[name] / getattr(motor, name) - 1.0)
-                         for name in GOALS_PCT}
-        off = [name for name, limit in GOALS_PCT.items() if abs(row['errors'][name]) > limit]
-        row['outcome'] = ('within the goals' if not off else
-                          'outside, said' if all(said_of(result, motor, name) for name in off)
-                          else 'outside, silent')
+        row.update(_graded(result, motor))
     except DcMotorIdError as error:
         row['outcome'], row['why'] = 'refused', str(error).split(':')[0][:70]
     except Exception:  # a failure is what this benchmark counts: keep going, say which
         row['outcome'], row['why'] = 'failed', traceback.format_exc().splitlines()[-1][:70]
     row['seconds'] = time.perf_counter() - start
     return row
+
+
+def judge_cli(index: int, directory: str) -> dict:
+    """Identify one case as a user does: its CSV file through ``dcmotor-id identify``."""
+    motor, record, row = case(index)
+    path = os.path.join(directory, f'case{index}.csv')
+    last = record.speed if record.speed is not None else record.position
+    np.savetxt(path, np.column_stack([record.time_s, record.voltage, record.current, last]),
+               delimiter=',', comments='',
+               header='t,voltage,current,' + ('speed' if record.speed is not None else 'position'))
+    out = os.path.join(directory, f'case{index}.json')
+    start = time.perf_counter()
+    done = subprocess.run([sys.executable, '-m', 'dcmotor_id.cli.main', 'identify', path,
+                           '--json', out, '--quiet'], capture_output=True, text=True)
+    row['seconds'] = time.perf_counter() - start
+    if done.returncode != 0:
+        last_line = (done.stderr.strip().splitlines() or [''])[-1]
+        row['outcome'] = 'refused' if done.returncode == 2 else 'failed'
+        row['why'] = last_line.replace('dcmotor-id: error: ', '').split(':')[0][:70]
+        return row
+    with open(out) as stream:
+        answer = json.load(stream)
+    result = SimpleNamespace(parameters=answer['parameters'], stderr=answer['stderr'],
+                             not_identifiable=answer.get('not_identifiable', {}),
+                             warnings=answer.get('warnings', []))
+    return {**row, **_graded(result, motor)}
+
+
+def _graded(result, motor: MotorParameters) -> dict:
+    """Return the errors against the truth and the outcome of an answer."""
+    errors = {name: 100.0 * (result.parameters[name] / getattr(motor, name) - 1.0)
+              for name in GOALS_PCT}
+    off = [name for name, limit in GOALS_PCT.items() if abs(errors[name]) > limit]
+    return {'errors': errors, 'outcome': 'within the goals' if not off else
+            'outside, said' if all(said_of(result, motor, name) for name in off)
+            else 'outside, silent'}
 
 
 def summary_rows(rows: list[dict]) -> list[list[str]]:
@@ -181,15 +220,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[1])
     parser.add_argument('--cases', type=int, default=120)
     parser.add_argument('--out', default='bench/random_motors_results.md')
+    parser.add_argument('--cli', action='store_true',
+                        help='identify each case as a user does: its CSV through the command line')
     args = parser.parse_args(argv)
     load, started = os.getloadavg(), time.time()
     rows = []
+    scratch = tempfile.TemporaryDirectory()
     for index in range(args.cases):
-        rows.append({'index': index, **judge(index)})
+        rows.append({'index': index, **(judge_cli(index, scratch.name) if args.cli
+                                        else judge(index))})
         print(f"[{time.time() - started:5.0f} s] case {index}: {rows[-1]['outcome']}",
               file=sys.stderr, flush=True)
     lines = ['# Random motors: default identify on motors it was not tuned on (issue 29)', '',
-             f'Command: `bench/bench_random_motors.py --cases {args.cases}`  ',
+             f'Command: `bench/bench_random_motors.py --cases {args.cases}'
+             + (' --cli' if args.cli else '') + '`  ',
              f'Load average at the start: {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}; run time '
              f'{time.time() - started:.0f} s', '',
              'Outcomes: *within the goals*: Ra and CPhi within 5 %, J within 10 % of the truth; '
