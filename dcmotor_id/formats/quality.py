@@ -24,6 +24,7 @@ from typing import Optional
 import warnings
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.errors import InputDataError
@@ -263,9 +264,16 @@ def wrapping_degrees(record: Record) -> Optional[str]:
     within [0, 360] or [-180, 180], and read in degrees its jumps are wraps (those
     :func:`~dcmotor_id.signals.filters.unwrap_turns` removes).
     """
-    if record.speed is not None or record.position is None or len(record.position) < 2:
+    if record.speed is not None or record.position is None:
         return None
-    position = np.asarray(record.position, dtype=float)
+    return degrees_wrap(record.position)
+
+
+def degrees_wrap(position: ArrayLike) -> Optional[str]:
+    """Say how ``position`` looks like an angle in degrees that wraps at 360, or None."""
+    position = np.asarray(position, dtype=float)
+    if position.shape[0] < 2:
+        return None
     if not np.all(np.isfinite(position)):
         return None
     low, high = float(np.min(position)), float(np.max(position))

@@ -411,3 +411,19 @@ def test_a_constant_current_in_steady_state_is_refused_in_the_mechanical_only_mo
     path = write(tmp_path / 'steady.csv', HEADER, rows)
     expect_refusal(capsys, [path, '--torque-constant', '0.7'], 'the current is constant',
                    'J is not identifiable', 'changing current')
+
+
+def test_degrees_wrapping_at_360_under_a_varying_voltage_are_named_in_the_refusal(
+        tmp_path, out, capsys):
+    # With a varying voltage the read-time check has nothing to say; the fit on an angle
+    # read 57 times too large was refused with "check the units" only.
+    t = np.arange(3000) * DT
+    voltage = 100.0 * np.sin(2 * np.pi * 1.0 * t)
+    current, speed = simulate_motor(MOTOR, voltage, DT)
+    angle = np.degrees(np.cumsum(speed) * DT) % 360.0
+    path = write(tmp_path / 'degrees.csv', ['t', 'voltage', 'current', 'position'],
+                 np.column_stack([t, voltage, current, angle]))
+    expect_refusal(capsys, [path, '--json', out, '--no-discover'], 'does not reproduce',
+                   'an angle in degrees that wraps at 360', 'pass --position-unit deg')
+    code, message = run(capsys, path, '--position-unit', 'deg', '--json', out, '--no-discover')
+    assert code == 0, message

@@ -10,11 +10,13 @@ quasi-static armature La is given by its upper bound
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Sequence
 
 import numpy as np
 
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import DERIVED_NAMES, MECHANICAL_NAMES, PARAMETER_NAMES
+from dcmotor_id.core.records import Record
 from dcmotor_id.identification.error_model.residuals import simulated, Simulation
 from dcmotor_id.identification.estimators.uncertainty import with_robust_stderr
 from dcmotor_id.identification.pipeline.armature import la_reason, with_la_bound
@@ -39,10 +41,25 @@ def final_fit(inputs: Inputs, fit: Fit) -> Answer:
     if not np.isfinite(worst) or worst > NO_FIT_NRMSE_PCT:
         raise FitError(
             f'the identified model does not reproduce the data (simulation error {worst:.3g} % '
-            'of the signal spread). Check that the columns are what their names say (units, '
-            'signs) and that the data come from a DC motor drive.')
+            'of the signal spread). ' + _likely_unit(inputs.records) + 'Check that the '
+            'columns are what their names say (units, signs) and that the data come from a DC '
+            'motor drive.')
     return Answer(final, terms, fitted_records, fit.warnings + said, dict(fit.not_identifiable),
                   simulation=simulation)
+
+
+def _likely_unit(records: Sequence[Record]) -> str:
+    """Name a position in degrees read as radians (it wraps at 360), or nothing."""
+    # Imported here: only a refusal needs it, and the formats package loads its readers.
+    from dcmotor_id.formats.quality import degrees_wrap
+
+    for rec in records:
+        if rec.position is not None and rec.speed_derived:
+            found = degrees_wrap(rec.position)
+            if found is not None:
+                return (f'{rec.source or "The record"}: {found}, read here as radians: pass '
+                        '--position-unit deg. ')
+    return ''
 
 
 def refusal_errors(simulation: Simulation) -> tuple[dict[str, float | None], tuple[str, ...]]:
