@@ -107,6 +107,7 @@ def la_at_its_bound(quasi: Estimate, full_models: Models, dt: float,
     which the search of positive parameters (on their logarithms) cannot leave.
     """
     bound = float(quasi.parameters['Ra']) * dt
+    inputs.progress.set_stage('full armature with La at its upper bound')
     try:
         return RefinedEstimator(pinned={'La': bound},
                                 initial_state=inputs.initial_state, progress=inputs.progress,

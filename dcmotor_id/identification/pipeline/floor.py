@@ -29,7 +29,7 @@ keeps the output-error result only where it predicts at least as well as the reg
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable, Sequence, TYPE_CHECKING
+from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -330,12 +330,12 @@ def _left_out(records: Sequence[Record], masks: Sequence[np.ndarray]) -> tuple[L
     return tuple(items)
 
 
-def _electrical(rows_e, rhs_e, dt, on_samples: Callable[[], EquationFit | None]
+def _electrical(rows_e, rhs_e, dt, on_samples: EquationFit | None
                 ) -> tuple[EquationFit | None, bool, float | None]:
     """
     Fit the electrical equation: dynamic, or static (La a bound) when La is unresolved.
 
-    The choice is made on the filtered rows; the static values are ``on_samples()``'s (the
+    The choice is made on the filtered rows; the static values are ``on_samples`` (the
     static equation on the samples as logged, :func:`_static_on_samples`) where it has them.
     """
     matrix, rhs = np.vstack(rows_e), np.concatenate(rhs_e)
@@ -354,7 +354,7 @@ def _electrical(rows_e, rhs_e, dt, on_samples: Callable[[], EquationFit | None]
     if ra > 0 and la > 0 and la / ra >= dt and la_se <= LA_UNDETERMINED_REL * la and \
             gain > LA_CHI2:
         return dynamic, False, None
-    static = on_samples() or static
+    static = on_samples or static
     ra = static.values['Ra']
     # A dynamic La inside the resolved range that the data do not confirm bounds La; one
     # beyond it (a time constant the records would show) says nothing.
@@ -378,7 +378,7 @@ def _static_on_samples(records: Sequence[Record],
     (``masks``) counts; None when a record's speed was derived from its position (that speed
     is low-passed, the current is not: the filtered equation pairs them) or the fit fails.
     """
-    if any(getattr(rec, 'speed_derived', False) for rec in records):
+    if any(rec.speed_derived for rec in records):
         return None
     keep = [~mask & np.isfinite(np.asarray(rec.current, dtype=float))
             & np.isfinite(np.asarray(rec.speed, dtype=float))
@@ -411,7 +411,7 @@ def regression_floor(records: Sequence[Record],
     if not rows_m or (not mechanical_only and not rows_e):
         return None
     electrical, static, bound = (None, False, None) if mechanical_only else _electrical(
-        rows_e, rhs_e, records[0].sample_period_s, lambda: _static_on_samples(records, masks))
+        rows_e, rhs_e, records[0].sample_period_s, _static_on_samples(records, masks))
     names = ('J', 'b', 'Mc') + (('offset',) if offset else ())
     mechanical = _solve_admissible(np.vstack(rows_m), np.concatenate(rhs_m), names)
     if mechanical is None or (not mechanical_only and electrical is None):
