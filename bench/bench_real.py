@@ -1006,7 +1006,10 @@ LEGEND = (
     'error fit on the same records (speed for HSM150, position for MECH 467 and EMPS), fit % '
     'on the fitted records, the same validation; *plausible*: J and b positive and within 2x '
     'of the references (where known), fit >= 50 %.  z: |a - b| / sqrt(sa^2 + '
-    'sb^2) over the pairs of disjoint subsets, with the stated standard errors.')
+    'sb^2) over the pairs of disjoint subsets, with the stated standard errors.  Round-3 '
+    'tables: *(tool)* the value, its error against the reference in % and *se* its stated '
+    'standard error relative to the value; *(regression)* the model-free regression on the '
+    'same records.')
 
 
 def goal_lines(rows: list[dict[str, Any]]) -> list[str]:
@@ -1395,10 +1398,15 @@ def evaluate3(run: Run3, work: str) -> dict[str, Any]:
     return {'run': run, 'cli': cli, 'result': result, 'peer': peer}
 
 
-def _cell(values: dict[str, Any], key: str, ref: Optional[float]) -> str:
-    """Format a value and its error against a reference."""
+def _cell(values: dict[str, Any], key: str, ref: Optional[float],
+          stderr: Optional[dict[str, Any]] = None) -> str:
+    """Format a value and its error against a reference (and its stated standard error)."""
     value = values.get(key)
-    return with_error(None if value is None else float(value), ref)
+    text = with_error(None if value is None else float(value), ref)
+    stated = (stderr or {}).get(key)
+    if value is None or stated is None or not float(value):
+        return text
+    return f'{text} se {100 * float(stated) / abs(float(value)):.2g} %'
 
 
 def robot_log_lines(rows: list[dict[str, Any]]) -> list[str]:
@@ -1418,7 +1426,8 @@ def robot_log_lines(rows: list[dict[str, Any]]) -> list[str]:
             peer = row['peer']
             peer_text = ('plausible' if peer['usable'] else 'not plausible'
                          ) + (f' ({peer["error"][:60]})' if peer.get('error') else '')
-            cells.append(head + [_cell(tool, key, refs.get(key)) for key in keys]
+            stated = (result or {}).get('stderr') or {}
+            cells.append(head + [_cell(tool, key, refs.get(key), stated) for key in keys]
                          + [_cell(peer['values'], key, refs.get(key)) for key in keys]
                          + [peer_text, warnings_short(result),
                             f'{cli["wall"]:.1f} ({cli["cpu"]:.1f})'])
