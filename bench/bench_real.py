@@ -28,18 +28,24 @@ files (``DATA_EMPS.mat``, ``DATA_EMPS_PULSES.mat``)::
     git clone https://github.com/malik-robert/HSM150-data && git -C HSM150-data checkout 35c3b1b
     git clone https://github.com/brucecui97/mech467 && git -C mech467 checkout 36dde45
 
-Round 3 (issue 29) adds a WPILib SysId log, a robot's wheel motors and a QUBE-Servo 2 teaching
-rig, each given to the default ``identify`` as it comes, with the model-free regression of the
-tool (``pipeline/floor.py``; without a current, the voltage-to-speed regression start) on the
-same records as the peer::
+Round 3 (issue 29) adds a WPILib SysId log, a robot's wheel motors, a QUBE-Servo 2 teaching
+rig, an FRC drivetrain's SysId log and a lab gearmotor's voltage step from rest, each given to
+the default ``identify`` as it comes, with the model-free regression of the tool
+(``pipeline/floor.py``; without a current, the voltage-to-speed regression start) on the same
+records as the peer::
 
     git clone https://github.com/calcmogul/SysIdOpt && git -C SysIdOpt checkout f8c2183
     git clone https://github.com/BrOleg5/research-wheel-slippage && \
         git -C research-wheel-slippage checkout 59fc082  # the file is gone from later commits
     git clone https://github.com/JackDelcaro/ACL_LABisca && git -C ACL_LABisca checkout 092cd65
 
+    git clone https://github.com/MiamiBeachBots/base-bot && git -C base-bot checkout 89a98a9
+    git clone https://github.com/ryg-delta/SEED_Lab_SP24 && \
+        git -C SEED_Lab_SP24 checkout e61c0c4
+
     .venv/bin/python bench/bench_real.py --sysidopt SysIdOpt --wheels research-wheel-slippage \
-        --qube ACL_LABisca --out bench/real_results_robot_logs.md
+        --qube ACL_LABisca --basebot base-bot --seedlab SEED_Lab_SP24 \
+        --out bench/real_results_robot_logs.md
 
 Each repository path may be a work tree or a bare clone (``git clone --bare``; its files are
 then read at the named commit with ``git show``).  Run from the repository root (one command;
@@ -1000,7 +1006,10 @@ LEGEND = (
     'error fit on the same records (speed for HSM150, position for MECH 467 and EMPS), fit % '
     'on the fitted records, the same validation; *plausible*: J and b positive and within 2x '
     'of the references (where known), fit >= 50 %.  z: |a - b| / sqrt(sa^2 + '
-    'sb^2) over the pairs of disjoint subsets, with the stated standard errors.')
+    'sb^2) over the pairs of disjoint subsets, with the stated standard errors.  Round-3 '
+    'tables: *(tool)* the value, its error against the reference in % and *se* its stated '
+    'standard error relative to the value; *(regression)* the model-free regression on the '
+    'same records.')
 
 
 def goal_lines(rows: list[dict[str, Any]]) -> list[str]:
@@ -1083,6 +1092,18 @@ QUBE_FILES = ('20220304_1224_no_pendulum_1V_squarewave_0p2Hz',
               '20220314_1536_no_pendulum_sweepsine_exp02')
 QUBE_READING = ['--column', 't=time', '--column', 'voltage=voltage', '--column',
                 'position=theta']
+#: github MiamiBeachBots/base-bot: a 2023 FRC drivetrain's SysId data file (the sample layout of
+#: SysId before 2024: time, left and right voltage, position, velocity, gyro angle and rate).
+BASEBOT_COMMIT = '89a98a9'
+BASEBOT_COLUMNS = {'left': (1, 5), 'right': (2, 6)}
+#: github ryg-delta/SEED_Lab_SP24 (Colorado School of Mines SEED lab): one step of 200/255 of a
+#: 7.6 V supply from rest per wheel motor, logged every 10 ms by the Arduino; the authors' first
+#: order model (``Runmotorsim.m``): DC gain K 1.65 rad/(V s), sigma 5.4 1/s.
+SEEDLAB_COMMIT = 'e61c0c4'
+SEEDLAB_FOLDER = 'Demos/Matlab_Code/Experimental/Motors'
+SEEDLAB_STEP_V = 7.6 * 200 / 255
+SEEDLAB_K, SEEDLAB_SIGMA = 1.65, 5.4
+SEEDLAB_REFS = {'kV': 1 / SEEDLAB_K, 'kA': 1 / (SEEDLAB_K * SEEDLAB_SIGMA)}
 
 
 @dataclass
@@ -1097,24 +1118,30 @@ class Run3:
     note: str = ''
 
 
-def sysid_ols(path: str, threshold: float = 0.1) -> dict[str, float]:
+def sysid_ols(path: str, threshold: float = 0.1, columns: tuple[int, int] = (1, 3),
+              to_rad: float = 1.0) -> dict[str, float]:
     """
     Return kS, kV, kA of SysId's least squares on a SysId JSON file (the authors' own method).
 
     As ``solve_eigen_sysid_ols`` of calcmogul/SysIdOpt ``src/main.cpp``: the acceleration
     ``(v[k+1] - v[k]) / T`` regressed on ``v[k]``, ``u[k]``, ``sgn v[k]`` over the samples moving
-    faster than 0.1 units/s, ``T`` the mean step of those samples.
+    faster than 0.1 units/s, ``T`` the mean step of those samples.  ``columns``: the sample's
+    voltage and velocity columns (a drivetrain side's); ``to_rad``: radians per unit of the
+    file (``2 pi / unitsPerRotation``), so that kV and kA come in V s/rad and V s^2/rad.
     """
     with open(path) as stream:
         data = json.load(stream)
+    volt, vel = columns
     tests = [np.asarray(data[name], dtype=float) for name in
              ('fast-backward', 'fast-forward', 'slow-backward', 'slow-forward')]
-    moving = [np.abs(test[:-1, 3]) >= threshold for test in tests]
+    moving = [np.abs(test[:-1, vel]) >= threshold for test in tests]
     step = float(np.mean(np.concatenate([np.diff(test[:, 0])[m]
                                          for test, m in zip(tests, moving)])))
-    rows = np.vstack([np.column_stack([test[:-1, 3], test[:-1, 1], np.sign(test[:-1, 3])])[m]
+    rows = np.vstack([np.column_stack([test[:-1, vel] * to_rad, test[:-1, volt],
+                                       np.sign(test[:-1, vel])])[m]
                       for test, m in zip(tests, moving)])
-    accel = np.concatenate([(np.diff(test[:, 3]) / step)[m] for test, m in zip(tests, moving)])
+    accel = np.concatenate([(np.diff(test[:, vel] * to_rad) / step)[m]
+                            for test, m in zip(tests, moving)])
     alpha, beta, gamma = np.linalg.lstsq(rows, accel, rcond=None)[0]
     return {'kS': -gamma / beta, 'kV': -alpha / beta, 'kA': 1.0 / beta}
 
@@ -1251,6 +1278,111 @@ def qube_runs(path: str, cache: str) -> list[Run3]:
     return runs
 
 
+def basebot_runs(path: str, cache: str) -> list[Run3]:
+    """MiamiBeachBots/base-bot ``sysid_data.json``: a drivetrain's SysId log, each side."""
+    repo = Repository(path, BASEBOT_COMMIT, os.path.join(cache, 'base-bot'))
+    file = repo.local('sysid_data.json')
+    with open(file) as stream:
+        to_rad = 2 * math.pi / float(json.load(stream)['unitsPerRotation'])
+    refs = {side: sysid_ols(file, columns=columns, to_rad=to_rad)
+            for side, columns in BASEBOT_COLUMNS.items()}
+    note = (f'github MiamiBeachBots/base-bot at {repo.revision()}, `sysid_data.json` (last '
+            'changed in a024652, 2023): a WPILib SysId routine of an FRC drivetrain (Drivetrain, '
+            "Meters, 0.4878 m per wheel revolution), 5 ms samples, each side's voltage, "
+            'position and velocity, no current; the four tests (quasistatic ramps to 4.6 V, '
+            'dynamic steps of 8.1-8.7 V, both ways).  Read as it comes with `--joint left|right`'
+            " (the velocity in rad/s of the wheel).  References: SysId's own least squares on "
+            'the file (as `solve_eigen_sysid_ols` of calcmogul/SysIdOpt, recomputed here per '
+            'side): left kS {l[kS]:.4g} V, kV {l[kV]:.4g} V s/rad, kA {l[kA]:.4g} V s^2/rad; '
+            "right kS {r[kS]:.4g}, kV {r[kV]:.4g}, kA {r[kA]:.4g}.  SysId's kA comes from the "
+            'difference of successive 5 ms velocity samples; it is a reference, not the truth: in '
+            'the dynamic tests the speed jumps from 0 to 2.3-2.9 m/s within 30 ms (the wheels '
+            "slipping, or the drive's own ramp) and then climbs to about 5 m/s over 0.5 s (the "
+            "robot's mass): two regimes, of which SysId's kA follows the first and an "
+            'output-error fit the second.'
+            ).format(l=refs['left'], r=refs['right'])
+    return [Run3('FRC drivetrain SysId (base-bot)', f'sysid_data.json, {side} side',
+                 [file, '--joint', side], refs[side],
+                 (lambda s=side: regression_peer([file], {'joint': s}, None)), note=note)
+            for side in BASEBOT_COLUMNS]
+
+
+def _seedlab_csv(mat: str, cache: str) -> str:
+    """Write a SEED lab log with the applied voltage in its voltage column (the log's reads 0)."""
+    from scipy.io import loadmat
+    data = np.asarray(loadmat(mat)['data'], dtype=float)
+    out = os.path.join(cache, os.path.basename(mat).replace('.mat', '_with_voltage.csv'))
+    np.savetxt(out, np.column_stack([data[:, 0], np.full(len(data), SEEDLAB_STEP_V),
+                                     data[:, 3]]),
+               delimiter=',', header='t,voltage,speed', comments='', fmt='%.9g')
+    return out
+
+
+def first_order_step(mat: str) -> dict[str, float]:
+    """
+    Return kV, kA of the authors' kS-free first-order model fitted to a SEED lab step.
+
+    ``w(t) = (u / kV) (1 - exp(-t kV / kA))`` by ``scipy.optimize.curve_fit`` on the logged speed
+    (``u`` the applied 5.96 V, ``t`` from the first sample): the plain regression a student
+    runs, and what the record determines once kS is taken as 0.
+    """
+    from scipy.io import loadmat
+    from scipy.optimize import curve_fit
+    speed = np.asarray(loadmat(mat)['data'], dtype=float)[:, 3]
+    time_s = np.arange(speed.size) * 0.01
+
+    def response(t: np.ndarray, kv: float, ka: float) -> np.ndarray:
+        return SEEDLAB_STEP_V / kv * (1.0 - np.exp(-t * kv / ka))
+    (kv, ka), _ = curve_fit(response, time_s, speed, p0=(0.6, 0.1))
+    return {'kV': float(kv), 'kA': float(ka)}
+
+
+def seedlab_runs(path: str, cache: str) -> tuple[list[Run3], list[dict[str, Any]]]:
+    """ryg-delta/SEED_Lab_SP24: one voltage step from rest per wheel motor, speed only."""
+    repo = Repository(path, SEEDLAB_COMMIT, os.path.join(cache, 'seedlab'))
+    note = (f'github ryg-delta/SEED_Lab_SP24 at {repo.revision()}, `{SEEDLAB_FOLDER}/'
+            '{left,right}MotorData.mat`: a Colorado School of Mines SEED lab, each wheel '
+            'gearmotor driven from rest by 200/255 of a 7.6 V supply (5.96 V, the comment of '
+            '`Runmotorsim.m`), `data` = time [s], voltage, encoder counts, speed [rad/s] every '
+            '10 ms for 2 s (its stamps repeat once and skip twice: `--sample-period 0.01`); the '
+            "voltage column reads 0 throughout.  References: the authors' first-order model "
+            f'(`Runmotorsim.m`: DC gain K {SEEDLAB_K} rad/(V s), sigma {SEEDLAB_SIGMA} 1/s), '
+            f'so kV = 1/K = {SEEDLAB_REFS["kV"]:.3g} V s/rad and kA = 1/(K sigma) = '
+            f'{SEEDLAB_REFS["kA"]:.3g} V s^2/rad (their model has no kS).  Rows "as logged": the '
+            '.mat with its voltage column; "applied voltage": a CSV with 5.96 V in it.  One '
+            'level in one direction cannot separate kS from kV: refused, by the tool and by its '
+            'regression alike; the kS-free first-order fit of the authors (`first_order_step`, '
+            'kS taken as 0) gives {fits}: an answer neither offers.')
+    fits = {side: first_order_step(repo.local(f'{SEEDLAB_FOLDER}/{side}MotorData.mat'))
+            for side in ('left', 'right')}
+    note = note.replace('{fits}', '; '.join(
+        f'{side} kV {fit["kV"]:.3g} ({error_pct(fit["kV"], SEEDLAB_REFS["kV"]):+.0f} %), kA '
+        f'{fit["kA"]:.3g} ({error_pct(fit["kA"], SEEDLAB_REFS["kA"]):+.0f} %)'
+        for side, fit in fits.items()))
+    runs, findings = [], []
+    for side in ('left', 'right'):
+        mat = repo.local(f'{SEEDLAB_FOLDER}/{side}MotorData.mat')
+        csv = _seedlab_csv(mat, os.path.dirname(mat))
+        logged = ['--sample-period', '0.01', '--column', 'voltage=data:2', '--column',
+                  'speed=data:4']
+        options = {'sample_period_s': 0.01, 'columns': {'voltage': 'data:2', 'speed': 'data:4'}}
+        runs.append(Run3('SEED lab step', f'{side} motor, as logged', [mat, *logged],
+                         SEEDLAB_REFS, (lambda m=mat, o=options: regression_peer([m], o, None)),
+                         note=note))
+        runs.append(Run3('SEED lab step', f'{side} motor, applied voltage',
+                         [csv, '--sample-period', '0.01'], SEEDLAB_REFS,
+                         (lambda c=csv: regression_peer([c], {'sample_period_s': 0.01}, None)),
+                         note=note))
+        if side == 'left':
+            extra = ['--column', 't=data:1', '--column', 'voltage=data:2', '--column',
+                     'speed=data:4']
+            run = run_cli(['identify', mat, *extra])
+            findings.append({'data': 'SEED lab step', 'file': os.path.basename(mat),
+                             'attempt': 'the .mat with its time column ' + ' '.join(extra),
+                             'exit': run['rc'], 'message': run['message'] or 'read'})
+    return runs, findings
+
+
 def evaluate3(run: Run3, work: str) -> dict[str, Any]:
     """Run the default ``identify`` of one round-3 record and its peer; return the row."""
     out = os.path.join(work, 'r3_' + re.sub(r'[^A-Za-z0-9.]+', '_', run.data + run.label)
@@ -1266,10 +1398,15 @@ def evaluate3(run: Run3, work: str) -> dict[str, Any]:
     return {'run': run, 'cli': cli, 'result': result, 'peer': peer}
 
 
-def _cell(values: dict[str, Any], key: str, ref: Optional[float]) -> str:
-    """Format a value and its error against a reference."""
+def _cell(values: dict[str, Any], key: str, ref: Optional[float],
+          stderr: Optional[dict[str, Any]] = None) -> str:
+    """Format a value and its error against a reference (and its stated standard error)."""
     value = values.get(key)
-    return with_error(None if value is None else float(value), ref)
+    text = with_error(None if value is None else float(value), ref)
+    stated = (stderr or {}).get(key)
+    if value is None or stated is None or not float(value):
+        return text
+    return f'{text} se {100 * float(stated) / abs(float(value)):.2g} %'
 
 
 def robot_log_lines(rows: list[dict[str, Any]]) -> list[str]:
@@ -1289,7 +1426,8 @@ def robot_log_lines(rows: list[dict[str, Any]]) -> list[str]:
             peer = row['peer']
             peer_text = ('plausible' if peer['usable'] else 'not plausible'
                          ) + (f' ({peer["error"][:60]})' if peer.get('error') else '')
-            cells.append(head + [_cell(tool, key, refs.get(key)) for key in keys]
+            stated = (result or {}).get('stderr') or {}
+            cells.append(head + [_cell(tool, key, refs.get(key), stated) for key in keys]
                          + [_cell(peer['values'], key, refs.get(key)) for key in keys]
                          + [peer_text, warnings_short(result),
                             f'{cli["wall"]:.1f} ({cli["cpu"]:.1f})'])
@@ -1300,8 +1438,9 @@ def robot_log_lines(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-#: The warning every voltage-to-speed result carries (it says nothing of the values).
-STANDARD_WARNING = 'no current in the records'
+#: Warnings that say nothing of the values: the one every voltage-to-speed result carries, and
+#: the note that a record's tests were fitted as separate records.
+STANDARD_WARNING = ('no current in the records', 'the segment column marks the tests')
 
 
 def _farther(row: dict[str, Any]) -> list[str]:
@@ -1321,7 +1460,8 @@ def goal_robot_logs(rows: list[dict[str, Any]]) -> list[str]:
     Return the goals of issue 29 on the round-3 records, met or not, per record.
 
     No refusal where the regression is plausible; no answer farther from a reference than the
-    regression's (by more than 5 points) without a warning beyond the standard one.
+    regression's (by more than 5 points) without a warning beyond the standard ones
+    (:data:`STANDARD_WARNING`).
     """
     refused = [f'{row["run"].data} {row["run"].label}' for row in rows
                if row['result'] is None and row['peer']['usable']]
@@ -1368,6 +1508,8 @@ def public_command(args: argparse.Namespace) -> str:
                           ('--sysidopt', 'SysIdOpt' if args.sysidopt else None),
                           ('--wheels', 'research-wheel-slippage' if args.wheels else None),
                           ('--qube', 'ACL_LABisca' if args.qube else None),
+                          ('--basebot', 'base-bot' if args.basebot else None),
+                          ('--seedlab', 'SEED_Lab_SP24' if args.seedlab else None),
                           ('--emps', '../shared/data/emps' if args.emps else None),
                           ('--only', args.only), ('--out', args.out)):
         if value:
@@ -1395,8 +1537,12 @@ def parse(argv: Optional[list[str]]) -> argparse.Namespace:
                         'tree or bare clone): the wheel motors of a robot')
     parser.add_argument('--qube', metavar='DIR', help='JackDelcaro/ACL_LABisca (work tree or '
                         'bare clone): a QUBE-Servo 2 without its pendulum')
+    parser.add_argument('--basebot', metavar='DIR', help='MiamiBeachBots/base-bot (work tree or '
+                        "bare clone): an FRC drivetrain's SysId log")
+    parser.add_argument('--seedlab', metavar='DIR', help='ryg-delta/SEED_Lab_SP24 (work tree or '
+                        'bare clone): one voltage step from rest per wheel motor')
     parser.add_argument('--only', choices=('hsm150', 'mech467', 'emps', 'sysidopt', 'wheels',
-                                           'qube'))
+                                           'qube', 'basebot', 'seedlab'))
     parser.add_argument('--quick', action='store_true', help='a subset of the fits')
     parser.add_argument('--out', metavar='FILE.md', help='also write the report here')
     parser.add_argument('--label', default=DEFAULT_LABEL, help='what this run is, for the title')
@@ -1433,17 +1579,17 @@ def robot_log_runs(args: argparse.Namespace, work: str,
     """Build the robot and lab log records asked for; return them and what reading them found."""
     runs: list[Run3] = []
     findings: list[dict[str, Any]] = []
-    for name, given in (('sysidopt', args.sysidopt), ('wheels', args.wheels),
-                        ('qube', args.qube)):
+    makers = {'sysidopt': lambda given: (sysidopt_runs(given, work), []),
+              'wheels': lambda given: wheels_runs(given, work),
+              'qube': lambda given: (qube_runs(given, work), []),
+              'basebot': lambda given: (basebot_runs(given, work), []),
+              'seedlab': lambda given: seedlab_runs(given, work)}
+    for name, make in makers.items():
+        given = getattr(args, name)
         if not asked(args, name, given, skipped):
             continue
-        if name == 'sysidopt':
-            runs += sysidopt_runs(given, work)
-        elif name == 'wheels':
-            more, found = wheels_runs(given, work)
-            runs, findings = runs + more, findings + found
-        else:
-            runs += qube_runs(given, work)
+        more, found = make(given)
+        runs, findings = runs + more, findings + found
     return runs, findings
 
 

@@ -919,3 +919,31 @@ SCENARIOS.update({'rig_voltage_step_no_current': rig_voltage_step_no_current,
                   'rig_square_wave_no_current': rig_square_wave_no_current,
                   'wheel_speed_steps_current_magnitude': wheel_speed_steps_current_magnitude,
                   'sysid_fast_shaft': sysid_fast_shaft})
+
+
+#: A small lab gearmotor (SEED lab class: about 0.6 V s/rad at the output, 0.19 s time constant).
+SEED_LAB_MOTOR = MotorParameters(Ra=3.0, La=1.5e-3, CPhi=0.55, J=0.033, b=1.5e-3, Mc=0.02)
+
+
+def step_voltage_logged_as_zero(seed: int = 0, sample_period_s: float = 0.01,
+                                level_v: float = 5.96, duration_s: float = 2.0) -> Scenario:
+    """
+    Simulate a voltage step from rest whose log has the voltage column at 0 V throughout.
+
+    As the SEED lab step logs of ryg-delta/SEED_Lab_SP24 (``leftMotorData.mat``,
+    ``rightMotorData.mat``: time, voltage, encoder counts, speed every 10 ms): the motor was
+    driven at 200/255 of 7.6 V from the first sample, but the logger left the voltage field
+    at 0.  The tool answered kS, kV, kA of 1e-9 with a relative standard error of 1e-14 %
+    (exit 0) where it should have said that no voltage drives the record.
+    """
+    rng = np.random.default_rng(seed)
+    command = np.full(int(round(duration_s / sample_period_s)), level_v)
+    out = simulate_drive(SEED_LAB_MOTOR, command, sample_period_s)
+    record = Record(np.arange(command.shape[0]) * sample_period_s,
+                    voltage=np.zeros_like(command), speed=_noisy(out['speed'], 0.2, rng),
+                    source='step_voltage_logged_as_zero')
+    return Scenario('step_voltage_logged_as_zero', [record], SEED_LAB_MOTOR,
+                    note='one step from rest, 10 ms, speed only; the voltage column reads 0 V')
+
+
+SCENARIOS['step_voltage_logged_as_zero'] = step_voltage_logged_as_zero

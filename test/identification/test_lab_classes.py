@@ -224,3 +224,11 @@ def test_two_voltage_levels_need_no_inertia_range():
     result = identify(prepare_records([record]))
     assert not [text for text in result.warnings if text.startswith('one voltage level')]
     assert result.parameters['J'] == pytest.approx(truth.J, rel=0.1)
+
+
+def test_a_voltage_column_of_zeros_while_the_motor_moves_is_refused():
+    # The SEED lab step logs (bench/bench_real.py --seedlab): exit 0 with kS, kV, kA of 1e-9.
+    scenario = lab_scenarios.step_voltage_logged_as_zero()
+    assert float(np.max(scenario.records[0].speed)) > 5.0
+    with pytest.raises(NotIdentifiableError, match='reads 0 V at every sample while the motor'):
+        identify(prepare_records(scenario.records))

@@ -147,7 +147,7 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
         :func:`one_level_step`).
 
     """
-    one_step = one_level_step(records)
+    one_step = zero_voltage_moving(records) or one_level_step(records)
     if one_step:
         raise NotIdentifiableError(one_step)
     rows, targets = [], []
@@ -185,6 +185,25 @@ def moving_voltage(records: Sequence[Record]) -> tuple[np.ndarray, np.ndarray]:
         voltages.append(voltage[moving])
         signs.append(np.sign(speed[moving]))
     return np.concatenate(voltages), np.concatenate(signs)
+
+
+def zero_voltage_moving(records: Sequence[Record]) -> str:
+    """
+    Say when the voltage reads 0 V at every sample where the motor moves ('' when it does not).
+
+    A logger that leaves its voltage field unset (as the SEED lab step logs of
+    ryg-delta/SEED_Lab_SP24) gives a column of zeros while the speed rises: no voltage drives
+    the model, and a fit returns kS, kV and kA at their lower bounds with no error at all.
+    """
+    voltage, _ = moving_voltage(records)
+    if voltage.size == 0 or np.any(voltage != 0.0):
+        return ''
+    top = max(float(np.max(np.abs(record.speed))) for record in records
+              if record.speed is not None)
+    return (f'the voltage reads 0 V at every sample while the motor moves (the speed reaches '
+            f'{top:.4g} rad/s): that column is not the voltage that drives the motor (a logger '
+            'that leaves its voltage field unset); give the column of the voltage at the motor '
+            '(--column voltage=NAME), or add the applied voltage to the file')
 
 
 def one_level_step(records: Sequence[Record]) -> str:
