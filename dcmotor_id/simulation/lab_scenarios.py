@@ -944,6 +944,3 @@ def step_voltage_logged_as_zero(seed: int = 0, sample_period_s: float = 0.01,
                     source='step_voltage_logged_as_zero')
     return Scenario('step_voltage_logged_as_zero', [record], SEED_LAB_MOTOR,
                     note='one step from rest, 10 ms, speed only; the voltage column reads 0 V')
-
-
-SCENARIOS['step_voltage_logged_as_zero'] = step_voltage_logged_as_zero
