@@ -809,7 +809,7 @@ RAMPED_SPIN_UP_MOTOR = MotorParameters(Ra=9.34, La=2.2e-3, CPhi=0.0685, J=1.28e-
                                        Mc=3.3e-3)
 
 
-def ramp_as_long_as_the_spin_up(seed: int = 0) -> Scenario:
+def ramp_as_long_as_the_spin_up(seed: int = 0, sample_period_s: float = 2e-3) -> Scenario:
     """
     Simulate a 19.8 V step from rest at 500 Hz whose amplifier ramps it over 28 ms.
 
@@ -818,7 +818,7 @@ def ramp_as_long_as_the_spin_up(seed: int = 0) -> Scenario:
     high; the start check on raw derivatives saw no ramp, and the one-step test's lag was
     measured with the slow armature that absorbed it (0.6 samples).
     """
-    scenario = amplifier_ramp_step(seed, 2e-3, 19.8, 0.028, 1.0, RAMPED_SPIN_UP_MOTOR)
+    scenario = amplifier_ramp_step(seed, sample_period_s, 19.8, 0.028, 1.0, RAMPED_SPIN_UP_MOTOR)
     return replace(scenario, name='ramp_as_long_as_the_spin_up',
                    records=[rec.replace(source='ramp_as_long_as_the_spin_up')
                             for rec in scenario.records],
