@@ -231,12 +231,14 @@ def start_lines(seeds: int, count: int) -> list[str]:
              'ms, speed or a 4096-count angle).  Start check alone: the former rule, runs of '
              'at least 4 samples beyond 8 robust noise levels of the electrical equation on '
              'raw derivatives.  Now: those runs where the one-step (ARX) test at the start is '
-             f'also beyond its 1 % bound.  Ramps named: start check alone {alone}/{count}, now '
-             f'{now}/{count}.  The records with either:', '']
+             'also beyond its 1 % bound, or the one-step test after any step with the start '
+             "ramp's profile (`checks/ramp.py` `ramp_profile`).  Ramps named: start check "
+             f'alone {alone}/{count}, now {now}/{count}.  The records with either:', '']
     lines += markdown_table(['seed', 'motor', 'z at the start', 'start check alone', 'now'],
                             rows).splitlines()
     lines += ['', f"## A record's start: power, amplifier_ramp_step over the ramp ({seeds} "
-              'seeds each)', '', 'Found: the named samples cover at least 80 % of the ramp.',
+              'seeds each)', '', 'Found: the named samples cover at least 80 % of the ramp.  '
+              'One-step test and profile: `checks/ramp.py` `ramp_masks` alone (no start check).',
               '']
     lines += markdown_table(['ramp [ms]', 'ramp [samples]', 'start check alone',
                              'one-step test and profile', 'now'],
