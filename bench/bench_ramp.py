@@ -46,7 +46,7 @@ sys.path.insert(0, ROOT)
 
 from dcmotor_id.formats.csv import read_csv  # noqa: E402
 from dcmotor_id.identification.checks.ramp import (bonferroni_bound,  # noqa: E402
-                                                   record_shortfalls)
+                                                   ramp_masks, record_shortfalls)
 from dcmotor_id.identification.identify import prepare_records  # noqa: E402
 from dcmotor_id.identification.pipeline.floor import (_step_starts, ramp_samples,  # noqa: E402
                                                       start_ramp_samples)
@@ -138,14 +138,16 @@ def power_rows(seeds: int) -> list[list[str]]:
     return rows
 
 
-def random_step_from_rest(seed: int) -> tuple[list, str]:
+def random_step_from_rest(seed: int, ramp_samples_: int = 0) -> tuple[list, str]:
     """
     Simulate a voltage step from rest of a random motor, logged from the step on; no ramp.
 
     The motor of :func:`bench_random_motors.random_motor` and its step from rest; sampled at 1, 2
     or 5 ms for at least 1 s or 6 mechanical time constants; the current with 0.5 % of the
     stall current of noise, the speed with 0.5 % of the no-load speed or a 4096-count
-    encoder's angle only.  Returns the records and the motor's time constants.
+    encoder's angle only.  With ``ramp_samples_``, the motor gets the step as a linear ramp
+    over that many samples while the log reads the level from t = 0.  Returns the records and
+    the motor's time constants.
     """
     from dcmotor_id.core.records import Record
     rng = np.random.default_rng(1000 + seed)
@@ -153,7 +155,8 @@ def random_step_from_rest(seed: int) -> tuple[list, str]:
     ra, cphi, tau_e = truth.Ra, truth.CPhi, truth.La / truth.Ra
     dt = (1e-3, 2e-3, 5e-3)[seed % 3]
     command = command_of('step', volts, tau_m, dt, rng)
-    out = lab_scenarios.simulate_drive(truth, command, dt)
+    applied = command * np.clip(np.arange(1, command.size + 1) / max(ramp_samples_, 1), 0, 1)
+    out = lab_scenarios.simulate_drive(truth, applied, dt)
     t = np.arange(command.size) * dt
     current = out['current'] + rng.normal(0.0, 0.005 * volts / ra, command.size)
     if seed % 2:
@@ -183,20 +186,40 @@ def start_size_rows(count: int) -> tuple[list[list[str]], int, int]:
     return rows, alone, now
 
 
+def _start_found(records, length: int) -> dict[str, bool]:
+    """Return whether each rule's named samples cover 80 % of a start ramp of ``length``."""
+    masks = {'alone': start_ramp_samples(records)[0],
+             'profile': ramp_masks(records, _step_starts)[0], 'now': ramp_samples(records)[0]}
+    return {key: bool(np.mean(mask[:length]) >= 0.8) for key, mask in masks.items()}
+
+
 def start_power_rows(seeds: int) -> list[list[str]]:
     """Return the detection of a ramp at a record's start (a step from rest) over its length."""
     rows = []
     for ramp_s in RAMPS_S:
-        found = {'alone': 0, 'now': 0}
+        found = {'alone': 0, 'profile': 0, 'now': 0}
         for seed in range(seeds):
             scenario = lab_scenarios.amplifier_ramp_step(seed=seed, ramp_s=ramp_s)
             records = prepare_records(scenario.records)
             length = max(int(round(ramp_s / records[0].sample_period_s)), 1)
-            for key, mask in (('alone', start_ramp_samples(records)[0]),
-                              ('now', ramp_samples(records)[0])):
-                found[key] += bool(np.mean(mask[:length]) >= 0.8)
-        rows.append([f'{ramp_s * 1e3:.0f}', f'{ramp_s / 2e-3:.0f}',
-                     f"{found['alone']}/{seeds}", f"{found['now']}/{seeds}"])
+            for key, hit in _start_found(records, length).items():
+                found[key] += hit
+        rows.append([f'{ramp_s * 1e3:.0f}', f'{ramp_s / 2e-3:.0f}']
+                    + [f'{found[key]}/{seeds}' for key in ('alone', 'profile', 'now')])
+    return rows
+
+
+def random_start_power_rows(count: int) -> list[list[str]]:
+    """Return the detection of a start ramp on random motors over the ramp's samples."""
+    rows = []
+    for length in (4, 6, 9, 18, 36):
+        found = {'alone': 0, 'profile': 0, 'now': 0}
+        for seed in range(count):
+            records = prepare_records(random_step_from_rest(seed, length)[0])
+            for key, hit in _start_found(records, length).items():
+                found[key] += hit
+        rows.append([str(length)] + [f'{found[key]}/{count}'
+                                     for key in ('alone', 'profile', 'now')])
     return rows
 
 
@@ -208,15 +231,25 @@ def start_lines(seeds: int, count: int) -> list[str]:
              'ms, speed or a 4096-count angle).  Start check alone: the former rule, runs of '
              'at least 4 samples beyond 8 robust noise levels of the electrical equation on '
              'raw derivatives.  Now: those runs where the one-step (ARX) test at the start is '
-             f'also beyond its 1 % bound.  Ramps named: start check alone {alone}/{count}, now '
-             f'{now}/{count}.  The records with either:', '']
+             'also beyond its 1 % bound, or the one-step test after any step with the start '
+             "ramp's profile (`checks/ramp.py` `ramp_profile`).  Ramps named: start check "
+             f'alone {alone}/{count}, now {now}/{count}.  The records with either:', '']
     lines += markdown_table(['seed', 'motor', 'z at the start', 'start check alone', 'now'],
                             rows).splitlines()
     lines += ['', f"## A record's start: power, amplifier_ramp_step over the ramp ({seeds} "
-              'seeds each)', '', 'Found: the named samples cover at least 80 % of the ramp.',
+              'seeds each)', '', 'Found: the named samples cover at least 80 % of the ramp.  '
+              'One-step test and profile: `checks/ramp.py` `ramp_masks` alone (no start check).',
               '']
-    lines += markdown_table(['ramp [ms]', 'ramp [samples]', 'start check alone', 'now'],
+    lines += markdown_table(['ramp [ms]', 'ramp [samples]', 'start check alone',
+                             'one-step test and profile', 'now'],
                             start_power_rows(seeds)).splitlines()
+    lines += ['', f"## A record's start: power on {count // 3} random motors over the ramp",
+              '', 'The motors and records of the size section above (the first '
+              f'{count // 3}), the step reaching the motor as a linear ramp over the samples '
+              'given.  Found: the named samples cover at least 80 % of the ramp.', '']
+    lines += markdown_table(['ramp [samples]', 'start check alone',
+                             'one-step test and profile', 'now'],
+                            random_start_power_rows(count // 3)).splitlines()
     return lines
 
 

@@ -5,7 +5,8 @@ import pytest
 from support import assert_near_truth
 
 from dcmotor_id.core.records import Record
-from dcmotor_id.identification.checks.ramp import ramp_masks, record_shortfalls
+from dcmotor_id.identification.checks.ramp import (profile_bound, ramp_masks, ramp_profile,
+                                                   record_shortfalls)
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.pipeline.floor import (_step_starts, ramp_samples,
                                                       start_ramp_samples)
@@ -26,6 +27,29 @@ def test_a_ramp_after_a_mid_record_step_is_found_left_out_and_named():
     assert 'split at the later ones' in said[0]
     truth = scenario.truth
     assert_near_truth(result.parameters, truth, Ra=0.05, CPhi=0.05, J=0.1)
+
+
+def test_a_start_ramp_as_long_as_the_spin_up_is_found_not_taken_for_la():
+    # A slow armature absorbed it: La/Ra 10 ms, Ra +43 % with a 1.4 % standard error, unsaid.
+    scenario = lab_scenarios.ramp_as_long_as_the_spin_up()
+    records = prepare_records(scenario.records)
+    mask = ramp_samples(records)[0]
+    assert mask[:12].all() and not mask[20:].any()  # the ramp: 14 samples of 2 ms
+    result = identify(records)
+    assert any('did not reach the motor' in text and 'samples 0-' in text
+               for text in result.warnings)
+    assert_near_truth(result.parameters, scenario.truth, Ra=0.05, CPhi=0.05, J=0.1)
+
+
+def test_the_start_ramp_profile_tells_a_ramp_from_a_slow_armature():
+    ramped = prepare_records(lab_scenarios.ramp_as_long_as_the_spin_up().records)[0]
+    slow = prepare_records(lab_scenarios.voltage_step_from_rest().records)[0]
+    for record, expected in ((ramped, True), (slow, False)):
+        current, volts = np.asarray(record.current), np.asarray(record.voltage)
+        length, ratio = ramp_profile(current, volts, np.asarray(record.speed), 0, 50)
+        assert (ratio > profile_bound(1, 50)) is expected
+        if expected:
+            assert 12 <= length <= 16
 
 
 @pytest.mark.parametrize('name', sorted(name for name in lab_scenarios.SCENARIOS

@@ -109,10 +109,8 @@ def la_at_its_bound(quasi: Estimate, full_models: Models, dt: float,
     bound = float(quasi.parameters['Ra']) * dt
     inputs.progress.set_stage('full armature with La at its upper bound')
     try:
-        return RefinedEstimator(pinned={'La': bound},
-                                initial_state=inputs.initial_state, progress=inputs.progress,
-                                criterion=full_models.criterion,
-                                position_error=inputs.on.position_error).fit(full_models.records)
+        return refined_fit(full_models, inputs.initial_state, inputs.progress,
+                           inputs.on.position_error, pinned={'La': bound})
     except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
         return None
 
@@ -219,14 +217,28 @@ def quasi_static_fit(estimate: Estimate, models: Models, initial_state: str,
     start = {name: values[name] for name in parameter_names(False) if name != 'La'}
     progress.set_stage('quasi-static armature refit')
     try:
-        quasi = RefinedEstimator(initial=start, quasi_static=True, initial_state=initial_state,
-                                 progress=progress, criterion=models.criterion,
-                                 position_error=position_error).fit(models.records)
+        quasi = refined_fit(models, initial_state, progress, position_error, initial=start,
+                            quasi_static=True)
         quasi_errors = model_errors(models.measured, dict(quasi.parameters),
                                     quasi.initial_states)
     except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
         return None
     return quasi, quasi_errors
+
+
+def refined_fit(models: Models, initial_state: str, progress: Progress, position_error: str,
+                initial: Mapping[str, float] | None = None, quasi_static: bool = False,
+                pinned: Mapping[str, float] | None = None) -> Estimate:
+    """
+    Fit the refined estimator on ``models``' records under their criterion.
+
+    The armature's two refits differ only in the estimator's ``initial`` and ``quasi_static``
+    (:func:`quasi_static_fit`) or ``pinned`` (:func:`la_at_its_bound`).
+    """
+    estimator = RefinedEstimator(initial=initial, quasi_static=quasi_static, pinned=pinned,
+                                 initial_state=initial_state, progress=progress,
+                                 criterion=models.criterion, position_error=position_error)
+    return estimator.fit(models.records)
 
 
 def with_la_bound(quasi: Estimate, la: float, la_stderr: float, ra_full: float,
