@@ -4,7 +4,6 @@ import numpy as np
 
 from dcmotor_id.core.model import PAPER_MOTORS
 from dcmotor_id.core.records import Record
-from dcmotor_id.identification.checks import start
 from dcmotor_id.identification.error_model.residuals import simulated
 from dcmotor_id.identification.estimators import refined
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
@@ -60,27 +59,3 @@ def test_identify_simulates_the_final_fit_over_the_record_twice_not_eight_times(
     # fit and the held-out stage; the regression floor's comparison simulates it once more.
     # Before, each of them simulated it again: 8 in all.
     assert len(of_final) == 2
-
-
-def test_the_regression_low_passes_each_signal_once_for_the_floor_and_the_evidence(
-        monkeypatch):
-    record = _record()
-    plain = start.regression_evidence([record])
-    calls = []
-    own = start.low_pass
-
-    def counted(signal, cutoff, *args, **kwargs):
-        calls.append(cutoff)
-        return own(signal, cutoff, *args, **kwargs)
-    monkeypatch.setattr(start, 'low_pass', counted)
-    signals = start.regression_signals([record], None)
-    assert len(calls) == 4  # current, speed, sign of the speed, voltage
-    assert start.regression_evidence([record], None, signals) == plain  # bit for bit
-    assert len(calls) == 4
-    # Signals of other records (equal data, other objects) are not taken.
-    assert start.regression_evidence([_record()], None, signals) == plain
-    assert len(calls) == 8
-    calls.clear()
-    identify(prepare_records([record]))
-    # The floor's four, handed on to the start check's evidence (before: four more there).
-    assert calls.count(start.REGRESSION_CUTOFF) == 4

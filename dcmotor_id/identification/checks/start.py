@@ -66,8 +66,8 @@ def both_directions(records: Sequence[Record]) -> bool:
     return bool(np.any(speed > 0.2 * top) and np.any(speed < -0.2 * top))
 
 
-def regression_evidence(records: Sequence[Record], torque_constant: float | None = None,
-                        signals: RegressionSignals | None = None) -> dict[str, float] | None:
+def regression_evidence(records: Sequence[Record],
+                        torque_constant: float | None = None) -> dict[str, float] | None:
     """
     Model-free values by least squares on low-passed signals; None when not determined.
 
@@ -75,13 +75,10 @@ def regression_evidence(records: Sequence[Record], torque_constant: float | None
     both directions are present) with ``T = K i`` in the mechanical-only mode; in the full
     mode also ``u = La di/dt + Ra i + CPhi w`` and ``T = CPhi i``.  Returns the base
     parameters (``Ra, La, CPhi`` in the full mode, ``J, b, Mc``) and ``offset`` [N m].
-    ``signals``: the records' low-passed signals when the caller has them
-    (:func:`regression_signals`).
     """
     offset = both_directions(records)
     mechanical_only = torque_constant is not None
-    rows_m, rhs_m, rows_e, rhs_e = regression_rows(records, torque_constant, offset,
-                                                   signals=signals)
+    rows_m, rhs_m, rows_e, rhs_e = regression_rows(records, torque_constant, offset)
     if not rows_m:
         return None
     try:
@@ -105,63 +102,8 @@ def regression_evidence(records: Sequence[Record], torque_constant: float | None
     return values
 
 
-@dataclass(frozen=True)
-class RegressionSignals:
-    """
-    The regression's low-passed signals of each record (:func:`regression_signals`).
-
-    ``records``: the records they are of (the objects); ``filtered``: per record, its
-    current, speed, sign of the speed and (full mode) voltage low-passed at
-    :data:`REGRESSION_CUTOFF`, with the derivatives of the current and the speed (None for a
-    record too short for the regression).  The regression floor and the start check's
-    evidence rest on the same records: the signals are computed once for both.
-    """
-
-    records: tuple[Record, ...]
-    filtered: tuple[dict[str, np.ndarray] | None, ...]
-
-    def of(self, records: Sequence[Record], index: int,
-           voltage: bool) -> dict[str, np.ndarray] | None:
-        """Return record ``index``'s signals when these are of ``records`` (else None)."""
-        if len(records) != len(self.records) or \
-                any(rec is not own for rec, own in zip(records, self.records)):
-            return None
-        found = self.filtered[index]
-        return found if found is not None and (not voltage or 'voltage' in found) else None
-
-
-def regression_signals(records: Sequence[Record],
-                       torque_constant: float | None) -> RegressionSignals:
-    """Return the records' low-passed signals of :func:`regression_rows` (computed once)."""
-    return RegressionSignals(tuple(records), tuple(
-        _filtered(rec, torque_constant is None) if _trim_count(len(rec))[1] >= 20 else None
-        for rec in records))
-
-
-def _trim_count(n: int) -> tuple[int, int]:
-    """Return the samples trimmed at each end of a record of ``n`` and the samples left."""
-    trim = min(int(3.0 / (REGRESSION_CUTOFF * 2 * np.pi)) + 2, n // 4)
-    return trim, max(n - 2 * trim, 0)
-
-
-def _filtered(rec: Record, voltage: bool) -> dict[str, np.ndarray]:
-    """Return a record's low-passed current, speed, sign of the speed, (voltage), derivatives."""
-    dt = rec.sample_period_s
-    measured = np.asarray(rec.speed, dtype=float)
-    current = low_pass(np.asarray(rec.current, dtype=float), REGRESSION_CUTOFF)
-    speed = low_pass(measured, REGRESSION_CUTOFF)
-    found = {'current': current, 'speed': speed,
-             'sign': low_pass(np.sign(measured), REGRESSION_CUTOFF),
-             'acceleration': np.gradient(speed, dt)}
-    if voltage:
-        found['current_rate'] = np.gradient(current, dt)
-        found['voltage'] = low_pass(np.asarray(rec.voltage, dtype=float), REGRESSION_CUTOFF)
-    return found
-
-
 def regression_rows(records: Sequence[Record], torque_constant: float | None, offset: bool,
-                    left_out: Sequence[np.ndarray | None] | None = None,
-                    signals: RegressionSignals | None = None
+                    left_out: Sequence[np.ndarray | None] | None = None
                     ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray],
                                list[np.ndarray]]:
     """
@@ -170,16 +112,14 @@ def regression_rows(records: Sequence[Record], torque_constant: float | None, of
     Mechanical: columns ``dw/dt, w, sgn w [, 1]`` against ``i`` (times ``torque_constant`` in
     the mechanical-only mode); electrical (full mode): ``di/dt, i, w`` against ``u``.  The
     filter's settling is trimmed at both ends of each record; ``left_out``: per record, a
-    boolean mask of samples the rows must not rest on (None: every sample is used);
-    ``signals``: the records' low-passed signals when the caller has them
-    (:func:`regression_signals`; else they are computed here).
+    boolean mask of samples the rows must not rest on (None: every sample is used).
     Returns ``(rows_m, rhs_m, rows_e, rhs_e)``, one array per record that is long enough.
     """
     mechanical_only = torque_constant is not None
     rows_m, rhs_m, rows_e, rhs_e = [], [], [], []
     for index, rec in enumerate(records):
         n = len(rec)
-        trim = _trim_count(n)[0]
+        trim = min(int(3.0 / (REGRESSION_CUTOFF * 2 * np.pi)) + 2, n // 4)
         keep = np.zeros(n, dtype=bool)
         keep[trim:n - trim] = True
         mask = None if left_out is None else left_out[index]
@@ -189,16 +129,17 @@ def regression_rows(records: Sequence[Record], torque_constant: float | None, of
             keep &= reach == 0.0
         if np.count_nonzero(keep) < 20:
             continue
-        found = None if signals is None else signals.of(records, index, not mechanical_only)
-        found = _filtered(rec, not mechanical_only) if found is None else found
-        speed, current = found['speed'], found['current']
-        columns = [found['acceleration'], speed, found['sign']] + \
-            ([np.ones(n)] if offset else [])
+        dt = rec.sample_period_s
+        measured = np.asarray(rec.speed, dtype=float)
+        current = low_pass(np.asarray(rec.current, dtype=float), REGRESSION_CUTOFF)
+        speed = low_pass(measured, REGRESSION_CUTOFF)
+        sign = low_pass(np.sign(measured), REGRESSION_CUTOFF)
+        columns = [np.gradient(speed, dt), speed, sign] + ([np.ones(n)] if offset else [])
         rows_m.append(np.column_stack(columns)[keep])
         rhs_m.append(current[keep] * (torque_constant or 1.0))
         if not mechanical_only:
-            rows_e.append(np.column_stack([found['current_rate'], current, speed])[keep])
-            rhs_e.append(found['voltage'][keep])
+            rows_e.append(np.column_stack([np.gradient(current, dt), current, speed])[keep])
+            rhs_e.append(low_pass(np.asarray(rec.voltage, dtype=float), REGRESSION_CUTOFF)[keep])
     return rows_m, rhs_m, rows_e, rhs_e
 
 

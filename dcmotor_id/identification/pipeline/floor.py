@@ -41,8 +41,7 @@ from dcmotor_id.identification.checks.identifiability import (IDENTIFIABLE_REL_S
 from dcmotor_id.identification.checks.ramp import (bonferroni_bound, ramp_masks,
                                                    record_shortfalls)
 from dcmotor_id.identification.checks.start import (both_directions, correlation_time,
-                                                    regression_rows, regression_signals,
-                                                    RegressionSignals)
+                                                    regression_rows)
 from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.error_model.residuals import output_channels
 from dcmotor_id.identification.estimators.base import Estimate, ExogenousTerm
@@ -112,9 +111,6 @@ class RegressionFloor:
     Mc`` in the mechanical-only one (NaN where not determined).  ``static_electrical``: the
     electrical equation was fitted without La (La is then an upper bound, ``la_upper_bound``).
     ``left_out``: the samples not used; ``usable``: the values are physical (Ra, CPhi, J > 0).
-    ``signals``: the records' low-passed signals the rows rest on, handed on to the start
-    check's evidence on the same records (the pipeline's
-    :attr:`~dcmotor_id.identification.pipeline.state.Request.signals`).
     """
 
     parameters: dict[str, float]
@@ -125,7 +121,6 @@ class RegressionFloor:
     la_upper_bound: float | None
     left_out: tuple[LeftOut, ...]
     usable: bool
-    signals: RegressionSignals | None = None
 
     def left_out_text(self) -> str:
         """Name the samples left out (empty when none)."""
@@ -412,9 +407,7 @@ def regression_floor(records: Sequence[Record],
     masks = ([np.zeros(len(rec), dtype=bool) for rec in records] if mechanical_only
              else ramp_samples(records))
     offset = both_directions(records)
-    signals = regression_signals(records, torque_constant)
-    rows_m, rhs_m, rows_e, rhs_e = regression_rows(records, torque_constant, offset, masks,
-                                                   signals)
+    rows_m, rhs_m, rows_e, rhs_e = regression_rows(records, torque_constant, offset, masks)
     if not rows_m or (not mechanical_only and not rows_e):
         return None
     electrical, static, bound = (None, False, None) if mechanical_only else _electrical(
@@ -427,7 +420,7 @@ def regression_floor(records: Sequence[Record],
     usable = all(np.isfinite(parameters[name]) and parameters[name] > 0
                  for name in ('Ra', 'CPhi', 'J') if name in parameters)
     return RegressionFloor(parameters, stderr, electrical, mechanical, static, bound,
-                           _left_out(records, masks), bool(usable), signals)
+                           _left_out(records, masks), bool(usable))
 
 
 def _combined(electrical: EquationFit | None,
@@ -789,8 +782,7 @@ def identify_above_floor(criterion: str, request: Request) -> IdentificationResu
     records, left_out = trimmed_records(list(tests.records), floor)
     left_out = ([tests.note] if tests.note else []) + left_out
     try:
-        result = identify_checked(criterion, replace(
-            request, records=records, signals=None if floor is None else floor.signals))
+        result = identify_checked(criterion, replace(request, records=records))
     except FitError as error:
         fallback = floor_fallback(floor, records, request.torque_constant, error, criterion,
                                   request.progress.elapsed())

@@ -38,7 +38,7 @@ def prepare(request: Request, on: RunOn) -> Inputs:
     excitation = check_excitation(restored, request.torque_constant is not None)
     return Inputs(restored, request.method, request.torque_constant, request.discover,
                   request.estimator, list(request.vocabulary or VOCABULARY), request.progress,
-                  request.initial_state, on, excitation, tuple(warnings), request.signals)
+                  request.initial_state, on, excitation, tuple(warnings))
 
 
 def current_limit(inputs: Inputs) -> list[np.ndarray] | None:

@@ -18,7 +18,7 @@ from typing import Any, Sequence, TYPE_CHECKING
 
 from dcmotor_id.core.progress import Progress
 from dcmotor_id.identification.checks.identifiability import Excitation
-from dcmotor_id.identification.checks.start import regression_evidence, RegressionSignals
+from dcmotor_id.identification.checks.start import regression_evidence
 from dcmotor_id.identification.estimators.base import Estimator
 from dcmotor_id.identification.estimators.refined import OutputErrorModel, RefinedEstimator
 
@@ -42,7 +42,6 @@ class Request:
     vocabulary: Sequence[type[Effect]] | None
     progress: Progress
     initial_state: str
-    signals: RegressionSignals | None = None  # the regression floor's, for the evidence
 
 
 @dataclass(frozen=True)
@@ -79,7 +78,6 @@ class Inputs:
     on: RunOn
     excitation: Excitation
     warnings: tuple[str, ...] = ()  # the first stage's
-    signals: RegressionSignals | None = None  # the records' low-passed signals, if computed
 
     @property
     def criterion(self) -> str:
@@ -93,13 +91,8 @@ class Inputs:
 
     @cached_property
     def evidence(self) -> dict[str, float] | None:
-        """
-        Return the model-free regression on the records (computed once, for every check).
-
-        On the low-passed signals the regression floor computed when they are of these
-        records (``signals``, :class:`~dcmotor_id.identification.checks.start.RegressionSignals`).
-        """
-        return regression_evidence(self.records, self.torque_constant, self.signals)
+        """Return the model-free regression on the records (computed once, for every check)."""
+        return regression_evidence(self.records, self.torque_constant)
 
     @property
     def checkable(self) -> bool:
