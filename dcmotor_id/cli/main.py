@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 
-from dcmotor_id.cli.output import emit_json, json_on_stdout, package_version, STDOUT
+from dcmotor_id.cli.output import emit_json, json_on_stdout, STDOUT, VersionAction
 from dcmotor_id.cli.terminal import terminal_progress
 from dcmotor_id.console.command_line import (add_memory_budget, non_negative, positive,
                                              run_reporting)
@@ -682,8 +682,7 @@ def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser (the CLI contract)."""
     parser = argparse.ArgumentParser(
         prog='dcmotor-id', description='Identify DC motor parameters (Ra, La, CPhi, J, b, Mc).')
-    parser.add_argument('--version', action='version',
-                        version=f'%(prog)s {package_version()}')
+    parser.add_argument('--version', action=VersionAction)
     commands = parser.add_subparsers(dest='command', required=True)
     _add_identify_command(commands)
     _add_validate_command(commands)

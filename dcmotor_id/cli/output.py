@@ -12,21 +12,40 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.metadata
 import sys
 from typing import Any, Iterator, Mapping
 
 from dcmotor_id.formats.json_file import STDOUT, write_result_json
 
-__all__ = ['emit_json', 'json_on_stdout', 'package_version', 'STDOUT']
+__all__ = ['emit_json', 'json_on_stdout', 'package_version', 'STDOUT', 'VersionAction']
 
 
 def package_version() -> str:
     """Return the installed version of dcmotor_id (``dcmotor-id --version``)."""
+    # Imported here: importlib.metadata and the search of the installed distributions cost
+    # about 25 ms of CPU, which every command paid when the parser was built.
+    import importlib.metadata
+
     try:
         return importlib.metadata.version('dcmotor_id')
     except importlib.metadata.PackageNotFoundError:
         return 'unknown (not installed: run it from an install, e.g. `pip install -e .`)'
+
+
+class VersionAction(argparse.Action):
+    """``--version``: print the program's name and installed version, then exit."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS,
+                 **options: Any) -> None:
+        options.setdefault('default', argparse.SUPPRESS)
+        options.setdefault('help', "show program's version number and exit")
+        super().__init__(option_strings, dest=dest, nargs=0, **options)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        """Print the version (looked up now, not when the parser is built) and exit."""
+        print(f'{parser.prog} {package_version()}')
+        parser.exit()
 
 
 @contextlib.contextmanager

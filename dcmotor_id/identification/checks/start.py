@@ -37,7 +37,9 @@ from dcmotor_id.core.checks import Check, register
 from dcmotor_id.core.model import make_admissible
 from dcmotor_id.identification.checks.identifiability import (initial_state_warnings,
                                                               MISFIT_FACTOR)
-from dcmotor_id.identification.error_model.residuals import output_channels, simulate_records
+from dcmotor_id.identification.error_model.residuals import (output_channels, simulate_records,
+                                                             simulated as simulated_outputs,
+                                                             Simulation)
 from dcmotor_id.signals.filters import low_pass
 
 if TYPE_CHECKING:
@@ -186,14 +188,18 @@ def pooled_noise(records: Sequence[Record], channel: str) -> float:
     return float(np.sqrt(np.mean([rec.noise_level(channel) ** 2 for rec in records])))
 
 
-def misfit_ratio(estimate: Estimate, records: Sequence[Record], model: Any) -> float:
+def misfit_ratio(estimate: Estimate, records: Sequence[Record], model: Any,
+                 carried: Simulation | None = None) -> float:
     """
     Largest residual RMS over the sensor noise among the output channels.
 
     The sensor noise is the :func:`pooled_noise` of the records' own levels, each measured
-    once per record (:meth:`~dcmotor_id.core.records.Record.noise_level`).
+    once per record (:meth:`~dcmotor_id.core.records.Record.noise_level`).  ``carried``: a
+    simulation a stage already ran, used when it is this estimate's on this model
+    (:func:`~dcmotor_id.identification.error_model.residuals.simulated`).
     """
-    simulated = simulate_records(model, estimate.parameters, estimate.initial_states)
+    simulated = simulated_outputs(model, estimate.parameters, estimate.initial_states,
+                                  carried).outputs
     worst = 0.0
     for channel in model.outputs:
         residual = np.concatenate([out[channel] - getattr(rec, channel)
@@ -220,7 +226,8 @@ class StartDoubts:
 
 
 def start_doubts(estimate: Estimate, records: Sequence[Record], model: Any,
-                 evidence: dict[str, float] | None) -> StartDoubts:
+                 evidence: dict[str, float] | None,
+                 carried: Simulation | None = None) -> StartDoubts:
     """
     Say why a fit may have settled in a wrong basin, for both remedies (one place, one test).
 
@@ -233,9 +240,10 @@ def start_doubts(estimate: Estimate, records: Sequence[Record], model: Any,
     * a second start (a discovery loop of its own): the misfit, and besides it initial states
       moved far from the first samples or J or b far from the regression.
 
-    Every list starts with the misfit when it is beyond the threshold.
+    Every list starts with the misfit when it is beyond the threshold.  ``carried``: a
+    simulation a stage already ran (:func:`misfit_ratio`).
     """
-    ratio = misfit_ratio(estimate, records, model)
+    ratio = misfit_ratio(estimate, records, model, carried)
     misfit = [f'the misfit is {ratio:.3g}x the sensor noise'] if ratio > MISFIT_FACTOR else []
     far = far_from_evidence(estimate.parameters, evidence)
     if not misfit:

@@ -174,11 +174,32 @@ class Simulation:
     A fitted model simulated over its records once, for every stage that measures it.
 
     ``model``: the model on the records (with the effect terms of the fitted structure);
-    ``outputs``: its simulated channels per record (:func:`simulate_records`).
+    ``outputs``: its simulated channels per record (:func:`simulate_records`); ``values`` and
+    ``initial_states``: what was simulated (:func:`simulated` records them, and gives this
+    simulation back to a later stage that asks for the same, :meth:`is_of`).
     """
 
     model: SimulatedModel
     outputs: list[dict[str, FloatArray]]
+    values: dict[str, float] | None = None
+    initial_states: tuple[FloatArray, ...] | None = None
+
+    def is_of(self, model: SimulatedModel, values: Mapping[str, float],
+              initial_states: Sequence[Sequence[float]]) -> bool:
+        """
+        Whether this is the simulation of ``model`` at ``values`` from ``initial_states``.
+
+        The same model means the same record objects, torque constant, effect terms and
+        armature (what a simulation reads; the channels a model compares do not change what
+        it simulates), and the same values and initial states exactly: the simulation would
+        be this one, bit for bit.
+        """
+        if self.values is None or self.initial_states is None:
+            return False
+        return (_simulates_as(self.model, model) and dict(values) == self.values
+                and len(initial_states) == len(self.initial_states)
+                and all(np.array_equal(np.asarray(state, dtype=float), own)
+                        for state, own in zip(initial_states, self.initial_states)))
 
     @cached_property
     def errors(self) -> ChannelErrors:
@@ -225,9 +246,36 @@ class Simulation:
 
 
 def simulated(model: SimulatedModel, values: Mapping[str, float],
-              initial_states: Sequence[Sequence[float]]) -> Simulation:
-    """Return the :class:`Simulation` of a fitted model over its records."""
-    return Simulation(model, simulate_records(model, values, initial_states))
+              initial_states: Sequence[Sequence[float]],
+              carried: Simulation | None = None) -> Simulation:
+    """
+    Return the :class:`Simulation` of a fitted model over its records.
+
+    ``carried``: a simulation an earlier stage ran and handed on (the pipeline's state); it
+    is returned when it is of the same model, values and initial states
+    (:meth:`Simulation.is_of`), else the model is simulated.
+    """
+    if carried is not None and carried.is_of(model, values, initial_states):
+        return carried
+    return Simulation(model, simulate_records(model, values, initial_states), dict(values),
+                      tuple(np.array(state, dtype=float) for state in initial_states))
+
+
+def _simulates_as(one: Any, other: Any) -> bool:
+    """Whether two models simulate alike: the same records, torque constant, terms, armature."""
+    if one is other:
+        return True
+    if type(one) is not type(other):
+        return False
+    fields = ('torque_constant', 'quasi_static')
+    return (all(getattr(one, name, None) == getattr(other, name, None) for name in fields)
+            and _same_objects(one.records, other.records)
+            and _same_objects(getattr(one, 'terms', ()), getattr(other, 'terms', ())))
+
+
+def _same_objects(one: Sequence[Any], other: Sequence[Any]) -> bool:
+    """Whether two sequences hold the same objects (identity), in the same order."""
+    return len(one) == len(other) and all(a is b for a, b in zip(one, other))
 
 
 def _joined(arrays: Sequence[FloatArray]) -> FloatArray:

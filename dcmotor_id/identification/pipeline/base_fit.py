@@ -18,7 +18,7 @@ from dcmotor_id.identification.error_model.criterion import with_position_states
 from dcmotor_id.identification.estimators.base import Estimate, Estimator
 from dcmotor_id.identification.estimators.paper import PaperEstimator
 from dcmotor_id.identification.estimators.refined import RefinedEstimator
-from dcmotor_id.identification.pipeline.fit_outcome import physical_errors
+from dcmotor_id.identification.pipeline.fit_outcome import physical_simulation
 from dcmotor_id.identification.pipeline.state import Fit, Inputs, Models
 from dcmotor_id.identification.prepare import one_level_reason, single_current_level
 
@@ -56,7 +56,8 @@ def base_fit(inputs: Inputs) -> tuple[Inputs, Fit]:
                        'or shorten or decimate the records') from None
     _one_level_corner(inputs, estimate)
     models = Models(inputs.records, inputs.torque_constant, False, inputs.criterion)
-    return inputs, Fit(estimate, physical_errors(estimate, models.measured), models, warnings)
+    simulation = physical_simulation(estimate, models.measured)
+    return inputs, Fit(estimate, simulation.errors, models, warnings, simulation=simulation)
 
 
 def _one_level_corner(inputs: Inputs, estimate: Estimate) -> None:

@@ -28,13 +28,15 @@ def final_fit(inputs: Inputs, fit: Fit) -> Answer:
     """
     Return the final fit (the loop's, else the base); refuse it when it does not fit.
 
-    Its simulation over the records travels in the answer: the later stages measure it there.
+    Its simulation over the records travels in the answer: the later stages measure it there
+    (the base fit's, ``fit.simulation``, when the final fit is the base).
     """
     final, terms, fitted_records = fit.estimate, (), list(inputs.records)
     if fit.found is not None:
         final, terms, fitted_records = fit.found.estimate, fit.found.terms, fit.found.records
     model = Models(fitted_records, inputs.torque_constant, fit.quasi, terms=tuple(terms))
-    simulation = simulated(model.measured, final.parameters, final.initial_states)
+    simulation = simulated(model.measured, final.parameters, final.initial_states,
+                           fit.simulation)
     judged, said = refusal_errors(simulation)
     worst = max(value for value in judged.values() if value is not None) \
         if any(value is not None for value in judged.values()) else float('inf')

@@ -3,7 +3,8 @@ What a fit gives, as every stage measures it: its simulation errors, refused whe
 
 :func:`simulation_errors` of an estimate over the records, :data:`NO_FIT_NRMSE_PCT` (the
 error beyond which a model does not fit at all), :func:`check_physical` refusing non-physical
-values (:func:`physical_errors`: both at once, for a fit every stage then carries).
+values (:func:`physical_errors`: both at once, for a fit every stage then carries;
+:func:`physical_simulation`: with the simulation they are measured on).
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ from typing import Sequence, TYPE_CHECKING
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import inadmissible, UNITS
 from dcmotor_id.identification.error_model.residuals import (ChannelErrors, model_errors,
-                                                             SimulatedModel)
+                                                             simulated, SimulatedModel,
+                                                             Simulation)
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
 
 if TYPE_CHECKING:
@@ -48,6 +50,17 @@ def physical_errors(estimate: Estimate, model: SimulatedModel) -> ChannelErrors:
     """
     check_physical(estimate)
     return model_errors(model, dict(estimate.parameters), estimate.initial_states)
+
+
+def physical_simulation(estimate: Estimate, model: SimulatedModel) -> Simulation:
+    """
+    Refuse a non-physical estimate (:func:`check_physical`); return its simulation.
+
+    ``model``: the model on the records the estimate was fitted on.  The simulation's
+    ``errors`` are :func:`physical_errors`'; the later stages measure the same fit from it.
+    """
+    check_physical(estimate)
+    return simulated(model, dict(estimate.parameters), estimate.initial_states)
 
 
 def check_physical(estimate: Estimate) -> None:

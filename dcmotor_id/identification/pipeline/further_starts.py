@@ -47,6 +47,7 @@ from dcmotor_id.identification.pipeline.fit_outcome import check_physical
 from dcmotor_id.identification.pipeline.state import Models
 
 if TYPE_CHECKING:
+    from dcmotor_id.identification.error_model.residuals import Simulation
     from dcmotor_id.identification.estimators.base import Estimate
 
 #: Most further starts (base fits) after the default one.
@@ -91,7 +92,8 @@ NOT_CHOSEN_EARLIER = 'not chosen in an earlier run of this identification (fitte
 
 def several_starts(estimate: Estimate, models: Models, progress: Progress,
                    evidence: dict[str, float] | None | str = FROM_RECORDS,
-                   earlier: dict[str, Any] | None = None, position_error: str = 'adaptive'
+                   earlier: dict[str, Any] | None = None, position_error: str = 'adaptive',
+                   carried: Simulation | None = None
                    ) -> tuple[Estimate, dict[str, Any] | None]:
     """
     Fit the base model from further starts when the default's fit is doubted; keep the best.
@@ -107,11 +109,12 @@ def several_starts(estimate: Estimate, models: Models, progress: Progress,
     (:func:`~dcmotor_id.identification.checks.start.known_evidence`).  ``earlier``: the
     account of an earlier run of the same identification (the records and the regression
     the same), whose chosen start alone is fitted again.  ``position_error``: the model of
-    the position error of the fits.
+    the position error of the fits.  ``carried``: the default's simulation when a stage ran
+    it (:attr:`~dcmotor_id.identification.pipeline.state.Fit.simulation`).
     """
     records, torque_constant, model = models.records, models.torque_constant, models.compared
     evidence = known_evidence(records, torque_constant, evidence)
-    reasons = start_doubts(estimate, records, model, evidence).further_starts
+    reasons = start_doubts(estimate, records, model, evidence, carried).further_starts
     if not reasons:
         return estimate, None
     began = progress.now()

@@ -22,6 +22,7 @@ from dcmotor_id.identification.pipeline.state import Answer, Fit, Inputs
 if TYPE_CHECKING:
     from dcmotor_id.core.records import Record
     from dcmotor_id.identification.discovery import DiscoveryResult
+    from dcmotor_id.identification.error_model.residuals import Simulation
     from dcmotor_id.identification.estimators.base import Estimate
 
 
@@ -33,8 +34,9 @@ HELDOUT_CHOICE = ('the end of each record carrying the last 30 % of its excitati
 
 def heldout(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
     """Return the answer with the per-record errors, whole and held out, and their warnings."""
+    carried = tuple(found for found in (fit.simulation, answer.simulation) if found is not None)
     errors = record_errors(inputs.records, fit.estimate, answer.final, fit.found,
-                           inputs.torque_constant, answer.terms, fit.quasi)
+                           inputs.torque_constant, answer.terms, fit.quasi, carried)
     return replace(answer, errors_detail=errors,
                    warnings=answer.warnings + tuple(heldout_warnings(errors)))
 
@@ -124,7 +126,8 @@ def _pooled(items):
 
 def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
                   found: DiscoveryResult | None, torque_constant: float | None = None,
-                  terms: Sequence = (), quasi_static: bool = False) -> dict[str, Any]:
+                  terms: Sequence = (), quasi_static: bool = False,
+                  carried: Sequence[Simulation] = ()) -> dict[str, Any]:
     """
     Per-record simulation errors, each normalised by its own record (the JSON ``errors``).
 
@@ -137,6 +140,8 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     record's* spread (a steady tail's own spread is tiny); None for a record whose held-out
     part does not move.
     ``heldout_constant`` is the same figure for a constant predictor (the record's mean).
+    ``carried``: simulations the stages before ran; a fit simulated among them is measured
+    on it (:meth:`~dcmotor_id.identification.error_model.residuals.Simulation.is_of`).
 
     Returns
     -------
@@ -151,7 +156,8 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     """
     mechanical_only = torque_constant is not None
     outputs = output_channels(mechanical_only)
-    whole = _whole_records(records, base, final, found, torque_constant, terms, outputs)
+    whole = _whole_records(records, base, final, found, torque_constant, terms, outputs,
+                           carried)
     items = []
     notes = []
     for index, rec in enumerate(records):
@@ -178,7 +184,7 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
             'note': note}
 
 
-def _whole_records(records, base, final, found, torque_constant, terms, outputs):
+def _whole_records(records, base, final, found, torque_constant, terms, outputs, carried):
     """Measure the all-data fits before and after on each whole record (label -> figures)."""
     prepared = found.records if found is not None else list(records)
     whole: dict[str, list] = {}
@@ -186,12 +192,18 @@ def _whole_records(records, base, final, found, torque_constant, terms, outputs)
         quasi = bool(estimate.info.get('quasi_static'))
         source = records if label == 'before' else prepared
         model = OutputErrorModel(source, torque_constant, record_terms, quasi)
+        ran = next((simulation for simulation in carried if simulation.is_of(
+            model, estimate.parameters, estimate.initial_states)), None)
         whole[label] = []
-        # One record's simulation at a time, dropped once measured (memory).
+        # One record's simulation at a time, dropped once measured (memory), unless a stage
+        # before ran it.
         for index, state in enumerate(estimate.initial_states):
-            with np.errstate(all='ignore'):
-                simulated = model.simulate(estimate.parameters, index,
-                                           np.array(state, dtype=float))
+            if ran is not None:
+                simulated = ran.outputs[index]
+            else:
+                with np.errstate(all='ignore'):
+                    simulated = model.simulate(estimate.parameters, index,
+                                               np.array(state, dtype=float))
             whole[label].append(_part_metrics(
                 simulated, {c: getattr(source[index], c) for c in outputs}, outputs))
             del simulated

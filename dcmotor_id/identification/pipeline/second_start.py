@@ -60,7 +60,7 @@ def check_start(inputs: Inputs, fit: Fit
     model = fit.models.compared if found is None else Models(
         found.records, inputs.torque_constant, fit.quasi, inputs.criterion,
         tuple(found.terms)).compared
-    doubts = start_doubts(first, first_records, model, evidence).second_start
+    doubts = start_doubts(first, first_records, model, evidence, fit.simulation).second_start
     check: dict[str, Any] = {'evidence': evidence, 'doubts': doubts, 'chosen': 'first start'}
     if not doubts:
         return found, estimate, discovery_info, check

@@ -28,7 +28,7 @@ def check_base_start(inputs: Inputs, fit: Fit) -> Fit:
         return fit
     estimate, starts = several_starts(fit.estimate, fit.models, inputs.progress,
                                       inputs.evidence, inputs.on.earlier,
-                                      inputs.on.position_error)
+                                      inputs.on.position_error, fit.simulation)
     started = estimate
     found, estimate, info, check = check_start(inputs, replace(fit, estimate=estimate))
     first = check['chosen'] == 'first start'

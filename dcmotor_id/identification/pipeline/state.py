@@ -138,7 +138,11 @@ class Fit:
     ``estimate``: the base fit (replaced by the quasi-static refit, a further start or the
     second start); ``errors``: its simulation errors (``models.measured``'s); ``models``: the
     base model on the records (quasi-static when ``quasi``); ``found``: the discovery loop's
-    result, if it ran.
+    result, if it ran; ``simulation``: the base fit's simulation over the records as the base
+    fit stage ran it, for the later stages that measure the same fit (each takes it when it
+    is of the model, values and initial states it measures,
+    :meth:`~dcmotor_id.identification.error_model.residuals.Simulation.is_of`, else
+    simulates).
     """
 
     estimate: Estimate
@@ -154,6 +158,7 @@ class Fit:
     start_check: dict[str, Any] | None = None
     found: DiscoveryResult | None = None
     discovery_info: dict[str, Any] | None = None
+    simulation: Simulation | None = None
 
 
 @dataclass(frozen=True)
