@@ -331,6 +331,11 @@ def misfit_warning(estimate: Any, records: Sequence[Any], outputs: Sequence[str]
     explained = input_noise_misfit(estimate, records, outputs, residual_rms, torque_constant)
     if explained:
         return explained
+    return misfit_message(bad)
+
+
+def misfit_message(bad: Mapping[str, float]) -> str:
+    """Return the warning of channels misfitted beyond the noise (``bad``: channel -> ratio)."""
     listing = ', '.join(f'{channel} {ratio:.3g}x' for channel, ratio in bad.items())
     return (f'the model misfits far above the sensor noise (residual / noise: {listing}): the '
             "standard errors cover the noise and the residual's correlation, not the model "

@@ -21,6 +21,7 @@ from typing import Sequence, TYPE_CHECKING
 import numpy as np
 
 from dcmotor_id.formats.held import restore_held
+from dcmotor_id.identification.checks.identifiability import misfit_message, misfit_ratios
 from dcmotor_id.identification.discovery.voltage_speed import (discover_voltage_speed, IN_VOLTS,
                                                                VoltageSpeedDiscovery)
 from dcmotor_id.identification.estimators.base import Estimate
@@ -86,7 +87,7 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
                           'of': COMBINATIONS[name], 'unit': UNITS[name]}
                    for name in COMBINATIONS}, **_lag_entries(fit), **_effect_entries(found)}
     warnings = ([NO_CURRENT_COLUMN] + held + list(fit.notes) + _lag_warnings(fit)
-                + _discovery_warnings(found, structure_bootstrap))
+                + _discovery_warnings(found, structure_bootstrap) + _misfit(fit, records))
     result = IdentificationResult(
         parameters=dict(fit.values), stderr=dict(fit.stderr), method=MODE,
         effects=found.effects_json() if found is not None else [],
@@ -147,6 +148,12 @@ def _discovery_warnings(found: VoltageSpeedDiscovery | None,
     if found is None:
         return ignored
     return ignored + [IN_VOLTS] * bool(found.effects) + [DISCOVERY_BUDGET] * found.out_of_time
+
+
+def _misfit(fit: VoltageSpeedFit, records: Sequence[Record]) -> list[str]:
+    """Return the warning of a speed misfit far above its sensor's noise, as in the full mode."""
+    bad = misfit_ratios(records, ('speed',), {'speed': fit.noise_std})
+    return [misfit_message(bad)] if bad else []
 
 
 def _lag_entries(fit: VoltageSpeedFit) -> dict[str, dict]:
