@@ -50,13 +50,15 @@ def test_the_whole_records_show_what_the_heldout_end_does_not(delayed):
     assert explained(loop, analysis)  # white on the held-out part
     assert not white_on_whole_records(loop, base)
     assert not stops_before_judging(loop, base, analysis)
-    default = DiscoveryLoop(delayed, weights=loop.weights)
-    assert stops_before_judging(default, base, analysis)
+    held_out_alone = DiscoveryLoop(delayed, acceptance='input-noise-null-any-gain',
+                                   weights=loop.weights)
+    assert stops_before_judging(held_out_alone, base, analysis)
 
 
 def test_the_delay_is_found_only_when_the_whole_records_are_tested(delayed):
-    assert added(discover(delayed)) == []  # the default stops on the white held-out end
-    found = added(discover(delayed, acceptance='whole-record-white'))
+    # Round 10's default stops on the white held-out end.
+    assert added(discover(delayed, acceptance='input-noise-null-any-gain')) == []
+    found = added(discover(delayed))  # the default since round 11
     assert [item['name'] for item in found] == ['sensor_delay']
     assert found[0]['parameters'] == {'channel': 'speed', 'samples': 1}
 
@@ -66,7 +68,7 @@ def test_a_clean_record_is_white_on_the_whole_records_and_gets_nothing():
     loop, base = base_fit(DiscoveryLoop(records, acceptance='whole-record-white'), None,
                           Structure())
     assert white_on_whole_records(loop, base)
-    assert added(discover(records, acceptance='whole-record-white')) == []
+    assert added(discover(records)) == []
 
 
 def test_judged_always_judges_a_white_residual(delayed):

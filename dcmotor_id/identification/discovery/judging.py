@@ -23,14 +23,14 @@ measured beside the default (``bench/discovery_results.md``, round 7).  Rule
 then, where the measured current drives the model, the effect's coefficients against their
 fits to draws of the current's noise (:mod:`.input_null`: a fit that bends to the input
 noise's drift leaves a candidate a real held-out gain, ``bench/discovery_results.md``, round
-8).  Rule ``input-noise-null-any-gain`` (the default since round 10): those tests
+8).  Rule ``input-noise-null-any-gain`` (the default in round 10): those tests
 without the loop's least gain of 5 % (:func:`least_gain`): the t test on the effective
 innovations is the criterion, its size measured; the fixed least gain turned down an effect
 whose t passed (``bench/discovery_results.md``, round 10).  Rule ``judged-always``: those
 tests, and the loop does not stop on a white held-out residual before judging
 (:func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`; round 11); rule
-``whole-record-white``: those tests, and the loop stops on a white held-out residual only
-when the whole records' residual is white too.  Rule
+``whole-record-white`` (the default since round 11): those tests, and the loop stops on a white
+held-out residual only when the whole records' residual is white too.  Rule
 ``all-data-lr`` (measured,
 not the default: it adds effects to real records): the training parts' likelihood ratio on
 effective samples, the held-out part a guard (:mod:`.likelihood`).  The former rules
@@ -501,9 +501,9 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     ``input-noise-null``: that test, then the effect's coefficients against their
     fits to draws of the input current's noise
     (:func:`~dcmotor_id.identification.discovery.input_null.input_noise_doubt`);
-    ``input-noise-null-any-gain`` (default): the same without the least gain
-    (:func:`least_gain`); ``judged-always`` and ``whole-record-white``: the same tests, the
-    loop judging more rounds
+    ``input-noise-null-any-gain``: the same without the least gain
+    (:func:`least_gain`); ``judged-always`` and ``whole-record-white`` (default): the same
+    tests, the loop judging more rounds
     (:func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`);
     ``all-data-lr``: the held-out guard and the input noise's null of
     :func:`~dcmotor_id.identification.discovery.likelihood.unearned_ratio` (the training
