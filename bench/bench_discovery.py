@@ -358,7 +358,10 @@ def main(argv=None):
         "innovations of an ARMA(1, 2) model of each structure's AR(1) innovations (the "
         "wandering speed error of an integrated input noise under the rounding's "
         "increments); input-noise-null-any-gain = the default's tests without the least gain "
-        "of 5 %; all-data-lr = the training parts' likelihood ratio on effective samples "
+        'of 5 %; whole-record-white = those tests, the loop stopping on a white held-out '
+        'residual only when the residual over the whole records is white too (Ljung-Box at '
+        'the same size); judged-always = those tests, the loop never stopping on a white '
+        "residual; all-data-lr = the training parts' likelihood ratio on effective samples "
         "(chi-square at the held-out test's size, the effect's coefficients as degrees of "
         "freedom), the held-out innovations' drop not significantly negative (one-sided 5 %), "
         "the input noise's null of the default; noise-level = the former rules "

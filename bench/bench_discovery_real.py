@@ -110,9 +110,10 @@ def main(argv=None):
                         default=list(ACCEPTANCE_RULES), help='the rules compared (default all)')
     args = parser.parse_args(argv)
     rules = tuple(args.rules)
-    columns = ' | '.join(f'effects ({rule}) | false ({rule})' for rule in rules)
+    columns = ' | '.join(f'effects ({rule}) | false ({rule}) | time ({rule})'
+                         for rule in rules)
     lines = ['| data set | record | ' + columns + ' |',
-             '|---|---|' + '---|---|' * len(rules)]
+             '|---|---|' + '---|---|---|' * len(rules)]
     totals = {rule: [0, 0] for rule in rules}
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as directory:
@@ -120,13 +121,14 @@ def main(argv=None):
             cells = []
             for rule in rules:
                 with judged_by(rule):
-                    names, _ = effects_of(arguments, directory)
+                    names, seconds = effects_of(arguments, directory)
                 false = None if names is None else [item for item in names
                                                     if item not in KNOWN[data]]
                 totals[rule][0] += bool(false)
                 totals[rule][1] += names is not None
                 cells += ['refused' if names is None else ', '.join(names) or 'none',
-                          '-' if false is None else ', '.join(false) or '0']
+                          '-' if false is None else ', '.join(false) or '0',
+                          f'{seconds:.1f} s']
             lines.append(f'| {data} | {name} | ' + ' | '.join(cells) + ' |')
             print(lines[-1], flush=True)
     summary = ', '.join(f'{rule}: {count} of {runs} records with a false effect'

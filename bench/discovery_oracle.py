@@ -15,8 +15,10 @@ least gain (the t is there, the gain under the loop's ``min_gain``), what the tr
 changes in the held-out outputs beyond the base in noise levels (:func:`part_beyond_base`),
 and the likelihood ratio of the same two fits on the training parts, on effective samples
 (:func:`insample_ratio`: what all of the training data say).  And whether the loop judges at
-all: it stops before any rule where the base's held-out residual is white (``white``; round 10:
-every current-speed record the default misses).  Current-speed mode only (the
+all: it stops before any rule where the base's residual is white (``white``,
+:func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging` under the rule: the
+held-out part, and since round 11 by default the whole records too; round 10: every
+current-speed record the default missed then).  Current-speed mode only (the
 loop alone, :func:`~dcmotor_id.identification.discovery.discover`).
 """
 
@@ -27,7 +29,7 @@ from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import PARAMETER_NAMES
 
 from dcmotor_id.identification.checks.start import correlation_time
-from dcmotor_id.identification.discovery.analysis import analyse, explained
+from dcmotor_id.identification.discovery.analysis import analyse, stops_before_judging
 from dcmotor_id.identification.discovery.judging import (HELDOUT_ALPHA, heldout_t_threshold,
                                                          innovation_t, least_gain,
                                                          paired_heldout, score, unearned)
@@ -102,8 +104,8 @@ def oracle(records, motor, effect, rule):
     and its threshold), ``gain_pct``, ``bic_delta``, ``part``
     (:func:`part_beyond_base`), ``why`` (the rule's reason, or None), ``lr`` and
     ``lr_needed`` (:func:`insample_ratio` and its chi-square threshold at the held-out
-    test's size), ``white`` (the base's held-out residual is white: the loop stops before
-    judging any candidate).  None when the base or the oracle's refit has no fit.
+    test's size), ``white`` (the base's residual is white as the rule's loop asks: it stops
+    before judging any candidate).  None when the base or the oracle's refit has no fit.
     """
     inner, coefficients = true_start(motor, effect)
     truth = {name: float(getattr(motor, name)) for name in PARAMETER_NAMES}
@@ -130,7 +132,7 @@ def oracle(records, motor, effect, rule):
             'gain_pct': 100.0 * candidate.gain, 'bic_delta': candidate.bic_delta,
             'part': part_beyond_base(loop, base, fitted), 'why': why,
             'lr': lr, 'lr_needed': float(chi2.ppf(1.0 - HELDOUT_ALPHA, dof)),
-            'white': explained(loop, analyse(loop, base))}
+            'white': stops_before_judging(loop, base, analyse(loop, base))}
 
 
 def verdict(found, names, accepted):
@@ -141,14 +143,15 @@ def verdict(found, names, accepted):
     data" too when the training part's likelihood ratio is below its own); ``(c)``: the t is
     there but the rule's least gain or BIC turns the oracle down; ``(b)``/``(d)``: the oracle
     passes and the loop missed it (``(d)``: it added another effect first); ``(e)`` is added
-    where the loop added nothing and the base's held-out residual is white: the loop stopped
-    before any rule judged.  None when the loop found it.
+    where the loop added nothing and the base's residual is white (as the rule's loop asks:
+    :func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`): the loop
+    stopped before any rule judged.  None when the loop found it.
     """
     if names and names[0] in accepted:
         return None
     if found is None:
         return 'no oracle fit'
-    gate = '; (e) the loop stopped: white held-out residual' if (
+    gate = '; (e) the loop stopped: white residual' if (
         not names and found.get('white')) else ''
     return _why(found, names) + gate
 

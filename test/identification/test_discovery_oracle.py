@@ -47,10 +47,11 @@ def test_the_oracle_turns_down_an_effect_far_below_the_noise():
     motor, records = _records(effect)
     found = discovery_oracle.oracle(records, motor, effect, DEFAULT_ACCEPTANCE)
     assert not found['detectable'] and found['part'] < 0.05
-    # and the loop does not judge at all: the base's held-out residual is white
+    # and the loop does not judge at all: the base's residual is white (held-out part and
+    # whole records)
     assert found['white']
     assert discovery_oracle.verdict(found, [], ('load_torque',)) == (
-        '(a) below the noise in all the data; (e) the loop stopped: white held-out residual')
+        '(a) below the noise in all the data; (e) the loop stopped: white residual')
     assert discovery_oracle.verdict(found, ['cogging'], ('load_torque',)) == (
         '(a) below the noise in all the data')
 

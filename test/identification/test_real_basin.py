@@ -202,9 +202,10 @@ def test_a_cogging_ripple_of_any_size_is_judged_by_its_significance_alone():
     fitted.values = {'Mc': 0.01, 'cogging.sin_Nm': 0.03, 'cogging.cos_Nm': 0.0}
     candidate = SimpleNamespace(name='cogging', fitted=fitted, gain=1 - 0.96 ** 2, effect=None)
     # The default's held-out test is innovation-t-alone's (without a least gain since round
-    # 10); its coefficient test asks the input current's noise of a fit of the output-error
-    # mechanical model (J, b, Mc), not here.
-    assert DEFAULT_ACCEPTANCE == 'input-noise-null-any-gain'
+    # 10; the loop's stop asks the whole records too since round 11); its coefficient test
+    # asks the input current's noise of a fit of the output-error mechanical model (J, b, Mc),
+    # not here.
+    assert DEFAULT_ACCEPTANCE == 'whole-record-white'
     assert unearned(_loop(), current, candidate) is None
     # White noise traded for other white noise: a gain of 1 % that is chance.
     noise = _fit(rng.normal(0, 0.995, n), stop)

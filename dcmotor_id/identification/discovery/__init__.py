@@ -7,7 +7,9 @@ The effect discovery loop: trace the residual to an effect the model lacks, add 
    (:mod:`dcmotor_id.identification.error_model.residuals`): Ljung-Box whiteness, predictable
    share,
    correlation with the inputs and with every candidate's regressor.
-3. If the residual is not white, try every effect of the vocabulary
+3. If the residual is not white (by default: on the held-out part or over the whole records,
+   :func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`), try every
+   effect of the vocabulary
    (:mod:`dcmotor_id.identification.effects`) not yet in the model.  A cheap linearised screen (the
    residual
    regressed on the sensitivities of the base parameters and of the candidate's terms) picks
@@ -49,8 +51,8 @@ One module per seam of the loop; each imports only the modules before it in this
 - :mod:`~dcmotor_id.identification.discovery.arma`: ARMA(1, q) error models of the held-out
   innovations (the rule ``innovation-arma``);
 - :mod:`~dcmotor_id.identification.discovery.input_null`: an effect's coefficients against
-  their fits to draws of the input current's noise (the rule ``input-noise-null`` and the
-  default ``input-noise-null-any-gain``);
+  their fits to draws of the input current's noise (the rules ``input-noise-null``,
+  ``input-noise-null-any-gain`` and the default ``whole-record-white``);
 - :mod:`~dcmotor_id.identification.discovery.likelihood`: the training parts' likelihood ratio
   on effective samples, the held-out part a guard (the rule ``all-data-lr``, measured);
 - :mod:`~dcmotor_id.identification.discovery.judging`: the held-out gain, its noise, the

@@ -10,7 +10,8 @@ from dcmotor_id.identification.discovery.state import LoopState
 from dcmotor_id.identification.discovery.structure import Fit, join_part
 from dcmotor_id.identification.error_model.criterion import noise_level
 from dcmotor_id.identification.error_model.residuals import (analyse_channel, correlation_summary,
-                                                             one_step_error, residual_nrmse_pct)
+                                                             ljung_box, one_step_error,
+                                                             residual_nrmse_pct)
 
 
 #: Share of the residual an AR predictor must explain for structure to count as material.
@@ -142,6 +143,61 @@ def explained(loop: LoopState, analysis: dict) -> bool:
         return True
     level = loop.alpha / len(analysis)
     return all(item['ljung_box']['p_value'] >= level for item in analysis.values())
+
+
+#: Rules under which the loop judges every round: a white held-out residual does not stop it
+#: (the held-out t test is the stop; ``bench/discovery_results.md``, round 11).
+JUDGED_ALWAYS = ('judged-always',)
+#: Rules under which the loop stops only when the residual is white on the held-out part and
+#: on the whole records (:func:`white_on_whole_records`; round 11).
+WHOLE_RECORD_WHITENESS = ('whole-record-white',)
+
+
+def white_on_whole_records(loop: LoopState, fitted: Fit) -> bool:
+    """
+    Whether a fit's residual over the whole records is white on every output channel.
+
+    The Ljung-Box test (``loop.max_lag`` lags) of each channel's residual over the training
+    and the held-out parts together, at ``loop.alpha`` Bonferroni over the channels, as
+    :func:`explained` tests the held-out part: three times the samples, where an effect the
+    held-out end shows too faintly (a one-sample speed delay) colours the residual
+    (``bench/discovery_results.md``, round 11).  The fit's training part adapts to its
+    residual, which can only whiten it: the test stays at or below its size.
+    """
+    level = loop.alpha / len(loop.outputs)
+    for channel in loop.outputs:
+        residual = np.concatenate([np.asarray(sim[channel] - getattr(rec, channel), dtype=float)
+                                   for rec, sim in zip(fitted.records, fitted.simulated)])
+        residual = residual[np.isfinite(residual)]
+        if residual.shape[0] > 2 * loop.max_lag and \
+                ljung_box(residual, loop.max_lag, loop.alpha)['p_value'] < level:
+            return False
+    return True
+
+
+def stops_before_judging(loop: LoopState, fitted: Fit, analysis: dict) -> bool:
+    """
+    Whether the loop stops before a round: a residual that shows nothing left to judge.
+
+    An exact model (:func:`negligible`) stops it under every rule.  Otherwise a white
+    held-out residual (:func:`explained`) stops it, except under the rules of
+    :data:`JUDGED_ALWAYS` (the held-out t test of every round's winner is the stop: a
+    residual white at the whiteness test's lags may hold an effect that many samples
+    resolve) and, under those of :data:`WHOLE_RECORD_WHITENESS`, unless the residual over the
+    whole records is not white (:func:`white_on_whole_records`).  A loop that goes on judges
+    its candidates by the held-out t test as ever: this test decides how often a round is
+    run (its cost), that one what is added.  An empty analysis (a model without one) never
+    stops it.
+    """
+    if not analysis:
+        return False
+    if negligible(analysis):
+        return True
+    if loop.acceptance in JUDGED_ALWAYS or not explained(loop, analysis):
+        return False
+    if loop.acceptance in WHOLE_RECORD_WHITENESS:
+        return white_on_whole_records(loop, fitted)
+    return True
 
 
 def material(loop: LoopState, analysis: dict) -> bool:

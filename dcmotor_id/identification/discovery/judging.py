@@ -23,10 +23,15 @@ measured beside the default (``bench/discovery_results.md``, round 7).  Rule
 then, where the measured current drives the model, the effect's coefficients against their
 fits to draws of the current's noise (:mod:`.input_null`: a fit that bends to the input
 noise's drift leaves a candidate a real held-out gain, ``bench/discovery_results.md``, round
-8).  Rule ``input-noise-null-any-gain`` (the default since round 10): those tests
+8).  Rule ``input-noise-null-any-gain`` (the default in round 10): those tests
 without the loop's least gain of 5 % (:func:`least_gain`): the t test on the effective
 innovations is the criterion, its size measured; the fixed least gain turned down an effect
-whose t passed (``bench/discovery_results.md``, round 10).  Rule ``all-data-lr`` (measured,
+whose t passed (``bench/discovery_results.md``, round 10).  Rule ``judged-always``: those
+tests, and the loop does not stop on a white held-out residual before judging
+(:func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`; round 11); rule
+``whole-record-white`` (the default since round 11): those tests, and the loop stops on a white
+held-out residual only when the whole records' residual is white too.  Rule
+``all-data-lr`` (measured,
 not the default: it adds effects to real records): the training parts' likelihood ratio on
 effective samples, the held-out part a guard (:mod:`.likelihood`).  The former rules
 (``noise-level``: an effect's own part of the outputs against the per-sample noise,
@@ -67,9 +72,11 @@ GAIN_T = 2.0
 HELDOUT_ALPHA = 0.00135
 #: Rules that do not ask the gain to be spread over the held-out part.
 SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null',
-               'input-noise-null-any-gain', 'all-data-lr')
+               'input-noise-null-any-gain', 'all-data-lr', 'judged-always',
+               'whole-record-white')
 #: Rules without the loop's least gain: their test is the criterion (round 10).
-GAIN_FREE = ('input-noise-null-any-gain', 'all-data-lr')
+GAIN_FREE = ('input-noise-null-any-gain', 'all-data-lr', 'judged-always',
+             'whole-record-white')
 
 
 def least_gain(loop: LoopState) -> float:
@@ -494,8 +501,10 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     ``input-noise-null``: that test, then the effect's coefficients against their
     fits to draws of the input current's noise
     (:func:`~dcmotor_id.identification.discovery.input_null.input_noise_doubt`);
-    ``input-noise-null-any-gain`` (default): the same without the least gain
-    (:func:`least_gain`);
+    ``input-noise-null-any-gain``: the same without the least gain
+    (:func:`least_gain`); ``judged-always`` and ``whole-record-white`` (default): the same
+    tests, the loop judging more rounds
+    (:func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`);
     ``all-data-lr``: the held-out guard and the input noise's null of
     :func:`~dcmotor_id.identification.discovery.likelihood.unearned_ratio` (the training
     parts' likelihood ratio chose it); ``noise-level`` (the former rules, kept to measure
@@ -513,7 +522,8 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
         from dcmotor_id.identification.discovery.likelihood import unearned_ratio
 
         return unearned_ratio(loop, current, candidate)
-    if loop.acceptance in ('input-noise-null', 'input-noise-null-any-gain'):
+    if loop.acceptance in ('input-noise-null', 'input-noise-null-any-gain', 'judged-always',
+                           'whole-record-white'):
         from dcmotor_id.identification.discovery.input_null import input_noise_doubt
 
         return (unearned_heldout_t(loop, current, candidate, innovation_t, spread=False)

@@ -19,8 +19,8 @@ from typing import Any, Callable, Sequence, TYPE_CHECKING
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import TimeBudgetExceeded
-from dcmotor_id.identification.discovery.analysis import (analyse, explained, material, misfit,
-                                                          negligible)
+from dcmotor_id.identification.discovery.analysis import (analyse, material, misfit, negligible,
+                                                          stops_before_judging)
 from dcmotor_id.identification.discovery.judging import decide, never_worse, round_report, score
 from dcmotor_id.identification.discovery.refitting import (anchor_fit, base_unsound, fit_structure,
                                                            judging_reference, refit_all,
@@ -197,7 +197,7 @@ def search_rounds(loop: LoopState, base: Fit, analysis: dict,
     search = Search(base, analysis)
     try:
         while True:
-            if search.analysis and explained(loop, search.analysis):
+            if stops_before_judging(loop, search.current, search.analysis):
                 search.reason = 'the residual is white' if not negligible(
                     search.analysis) else 'the model reproduces the data exactly'
                 break

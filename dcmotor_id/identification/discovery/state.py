@@ -44,19 +44,28 @@ MAX_EFFECTS = 4
 #: against their fits to draws of the input current's noise (the mechanical mode's output-error
 #: loop; :mod:`~dcmotor_id.identification.discovery.input_null`; elsewhere
 #: ``innovation-t-alone``);
-#: ``input-noise-null-any-gain`` (the default since round 10), that rule without the least gain
+#: ``input-noise-null-any-gain`` (the default in round 10), that rule without the least gain
 #: (its t test the criterion: ``bench/discovery_results.md``, round 10);
 #: ``all-data-lr``, a likelihood-ratio test on effective samples over the training parts, the
 #: held-out part a guard against a contradiction
 #: (:mod:`~dcmotor_id.identification.discovery.likelihood`; measured, not the default: false
-#: effects on real records).
+#: effects on real records);
+#: ``judged-always``, the tests of ``input-noise-null-any-gain`` with every round judged: the
+#: loop does not stop on a white held-out residual
+#: (:func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`; the held-out
+#: t test, whose size is measured, is the stop; measured, not the default: the same effects as
+#: ``whole-record-white`` at 14 times the CPU of the 60 s record's ``identify``,
+#: ``bench/discovery_results.md``, round 11);
+#: ``whole-record-white`` (the default since round 11), those tests, the loop stopping on a
+#: white held-out residual only when the residual over the whole records is white too
+#: (:func:`~dcmotor_id.identification.discovery.analysis.white_on_whole_records`).
 #: The least gain: the screen's share and the rules that ask it
 #: (:func:`~dcmotor_id.identification.discovery.judging.least_gain`).
 ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level', 'innovation-t-alone',
                     'innovation-arma', 'input-noise-null', 'input-noise-null-any-gain',
-                    'all-data-lr')
+                    'all-data-lr', 'judged-always', 'whole-record-white')
 #: The rule of every identification.
-DEFAULT_ACCEPTANCE = 'input-noise-null-any-gain'
+DEFAULT_ACCEPTANCE = 'whole-record-white'
 
 
 @dataclass(frozen=True, eq=False)
