@@ -212,7 +212,7 @@ def start_power_rows(seeds: int) -> list[list[str]]:
 def random_start_power_rows(count: int) -> list[list[str]]:
     """Return the detection of a start ramp on random motors over the ramp's samples."""
     rows = []
-    for length in (4, 6, 9, 18, 36):
+    for length in (4, 6, 9, 18, 36, 72):
         found = {'alone': 0, 'profile': 0, 'now': 0}
         for seed in range(count):
             records = prepare_records(random_step_from_rest(seed, length)[0])

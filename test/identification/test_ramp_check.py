@@ -163,3 +163,12 @@ def test_a_fast_spin_up_from_rest_is_no_ramp_and_is_identified(seed):
     result = identify(records)
     assert not [text for text in result.warnings if 'did not reach the motor' in text]
     assert_near_truth(result.parameters, scenario.truth, Ra=0.05, CPhi=0.05, J=0.1)
+
+
+def test_a_start_ramp_longer_than_the_one_step_window_is_found_whole():
+    # 80 samples: the profile tried at most the one-step test's 50 and the fit kept the rest.
+    scenario = lab_scenarios.amplifier_ramp_step(
+        level_v=19.8, ramp_s=0.16, motor=lab_scenarios.RAMPED_SPIN_UP_MOTOR)
+    records = prepare_records(scenario.records)
+    mask = ramp_samples(records)[0]
+    assert mask[:76].all() and not mask[90:].any()

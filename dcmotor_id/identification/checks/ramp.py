@@ -64,6 +64,9 @@ MIN_RUN_SAMPLES = 3
 #: sampling (the voltage held over a sample, a speed averaged over it), a lag of at most a
 #: sample, below :data:`MIN_DELAY_SAMPLES`.
 MIN_PROFILE_SAMPLES = 4
+#: The longest ramp the profile tries [samples] (at most half the step's dwell): a soft start
+#: of a quarter second at 1 kHz.
+PROFILE_SAMPLES = 250
 
 
 @dataclass(frozen=True)
@@ -168,9 +171,10 @@ def record_shortfalls(record: Record, steps: Sequence[tuple[int, float]],
                     and not _at_limit(np.abs(current[first + 1:first + best + 2]), peak))
         # a ramp ends where the shortfall's sum reaches 99 % of its largest (not a noisy tail)
         extent = int(np.argmax(total >= 0.99 * float(np.max(total)))) if ramp else best
-        length, ratio = (ramp_profile(current, volts, _sample_speed(record), first, width)
+        longest = min(PROFILE_SAMPLES, max((following - first) // 2, 1), residual.size - first)
+        length, ratio = (ramp_profile(current, volts, _sample_speed(record), first, longest)
                          if first == 0 else (1, 0.0))
-        profiled = bool(ratio > profile_bound(len(steps), width)
+        profiled = bool(ratio > profile_bound(len(steps), longest)
                         and not _at_limit(np.abs(current[first + 1:first + length]), peak))
         extent = max(extent, length - 1) if profiled else extent
         found.append(Shortfall(first, max(best, extent) + 1, float(z[best]), delay,
