@@ -98,6 +98,9 @@ def test_one_voltage_step_without_a_current_is_answered_with_ks_named():
     assert result.stderr['kV'] >= result.parameters['kV']
     assert result.combined['apparent_kV']['stderr'] < 0.01 * result.parameters['kV']
     assert 'no effect search' in result.discovery['reason']
+    # Linear with kS at 0, a lag would trade against kA (it swapped roles on the QUBE step).
+    assert 'armature_time_constant_s' not in result.combined
+    assert any('the armature-lag model was not fitted' in text for text in result.warnings)
 
 
 def test_one_voltage_step_holds_ks_at_zero_in_the_regression_too():

@@ -29,9 +29,10 @@ The fit:
 
 One voltage level in one direction (a step from rest, :func:`one_level_step`) gives a final
 speed and a time constant, two numbers for three: ``kS + kV w = u`` ties kS to kV.  kS is then
-held at 0 in both stages (:class:`FrictionAtZero`): kV is the apparent ``u/w`` at the final
-speed (``kV + kS/w``) and kA the time constant times it (``kA u/(u - kS)``), upper bounds of
-the true ones when ``kS >= 0``.
+held at 0 (:class:`FrictionAtZero`): kV is the apparent ``u/w`` at the final speed
+(``kV + kS/w``) and kA the time constant times it (``kA u/(u - kS)``), upper bounds of the
+true ones when ``kS >= 0``.  The model is then linear and its armature lag trades against kA
+(:data:`ONE_LEVEL_NOTE`): the first-order model is kept.
 
 Standard errors: Gauss-Newton (the residual variance over the degrees of freedom times the
 inverse of ``J^T J``), scaled by the residual's correlation (:func:`correlation_factor`),
@@ -70,6 +71,13 @@ BIC_MARGIN = 10.0
 BUDGET_NOTE = ('the time budget (--max-time) ran out during the armature-lag fit: the '
                'first-order model is kept (kA may hold an armature or drive lag as inertia); '
                'give more time to fit the lag')
+#: Said when kS was held at 0 (one voltage level in one direction): no armature-lag fit.
+ONE_LEVEL_NOTE = ('one voltage level in one direction: the armature-lag model was not fitted '
+                  '(with kS held at 0 the model is linear, and a lag trades against kA: the '
+                  'response gives kA + Ta Ra b/CPhi and Ta kA, not each, as no friction '
+                  'reverses or breaks away); kA is the first-order one, the acceleration gain '
+                  'of a feedforward that neglects the jerk (a lag of the drive or the speed '
+                  'sensor included)')
 #: Cut-off of the zero-phase filter of the regression start, as a fraction of the sample rate.
 START_CUTOFF = 0.05
 
@@ -520,21 +528,17 @@ def acceleration_gain(theta: np.ndarray, covariance: np.ndarray) -> tuple[float,
     return gain, gain * math.sqrt(max(float(slope @ covariance[:5, :5] @ slope), 0.0))
 
 
-def _second_fit(records: Sequence[Record], first, progress: Progress | None, fitter=_fit):
-    """
-    Run the armature-lag fit from the first-order one; None when the time budget ran out.
-
-    ``fitter``: :func:`_fit` (the default) or :func:`_fit_friction_at_zero`.
-    """
+def _second_fit(records: Sequence[Record], first, progress: Progress | None):
+    """Run the armature-lag fit from the first-order one; None when the time budget ran out."""
     dt = records[0].sample_period_s
     share = max(0.1, 2.0 * dt / math.exp(first.x[0] - first.x[1]))
     try:
         if progress is not None:
             progress.set_stage('voltage-speed fit: armature lag')
-        return fitter(_second_order, records,
-                      np.concatenate([first.x[:3], [math.log(min(share, 0.5)), 0.5]]),
-                      ([-np.inf, -np.inf, 0.0, -15.0, 1e-3], [np.inf, np.inf, np.inf, 0.0, 1.0]),
-                      progress)
+        return _fit(_second_order, records,
+                    np.concatenate([first.x[:3], [math.log(min(share, 0.5)), 0.5]]),
+                    ([-np.inf, -np.inf, 0.0, -15.0, 1e-3], [np.inf, np.inf, np.inf, 0.0, 1.0]),
+                    progress)
     except TimeBudgetExceeded:
         return None
 
@@ -547,7 +551,8 @@ def fit_voltage_speed(records: Sequence[Record],
     ``progress`` names the two fits and bounds them in time: past its deadline during the
     armature-lag fit, the first-order model is kept (``notes`` says so).  One voltage level
     in one direction (:func:`one_level_step`): kS is held at 0 (``friction_at_zero``), kV
-    and kA are the apparent ones (:func:`_fit_friction_at_zero`).
+    and kA are the apparent ones (:func:`_fit_friction_at_zero`), and the first-order model
+    is kept (:data:`ONE_LEVEL_NOTE`).
 
     Raises
     ------
@@ -572,7 +577,11 @@ def fit_voltage_speed(records: Sequence[Record],
     if not np.all(np.isfinite(first.x)):
         raise FitError('the voltage-to-speed fit did not converge; check that the voltage and '
                        'the speed are in SI units (V, rad/s) and of one sign convention')
-    second = _second_fit(records, first, progress, fitter)
+    if at_zero:  # linear: kA trades against a lag (ONE_LEVEL_NOTE)
+        return replace(summary(first, _first_order_state, records, start,
+                               _nrmse_pct(records, start_residual), [ONE_LEVEL_NOTE]),
+                       friction_at_zero=True)
+    second = _second_fit(records, first, progress)
     chosen, size, notes = first, 3, []
     if second is None:
         notes.append(BUDGET_NOTE)
@@ -580,8 +589,7 @@ def fit_voltage_speed(records: Sequence[Record],
             and _bic(second.fun, second.x.size) < _bic(first.fun, first.x.size) - BIC_MARGIN):
         chosen, size = second, 5
     model = _first_order_state if size == 3 else _second_order
-    return replace(summary(chosen, model, records, start, _nrmse_pct(records, start_residual),
-                           notes), friction_at_zero=at_zero)
+    return summary(chosen, model, records, start, _nrmse_pct(records, start_residual), notes)
 
 
 def summary(chosen, model, records: Sequence[Record], start: dict[str, float],
