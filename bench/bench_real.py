@@ -1267,8 +1267,11 @@ def qube_runs(path: str, cache: str) -> list[Run3]:
             f'{QUBE_REFS["kA"]:.3g} V s^2/rad with the datasheet rotor and hub inertias, '
             f"{QUBE_KA_AUTHORS:.3g} with the authors' identified 8.009e-6 kg m^2.  The "
             'record `1V_exp01` is one 1 V step from rest: it crashed the fit before '
-            '(ZeroDivisionError); its regression gave kV 1e-9 (its lower clip), and both are '
-            'now refused naming why.')
+            '(ZeroDivisionError), its regression gave kV 1e-9 (its lower clip), then both were '
+            'refused (one level in one direction ties kS to kV); now both hold kS at 0 and give '
+            'the apparent kV = u/w at the final speed (kV + kS/w) and kA (kA u/(u - kS)), kS '
+            "named not identifiable and kV's, kA's standard errors reaching 0 (the record bounds "
+            'kS only by the voltage).')
     runs = []
     for stem in QUBE_FILES:
         file = repo.local(f'Data/Parsed_Data/{stem}.mat')
@@ -1350,9 +1353,11 @@ def seedlab_runs(path: str, cache: str) -> tuple[list[Run3], list[dict[str, Any]
             f'so kV = 1/K = {SEEDLAB_REFS["kV"]:.3g} V s/rad and kA = 1/(K sigma) = '
             f'{SEEDLAB_REFS["kA"]:.3g} V s^2/rad (their model has no kS).  Rows "as logged": the '
             '.mat with its voltage column; "applied voltage": a CSV with 5.96 V in it.  One '
-            'level in one direction cannot separate kS from kV: refused, by the tool and by its '
-            'regression alike; the kS-free first-order fit of the authors (`first_order_step`, '
-            'kS taken as 0) gives {fits}: an answer neither offers.')
+            'level in one direction cannot separate kS from kV: the tool and its regression hold '
+            'kS at 0 (named not identifiable; kV the apparent u/w at the final speed, kA its '
+            "time constant times it, their standard errors reaching 0), the authors' kS-free "
+            'model; their first-order fit computed here (`first_order_step`, kS taken as 0) '
+            'gives {fits}.')
     fits = {side: first_order_step(repo.local(f'{SEEDLAB_FOLDER}/{side}MotorData.mat'))
             for side in ('left', 'right')}
     note = note.replace('{fits}', '; '.join(

@@ -10,6 +10,7 @@ from support import assert_near_truth
 from dcmotor_id.cli.main import main
 from dcmotor_id.core.errors import NotIdentifiableError
 from dcmotor_id.formats.quality import magnitude_current
+from dcmotor_id.identification.estimators.voltage_speed import fit_voltage_speed, regression_start
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.identification.pipeline import floor as floor_module
 from dcmotor_id.identification.pipeline.segments import idle_samples, split_tests, Tests
@@ -76,11 +77,49 @@ def test_a_record_standing_still_between_steps_is_left_whole():
 
 # Classes of the round-3 public recordings (bench/bench_real.py --qube, --wheels).
 
-def test_one_voltage_step_without_a_current_is_refused_saying_why():
-    # The QUBE-Servo 2 record no_pendulum_1V_exp01 crashed the fit (ZeroDivisionError).
+def test_one_voltage_step_without_a_current_is_answered_with_ks_named():
+    # The QUBE-Servo 2 record no_pendulum_1V_exp01 crashed the fit (ZeroDivisionError), then
+    # was refused: one level in one direction ties kS to kV.  Now kS is held at 0 and named,
+    # kV and kA are the apparent ones (u/w at the final speed; kA u/(u - kS)).
     scenario = lab_scenarios.rig_voltage_step_no_current()
-    with pytest.raises(NotIdentifiableError, match='one level .* in one direction'):
-        identify(prepare_records(scenario.records))
+    result = identify(prepare_records(scenario.records))
+    truth = scenario.truth
+    ks, kv = truth.Ra * truth.Mc / truth.CPhi, truth.CPhi + truth.Ra * truth.b / truth.CPhi
+    ka = truth.Ra * truth.J / truth.CPhi
+    level = 1.0
+    final_speed = (level - ks) / kv
+    assert result.mode == 'voltage_speed'
+    assert result.parameters['kS'] == 0.0
+    assert 'one voltage level (1 V) in one direction' in result.not_identifiable['kS']
+    assert result.parameters['kV'] == pytest.approx(level / final_speed, rel=0.05)
+    assert result.parameters['kA'] == pytest.approx(ka, rel=0.1)
+    # The stated uncertainty reaches the far end of what the record leaves open.
+    assert result.stderr['kS'] == pytest.approx(level)
+    assert result.stderr['kV'] >= result.parameters['kV']
+    assert result.combined['apparent_kV']['stderr'] < 0.01 * result.parameters['kV']
+    assert 'no effect search' in result.discovery['reason']
+    # Linear with kS at 0, a lag would trade against kA (it swapped roles on the QUBE step).
+    assert 'armature_time_constant_s' not in result.combined
+    assert any('the armature-lag model was not fitted' in text for text in result.warnings)
+
+
+def test_one_voltage_step_holds_ks_at_zero_in_the_regression_too():
+    scenario = lab_scenarios.rig_voltage_step_no_current()
+    start = regression_start(prepare_records(scenario.records))
+    assert start['kS'] == 0.0
+    truth = scenario.truth
+    kv = truth.CPhi + truth.Ra * truth.b / truth.CPhi
+    assert start['kV'] == pytest.approx(kv / (1.0 - truth.Ra * truth.Mc / truth.CPhi), rel=0.05)
+
+
+def test_one_voltage_step_backwards_gives_the_same_apparent_values():
+    record = prepare_records(lab_scenarios.rig_voltage_step_no_current().records)[0]
+    forward = fit_voltage_speed([record])
+    backward = fit_voltage_speed([record.replace(voltage=-record.voltage, speed=-record.speed)])
+    assert forward.friction_at_zero and backward.friction_at_zero
+    assert backward.values['kS'] == 0.0 and backward.stderr['kS'] == 0.0
+    assert backward.values['kV'] == pytest.approx(forward.values['kV'], rel=1e-3)
+    assert backward.values['kA'] == pytest.approx(forward.values['kA'], rel=1e-2)
 
 
 def test_one_voltage_magnitude_both_ways_is_said_in_a_warning():

@@ -66,6 +66,10 @@ IN_VOLTS = ('the effects of the voltage-to-speed model are in volts (a torque T 
             'as Ra T/CPhi, like kS = Ra Mc/CPhi): their split into a torque and Ra/CPhi needs '
             'the current')
 
+#: Why there is no search on one voltage level in one direction (kS held at 0).
+ONE_LEVEL = ('no effect search: one voltage level in one direction ties kS to kV (kS held at '
+             "0), and a load or the friction's asymmetries would be as inseparable from them")
+
 
 @dataclass
 class VoltageSpeedDiscovery:
@@ -273,8 +277,12 @@ def discover_voltage_speed(records: Sequence[Record], fit: VoltageSpeedFit,
 
     ``fit`` is the model without effects on all of the records (its order, first or
     second, is kept); the loop starts from it.  Past the time budget the best structure so
-    far is kept (``out_of_time``).
+    far is kept (``out_of_time``).  No search when the fit held kS at 0 (one voltage level in
+    one direction: :data:`ONE_LEVEL`).
     """
+    if fit.friction_at_zero:
+        return VoltageSpeedDiscovery(Structure(), None, list(records),
+                                     summary={'reason': ONE_LEVEL})
     loop = LoopState(list(records), torque_constant=1.0, vocabulary=VOLTAGE_SPEED_VOCABULARY,
                      progress=progress)
     try:

@@ -27,6 +27,13 @@ The fit:
    ``c`` is poorly determined (it is fitted, not reported: CPhi is not separable in
    practice), and the standard errors of ``kS, kV, kA`` include its spread.
 
+One voltage level in one direction (a step from rest, :func:`one_level_step`) gives a final
+speed and a time constant, two numbers for three: ``kS + kV w = u`` ties kS to kV.  kS is then
+held at 0 (:class:`FrictionAtZero`): kV is the apparent ``u/w`` at the final speed
+(``kV + kS/w``) and kA the time constant times it (``kA u/(u - kS)``), upper bounds of the
+true ones when ``kS >= 0``.  The model is then linear and its armature lag trades against kA
+(:data:`ONE_LEVEL_NOTE`): the first-order model is kept.
+
 Standard errors: Gauss-Newton (the residual variance over the degrees of freedom times the
 inverse of ``J^T J``), scaled by the residual's correlation (:func:`correlation_factor`),
 carried to ``kS, kV, kA`` by their derivatives.
@@ -34,9 +41,9 @@ carried to ``kS, kV, kA`` by their derivatives.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import math
-from typing import Mapping, Sequence, TYPE_CHECKING
+from typing import Callable, Mapping, Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -64,6 +71,13 @@ BIC_MARGIN = 10.0
 BUDGET_NOTE = ('the time budget (--max-time) ran out during the armature-lag fit: the '
                'first-order model is kept (kA may hold an armature or drive lag as inertia); '
                'give more time to fit the lag')
+#: Said when kS was held at 0 (one voltage level in one direction): no armature-lag fit.
+ONE_LEVEL_NOTE = ('one voltage level in one direction: the armature-lag model was not fitted '
+                  '(with kS held at 0 the model is linear, and a lag trades against kA: the '
+                  'response gives kA + Ta Ra b/CPhi and Ta kA, not each, as no friction '
+                  'reverses or breaks away); kA is the first-order one, the acceleration gain '
+                  'of a feedforward that neglects the jerk (a lag of the drive or the speed '
+                  'sensor included)')
 #: Cut-off of the zero-phase filter of the regression start, as a fraction of the sample rate.
 START_CUTOFF = 0.05
 
@@ -107,6 +121,10 @@ class VoltageSpeedFit:
         The factor the Gauss-Newton standard errors were scaled by.
     speeds : list of numpy.ndarray
         The simulated speed of every record.
+    friction_at_zero : bool
+        Whether kS was held at 0 (one voltage level in one direction, :func:`one_level_step`):
+        kV and kA are then the apparent ``u/w`` at the final speed and its time constant
+        times it, and their standard errors those of these apparent values.
 
     """
 
@@ -128,6 +146,7 @@ class VoltageSpeedFit:
     states: list[list[float]] = field(default_factory=list, repr=False)
     coefficients: dict[str, float] = field(default_factory=dict)
     coefficient_stderr: dict[str, float] = field(default_factory=dict)
+    friction_at_zero: bool = False
 
 
 def channels(record: Record) -> tuple[np.ndarray, np.ndarray]:
@@ -140,16 +159,20 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
     """
     Return ``kS, kV, kA`` from ``u`` regressed on ``sgn w, w, dw/dt`` (filtered, zero phase).
 
+    One voltage level in one direction (:func:`one_level_step`) ties ``sgn w`` to the
+    constant: ``kS`` is taken as 0 and ``u`` regressed on ``w`` and ``dw/dt`` alone.
+
     Raises
     ------
     NotIdentifiableError
-        When the regressors are (nearly) dependent (a motor at one speed, or one voltage step:
-        :func:`one_level_step`).
+        When the voltage reads 0 V while the motor moves (:func:`zero_voltage_moving`), or
+        the regressors are (nearly) dependent (a motor that hardly moves or runs at one speed).
 
     """
-    one_step = zero_voltage_moving(records) or one_level_step(records)
-    if one_step:
-        raise NotIdentifiableError(one_step)
+    zero = zero_voltage_moving(records)
+    if zero:
+        raise NotIdentifiableError(zero)
+    columns = slice(1, 3) if one_level_step(records) else slice(0, 3)
     rows, targets = [], []
     for record in records:
         dt = record.sample_period_s
@@ -158,7 +181,7 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
         voltage = low_pass(measured_voltage, START_CUTOFF)
         slope = central_differences(speed, dt)
         moving = np.abs(speed) > 3.0 * noise_std(measured_speed)
-        rows.append(np.column_stack([np.sign(speed), speed, slope])[moving])
+        rows.append(np.column_stack([np.sign(speed), speed, slope])[moving][:, columns])
         targets.append(voltage[moving])
     matrix, target = np.concatenate(rows), np.concatenate(targets)
     if matrix.shape[0] < 10 or np.linalg.cond(matrix / np.abs(matrix).max(0)) > 1e8:
@@ -166,7 +189,8 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
             'voltage and speed do not determine kS, kV and kA: the motor hardly moves or runs '
             'at one speed; record steps and ramps of the voltage in both directions (a SysId '
             'routine)')
-    solution = np.linalg.lstsq(matrix, target, rcond=None)[0]
+    solution = np.zeros(3)
+    solution[columns] = np.linalg.lstsq(matrix, target, rcond=None)[0]
     kv = max(float(solution[1]), 1e-9)
     ka = float(solution[2]) if solution[2] > 0 else 0.05 * kv
     return {'kS': max(float(solution[0]), 0.0), 'kV': kv, 'kA': ka}
@@ -212,7 +236,8 @@ def one_level_step(records: Sequence[Record]) -> str:
 
     The speed's response to one step is a first-order lag: its final speed and its time
     constant are two numbers for three unknowns, and ``kS + kV w = u`` at the final speed ties
-    kS to kV (the regressors ``sgn w``, ``w`` and ``dw/dt`` are dependent).
+    kS to kV (the regressors ``sgn w``, ``w`` and ``dw/dt`` are dependent).  The fit then holds
+    kS at 0 (:func:`fit_voltage_speed`).
     """
     voltage, signs = moving_voltage(records)
     if voltage.size == 0 or np.unique(signs).size > 1:
@@ -381,6 +406,53 @@ def _fit(model, records: Sequence[Record], theta: np.ndarray, limits: tuple[list
                          xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev)
 
 
+#: Index of kS in the fit's parameter vector (log kA, log kV, kS, ...).
+KS_INDEX = 2
+
+
+@dataclass(frozen=True)
+class FrictionAtZero:
+    """
+    A voltage-to-speed model with kS held at 0: its parameter vector lacks kS.
+
+    Attributes
+    ----------
+    base : callable
+        The model (:func:`_first_order_state` or :func:`_second_order`) given kS = 0.
+
+    """
+
+    base: Callable[[np.ndarray, Record, np.ndarray], np.ndarray]
+
+    @property
+    def states(self) -> int:
+        """Return the base model's initial states per record."""
+        return states_of(self.base)
+
+    def __call__(self, theta: np.ndarray, record: Record, initial: np.ndarray) -> np.ndarray:
+        """Return the base model's speed with kS = 0 put into ``theta``."""
+        return self.base(np.insert(theta, KS_INDEX, 0.0), record, initial)
+
+
+def _fit_friction_at_zero(model, records: Sequence[Record], theta: np.ndarray,
+                          limits: tuple[list, list], progress: Progress | None = None):
+    """
+    Run :func:`_fit` with kS held at 0; return scipy's result with kS put back.
+
+    ``theta`` and ``limits`` as for :func:`_fit` (kS's entry ignored); the result's ``x``
+    holds kS = 0, its Jacobian a zero column there and ``held`` kS's index (no variance:
+    :func:`_covariance`).
+    """
+    keep = [k for k in range(theta.size) if k != KS_INDEX]
+    lower, upper = limits
+    result = _fit(FrictionAtZero(model), records, np.delete(theta, KS_INDEX),
+                  ([lower[k] for k in keep], [upper[k] for k in keep]), progress)
+    result.x = np.insert(result.x, KS_INDEX, 0.0)
+    result.jac = np.insert(result.jac, KS_INDEX, 0.0, axis=1)
+    result.held = (KS_INDEX,)
+    return result
+
+
 def correlation_factor(residual: np.ndarray, lags: int = 200) -> float:
     """
     Return the factor on standard errors for a correlated residual (at least 1).
@@ -402,11 +474,19 @@ def correlation_factor(residual: np.ndarray, lags: int = 200) -> float:
 
 
 def _covariance(result, residual: np.ndarray) -> tuple[np.ndarray, float]:
-    """Gauss-Newton covariance of the fitted vector, scaled by the residual's correlation."""
-    dof = max(residual.size - result.x.size, 1)
+    """
+    Gauss-Newton covariance of the fitted vector, scaled by the residual's correlation.
+
+    The entries the result names ``held`` (kS held at 0, :func:`_fit_friction_at_zero`) were
+    not fitted: their rows and columns are 0.
+    """
+    free = np.setdiff1d(np.arange(result.x.size), list(getattr(result, 'held', ())))
+    dof = max(residual.size - free.size, 1)
     variance = float(residual @ residual) / dof
     factor = correlation_factor(residual)
-    covariance = np.linalg.pinv(result.jac.T @ result.jac) * variance * factor ** 2
+    jac = result.jac[:, free]
+    covariance = np.zeros((result.x.size, result.x.size))
+    covariance[np.ix_(free, free)] = np.linalg.pinv(jac.T @ jac) * variance * factor ** 2
     return covariance, factor
 
 
@@ -469,7 +549,10 @@ def fit_voltage_speed(records: Sequence[Record],
     Fit ``kS, kV, kA`` to records of voltage and speed (no current).
 
     ``progress`` names the two fits and bounds them in time: past its deadline during the
-    armature-lag fit, the first-order model is kept (``notes`` says so).
+    armature-lag fit, the first-order model is kept (``notes`` says so).  One voltage level
+    in one direction (:func:`one_level_step`): kS is held at 0 (``friction_at_zero``), kV
+    and kA are the apparent ones (:func:`_fit_friction_at_zero`), and the first-order model
+    is kept (:data:`ONE_LEVEL_NOTE`).
 
     Raises
     ------
@@ -482,16 +565,22 @@ def fit_voltage_speed(records: Sequence[Record],
 
     """
     start = regression_start(records)
+    at_zero = bool(one_level_step(records))  # kS tied to kV: held at 0
+    fitter = _fit_friction_at_zero if at_zero else _fit
     theta = np.array([math.log(start['kA']), math.log(start['kV']), start['kS']])
     start_residual = _residual(_first_order_state, records, 3)(
         np.concatenate([theta, [float(channels(rec)[1][0]) for rec in records]]))
     if progress is not None:
         progress.set_stage('voltage-speed fit: first order')
-    first = _fit(_first_order_state, records, theta, ([-np.inf, -np.inf, 0.0],
-                 [np.inf, np.inf, np.inf]), progress)
+    first = fitter(_first_order_state, records, theta, ([-np.inf, -np.inf, 0.0],
+                   [np.inf, np.inf, np.inf]), progress)
     if not np.all(np.isfinite(first.x)):
         raise FitError('the voltage-to-speed fit did not converge; check that the voltage and '
                        'the speed are in SI units (V, rad/s) and of one sign convention')
+    if at_zero:  # linear: kA trades against a lag (ONE_LEVEL_NOTE)
+        return replace(summary(first, _first_order_state, records, start,
+                               _nrmse_pct(records, start_residual), [ONE_LEVEL_NOTE]),
+                       friction_at_zero=True)
     second = _second_fit(records, first, progress)
     chosen, size, notes = first, 3, []
     if second is None:

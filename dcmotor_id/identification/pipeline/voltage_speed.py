@@ -5,9 +5,11 @@ The path of records without a current: the voltage-to-speed model as an identifi
 (:mod:`~dcmotor_id.identification.estimators.voltage_speed`) and returns an
 :class:`~dcmotor_id.identification.result.IdentificationResult` of mode ``voltage_speed``:
 ``parameters`` and ``stderr`` hold ``kS, kV, kA``; ``not_identifiable`` says plainly that
-Ra, CPhi, J, b and Mc are not separable without the current; ``combined`` gives what each
-parameter is made of (and the armature time constant when the data resolve it).  With
-discovery on, the effects that act on the shaft are searched on this model
+Ra, CPhi, J, b and Mc are not separable without the current (and kS from kV on one
+voltage level in one direction: kS is then taken as 0, :func:`one_level_reason`);
+``combined`` gives what each parameter is made of (and the armature time constant when the
+data resolve it; the apparent kV and kA when kS was taken as 0).  With discovery on, the
+effects that act on the shaft are searched on this model
 (:mod:`~dcmotor_id.identification.discovery.voltage_speed`): the ones found are listed in
 ``effects`` with their parameters in volts (``combined`` gives each with its standard error),
 and kS, kV, kA are those of the model with them.
@@ -27,6 +29,7 @@ from dcmotor_id.identification.discovery.voltage_speed import (discover_voltage_
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.estimators.voltage_speed import (COMBINATIONS,
                                                                 fit_voltage_speed,
+                                                                moving_voltage,
                                                                 NOT_SEPARABLE, UNITS,
                                                                 VoltageSpeedFit)
 from dcmotor_id.identification.result import IdentificationResult
@@ -83,13 +86,12 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
     base = fit_voltage_speed(records, progress)
     found = discover_voltage_speed(records, base, progress) if discover else None
     fit = found.fit if found is not None and found.fit is not None else base  # with effects
-    combined = {**{name: {'value': fit.values[name], 'stderr': fit.stderr[name],
-                          'of': COMBINATIONS[name], 'unit': UNITS[name]}
-                   for name in COMBINATIONS}, **_lag_entries(fit), **_effect_entries(found)}
+    stderr, apparent, one_level = _friction_at_zero(records, fit)
+    combined = {**_entries(fit, stderr), **apparent, **_lag_entries(fit), **_effect_entries(found)}
     warnings = ([NO_CURRENT_COLUMN] + held + list(fit.notes) + _lag_warnings(fit)
                 + _discovery_warnings(found, structure_bootstrap) + _misfit(fit, records))
     result = IdentificationResult(
-        parameters=dict(fit.values), stderr=dict(fit.stderr), method=MODE,
+        parameters=dict(fit.values), stderr=stderr, method=MODE,
         effects=found.effects_json() if found is not None else [],
         error_before={'current_nrmse_pct': None, 'speed_nrmse_pct': base.nrmse_start_pct},
         error_after={'current_nrmse_pct': None, 'speed_nrmse_pct': fit.nrmse_pct},
@@ -103,15 +105,59 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
                       for name, value in fit.stderr.items()},
         uncertainty_method=('Gauss-Newton of the output-error fit on the speed, scaled by '
                             f'the residual correlation (factor {fit.correlation_factor:.3g})'),
-        not_identifiable={'Ra, CPhi, J, b, Mc': NOT_SEPARABLE},
+        not_identifiable={**one_level, 'Ra, CPhi, J, b, Mc': NOT_SEPARABLE},
         warnings=warnings, combined=combined, operating_range=operating_range(records),
         input_records=list(records),
-        estimate=Estimate(MODE, dict(fit.values), dict(fit.stderr),
+        estimate=Estimate(MODE, dict(fit.values), dict(stderr),
                           [[speed] for speed in fit.initial_speeds],
                           {'simulated_speeds': _as_measured(fit.speeds, found, records),
                            'start': base.start}))
     result.elapsed_s = time.monotonic() - began
     return result
+
+
+def _entries(fit: VoltageSpeedFit, stderr: dict[str, float]) -> dict[str, dict]:
+    """Return the ``combined`` entries of kS, kV, kA: value, standard error, unit, make-up."""
+    return {name: {'value': fit.values[name], 'stderr': stderr[name], 'of': COMBINATIONS[name],
+                   'unit': UNITS[name]} for name in COMBINATIONS}
+
+
+def _friction_at_zero(records: Sequence[Record], fit: VoltageSpeedFit
+                      ) -> tuple[dict[str, float], dict[str, dict], dict[str, str]]:
+    """
+    Return the standard errors, the apparent values and kS's reason when kS was held at 0.
+
+    One voltage level in one direction (``fit.friction_at_zero``): the standard errors of
+    kS, kV and kA reach the far ends of their ranges (kS in [0, |u|): the motor moved, so its
+    friction is below the voltage; kV and kA scale with ``(u - kS)/u``); ``apparent_kV`` and
+    ``apparent_kA`` give the values with the fit's own standard errors; ``not_identifiable``
+    names kS with the reason.  Otherwise the fit's standard errors and nothing else.
+    """
+    if not fit.friction_at_zero:
+        return dict(fit.stderr), {}, {}
+    level = float(np.median(moving_voltage(records)[0]))
+    kv, ka = fit.values['kV'], fit.values['kA']
+    stderr = {'kS': abs(level), 'kV': max(fit.stderr['kV'], kv),
+              'kA': max(fit.stderr['kA'], ka)}
+    apparent = {'apparent_kV': {'value': kv, 'stderr': fit.stderr['kV'], 'unit': UNITS['kV'],
+                                'of': 'u / w at the final speed: kV + kS / w'},
+                'apparent_kA': {'value': ka, 'stderr': fit.stderr['kA'], 'unit': UNITS['kA'],
+                                'of': 'kA u / (u - kS)'}}
+    return stderr, apparent, {'kS': one_level_reason(level, kv, ka)}
+
+
+def one_level_reason(level: float, kv: float, ka: float) -> str:
+    """Say that one voltage level ties kS to kV, what kV and kA are then, and their ranges."""
+    return (f'one voltage level ({level:.4g} V) in one direction: the spin-up gives its final '
+            f'speed ({level / kv:.4g} rad/s) and its time constant (kA/kV = {ka / kv:.3g} s), '
+            'two numbers for kS, kV and kA, and kS + kV w = u at the final speed ties kS to '
+            f'kV. kS was taken as 0: kV = {kv:.4g} V s/rad is the apparent ratio u/w (kV + '
+            f'kS/w) and kA = {ka:.4g} V s^2/rad the apparent kA u/(u - kS), upper bounds of '
+            'the true ones if kS >= 0. The record bounds kS only by the voltage (the motor '
+            f'moved: kS < {abs(level):.4g} V), so kV lies in (0, {kv:.4g}] and kA in (0, '
+            f'{ka:.4g}] (their standard errors reach the far end; combined apparent_kV and '
+            "apparent_kA give the fit's own). Record steps of two or more voltage levels, or "
+            'both directions, to separate them')
 
 
 def _as_measured(speeds: Sequence[np.ndarray], found: VoltageSpeedDiscovery | None,
