@@ -248,7 +248,7 @@ def test_the_time_budget_and_the_progress_line_reach_the_fit():
 def test_cli_max_time_and_structure_bootstrap_on_voltage_speed(tmp_path, capsys):
     csv = str(tmp_path / 'sysid.csv')
     write_csv(csv, noisy_record(PAPER_MOTORS['paper2'], sysid_voltage()))
-    assert main(['identify', csv, '--quiet', '--max-time', '0.01']) == 2
+    assert main(['identify', csv, '--quiet', '--max-time', '1e-6']) == 2
     assert 'no fit finished within the time budget' in capsys.readouterr().err
     out = str(tmp_path / 'result.json')
     assert main(['identify', csv, '--quiet', '--structure-bootstrap', '3', '--json', out]) == 0
