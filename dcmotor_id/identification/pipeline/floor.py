@@ -338,9 +338,9 @@ def _electrical(rows_e, rhs_e, records: Sequence[Record], masks: Sequence[np.nda
     Fit the electrical equation: dynamic, or static (La a bound) when La is unresolved.
 
     The choice is made on the filtered rows and checked on the raw samples: a dynamic La whose
-    time constant the current's samples reject as too slow (:func:`~dcmotor_id.identification.
-    checks.armature_lag.lag_profile`: a misfit at the steps that the filtered di/dt absorbed)
-    is not kept.  The static values are ``on_samples`` (the static equation on the samples as
+    time constant, even at the lower end of its interval, the current's samples reject as too
+    slow (:func:`~dcmotor_id.identification.checks.armature_lag.lag_profile`: a misfit at the
+    steps that the filtered di/dt absorbed) is not kept.  The static values are ``on_samples`` (the static equation on the samples as
     logged, :func:`_static_on_samples`) where it has them.
     """
     dt = records[0].sample_period_s
@@ -360,7 +360,10 @@ def _electrical(rows_e, rhs_e, records: Sequence[Record], masks: Sequence[np.nda
     profile = None
     if ra > 0 and la > 0 and la / ra >= dt and la_se <= LA_UNDETERMINED_REL * la and \
             gain > LA_CHI2:
-        profile = lag_profile(records, masks, la / ra)
+        # Its time constant at the lower end of La's interval (the same level) must not be
+        # slower than the current's samples show.
+        lowest = (la - np.sqrt(LA_CHI2) * la_se) / ra
+        profile = lag_profile(records, masks, lowest) if lowest > 0 else None
         if profile is None or not profile.claimed_too_slow:
             return dynamic, False, None
     static = on_samples or static
@@ -418,7 +421,8 @@ def regression_floor(records: Sequence[Record],
     masks = ([np.zeros(len(rec), dtype=bool) for rec in records] if mechanical_only
              else ramp_samples(records))
     offset = both_directions(records)
-    rows_m, rhs_m, rows_e, rhs_e = regression_rows(records, torque_constant, offset, masks)
+    rows_m, rhs_m, rows_e, rhs_e = regression_rows(records, torque_constant, offset, masks,
+                                                   held_voltage=True)
     if not rows_m or (not mechanical_only and not rows_e):
         return None
     electrical, static, bound = (None, False, None) if mechanical_only else _electrical(
