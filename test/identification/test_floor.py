@@ -351,3 +351,19 @@ def test_a_sysid_routine_whose_current_settles_within_a_frame_claims_no_la():
     assert motor.La < result.upper_bounds['La'] < 100.0 * motor.La
     assert result.upper_bounds['Ta'] == pytest.approx(result.parameters['Ta'])
     assert_near_truth(result.parameters, motor, Ra=0.05, CPhi=0.05)
+
+
+def test_the_regression_reads_the_voltage_held_over_the_sample_after_it():
+    # The logged voltage is held over the sample period after it: read at its sample, the
+    # hold's half-sample delay added Ra dt/2 to La (+33 % at La/Ra = 1.5 samples).
+    rng = np.random.default_rng(3)
+    motor = MotorParameters(Ra=2.0, La=3e-3, CPhi=0.05, J=2e-4, b=1e-5, Mc=0.01)
+    dt, samples = 1e-3, 4000
+    command = np.repeat(rng.choice([-6.0, 6.0], samples // 40 + 1), 40)[:samples]
+    out = lab_scenarios.simulate_drive(motor, command, dt)
+    record = Record(np.arange(samples) * dt, voltage=command,
+                    current=out['current'] + rng.normal(0.0, 0.03, samples),
+                    speed=out['speed'] + rng.normal(0.0, 1.2, samples), source='prbs')
+    floor = regression_floor(prepare_records([record]))
+    assert floor is not None and not floor.static_electrical
+    assert floor.parameters['La'] == pytest.approx(motor.La, rel=0.1)

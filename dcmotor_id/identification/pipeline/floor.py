@@ -12,9 +12,12 @@ rows are those of the start check,
     CPhi i = J dw/dt + b w + Mc sgn w [+ c]   (mechanical; c when both directions are present)
 
 with standard errors counted on the samples the residual is worth (its correlation time,
-:func:`~dcmotor_id.identification.checks.start.correlation_time`).  An electrical time constant
-below the sample period (or an undetermined La) makes the electrical equation static
-(``u = Ra i + CPhi w``, La an upper bound).  Samples where the logged voltage does not reach
+:func:`~dcmotor_id.identification.checks.start.correlation_time`); the logged voltage is read
+as held over the sample after it (the package's model).  An electrical time constant below the
+sample period, an undetermined La, or one the current's raw samples reject as slower than they
+show (:func:`~dcmotor_id.identification.checks.armature_lag.lag_profile`: the filtered di/dt
+absorbs a misfit at the steps, such as a status frame's lag) makes the electrical equation
+static (``u = Ra i + CPhi w``, La and Ta upper bounds).  Samples where the logged voltage does not reach
 the motor (an amplifier's ramp or slew after a step: the electrical residual far beyond its
 noise for several samples in a row from the step on, and the one-step test of the current
 beyond its 1 % bound) are left out of both equations and named (:func:`ramp_samples`).
