@@ -17,10 +17,10 @@ as held over the sample after it (the package's model).  An electrical time cons
 sample period, an undetermined La, or one the current's raw samples reject as slower than they
 show (:func:`~dcmotor_id.identification.checks.armature_lag.lag_profile`: the filtered di/dt
 absorbs a misfit at the steps, such as a status frame's lag) makes the electrical equation
-static (``u = Ra i + CPhi w``, La and Ta upper bounds).  Samples where the logged voltage does not reach
-the motor (an amplifier's ramp or slew after a step: the electrical residual far beyond its
-noise for several samples in a row from the step on, and the one-step test of the current
-beyond its 1 % bound) are left out of both equations and named (:func:`ramp_samples`).
+static (``u = Ra i + CPhi w``, La and Ta upper bounds).  Samples where the logged voltage does
+not reach the motor (an amplifier's ramp or slew after a step: the electrical residual far
+beyond its noise for several samples in a row from the step on, and the one-step test of the
+current beyond its 1 % bound) are left out of both equations and named (:func:`ramp_samples`).
 
 :func:`heldout_error` measures a parameter set on the held-out end of every record (the one
 the discovery loop holds out, :func:`~dcmotor_id.identification.discovery.parts.excited_stop`),
@@ -343,8 +343,9 @@ def _electrical(rows_e, rhs_e, records: Sequence[Record], masks: Sequence[np.nda
     The choice is made on the filtered rows and checked on the raw samples: a dynamic La whose
     time constant, even at the lower end of its interval, the current's samples reject as too
     slow (:func:`~dcmotor_id.identification.checks.armature_lag.lag_profile`: a misfit at the
-    steps that the filtered di/dt absorbed) is not kept.  The static values are ``on_samples`` (the static equation on the samples as
-    logged, :func:`_static_on_samples`) where it has them.
+    steps that the filtered di/dt absorbed) is not kept.  The static values are ``on_samples``
+    (the static equation on the samples as logged, :func:`_static_on_samples`) where it has
+    them.
     """
     dt = records[0].sample_period_s
     matrix, rhs = np.vstack(rows_e), np.concatenate(rhs_e)
