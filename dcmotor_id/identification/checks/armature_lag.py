@@ -57,6 +57,8 @@ GRID_LAST_SHARE = 2.0
 #: The profile's longest time constant, as a multiple of the larger of the claimed time
 #: constant and the sample period (beyond it no point bears on the claim).
 GRID_LAST_CLAIMED = 2.0
+#: Largest exponent ``-j ln a`` within a block of :func:`_lagged` (``exp`` of it stays finite).
+BLOCK_EXPONENT = 600.0
 #: Fewest samples of a stretch between left-out samples that enters the profile.
 MIN_STRETCH = 8
 
@@ -137,45 +139,66 @@ def _stretches(records: Sequence[Record], masks: Sequence[np.ndarray]) -> list[_
     return out
 
 
-def _first_order(spectra: Sequence[np.ndarray], a: float, n: int, size: int) -> list[np.ndarray]:
+def _decay(a: float, n: int) -> np.ndarray:
+    """Return ``a ** k`` for ``k < n``, zero where it is below 1e-18 (not computed there)."""
+    out = np.zeros(n)
+    if a <= 0.0:
+        out[:1] = 1.0
+        return out
+    count = min(n, int(math.ceil(-41.5 / math.log(a))) + 1)
+    out[:count] = np.exp(np.arange(count) * math.log(a))
+    return out
+
+
+def _lagged(signal: np.ndarray, a: float) -> np.ndarray:
     """
-    Return ``y[k+1] = a y[k] + p[k]``, ``y[0] = 0``, of signals given by their spectra.
+    Return ``y[k+1] = a y[k] + p[k]``, ``y[0] = 0``, of the signal ``p``, without a loop over it.
 
-    A linear convolution with ``a ** k`` by FFT (``size``: at least twice ``n``): no recursion
-    over the samples, no power of ``a`` above one.
+    In blocks over which ``a ** -j`` stays finite: within a block a cumulative sum of
+    ``p[j] a ** -j`` times ``a ** j``, then each block's start carried from the one before.
     """
-    response = np.zeros(n)
-    response[1:] = a ** np.arange(n - 1) if a > 0 else np.eye(1, n - 1)[0]
-    kernel = np.fft.rfft(response, size)
-    return [np.fft.irfft(spectrum * kernel, size)[:n] for spectrum in spectra]
+    n = signal.shape[0]
+    out = np.zeros(n)
+    if n < 2 or a <= 0.0:
+        out[1:] = signal[:-1]
+        return out
+    rate = -math.log(a)
+    length = max(1, min(n, int(BLOCK_EXPONENT / rate)))
+    count = -(-n // length)
+    padded = np.zeros(count * length)
+    padded[:n] = signal
+    steps = np.arange(length) * rate
+    blocks = np.cumsum(padded.reshape(count, length) * np.exp(steps), axis=1) * np.exp(-steps)
+    carried = np.exp(-(steps + rate))
+    for index in range(1, count):
+        blocks[index] += blocks[index - 1, -1] * carried
+    out[1:] = blocks.reshape(-1)[:n - 1]
+    return out
 
 
-def _columns(stretches: Sequence[_Stretch], spectra: Sequence[list[np.ndarray]],
-             sizes: Sequence[int], tau_over_dt: float) -> tuple[np.ndarray, np.ndarray]:
+def _columns(stretches: Sequence[_Stretch], tau_over_dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Return the simulated current's columns (1/Ra, -CPhi/Ra, initial currents) and target."""
     a = math.exp(-1.0 / tau_over_dt) if tau_over_dt > 0 else 0.0
     g = 1.0 - tau_over_dt * (1.0 - a) if tau_over_dt > 0 else 1.0
-    blocks, initial = [], []
-    for stretch, spectrum, size in zip(stretches, spectra, sizes):
-        n = stretch.current.shape[0]
-        volts, start, end = _first_order(spectrum, a, n, size)
-        blocks.append(np.column_stack([(1.0 - a) * volts, (1.0 - a - g) * start + g * end]))
-        initial.append(a ** np.arange(n) if a > 0 else np.eye(1, n)[0])
-    columns = np.zeros((sum(block.shape[0] for block in blocks), 2 + len(blocks)))
+    samples = sum(stretch.current.shape[0] for stretch in stretches)
+    columns = np.zeros((samples, 2 + len(stretches)))
     row = 0
-    for index, (block, decay) in enumerate(zip(blocks, initial)):
-        columns[row:row + block.shape[0], :2] = block
-        columns[row:row + block.shape[0], 2 + index] = decay
-        row += block.shape[0]
+    for index, stretch in enumerate(stretches):
+        n = stretch.current.shape[0]
+        columns[row:row + n, 0] = (1.0 - a) * _lagged(stretch.volts, a)
+        columns[row:row + n, 1] = _lagged((1.0 - a - g) * stretch.speed_start
+                                          + g * stretch.speed_end, a)
+        columns[row:row + n, 2 + index] = _decay(a, n)
+        row += n
     return columns, np.concatenate([stretch.current for stretch in stretches])
 
 
 def _residual(columns: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Return the least-squares residual (columns scaled to unit norm; zero columns dropped)."""
+    """Return the least-squares residual (normal equations on unit-norm columns; zero dropped)."""
     norms = np.sqrt(np.einsum('ij,ij->j', columns, columns))
     used = norms > 0
     scaled = columns[:, used] / norms[used]
-    solution = np.linalg.lstsq(scaled, target, rcond=None)[0]
+    solution = np.linalg.solve(scaled.T @ scaled, scaled.T @ target)
     return target - scaled @ solution
 
 
@@ -197,24 +220,21 @@ def lag_profile(records: Sequence[Record], masks: Sequence[np.ndarray],
                GRID_LAST_CLAIMED * max(claimed, 1.0))
     grid = [0.0] + [2.0 ** (j / 2.0) for j in range(GRID_FIRST, 64) if 2.0 ** (j / 2.0) <= last]
     grid = sorted(set(grid + [claimed]))
-    sizes = [int(2 ** math.ceil(math.log2(2 * stretch.current.shape[0])))
-             for stretch in stretches]
-    spectra = [[np.fft.rfft(signal, size) for signal in
-                (stretch.volts, stretch.speed_start, stretch.speed_end)]
-               for stretch, size in zip(stretches, sizes)]
-    residuals = []
+    sums, best_residual = [], None
     with np.errstate(all='ignore'):
         for tau in grid:
-            columns, target = _columns(stretches, spectra, sizes, tau)
+            columns, target = _columns(stretches, tau)
             try:
-                residuals.append(_residual(columns, target))
+                residual = _residual(columns, target)
             except np.linalg.LinAlgError:
                 return None
-    sums = np.array([float(residual @ residual) for residual in residuals])
+            sums.append(float(np.einsum('i,i->', residual, residual)))
+            if sums[-1] <= min(sums):
+                best_residual = residual
     best = int(np.argmin(sums))
-    if not np.all(np.isfinite(sums)) or not sums[best] > 0:
+    if not np.all(np.isfinite(sums)) or not sums[best] > 0 or best_residual is None:
         return None
-    effective = samples / correlation_time(residuals[best])
-    ratios = effective * np.log(sums / sums[best])
+    effective = samples / correlation_time(best_residual)
+    ratios = effective * np.log(np.asarray(sums) / sums[best])
     return LagProfile(tuple(tau * dt for tau in grid), tuple(map(float, ratios)),
                       claimed * dt, float(effective))
