@@ -4,7 +4,7 @@ import numpy as np
 
 from dcmotor_id.core.model import MotorParameters
 from dcmotor_id.core.records import Record
-from dcmotor_id.identification.checks.armature_lag import lag_profile
+from dcmotor_id.identification.checks.armature_lag import _lagged, lag_profile
 from dcmotor_id.simulation.lab_scenarios import simulate_drive
 
 
@@ -39,3 +39,13 @@ def test_an_armature_settled_within_a_sample_rejects_a_time_constant_of_many():
     mask = [np.zeros(len(record), dtype=bool)]
     assert lag_profile([record], mask, 20.0 * dt).claimed_too_slow
     assert not lag_profile([record], mask, motor.La / motor.Ra).claimed_too_slow
+
+
+def test_the_blocked_recursion_is_the_first_order_filter():
+    rng = np.random.default_rng(1)
+    signal = rng.normal(size=500)
+    for a in (0.0, np.exp(-16.0), 0.5, 0.999):  # blocks of 37 samples to one block
+        expected = np.zeros(500)
+        for k in range(499):
+            expected[k + 1] = a * expected[k] + signal[k]
+        np.testing.assert_allclose(_lagged(signal, a), expected, rtol=1e-9, atol=1e-12)
