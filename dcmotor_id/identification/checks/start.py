@@ -103,7 +103,8 @@ def regression_evidence(records: Sequence[Record],
 
 
 def regression_rows(records: Sequence[Record], torque_constant: float | None, offset: bool,
-                    left_out: Sequence[np.ndarray | None] | None = None
+                    left_out: Sequence[np.ndarray | None] | None = None,
+                    held_voltage: bool = False
                     ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray],
                                list[np.ndarray]]:
     """
@@ -112,7 +113,11 @@ def regression_rows(records: Sequence[Record], torque_constant: float | None, of
     Mechanical: columns ``dw/dt, w, sgn w [, 1]`` against ``i`` (times ``torque_constant`` in
     the mechanical-only mode); electrical (full mode): ``di/dt, i, w`` against ``u``.  The
     filter's settling is trimmed at both ends of each record; ``left_out``: per record, a
-    boolean mask of samples the rows must not rest on (None: every sample is used).
+    boolean mask of samples the rows must not rest on (None: every sample is used);
+    ``held_voltage``: the logged voltage is the one held over the sample period after it (the
+    package's model and simulator): its low-passed value at ``t_k - dt/2``, the mean of
+    samples ``k-1`` and ``k``, is the one the states at ``t_k`` answer (taken at ``t_k`` the
+    hold's half-sample delay reads as an La larger by ``Ra dt/2``).
     Returns ``(rows_m, rhs_m, rows_e, rhs_e)``, one array per record that is long enough.
     """
     mechanical_only = torque_constant is not None
@@ -139,7 +144,10 @@ def regression_rows(records: Sequence[Record], torque_constant: float | None, of
         rhs_m.append(current[keep] * (torque_constant or 1.0))
         if not mechanical_only:
             rows_e.append(np.column_stack([np.gradient(current, dt), current, speed])[keep])
-            rhs_e.append(low_pass(np.asarray(rec.voltage, dtype=float), REGRESSION_CUTOFF)[keep])
+            volts = low_pass(np.asarray(rec.voltage, dtype=float), REGRESSION_CUTOFF)
+            if held_voltage:
+                volts = 0.5 * (volts + np.concatenate([volts[:1], volts[:-1]]))
+            rhs_e.append(volts[keep])
     return rows_m, rhs_m, rows_e, rhs_e
 
 

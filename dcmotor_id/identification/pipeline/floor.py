@@ -12,12 +12,15 @@ rows are those of the start check,
     CPhi i = J dw/dt + b w + Mc sgn w [+ c]   (mechanical; c when both directions are present)
 
 with standard errors counted on the samples the residual is worth (its correlation time,
-:func:`~dcmotor_id.identification.checks.start.correlation_time`).  An electrical time constant
-below the sample period (or an undetermined La) makes the electrical equation static
-(``u = Ra i + CPhi w``, La an upper bound).  Samples where the logged voltage does not reach
-the motor (an amplifier's ramp or slew after a step: the electrical residual far beyond its
-noise for several samples in a row from the step on, and the one-step test of the current
-beyond its 1 % bound) are left out of both equations and named (:func:`ramp_samples`).
+:func:`~dcmotor_id.identification.checks.start.correlation_time`); the logged voltage is read
+as held over the sample after it (the package's model).  An electrical time constant below the
+sample period, an undetermined La, or one the current's raw samples reject as slower than they
+show (:func:`~dcmotor_id.identification.checks.armature_lag.lag_profile`: the filtered di/dt
+absorbs a misfit at the steps, such as a status frame's lag) makes the electrical equation
+static (``u = Ra i + CPhi w``, La and Ta upper bounds).  Samples where the logged voltage does
+not reach the motor (an amplifier's ramp or slew after a step: the electrical residual far
+beyond its noise for several samples in a row from the step on, and the one-step test of the
+current beyond its 1 % bound) are left out of both equations and named (:func:`ramp_samples`).
 
 :func:`heldout_error` measures a parameter set on the held-out end of every record (the one
 the discovery loop holds out, :func:`~dcmotor_id.identification.discovery.parts.excited_stop`),
@@ -36,6 +39,7 @@ import numpy as np
 from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (DERIVED_NAMES, derived_values, MECHANICAL_NAMES,
                                    PARAMETER_NAMES, UNITS)
+from dcmotor_id.identification.checks.armature_lag import lag_profile
 from dcmotor_id.identification.checks.identifiability import (IDENTIFIABLE_REL_STDERR,
                                                               limited_samples)
 from dcmotor_id.identification.checks.ramp import (bonferroni_bound, ramp_masks,
@@ -330,14 +334,20 @@ def _left_out(records: Sequence[Record], masks: Sequence[np.ndarray]) -> tuple[L
     return tuple(items)
 
 
-def _electrical(rows_e, rhs_e, dt, on_samples: EquationFit | None
+def _electrical(rows_e, rhs_e, records: Sequence[Record], masks: Sequence[np.ndarray],
+                on_samples: EquationFit | None
                 ) -> tuple[EquationFit | None, bool, float | None]:
     """
     Fit the electrical equation: dynamic, or static (La a bound) when La is unresolved.
 
-    The choice is made on the filtered rows; the static values are ``on_samples`` (the
-    static equation on the samples as logged, :func:`_static_on_samples`) where it has them.
+    The choice is made on the filtered rows and checked on the raw samples: a dynamic La whose
+    time constant, even at the lower end of its interval, the current's samples reject as too
+    slow (:func:`~dcmotor_id.identification.checks.armature_lag.lag_profile`: a misfit at the
+    steps that the filtered di/dt absorbed) is not kept.  The static values are ``on_samples``
+    (the static equation on the samples as logged, :func:`_static_on_samples`) where it has
+    them.
     """
+    dt = records[0].sample_period_s
     matrix, rhs = np.vstack(rows_e), np.concatenate(rhs_e)
     dynamic = _solve(matrix, rhs, ('La', 'Ra', 'CPhi'))
     if dynamic is None:
@@ -351,15 +361,23 @@ def _electrical(rows_e, rhs_e, dt, on_samples: EquationFit | None
     # (likelihood ratio, one degree of freedom, 0.1 %).
     gain = 2.0 * dynamic.effective_samples * (np.log(max(static.residual_rms, 1e-300))
                                               - np.log(max(dynamic.residual_rms, 1e-300)))
+    profile = None
     if ra > 0 and la > 0 and la / ra >= dt and la_se <= LA_UNDETERMINED_REL * la and \
             gain > LA_CHI2:
-        return dynamic, False, None
+        # Its time constant at the lower end of La's interval (the same level) must not be
+        # slower than the current's samples show.
+        lowest = (la - np.sqrt(LA_CHI2) * la_se) / ra
+        profile = lag_profile(records, masks, lowest) if lowest > 0 else None
+        if profile is None or not profile.claimed_too_slow:
+            return dynamic, False, None
     static = on_samples or static
     ra = static.values['Ra']
     # A dynamic La inside the resolved range that the data do not confirm bounds La; one
-    # beyond it (a time constant the records would show) says nothing.
+    # beyond it (a time constant the records would show) says nothing, unless the current's
+    # samples bound the time constant (the profile's bound, which errs on the long side).
     resolved = ra > 0 and 0 < la < abs(ra) * dt
-    bound = max(abs(ra) * dt, la + 2.0 * la_se if resolved else 0.0)
+    bound = max(abs(ra) * dt, la + 2.0 * la_se if resolved else 0.0,
+                abs(ra) * profile.upper_s if profile is not None else 0.0)
     values = {'La': bound, **static.values}
     stderr = {'La': float('nan'), **static.stderr}
     return (EquationFit(values, stderr, static.residual_rms, static.effective_samples), True,
@@ -407,11 +425,12 @@ def regression_floor(records: Sequence[Record],
     masks = ([np.zeros(len(rec), dtype=bool) for rec in records] if mechanical_only
              else ramp_samples(records))
     offset = both_directions(records)
-    rows_m, rhs_m, rows_e, rhs_e = regression_rows(records, torque_constant, offset, masks)
+    rows_m, rhs_m, rows_e, rhs_e = regression_rows(records, torque_constant, offset, masks,
+                                                   held_voltage=True)
     if not rows_m or (not mechanical_only and not rows_e):
         return None
     electrical, static, bound = (None, False, None) if mechanical_only else _electrical(
-        rows_e, rhs_e, records[0].sample_period_s, _static_on_samples(records, masks))
+        rows_e, rhs_e, records, masks, _static_on_samples(records, masks))
     names = ('J', 'b', 'Mc') + (('offset',) if offset else ())
     mechanical = _solve_admissible(np.vstack(rows_m), np.concatenate(rhs_m), names)
     if mechanical is None or (not mechanical_only and electrical is None):
@@ -706,12 +725,17 @@ def _as_floor(result: IdentificationResult, floor: RegressionFloor, records: Seq
                            info={**estimate.info, 'quasi_static': floor.static_electrical})
     bounds = dict(result.upper_bounds)
     if floor.static_electrical and 'La' in values:
-        bounds['La'] = float(values['La'])
-        stderr['La'] = float('nan')
+        bounds.update(_la_bounds(values))
+        stderr.update({name: float('nan') for name in _la_bounds(values)})
     return replace(result, parameters=values, stderr=stderr, stderr_model=dict(stderr),
                    initial_states=[list(state) for state in states], estimate=estimate,
                    upper_bounds=bounds, not_identifiable={**result.not_identifiable, **reasons},
                    uncertainty_method=FLOOR_UNCERTAINTY, warnings=[warning] + result.warnings)
+
+
+def _la_bounds(values: dict[str, float]) -> dict[str, float]:
+    """Return La's upper bound and, where the answer has it, Ta's (La/Ra of that bound)."""
+    return {name: float(values[name]) for name in ('La', 'Ta') if name in values}
 
 
 def floor_fallback(floor: RegressionFloor | None, records: Sequence[Record],
@@ -757,7 +781,7 @@ def floor_fallback(floor: RegressionFloor | None, records: Sequence[Record],
         units={name: UNITS[name] for name in names}, discover=False,
         discovery={'skipped': 'the output-error fit failed'}, stderr_model=dict(stderr),
         uncertainty_method=FLOOR_UNCERTAINTY, not_identifiable=reasons, warnings=[warning],
-        upper_bounds={'La': float(values['La'])} if 'La' in reasons else {},
+        upper_bounds=_la_bounds(values) if 'La' in reasons else {},
         elapsed_s=elapsed_s, operating_range=operating_range(records), estimate=estimate,
         input_records=list(records), criterion=criterion)
 
