@@ -127,7 +127,7 @@ def _stretches(records: Sequence[Record], masks: Sequence[np.ndarray]) -> list[_
 
     At most :data:`MAX_SAMPLES` in all, the first ones.
     """
-    out = []
+    out: list[_Stretch] = []
     for rec, mask in zip(records, masks):
         current = np.asarray(rec.current, dtype=float)
         volts = np.asarray(rec.voltage, dtype=float)
