@@ -176,7 +176,9 @@ def record_shortfalls(record: Record, steps: Sequence[tuple[int, float]],
                          if first == 0 else (1, 0.0))
         profiled = bool(ratio > profile_bound(len(steps), longest)
                         and not _at_limit(np.abs(current[first + 1:first + length]), peak))
-        extent = max(extent, length - 1) if profiled else extent
+        # the ramp over m samples: its first m - 1 at a reduced voltage, whose currents and
+        # speeds run to the m-th sample (the masks take one sample beyond the extent)
+        extent = max(extent, length - 2) if profiled else extent
         found.append(Shortfall(first, max(best, extent) + 1, float(z[best]), delay,
                                ramp or profiled))
     return found
