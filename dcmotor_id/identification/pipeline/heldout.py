@@ -36,7 +36,7 @@ def heldout(inputs: Inputs, fit: Fit, answer: Answer) -> Answer:
     """Return the answer with the per-record errors, whole and held out, and their warnings."""
     carried = tuple(found for found in (fit.simulation, answer.simulation) if found is not None)
     errors = record_errors(inputs.records, fit.estimate, answer.final, fit.found,
-                           inputs.torque_constant, answer.terms, fit.quasi, carried)
+                           inputs.torque_constant, answer.terms, carried)
     return replace(answer, errors_detail=errors,
                    warnings=answer.warnings + tuple(heldout_warnings(errors)))
 
@@ -126,8 +126,7 @@ def _pooled(items):
 
 def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
                   found: DiscoveryResult | None, torque_constant: float | None = None,
-                  terms: Sequence = (), quasi_static: bool = False,
-                  carried: Sequence[Simulation] = ()) -> dict[str, Any]:
+                  terms: Sequence = (), carried: Sequence[Simulation] = ()) -> dict[str, Any]:
     """
     Per-record simulation errors, each normalised by its own record (the JSON ``errors``).
 
@@ -156,8 +155,7 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
     """
     mechanical_only = torque_constant is not None
     outputs = output_channels(mechanical_only)
-    whole = _whole_records(records, base, final, found, torque_constant, terms, outputs,
-                           carried)
+    whole = _whole_records(records, base, final, found, torque_constant, terms, carried)
     items = []
     notes = []
     for index, rec in enumerate(records):
@@ -184,8 +182,9 @@ def record_errors(records: Sequence[Record], base: Estimate, final: Estimate,
             'note': note}
 
 
-def _whole_records(records, base, final, found, torque_constant, terms, outputs, carried):
+def _whole_records(records, base, final, found, torque_constant, terms, carried):
     """Measure the all-data fits before and after on each whole record (label -> figures)."""
+    outputs = output_channels(torque_constant is not None)
     prepared = found.records if found is not None else list(records)
     whole: dict[str, list] = {}
     for label, estimate, record_terms in (('before', base, ()), ('after', final, terms)):
