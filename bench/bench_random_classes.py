@@ -35,13 +35,10 @@ that the fit misfits or disagrees).  Run from the repository root::
 """
 
 import argparse
-import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
-from types import SimpleNamespace
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -50,7 +47,7 @@ from dcmotor_id.core.model import MotorParameters
 from dcmotor_id.simulation.lab_scenarios import encoder_speed, simulate_drive, step_levels
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_random_motors import said_of, sysid_command  # noqa: E402,I100
+from bench_random_motors import graded, identify_cli, sysid_command  # noqa: E402,I100
 from common import markdown_table, write_report  # noqa: E402,I100  (bench/common.py)
 
 CLASSES = ('ramp_step', 'pwm_servo', 'sysid_segments', 'encoder_500hz')
@@ -192,27 +189,11 @@ def judge_cli(index: int, directory: str) -> dict:
     row['peer'] = {key: 100.0 * (peer[key] / getattr(motor, key) - 1.0) for key in goals}
     path, out = (os.path.join(directory, f'case{index}.{ext}') for ext in ('csv', 'json'))
     write_csv(columns, path)
-    extra = ['--segment-column', 'segment'] if 'segment' in columns else []
-    start = time.perf_counter()
-    done = subprocess.run([sys.executable, '-m', 'dcmotor_id.cli.main', 'identify', path,
-                           '--json', out, '--quiet', *extra], capture_output=True, text=True)
-    row['seconds'] = time.perf_counter() - start
-    if done.returncode != 0:
-        last_line = (done.stderr.strip().splitlines() or [''])[-1]
-        row['outcome'] = 'refused' if done.returncode == 2 else 'failed'
-        row['why'] = last_line.replace('dcmotor-id: error: ', '')[:90]
-        return row
-    with open(out) as stream:
-        answer = json.load(stream)
-    result = SimpleNamespace(parameters=answer['parameters'], stderr=answer['stderr'],
-                             not_identifiable=answer.get('not_identifiable', {}),
-                             warnings=answer.get('warnings', []))
-    row['errors'] = {key: 100.0 * (result.parameters[key] / getattr(motor, key) - 1.0)
-                     for key in goals}
-    off = [key for key, limit in goals.items() if abs(row['errors'][key]) > limit]
-    row['outcome'] = ('within the goals' if not off else 'outside, said'
-                      if all(said_of(result, motor, key) for key in off) else 'outside, silent')
-    return row
+    extra = ('--segment-column', 'segment') if 'segment' in columns else ()
+    result, row['seconds'], outcome, why = identify_cli(path, out, extra)
+    if result is None:
+        return {**row, 'outcome': outcome, 'why': why[:90]}
+    return {**row, **graded(result, motor, goals)}
 
 
 OUTCOMES = ('within the goals', 'outside, said', 'outside, silent', 'refused', 'failed')

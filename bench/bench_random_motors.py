@@ -143,7 +143,7 @@ def judge(index: int) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')
             result = identify(prepare_records([record]))
-        row.update(_graded(result, motor))
+        row.update(graded(result, motor))
     except DcMotorIdError as error:
         row['outcome'], row['why'] = 'refused', str(error).split(':')[0][:70]
     except Exception:  # a failure is what this benchmark counts: keep going, say which
@@ -161,28 +161,40 @@ def judge_cli(index: int, directory: str) -> dict:
                delimiter=',', comments='',
                header='t,voltage,current,' + ('speed' if record.speed is not None else 'position'))
     out = os.path.join(directory, f'case{index}.json')
+    result, row['seconds'], outcome, why = identify_cli(path, out)
+    if result is None:
+        return {**row, 'outcome': outcome, 'why': why.split(':')[0][:70]}
+    return {**row, **graded(result, motor)}
+
+
+def identify_cli(path: str, out: str, extra: tuple = ()) -> tuple:
+    """
+    Run ``dcmotor-id identify PATH --json OUT`` in its own process.
+
+    Returns the answer (parameters, stderr, not_identifiable, warnings; None when refused or
+    failed), the seconds it took, the outcome of a refusal or failure and its reason.
+    """
     start = time.perf_counter()
     done = subprocess.run([sys.executable, '-m', 'dcmotor_id.cli.main', 'identify', path,
-                           '--json', out, '--quiet'], capture_output=True, text=True)
-    row['seconds'] = time.perf_counter() - start
+                           '--json', out, '--quiet', *extra], capture_output=True, text=True)
+    seconds = time.perf_counter() - start
     if done.returncode != 0:
         last_line = (done.stderr.strip().splitlines() or [''])[-1]
-        row['outcome'] = 'refused' if done.returncode == 2 else 'failed'
-        row['why'] = last_line.replace('dcmotor-id: error: ', '').split(':')[0][:70]
-        return row
+        return (None, seconds, 'refused' if done.returncode == 2 else 'failed',
+                last_line.replace('dcmotor-id: error: ', ''))
     with open(out) as stream:
         answer = json.load(stream)
-    result = SimpleNamespace(parameters=answer['parameters'], stderr=answer['stderr'],
-                             not_identifiable=answer.get('not_identifiable', {}),
-                             warnings=answer.get('warnings', []))
-    return {**row, **_graded(result, motor)}
+    return (SimpleNamespace(parameters=answer['parameters'], stderr=answer['stderr'],
+                            not_identifiable=answer.get('not_identifiable', {}),
+                            warnings=answer.get('warnings', [])), seconds, '', '')
 
 
-def _graded(result, motor: MotorParameters) -> dict:
-    """Return the errors against the truth and the outcome of an answer."""
+def graded(result, motor: MotorParameters, goals: dict | None = None) -> dict:
+    """Return the errors against the truth (``goals``: name -> limit [%]) and the outcome."""
+    goals = GOALS_PCT if goals is None else goals
     errors = {name: 100.0 * (result.parameters[name] / getattr(motor, name) - 1.0)
-              for name in GOALS_PCT}
-    off = [name for name, limit in GOALS_PCT.items() if abs(errors[name]) > limit]
+              for name in goals}
+    off = [name for name, limit in goals.items() if abs(errors[name]) > limit]
     return {'errors': errors, 'outcome': 'within the goals' if not off else
             'outside, said' if all(said_of(result, motor, name) for name in off)
             else 'outside, silent'}
