@@ -41,6 +41,13 @@ def format_errors(errors: Mapping[str, Any]) -> str:
                      if value is not None)
 
 
+def _relative(value: float, stderr: float) -> str:
+    """Return the standard error relative to the value in %, or '-' where it has none."""
+    if not value or not math.isfinite(stderr):
+        return '-'
+    return f'{abs(stderr / value) * 100:.3g}%'
+
+
 def format_table(result: Mapping[str, Any]) -> str:
     """Render a result dict as a readable table (the output of ``dcmotor-id identify``)."""
     lines = [f"method: {result['method']}   mode: {result['mode']}   records: "
@@ -59,11 +66,12 @@ def format_table(result: Mapping[str, Any]) -> str:
             lines.append(f"{name:<10}{'< ' + format(value, '.4g'):>16}{'upper bound':>24}  "
                          f'{unit}')
             continue
-        rel = abs(err / value) * 100 if value else float('nan')
         flag = ''
         if name in missing:
             flag = '  (at zero)' if 'bound zero' in missing[name] else '  (see below)'
-        lines.append(f'{name:<10}{value:>16.6g}{err:>14.3g}{rel:>9.3g}%  {unit}{flag}')
+        shown = format(err, '.3g') if math.isfinite(err) else '-'
+        lines.append(f'{name:<10}{value:>16.6g}{shown:>14}{_relative(value, err):>10}  '
+                     f'{unit}{flag}')
     for effect in result.get('effects', []):
         parameters = ', '.join(f'{key} = {value:.4g}' if isinstance(value, float) else
                                f'{key} = {value}' for key, value in

@@ -103,3 +103,16 @@ def test_online_key_values_end_with_the_convergence_keys():
     assert pairs[16:] == [('converged', 'true'), ('innovation_rms_current_A', '0.01'),
                           ('innovation_rms_speed_rad_s', '0.5'), ('n_updates', '42')]
     assert pairs[8] == ('Ra_stderr', 'nan')
+
+
+def test_a_parameter_held_at_zero_or_without_error_shows_no_relative_error():
+    """A kS held at 0 (one step from rest, no current) prints '-', not 'nan%'."""
+    result = dict(RESULT, parameters={'kS': 0.0, 'kV': 0.044, 'kA': 0.0017},
+                  stderr={'kS': 1.0, 'kV': 0.0044, 'kA': None},
+                  units={'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'},
+                  not_identifiable={'kS': 'one voltage level'})
+    rows = format_table(result).splitlines()[2:5]
+    assert 'nan' not in ' '.join(rows)
+    assert rows[0].split()[:4] == ['kS', '0', '1', '-']
+    assert rows[1].split()[3] == '10%'
+    assert rows[2].split()[3] == '-'
