@@ -114,6 +114,10 @@ class Exciter(Node):
         self.autostart = declare(self, 'autostart', False, 'start the routine at once (when '
                                  'measurements arrive)')
         self.session = ExcitationSession(limits, rate, ramp_in, stale, watch=WATCHED[source])
+        # The routines' code imports scipy.signal at its first use: seconds on a busy machine
+        # (38 s seen under load), which the first ~/start would wait for. Paid here, before
+        # the services exist: once they are found, ~/start is answered at once.
+        self.session.profile_of(Routine(duration_s=1.0))
         #: Guards the session: held for microseconds, by the tick, ~/start and ~/stop.
         self._lock = threading.RLock()
         self._zeros_due = 0
@@ -133,10 +137,6 @@ class Exciter(Node):
                             callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(Trigger, '~/stop', self._on_stop, qos_profile=SERVICE_QOS,
                             callback_group=MutuallyExclusiveCallbackGroup())
-        # The routines' code imports scipy.signal at its first use: seconds on a busy machine
-        # (38 s seen under load), which the first ~/start would wait for. Paid here, before
-        # "ready": ~/start is then answered at once.
-        self.session.profile_of(Routine(duration_s=1.0))
         self.create_timer(1.0 / rate, self._tick)
         self.create_timer(0.5, self._report)
         self.get_logger().info(f'exciter ready: {source} input, limits {limits}, '

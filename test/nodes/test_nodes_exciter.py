@@ -75,7 +75,9 @@ class Graph:
             installed, 'exciter', ros_env, log_dir, '-p', 'input:=batch', '-p',
             'ramp_in_s:=0.5', '-p', 'stale_timeout_s:=0.5', *arguments)
         self.trigger = self.node.create_client(Trigger, '/exciter/start')
-        assert self.trigger.wait_for_service(timeout_sec=30.0), self.log('exciter')
+        # the exciter imports what its routines need before its services exist (a minute on
+        # a loaded machine)
+        assert self.trigger.wait_for_service(timeout_sec=180.0), self.log('exciter')
 
     def log(self, name):
         return (self.args[2] / f'{name}.log').read_text()
