@@ -287,12 +287,23 @@ class ExcitationSession:
                         f'(timeout {timeout:g} s)')
         return None
 
-    def start(self, routine: Routine, now_s: float) -> tuple[bool, str]:
+    def profile_of(self, routine: Routine) -> np.ndarray:
         """
-        Start a routine; return whether it started and a message.
+        Return the commands of a routine at the session's rate, ramp-in applied [V].
+
+        It can take a while (the first PRBS imports scipy.signal: seconds on a busy machine):
+        a node computes it before it takes the time of :meth:`start` and passes it there.
+        """
+        return command_profile(routine, self.rate_hz, self.ramp_in_s)[1]
+
+    def start(self, routine: Routine, now_s: float,
+              profile: Optional[ArrayLike] = None) -> tuple[bool, str]:
+        """
+        Start a routine at ``now_s``; return whether it started and a message.
 
         Refused while a routine runs, without fresh measurements, or when the routine's peak
-        voltage exceeds the voltage limit.
+        voltage exceeds the voltage limit.  ``profile``: the routine's :meth:`profile_of`,
+        computed beforehand (else here), so that ``now_s`` is the time the routine starts.
         """
         if self.active:
             running = self.routine.describe() if self.routine else ''
@@ -301,7 +312,8 @@ class ExcitationSession:
         if stale is not None:
             return False, (f'{stale}: not driving blind (check the current/speed or samples '
                            'topics)')
-        _, profile = command_profile(routine, self.rate_hz, self.ramp_in_s)
+        profile = self.profile_of(routine) if profile is None else \
+            np.asarray(profile, dtype=float)
         if not np.all(np.isfinite(profile)):
             return False, (f'the routine {routine.describe()} gives NaN or infinite voltages: '
                            'check its offset and frequencies')

@@ -19,8 +19,9 @@ its own) had no finite sample for ``stale_timeout_s`` (at the next command tick;
 ``stale`` and the log name the channel), on ``~/stop``, at the end of the routine, and when
 the node is shut down or receives SIGINT or SIGTERM.  ``~/stop`` has a callback group of its
 own and the command tick another: neither waits behind ``~/start`` (which reads
-``plan_file``), and a burst of calls is queued (:data:`~dcmotor_id.nodes.common.SERVICE_QOS`),
-so that every call is answered.  ``exciter --plan [plan options]`` prints an experiment plan
+``plan_file`` and computes the routine's commands before it takes the start's time), and a
+burst of calls is queued (:data:`~dcmotor_id.nodes.common.SERVICE_QOS`), so that every call
+is answered.  ``exciter --plan [plan options]`` prints an experiment plan
 without starting ROS (the same as ``dcmotor-id plan``: :mod:`dcmotor_id.console.plan`).
 """
 
@@ -113,6 +114,10 @@ class Exciter(Node):
         self.autostart = declare(self, 'autostart', False, 'start the routine at once (when '
                                  'measurements arrive)')
         self.session = ExcitationSession(limits, rate, ramp_in, stale, watch=WATCHED[source])
+        # The routines' code imports scipy.signal at its first use: seconds on a busy machine
+        # (38 s seen under load), which the first ~/start would wait for. Paid here, before
+        # the services exist: once they are found, ~/start is answered at once.
+        self.session.profile_of(Routine(duration_s=1.0))
         #: Guards the session: held for microseconds, by the tick, ~/start and ~/stop.
         self._lock = threading.RLock()
         self._zeros_due = 0
@@ -246,15 +251,21 @@ class Exciter(Node):
 
     def _on_start(self, request: Trigger.Request,
                   response: Trigger.Response) -> Trigger.Response:
+        # Outside the lock (the tick and ~/stop never wait for them) and before the start's
+        # time is taken (a routine that took long to compute still starts at its beginning,
+        # ramp-in included, judged on fresh measurements): read plan_file, compute the
+        # commands (the first PRBS imports scipy.signal, seconds on a busy machine).
         try:
-            routine = self.routine()  # may read plan_file: outside the lock
+            routine = self.routine()
+            profile = self.session.profile_of(routine)
         except Exception as error:  # noqa: BLE001  (any bad routine is an answer, not a crash)
             response.success, response.message = False, f'bad routine: {error}'
             self.get_logger().warning(f'~/start refused: {response.message}')
             return response
         with self._lock:
             self.inputs.take()
-            response.success, response.message = self.session.start(routine, self.now_s())
+            response.success, response.message = self.session.start(routine, self.now_s(),
+                                                                    profile)
             self._report()
         self.get_logger().info(f'~/start: {response.message}')
         return response

@@ -462,6 +462,10 @@ class Identifier(Node):
     def _health(self):
         """Close the window when a channel stops; publish the ``streams`` status."""
         timeout_s = self.settings.stream_timeout_s
+        # what arrived while the node was busy (a loaded machine runs the process timer
+        # late) is taken first: a channel is stopped when nothing came, not when nothing
+        # was taken
+        self.process()
         stopped, newly = self.health.stopped(timeout_s)
         if newly:
             self.get_logger().warning(f'topic(s) {", ".join(newly)} stopped (nothing '

@@ -148,3 +148,18 @@ def test_a_routine_with_non_finite_voltages_is_refused():
     assert not ok and 'NaN or infinite voltages' in message
     with pytest.raises(ValueError, match='cannot watch'):
         ExcitationSession(LIMITS, watch=('torque',))
+
+
+def test_start_takes_a_profile_computed_beforehand_and_checks_it():
+    """A node computes the commands before it takes the start's time (exciter ~/start)."""
+    session = ExcitationSession(LIMITS, rate_hz=100.0, ramp_in_s=0.0, stale_timeout_s=0.2)
+    routine = Routine('dynamic', 12.0, 1.0)
+    profile = session.profile_of(routine)
+    assert np.array_equal(profile, command_profile(routine, 100.0, 0.0)[1])
+    session.observe(30.0)
+    ok, message = session.start(routine, 30.0, np.full(profile.size, 100.0))
+    assert not ok and 'voltage limit' in message
+    ok, message = session.start(routine, 30.0, np.full(profile.size, np.nan))
+    assert not ok and 'NaN' in message
+    assert session.start(routine, 30.0, profile)[0] and session.started_s == 30.0
+    assert session.command(30.0) == 12.0 and session.state == 'running'

@@ -112,10 +112,10 @@ def start(exciter, controller):
             break
         time.sleep(0.1)
     assert response.success, response.message
-    assert wait_for(lambda: controller.commands and controller.commands[-1][1][1] != 0.0,
-                    10.0)
-    time.sleep(0.3)
-    received, data = controller.commands[-1]
+    seen = len(controller.commands)
+    assert wait_for(lambda: any(data[1] != 0.0 for _, data in controller.commands[seen:]),
+                    30.0), exciter.session.status()
+    data = next(data for _, data in controller.commands[seen:] if data[1] != 0.0)
     assert len(data) == 3 and data[0] == data[2] == 0.0  # the other joints get 0
 
 
