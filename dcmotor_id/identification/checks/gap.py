@@ -63,6 +63,11 @@ class Undecided:
     heldout_z: dict[str, float] = field(default_factory=dict)
     gap_z: dict[str, float] = field(default_factory=dict)
 
+    @property
+    def warnings(self) -> list[str]:
+        """Return the warning as a list (empty when none)."""
+        return [self.warning] if self.warning else []
+
 
 def heldout_z(fit_residual: np.ndarray, floor_residual: np.ndarray) -> float:
     """

@@ -24,7 +24,7 @@ import numpy as np
 
 from dcmotor_id.core.errors import NotIdentifiableError
 from dcmotor_id.formats.held import restore_held
-from dcmotor_id.identification.checks.gap import replayed_channel, Undecided, undecided
+from dcmotor_id.identification.checks.gap import replayed_channel, undecided
 from dcmotor_id.identification.checks.identifiability import misfit_message, misfit_ratios
 from dcmotor_id.identification.discovery.voltage_speed import (discover_voltage_speed, IN_VOLTS,
                                                                VoltageSpeedDiscovery)
@@ -92,12 +92,10 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
     found = discover_voltage_speed(records, base, progress) if discover else None
     fit = found.fit if found is not None and found.fit is not None else base  # with effects
     stderr, apparent, one_level = _friction_at_zero(records, fit)
-    gap = _undecided(records, fit, stderr, _as_measured(fit.speeds, found, records))
-    stderr = gap.stderr
+    stderr, said = _undecided(records, fit, stderr, _as_measured(fit.speeds, found, records))
     combined = {**_entries(fit, stderr), **apparent, **_lag_entries(fit), **_effect_entries(found)}
     warnings = ([NO_CURRENT_COLUMN] + held + list(fit.notes) + _lag_warnings(fit)
-                + _discovery_warnings(found, structure_bootstrap) + _misfit(fit, records)
-                + ([gap.warning] if gap.warning else []))
+                + _discovery_warnings(found, structure_bootstrap) + _misfit(fit, records) + said)
     result = IdentificationResult(
         parameters=dict(fit.values), stderr=stderr, method=MODE,
         effects=found.effects_json() if found is not None else [],
@@ -125,7 +123,7 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
 
 
 def _undecided(records: Sequence[Record], fit: VoltageSpeedFit, stderr: dict[str, float],
-               speeds: Sequence[np.ndarray]) -> Undecided:
+               speeds: Sequence[np.ndarray]) -> tuple[dict[str, float], list[str]]:
     """
     Test the fit against the model-free regression on the held-out part (as the full mode).
 
@@ -138,7 +136,7 @@ def _undecided(records: Sequence[Record], fit: VoltageSpeedFit, stderr: dict[str
     try:
         values, floor_stderr = regression_fit(records)
     except NotIdentifiableError:
-        return Undecided(None, dict(stderr))
+        return dict(stderr), []
     stops = heldout_stops(records)
     mine, own = [], []
     for record, speed, stop in zip(records, speeds, stops):
@@ -153,8 +151,9 @@ def _undecided(records: Sequence[Record], fit: VoltageSpeedFit, stderr: dict[str
             record.replace(speed=replayed_channel(speed, record.noise_std('speed')))
             for record, speed in zip(records, speeds)])[0]
     except NotIdentifiableError:
-        return Undecided(None, dict(stderr))
-    return undecided((fit.values, stderr), (values, floor_stderr), replayed, residuals, NAMES)
+        return dict(stderr), []
+    found = undecided((fit.values, stderr), (values, floor_stderr), replayed, residuals, NAMES)
+    return found.stderr, found.warnings
 
 
 def _entries(fit: VoltageSpeedFit, stderr: dict[str, float]) -> dict[str, dict]:
