@@ -47,7 +47,8 @@ from dcmotor_id.core.model import MotorParameters
 from dcmotor_id.simulation.lab_scenarios import encoder_speed, simulate_drive, step_levels
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_random_motors import graded, identify_cli, sysid_command  # noqa: E402,I100
+from bench_random_motors import (false_alarms, graded, identify_cli,  # noqa: E402,I100
+                                 sysid_command)
 from common import markdown_table, write_report  # noqa: E402,I100  (bench/common.py)
 
 CLASSES = ('ramp_step', 'pwm_servo', 'sysid_segments', 'encoder_500hz')
@@ -210,7 +211,8 @@ def summary_rows(rows: list[dict]) -> list[list[str]]:
         table.append([name, str(len(mine))]
                      + [str(sum(row['outcome'] == outcome for row in mine))
                         for outcome in OUTCOMES]
-                     + [str(peer), f"{max(row['seconds'] for row in mine):.1f}" if mine
+                     + [str(false_alarms(mine)), str(peer),
+                        f"{max(row['seconds'] for row in mine):.1f}" if mine
                         else '-'])
     return table
 
@@ -238,7 +240,8 @@ def main(argv: list[str] | None = None) -> int:
         for index in range(args.first, args.first + args.cases * len(CLASSES)):
             rows.append(judge_cli(index, scratch))
             print(f"[{time.time() - started:5.0f} s] case {index} {rows[-1]['kind']}: "
-                  f"{rows[-1]['outcome']} {rows[-1].get('errors', rows[-1].get('why', ''))}",
+                  f"{rows[-1]['outcome']} {rows[-1].get('errors', rows[-1].get('why', ''))}"
+                  f" undecided {rows[-1].get('undecided', [])}",
                   file=sys.stderr, flush=True)
     lines = ["# The issue's real-recording classes on random motors (issue 29)", '',
              f'Command: `bench/bench_random_classes.py --cases {args.cases} --first '
@@ -248,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
              'Outcomes as in `bench/random_motors_results.md` (Ra, CPhi 5 %, J 10 %, and b '
              '30 % in `encoder_500hz`).  *regression within*: the plain least-squares '
              "regression of the script's docstring within the same goals.", '']
-    lines += markdown_table(['class', 'cases', *OUTCOMES, 'regression within', 'slowest s'],
+    lines += markdown_table(['class', 'cases', *OUTCOMES, 'within, undecided',
+                             'regression within', 'slowest s'],
                             summary_rows(rows)).splitlines()
     lines += ['', '## The cases outside the goals', '']
     lines += markdown_table(['case', 'class', 'dt [ms]', 'made', 'errors [%]',

@@ -48,6 +48,7 @@ import numpy as np
 from dcmotor_id.core.errors import DcMotorIdError
 from dcmotor_id.core.model import MotorParameters
 from dcmotor_id.core.records import Record
+from dcmotor_id.identification.checks.gap import UNDECIDED
 from dcmotor_id.identification.identify import identify, prepare_records
 from dcmotor_id.simulation.lab_scenarios import simulate_drive, step_levels
 
@@ -195,7 +196,10 @@ def graded(result, motor: MotorParameters, goals: dict | None = None) -> dict:
     errors = {name: 100.0 * (result.parameters[name] / getattr(motor, name) - 1.0)
               for name in goals}
     off = [name for name, limit in goals.items() if abs(errors[name]) > limit]
-    return {'errors': errors, 'outcome': 'within the goals' if not off else
+    undecided = [text.split(' (')[0].rsplit(' on ', 1)[-1] for text in result.warnings
+                 if text.startswith(UNDECIDED)]
+    return {'errors': errors, 'undecided': undecided,
+            'outcome': 'within the goals' if not off else
             'outside, said' if all(said_of(result, motor, name) for name in off)
             else 'outside, silent'}
 
@@ -209,8 +213,15 @@ def summary_rows(rows: list[dict]) -> list[list[str]]:
         table.append([kind, str(len(mine))] + [str(sum(row['outcome'] == outcome
                                                        for row in mine))
                                                for outcome in outcomes]
+                     + [str(false_alarms(mine))]
                      + [f"{max(row['seconds'] for row in mine):.1f}" if mine else '-'])
     return table
+
+
+def false_alarms(rows: list[dict]) -> int:
+    """Count the answers within the goals that say the record does not decide a parameter."""
+    return sum(row['outcome'] == 'within the goals' and bool(row.get('undecided'))
+               for row in rows)
 
 
 def detail_rows(rows: list[dict]) -> list[list[str]]:
@@ -223,7 +234,9 @@ def detail_rows(rows: list[dict]) -> list[list[str]]:
         table.append([str(row['index']), row['kind'], f"{row['dt'] * 1e3:g}", row['sensor'],
                       f"{row['tau_e'] * 1e3:.2f}", f"{row['tau_m'] * 1e3:.0f}",
                       ', '.join(f'{name} {value:+.1f}' for name, value in errors.items())
-                      if errors else '-', row['outcome'], row.get('why', '')])
+                      if errors else '-', row['outcome'], row.get('why', '')
+                      + (' undecided: ' + ', '.join(row['undecided'])
+                         if row.get('undecided') else '')])
     return table
 
 
@@ -241,7 +254,8 @@ def main(argv: list[str] | None = None) -> int:
     for index in range(args.cases):
         rows.append({'index': index, **(judge_cli(index, scratch.name) if args.cli
                                         else judge(index))})
-        print(f"[{time.time() - started:5.0f} s] case {index}: {rows[-1]['outcome']}",
+        print(f"[{time.time() - started:5.0f} s] case {index}: {rows[-1]['outcome']}"
+              f" undecided {rows[-1].get('undecided', [])}",
               file=sys.stderr, flush=True)
     lines = ['# Random motors: default identify on motors it was not tuned on (issue 29)', '',
              f'Command: `bench/bench_random_motors.py --cases {args.cases}'
@@ -253,10 +267,13 @@ def main(argv: list[str] | None = None) -> int:
              'named not identifiable, or a warning says the fit misfits or '
              'disagrees with the model-free evidence; *outside, silent*: otherwise; '
              '*refused*: exit 2 with a reason '
-             '(`DcMotorIdError`); *failed*: any other exception.  See the script for the '
-             'motors and experiments.', '']
+             '(`DcMotorIdError`); *failed*: any other exception; *within, undecided*: '
+             'answers within the goals that warn that the record does not decide a parameter '
+             'between the fit and the regression (false alarms of that warning, '
+             '`checks/gap.py`).  See the script for the motors and experiments.', '']
     lines += markdown_table(['experiment', 'cases', 'within the goals', 'outside, said',
-                             'outside, silent', 'refused', 'failed', 'slowest s'],
+                             'outside, silent', 'refused', 'failed', 'within, undecided',
+                             'slowest s'],
                             summary_rows(rows)).splitlines()
     lines += ['', '## The cases outside the goals', '']
     lines += markdown_table(['case', 'experiment', 'dt [ms]', 'sensor', 'La/Ra [ms]',

@@ -160,7 +160,8 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
     Return ``kS, kV, kA`` from ``u`` regressed on ``sgn w, w, dw/dt`` (filtered, zero phase).
 
     One voltage level in one direction (:func:`one_level_step`) ties ``sgn w`` to the
-    constant: ``kS`` is taken as 0 and ``u`` regressed on ``w`` and ``dw/dt`` alone.
+    constant: ``kS`` is taken as 0 and ``u`` regressed on ``w`` and ``dw/dt`` alone.  The
+    values of :func:`regression_fit`.
 
     Raises
     ------
@@ -168,6 +169,18 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
         When the voltage reads 0 V while the motor moves (:func:`zero_voltage_moving`), or
         the regressors are (nearly) dependent (a motor that hardly moves or runs at one speed).
 
+    """
+    return regression_fit(records)[0]
+
+
+def regression_fit(records: Sequence[Record]) -> tuple[dict[str, float], dict[str, float]]:
+    """
+    Return the regression's ``kS, kV, kA`` (:func:`regression_start`) and standard errors.
+
+    The standard errors are the least squares' on the samples the residual is worth (its
+    :func:`correlation_factor` squared per sample); NaN for a value held at a bound (kS
+    taken as 0, kS below 0 raised to 0, kV or kA not above 0 replaced).  Raises as
+    :func:`regression_start`.
     """
     zero = zero_voltage_moving(records)
     if zero:
@@ -189,11 +202,26 @@ def regression_start(records: Sequence[Record]) -> dict[str, float]:
             'voltage and speed do not determine kS, kV and kA: the motor hardly moves or runs '
             'at one speed; record steps and ramps of the voltage in both directions (a SysId '
             'routine)')
-    solution = np.zeros(3)
+    solution, stderr = np.zeros(3), np.full(3, np.nan)
     solution[columns] = np.linalg.lstsq(matrix, target, rcond=None)[0]
+    stderr[columns] = _least_squares_stderr(matrix, target - matrix @ solution[columns])
     kv = max(float(solution[1]), 1e-9)
     ka = float(solution[2]) if solution[2] > 0 else 0.05 * kv
-    return {'kS': max(float(solution[0]), 0.0), 'kV': kv, 'kA': ka}
+    held = [not solution[0] > 0, not solution[1] > 1e-9, not solution[2] > 0]
+    return ({'kS': max(float(solution[0]), 0.0), 'kV': kv, 'kA': ka},
+            {name: float('nan') if at_bound else float(error)
+             for name, error, at_bound in zip(NAMES, stderr, held)})
+
+
+def _least_squares_stderr(matrix: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """Return the standard errors of a least-squares fit on the samples its residual is worth."""
+    dof = max(matrix.shape[0] - matrix.shape[1], 1)
+    variance = float(residual @ residual) / dof * correlation_factor(residual) ** 2
+    try:
+        covariance = np.linalg.pinv(matrix.T @ matrix) * variance
+    except np.linalg.LinAlgError:
+        return np.full(matrix.shape[1], np.nan)
+    return np.sqrt(np.maximum(np.diag(covariance), 0.0))
 
 
 #: Spread of the voltage while moving, relative to its size, below which it holds one level.

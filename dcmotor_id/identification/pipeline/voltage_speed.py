@@ -22,16 +22,21 @@ from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
+from dcmotor_id.core.errors import NotIdentifiableError
 from dcmotor_id.formats.held import restore_held
+from dcmotor_id.identification.checks.gap import replayed_channel, undecided
 from dcmotor_id.identification.checks.identifiability import misfit_message, misfit_ratios
 from dcmotor_id.identification.discovery.voltage_speed import (discover_voltage_speed, IN_VOLTS,
                                                                VoltageSpeedDiscovery)
 from dcmotor_id.identification.estimators.base import Estimate
 from dcmotor_id.identification.estimators.voltage_speed import (COMBINATIONS,
                                                                 fit_voltage_speed,
-                                                                moving_voltage,
-                                                                NOT_SEPARABLE, UNITS,
+                                                                moving_voltage, NAMES,
+                                                                NOT_SEPARABLE,
+                                                                regression_fit, simulate_speed,
+                                                                UNITS,
                                                                 VoltageSpeedFit)
+from dcmotor_id.identification.pipeline.floor import heldout_stops
 from dcmotor_id.identification.result import IdentificationResult
 from dcmotor_id.identification.validate import operating_range
 
@@ -87,9 +92,10 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
     found = discover_voltage_speed(records, base, progress) if discover else None
     fit = found.fit if found is not None and found.fit is not None else base  # with effects
     stderr, apparent, one_level = _friction_at_zero(records, fit)
+    stderr, said = _undecided(records, fit, stderr, _as_measured(fit.speeds, found, records))
     combined = {**_entries(fit, stderr), **apparent, **_lag_entries(fit), **_effect_entries(found)}
     warnings = ([NO_CURRENT_COLUMN] + held + list(fit.notes) + _lag_warnings(fit)
-                + _discovery_warnings(found, structure_bootstrap) + _misfit(fit, records))
+                + _discovery_warnings(found, structure_bootstrap) + _misfit(fit, records) + said)
     result = IdentificationResult(
         parameters=dict(fit.values), stderr=stderr, method=MODE,
         effects=found.effects_json() if found is not None else [],
@@ -114,6 +120,40 @@ def identify_voltage_speed(records: Sequence[Record], discover: bool = True,
                            'start': base.start}))
     result.elapsed_s = time.monotonic() - began
     return result
+
+
+def _undecided(records: Sequence[Record], fit: VoltageSpeedFit, stderr: dict[str, float],
+               speeds: Sequence[np.ndarray]) -> tuple[dict[str, float], list[str]]:
+    """
+    Test the fit against the model-free regression on the held-out part (as the full mode).
+
+    :func:`~dcmotor_id.identification.checks.gap.undecided` with the regression
+    (:func:`~dcmotor_id.identification.estimators.voltage_speed.regression_fit`) simulated
+    from each record's first samples, the fit as it simulates the records (``speeds``, as
+    the sensor reads them), both on the held-out ends
+    (:func:`~dcmotor_id.identification.pipeline.floor.heldout_stops`).
+    """
+    try:
+        values, floor_stderr = regression_fit(records)
+    except NotIdentifiableError:
+        return dict(stderr), []
+    stops = heldout_stops(records)
+    mine, own = [], []
+    for record, speed, stop in zip(records, speeds, stops):
+        measured = np.asarray(record.speed, dtype=float)
+        floor_speed = simulate_speed(values, np.asarray(record.voltage, dtype=float),
+                                     record.sample_period_s, float(np.mean(measured[:3])))
+        mine.append(np.asarray(speed, dtype=float)[stop:] - measured[stop:])
+        own.append(floor_speed[stop:] - measured[stop:])
+    residuals = {'speed': (np.concatenate(mine), np.concatenate(own))}
+    try:
+        replayed = regression_fit([
+            record.replace(speed=replayed_channel(speed, record.noise_std('speed')))
+            for record, speed in zip(records, speeds)])[0]
+    except NotIdentifiableError:
+        return dict(stderr), []
+    found = undecided((fit.values, stderr), (values, floor_stderr), replayed, residuals, NAMES)
+    return found.stderr, found.warnings
 
 
 def _entries(fit: VoltageSpeedFit, stderr: dict[str, float]) -> dict[str, dict]:
