@@ -31,7 +31,7 @@ keeps the output-error result only where it predicts at least as well as the reg
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
@@ -40,7 +40,6 @@ from dcmotor_id.core.errors import FitError
 from dcmotor_id.core.model import (DERIVED_NAMES, derived_values, MECHANICAL_NAMES,
                                    PARAMETER_NAMES, UNITS)
 from dcmotor_id.identification.checks.armature_lag import lag_profile
-from dcmotor_id.identification.checks.gap import replayed_channel, undecided
 from dcmotor_id.identification.checks.identifiability import (IDENTIFIABLE_REL_STDERR,
                                                               limited_samples)
 from dcmotor_id.identification.checks.ramp import (bonferroni_bound, ramp_masks,
@@ -496,46 +495,24 @@ def heldout_error(parameters: dict[str, float], initial_states: Sequence[Sequenc
     records' :func:`heldout_stops`, when the caller has them (else computed here).  Each
     record is simulated once and its held-out ends found once, for every channel.
     """
-    return _worst_pct(heldout_residuals(parameters, initial_states, records, torque_constant,
-                                        quasi_static, terms, stops))
-
-
-def heldout_residuals(parameters: dict[str, float], initial_states: Sequence[Sequence[float]],
-                      records: Sequence[Record], torque_constant: float | None,
-                      quasi_static: bool, terms: Sequence[ExogenousTerm] = (),
-                      stops: Sequence[int] | None = None
-                      ) -> dict[str, tuple[np.ndarray, float]]:
-    """
-    Per output channel, the held-out residual of all records joined and the spread it is on.
-
-    The spread: the sum over the records of the variance of the whole record times its
-    held-out samples (:func:`heldout_error` divides by it).  Arguments as there.
-    """
     model = OutputErrorModel(records, torque_constant, tuple(terms), quasi_static)
     stops = heldout_stops(records) if stops is None else stops
     with np.errstate(all='ignore'):
         simulated = [model.simulate(parameters, index, np.array(initial_states[index], float))
                      for index in range(len(records))]
-    out = {}
-    for channel in model.outputs:
-        parts, spread = [], 0.0
-        for rec, sim, stop in zip(records, simulated, stops):
-            measured = np.asarray(getattr(rec, channel), dtype=float)
-            parts.append(np.asarray(sim[channel], dtype=float)[stop:] - measured[stop:])
-            spread += float(np.var(measured)) * parts[-1].shape[0]
-        out[channel] = (np.concatenate(parts) if parts else np.zeros(0), spread)
-    return out
-
-
-def _worst_pct(residuals: dict[str, tuple[np.ndarray, float]]) -> float:
-    """Return the worst channel's NRMSE [%] of :func:`heldout_residuals`."""
     worst = 0.0
-    with np.errstate(all='ignore'):
-        for residual, spread in residuals.values():
-            if residual.shape[0] == 0 or spread <= 0:
-                continue
-            value = 100.0 * np.sqrt(float(residual @ residual) / spread)
-            worst = max(worst, float(value) if np.isfinite(value) else float('inf'))
+    for channel in model.outputs:
+        squares, spread, count = 0.0, 0.0, 0
+        for rec, out, stop in zip(records, simulated, stops):
+            measured = np.asarray(getattr(rec, channel), dtype=float)
+            residual = np.asarray(out[channel], dtype=float)[stop:] - measured[stop:]
+            squares += float(residual @ residual)
+            count += residual.shape[0]
+            spread += float(np.var(measured)) * residual.shape[0]
+        if count == 0 or spread <= 0:
+            continue
+        value = 100.0 * np.sqrt(squares / spread)
+        worst = max(worst, float(value) if np.isfinite(value) else float('inf'))
     return worst
 
 
@@ -548,14 +525,6 @@ class FitEffects:
 
 
 @dataclass(frozen=True)
-class HeldOutFit:
-    """The fit's values and the rest of :func:`heldout_residuals`' arguments for them."""
-
-    parameters: dict[str, float]
-    arguments: tuple
-
-
-@dataclass(frozen=True)
 class FloorChoice:
     """Which answer is kept, the two held-out errors, and the warning when it is the floor."""
 
@@ -563,7 +532,6 @@ class FloorChoice:
     fit_heldout_pct: float
     floor_heldout_pct: float
     warning: str | None
-    residuals: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 def floor_choice(floor: RegressionFloor, fit_parameters: dict[str, float],
@@ -579,31 +547,22 @@ def floor_choice(floor: RegressionFloor, fit_parameters: dict[str, float],
     replaces the fit
     when its held-out error is lower by more than :data:`FLOOR_MARGIN_PCT` points and below
     :data:`FLOOR_RATIO` of the fit's (a structure both lack, e.g. held samples, moves both
-    errors by some per cent; the fit's values were then the better ones).  ``residuals``:
-    per channel, both held-out residuals (the fit's, the regression's), where their lengths
-    agree (for :func:`~dcmotor_id.identification.checks.gap.undecided`).
+    errors by some per cent; the fit's values were then the better ones).
     """
     mechanical_only = torque_constant is not None
     stops = heldout_stops(records)
-    fit_residuals = heldout_residuals(fit_parameters, fit_states,
-                                      records if effects is None else effects.records,
-                                      torque_constant, quasi_static,
-                                      () if effects is None else effects.terms,
-                                      stops if effects is None else None)
-    fit = _worst_pct(fit_residuals)
+    fit = heldout_error(fit_parameters, fit_states,
+                        records if effects is None else effects.records, torque_constant,
+                        quasi_static, () if effects is None else effects.terms,
+                        stops if effects is None else None)
     values = {**{name: value for name, value in fit_parameters.items() if '.' not in name},
               **{name: floor.parameters[name] for name in fit_parameters
                  if name in floor.parameters}}
     values['b'], values['Mc'] = max(values['b'], 0.0), max(values['Mc'], 0.0)
-    own_residuals = heldout_residuals(values, first_states(records, mechanical_only), records,
-                                      torque_constant, quasi_static or floor.static_electrical,
-                                      stops=stops)
-    own = _worst_pct(own_residuals)
+    own = heldout_error(values, first_states(records, mechanical_only), records,
+                        torque_constant, quasi_static or floor.static_electrical, stops=stops)
     if not floor.usable or not (own + FLOOR_MARGIN_PCT < fit and own < FLOOR_RATIO * fit):
-        pairs = {channel: (fit_residuals[channel][0], own_residuals[channel][0])
-                 for channel in fit_residuals if channel in own_residuals
-                 and fit_residuals[channel][0].shape == own_residuals[channel][0].shape}
-        return FloorChoice(False, fit, own, None, pairs)
+        return FloorChoice(False, fit, own, None)
     return FloorChoice(True, fit, own, (
         f'the output-error fit predicts the held-out part worse ({fit:.3g} % simulation error) '
         f'than the model-free regression ({own:.3g} %): the values are the regression' "'s "
@@ -711,70 +670,13 @@ def with_floor(result: IdentificationResult, floor: RegressionFloor | None,
     choice = floor_choice(floor, base, estimate.initial_states, records, torque_constant,
                           bool(estimate.info.get('quasi_static')), effects)
     if not choice.use_floor:
-        return _with_gap(result, floor, choice, HeldOutFit(base, (
-            estimate.initial_states, records if effects is None else effects.records,
-            torque_constant, bool(estimate.info.get('quasi_static')),
-            () if effects is None else effects.terms)))
+        return result
     warning = choice.warning or ''
     if result.effects:
         warning += ('; the effects the loop found (' + ', '.join(
             str(effect['name']) for effect in result.effects) + ') did not make the fit '
             'predict better than the regression without them, and are not reported')
     return _as_floor(replace(result, effects=[]), floor, records, warning)
-
-
-def _with_gap(result: IdentificationResult, floor: RegressionFloor, choice: FloorChoice,
-              fitted: HeldOutFit) -> IdentificationResult:
-    """
-    Name the parameters the record does not decide between the fit and the regression.
-
-    :func:`~dcmotor_id.identification.checks.gap.undecided` on the parameters the answer
-    states (not those named not identifiable or given by an upper bound), the regression's
-    b and Mc held at zero left out, with the regression replayed on the fit's own simulation
-    of the records (:func:`_replayed`); their standard errors widened, a warning.
-    """
-    names = [name for name in PARAMETER_NAMES if name in result.parameters
-             and name not in result.not_identifiable and name not in result.upper_bounds]
-    values, stderr, reasons = _floor_values(floor, names)
-    for name in reasons:
-        stderr[name] = float('nan')
-    replayed = _replayed(fitted)
-    if replayed is None:
-        return result
-    found = undecided((result.parameters, result.stderr), (values, stderr), replayed.parameters,
-                      choice.residuals, names)
-    if found.warning is None:
-        return result
-    return replace(result, stderr={**result.stderr, **found.stderr},
-                   warnings=list(result.warnings) + [found.warning])
-
-
-def _replayed(fitted: HeldOutFit) -> RegressionFloor | None:
-    """
-    Return the regression on the fit's own simulation of its records (None: not computed).
-
-    The simulated channels (the current and the speed; the speed alone when the torque
-    constant is given) with white noise at the sensor's level
-    (:func:`~dcmotor_id.identification.checks.gap.replayed_channel`) replace the measured
-    ones; a fit with effects is not replayed (their records are not the regression's).
-    """
-    states, records, torque_constant, quasi_static, terms = fitted.arguments
-    if terms:
-        return None
-    model = OutputErrorModel(records, torque_constant, (), quasi_static)
-    replays = []
-    with np.errstate(all='ignore'):
-        for index, rec in enumerate(records):
-            out = model.simulate(fitted.parameters, index, np.array(states[index], float))
-            channels = {name: replayed_channel(out[name], rec.noise_std(name))
-                        for name in ('current', 'speed') if name in model.outputs}
-            if not all(np.all(np.isfinite(values)) for values in channels.values()):
-                return None
-            replays.append(rec.replace(**channels))
-    try:
-        return regression_floor(replays, torque_constant)
-    except (ArithmeticError, ValueError, np.linalg.LinAlgError):
-        return None
 
 
 def _tighter_la(result: IdentificationResult, floor: RegressionFloor) -> IdentificationResult:
