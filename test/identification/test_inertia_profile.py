@@ -115,6 +115,7 @@ def test_la_carrying_the_lag_j_would_give_is_not_stated_with_a_few_percent():
     profile = result.estimate.info['armature_profile']
     assert profile['unresolved'] and profile['ratio'] < PROFILE_THRESHOLD
     assert 'La is not determined' in result.not_identifiable['La']
+    assert result.not_identifiable['La'] in result.warnings
     assert profile['bound'] is not None and profile['bound'] > result.parameters['La']
     la, ta = result.parameters['La'], result.parameters['Ta']
     assert la + result.stderr['La'] >= profile['bound'] * (1.0 - 1e-9)

@@ -67,6 +67,8 @@ def identifiability(inputs: Inputs, answer: Answer) -> Answer:
     if inertia is not None:  # b and Mc from the steady speeds stay useful: said after the checks
         not_identifiable['J'] = inertia
         warnings += (inertia,)
+        if (profiles.get('armature_profile') or {}).get('unresolved'):
+            warnings += (not_identifiable['La'],)  # La's profile: La shares J's lag
     elif 'J' not in not_identifiable:
         warnings += one_level_inertia(inputs, answer, stderr)
     if profiles:
