@@ -17,6 +17,12 @@ runs the default ``identify`` end to end and reads what it said:
   ``--lab-seeds`` each: J flagged by the profile where its time constant spans samples is a
   false alarm.
 
+Where J is flagged, La's profile (:mod:`dcmotor_id.identification.checks.armature_profile`)
+asks the same of La: the columns "La flagged" and "La error" say whether La was said not
+determined, and how far the fitted La is from the truth (a flag on an La within 10 % is a false
+alarm; an La off by more than 10 % with neither a flag nor the truth within three stated
+standard errors is silent).
+
 Run from the repository root (about 15 minutes on 2 cores)::
 
     PYTHONPATH=$PWD .venv/bin/python bench/bench_inertia_profile.py \
@@ -64,9 +70,25 @@ def judged(records, truth, torque_constant=None) -> dict:
             'ratio': info['ratio'] if info else None,
             'bound': bound, 'covered': bound is not None and truth.J <= bound,
             'error': error, 'seconds': time.perf_counter() - start,
+            **_armature(result, truth),
             'said': flagged or 'J' in result.not_identifiable or (
                 np.isfinite(result.stderr['J'])
                 and abs(result.parameters['J'] - truth.J) <= 3.0 * result.stderr['J'])}
+
+
+def _armature(result, truth) -> dict:
+    """Return what La's profile said: flagged, La's error, silent (off 10 %, not said)."""
+    info = (result.estimate.info if result.estimate is not None else {}).get(
+        'armature_profile')
+    flagged = bool(info and info['unresolved'] and 'La' in result.not_identifiable)
+    la, stderr = result.parameters.get('La'), result.stderr.get('La', np.nan)
+    if la is None or not truth.La:
+        return {'la_flagged': flagged, 'la_error': np.nan, 'la_silent': False}
+    error = 100.0 * (la / truth.La - 1.0)
+    said = flagged or 'La' in result.not_identifiable or 'La' in result.upper_bounds or (
+        np.isfinite(stderr) and abs(la - truth.La) <= 3.0 * stderr)
+    return {'la_flagged': flagged, 'la_error': error,
+            'la_silent': abs(error) > 10.0 and not said}
 
 
 def _bound_cell(row: dict, truth_j: float) -> str:
@@ -79,7 +101,7 @@ def _bound_cell(row: dict, truth_j: float) -> str:
 def random_rows(cases: int) -> tuple[list[list[str]], dict]:
     """Return every random case where the profile ran, and the counts."""
     rows, counts = [], {'cases': 0, 'ran': 0, 'flagged': 0, 'false': 0, 'covered': 0,
-                        'outside_silent': 0}
+                        'outside_silent': 0, 'la_flagged': 0, 'la_false': 0, 'la_silent': 0}
     for index in range(cases):
         motor, record, made = case(index)
         row = judged([record], motor)
@@ -95,11 +117,15 @@ def random_rows(cases: int) -> tuple[list[list[str]], dict]:
         counts['ran'] += 1
         counts['flagged'] += int(row['flagged'])
         counts['covered'] += int(row['flagged'] and row['covered'])
+        counts['la_flagged'] += int(row['la_flagged'])
+        counts['la_false'] += int(row['la_flagged'] and abs(row['la_error']) <= 10.0)
+        counts['la_silent'] += int(row['la_silent'])
         rows.append([str(index), made['kind'], f"{made['dt'] * 1e3:g}", made['sensor'],
                      f"{made['tau_m'] / made['dt']:.2f}", f"{row['error']:+.1f}",
                      f"{row['ratio']:.3g}", 'yes' if row['flagged'] else 'no',
                      'yes' if row['rejected'] else 'no',
-                     _bound_cell(row, motor.J), f"{row['seconds']:.1f}"])
+                     _bound_cell(row, motor.J), 'yes' if row['la_flagged'] else 'no',
+                     f"{row['la_error']:+.3g}", f"{row['seconds']:.1f}"])
     return rows, counts
 
 
@@ -120,6 +146,8 @@ def sweep_rows(seeds: int) -> list[list[str]]:
                      f"{sum(row['covered'] for row in flagged)}/{len(flagged)}",
                      f'{np.median(kept):.1f}' if kept else '-',
                      f"{sum(not row['said'] and abs(row['error']) > 10 for row in done)}",
+                     f"{sum(row['la_flagged'] for row in done)}/{len(done)}",
+                     f"{sum(row['la_silent'] for row in done)}",
                      f"{max(row['seconds'] for row in results):.1f}"])
         print(f'sweep {frames}: {rows[-1]}', file=sys.stderr, flush=True)
     return rows
@@ -144,6 +172,8 @@ def lab_rows(seeds: int) -> tuple[list[list[str]], int]:
             false += flagged
         rows.append([name, str(len(done)), str(sum(row['ran'] for row in done)),
                      str(flagged), ', '.join(f"{row['error']:+.1f}" for row in done),
+                     str(sum(row['la_flagged'] for row in done)),
+                     str(sum(row['la_silent'] for row in done)),
                      f"{max(row['seconds'] for row in results):.1f}"])
         print(f'lab {name}: {rows[-1]}', file=sys.stderr, flush=True)
     return rows, false
@@ -161,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     random, counts = random_rows(args.cases)
     sweep = sweep_rows(args.seeds)
     lab, false_lab = lab_rows(args.lab_seeds)
-    lines = ["# J's likelihood profile with the voltage as the input (issue 29)", '',
+    lines = ["# J's (and La's) likelihood profile with the voltage as the input (issue 29)", '',
              f'Command: `bench/bench_inertia_profile.py --cases {args.cases} --seeds '
              f'{args.seeds} --lab-seeds {args.lab_seeds}`  ',
              f'Load average at the start: {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}; run '
@@ -176,21 +206,25 @@ def main(argv: list[str] | None = None) -> int:
              f"below the bound on {counts['covered']} of them; false alarms (J flagged or the "
              'fitted J rejected, J '
              f"within 10 %): {counts['false']}; J outside 10 % and not said: "
-             f"{counts['outside_silent']}.", '']
+             f"{counts['outside_silent']}.  La flagged (La's profile, where J is flagged) on "
+             f"{counts['la_flagged']}; false alarms (La flagged, La within 10 %): "
+             f"{counts['la_false']}; La outside 10 % and not said: {counts['la_silent']}.", '']
     lines += markdown_table(['case', 'experiment', 'dt [ms]', 'sensor', 'tau_m / dt',
                              'J error [%]', 'ratio', 'J flagged', 'fitted J rejected',
-                             'bound', 's'],
+                             'bound', 'La flagged', 'La error [%]', 's'],
                             random).splitlines()
     lines += ['', '## Power: sysid_fast_shaft over the mechanical time constant', '',
               f'{args.seeds} seeds each; tau_m = J Ra / CPhi^2 in 20 ms frames.', '']
     lines += markdown_table(['tau_m [frames]', 'J', 'J flagged', 'fitted J rejected',
                              'bound covers the truth',
                              'median |J error| not flagged [%]', 'J off > 10 % and not said',
-                             'slowest s'], sweep).splitlines()
+                             'La flagged', 'La off > 10 % and not said', 'slowest s'],
+                            sweep).splitlines()
     lines += ['', f'## Lab classes with the voltage as the input ({args.lab_seeds} seeds)', '',
               f'J flagged outside sysid_fast_shaft (false alarms): {false_lab}.', '']
     lines += markdown_table(['class', 'identified', 'profile ran', 'J flagged',
-                             'J errors [%]', 'slowest s'], lab).splitlines()
+                             'J errors [%]', 'La flagged', 'La off > 10 % and not said',
+                             'slowest s'], lab).splitlines()
     write_report(lines, args.out)
     return 0
 

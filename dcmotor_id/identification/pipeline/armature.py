@@ -82,10 +82,11 @@ def armature(inputs: Inputs, fit: Fit) -> Fit:
                                               'La': la_reason(*full_la, dt, None)})
     estimate, errors = refit
     full = fit.estimate
-    if not full_reached_its_limit(fit.errors, errors):
+    if not full_reached_its_limit(fit.errors, errors) or beyond_its_bound(full, estimate, dt):
         # The full fit ran off (an La of 1e4 H, its current 100 % off) where its own limit
-        # La -> 0 fits the data: its values are no equation the data leave open.  The full
-        # equation with La at its upper bound is one (:func:`la_at_its_bound`).
+        # La -> 0 fits the data, or its La lies beyond the upper bound the answer gives La:
+        # its values are no equation the data leave open.  The full equation with La at its
+        # upper bound is one (:func:`la_at_its_bound`).
         bounded = la_at_its_bound(estimate, fit.models, dt, inputs)
         if bounded is None:
             return replace(fit, estimate=estimate, quasi=True, errors=errors, models=models)
@@ -101,8 +102,9 @@ def la_at_its_bound(quasi: Estimate, full_models: Models, dt: float,
     """
     Fit the full armature equation with La pinned at its upper bound ``Ra dt``; None if it fails.
 
-    Where the free full fit did not converge, this is the other end of what the data leave
-    open (La between 0 and its bound; the bound from the quasi-static refit ``quasi``).  It
+    Where the free full fit did not converge, or its La lies beyond that bound
+    (:func:`beyond_its_bound`), this is the other end of what the data leave open (La between
+    0 and its bound; the bound from the quasi-static refit ``quasi``).  It
     starts from the estimator's own search: the refit's values can hold b or Mc at exactly 0,
     which the search of positive parameters (on their logarithms) cannot leave.
     """
@@ -113,6 +115,21 @@ def la_at_its_bound(quasi: Estimate, full_models: Models, dt: float,
                            inputs.on.position_error, pinned={'La': bound})
     except (DcMotorIdError, np.linalg.LinAlgError, ValueError):
         return None
+
+
+def beyond_its_bound(full: Estimate, quasi: Estimate, dt: float) -> bool:
+    """
+    Whether the full fit's La lies beyond the upper bound the answer gives La.
+
+    The bound of :func:`with_la_bound`: ``Ra dt`` of the quasi-static refit, or the full fit's
+    ``La + 2 stderr`` where its La/Ra is below the sample period.  A full fit beyond it (a
+    spin-up at one voltage level after a start ramp is cut leaves La free to trade with Ra:
+    ``Ra - La / tau_m`` is what the current holds) is not an equation the answer leaves open,
+    and covering it would widen Ra's error by ``La / (Ra tau_m)`` for an La the answer rules
+    out.
+    """
+    la, ra_full = float(full.parameters['La']), abs(float(full.parameters['Ra']))
+    return not (la < ra_full * dt or la <= float(quasi.parameters['Ra']) * dt)
 
 
 def full_reached_its_limit(full: ChannelErrors, quasi: ChannelErrors) -> bool:
