@@ -21,7 +21,8 @@ from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.identification.discovery.analysis import (analyse, material, misfit, negligible,
                                                           stops_before_judging)
-from dcmotor_id.identification.discovery.judging import decide, never_worse, round_report, score
+from dcmotor_id.identification.discovery.judging import (decide, never_worse, ranking_cost,
+                                                         round_report, score)
 from dcmotor_id.identification.discovery.refitting import (anchor_fit, base_unsound, fit_structure,
                                                            judging_reference, refit_all,
                                                            refit_candidate,
@@ -30,7 +31,7 @@ from dcmotor_id.identification.discovery.result import DiscoveryResult
 from dcmotor_id.identification.discovery.screening import (OUTPUT_ERROR_SCREEN, Screen,
                                                            screen_absent, SCREEN_SHARE, SCREEN_TOP,
                                                            SCREEN_TOP_MISFIT)
-from dcmotor_id.identification.discovery.state import LoopState
+from dcmotor_id.identification.discovery.state import CROSS_VALIDATED, LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit, Round, Structure
 
 if TYPE_CHECKING:
@@ -124,7 +125,11 @@ def run_loop(settings: LoopState, estimate: Estimate | None = None,
     loop, base = base_fit(settings, estimate, structure or Structure())
     analysis_before = analyse(loop, base)
     search = search_rounds(loop, base, analysis_before)
-    current, reason = never_worse(base, search.current, search.reason, judging_reference(base))
+    current, reason = search.current, search.reason
+    if loop.acceptance not in CROSS_VALIDATED:
+        # Under blocked cross-validation every effect passed its test against the structure
+        # before it on every sample held out; the held-out end alone does not undo it.
+        current, reason = never_worse(base, current, reason, judging_reference(base))
     records, terms, estimate, base_estimate, out_of_time = refit_all_data(
         loop, base, current, estimate, search.out_of_time)
     analysis = search.analysis
@@ -268,7 +273,7 @@ def one_round(loop: LoopState, current: Fit, analysis: dict,
                              reference, steps)
     order = {cls.name: position for position, cls in enumerate(loop.candidates)}
     refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
-                      key=lambda candidate: candidate.fitted.heldout_cost)
+                      key=lambda candidate: ranking_cost(loop, candidate.fitted))
     screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
                           key=lambda candidate: -candidate.screen_explained)
     chosen, equivalent, refitted = decide(loop, reference, refitted, order)
