@@ -57,8 +57,9 @@ if TYPE_CHECKING:
 
 #: Contiguous blocks per record, each held out in turn.
 FOLDS = 5
-#: Evaluations of a fold's refit (it starts at its structure's fit on the training parts).
-FOLD_MAX_NFEV = 30
+#: Evaluations of a fold's refit (it starts at its structure's fit on the training parts and
+#: every piece at that fit's simulated state; the bound of the loop's base fit).
+FOLD_MAX_NFEV = 100
 #: Fewest samples of a training piece: shorter ones are left out (their initial state alone
 #: would take them up).
 LEAST_PIECE = 20
@@ -108,6 +109,28 @@ def _piece_terms(terms: Sequence, pieces: Sequence[Sequence[tuple[int, int]]]) -
         for first, last in spans)) for term in terms)
 
 
+def _piece_states(loop: LoopState, fit: Fit,
+                  pieces: Sequence[Sequence[tuple[int, int]]]) -> list[list[float]]:
+    """
+    Warm start of every piece's initial state: the loop fit's simulated state at its start.
+
+    The current (full model) and the speed; the position, where the state has one, from the
+    simulation when it has the position, else measured.
+    """
+    states = []
+    for index, spans in enumerate(pieces):
+        sim, rec = fit.simulated[index], fit.records[index]
+        size = len(fit.estimate.initial_states[index])
+        for first, _ in spans:
+            state = [float(sim[channel][first]) for channel in
+                     (('speed',) if loop.mechanical_only else ('current', 'speed'))]
+            if size > len(state):
+                source = sim['position'] if 'position' in sim else rec.position
+                state.append(float(source[first]))
+            states.append(state)
+    return states
+
+
 def _fold_simulation(loop: LoopState, fit: Fit, fold: int, gap: int) -> list[dict] | None:
     """
     Refit a structure with every record's block ``fold`` held out; simulate the whole records.
@@ -130,6 +153,7 @@ def _fold_simulation(loop: LoopState, fit: Fit, fold: int, gap: int) -> list[dic
     position_ar = None if loop.position_ar is None else [
         loop.position_ar[index] for index, spans in enumerate(pieces) for _ in spans]
     estimator = make_estimator(loop, max_nfev=FOLD_MAX_NFEV, initial=start,
+                               initial_states=_piece_states(loop, fit, pieces),
                                position_ar=position_ar, retry=False)
     try:
         with np.errstate(all='ignore'):
