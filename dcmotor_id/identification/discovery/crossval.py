@@ -27,8 +27,10 @@ variances added (Welch-Satterthwaite).  A t test on the :data:`FOLDS` per-fold g
 excited in one stretch is not; pooling the held-out samples asks only that the samples
 where it shows predict better than without it.
 
-Under these rules the round's candidates are ranked by their training cost (the held-out
-end no longer decides) and must lower the training BIC; the winner must pass this test and,
+Under these rules the round's candidates that lower the training BIC are ranked by their
+cross-validated cost (:func:`choose_cross_validated`; the held-out end no longer decides,
+and the training cost would favour the candidate with the most coefficients: a Stribeck
+friction taking up a quadratic drag); the winner must pass this test and,
 where the measured current drives the model, the input noise's null
 (:func:`~dcmotor_id.identification.discovery.input_null.input_noise_doubt`).  ``blocked-cv``
 judges every round (no whiteness stop, as ``judged-always``); ``blocked-cv-white`` stops on a
@@ -289,6 +291,50 @@ def cross_validated_t(loop: LoopState, current: Fit, fitted: Fit) -> tuple[float
                                       1e-300)
     t = total / np.sqrt(variance) if variance > 0 else (np.inf if total > 0 else 0.0)
     return float(t), float(worth)
+
+
+def cross_validated_cost(loop: LoopState, fit: Fit, gap: int) -> float:
+    """
+    Weighted mean squared cross-validated residual of a structure, summed over the outputs.
+
+    The loop's cost (:func:`~dcmotor_id.identification.discovery.refitting.cost`) on the
+    residual of :func:`fold_outputs`; ``inf`` when a fold's refit fails.
+    """
+    residuals = fold_outputs(loop, fit, gap)
+    if residuals is None:
+        return float('inf')
+    total = 0.0
+    for channel in loop.outputs:
+        joined = np.concatenate([residual[channel] for residual in residuals])
+        with np.errstate(all='ignore'):
+            value = float(np.mean(joined ** 2)) / loop.fitted_weights[channel] ** 2
+        total += value if np.isfinite(value) else np.inf
+    return total
+
+
+def choose_cross_validated(loop: LoopState, current: Fit, admissible: Sequence[Candidate],
+                           order: dict[str, int]) -> tuple[Candidate | None, list[Candidate]]:
+    """
+    Return the candidate of lowest cross-validated cost when it is below the current's.
+
+    Among the admissible candidates that lower the training BIC; the candidates within
+    :data:`~dcmotor_id.identification.discovery.judging.TIE_SHARE` of the best one's drop tie
+    with it and the earliest in the vocabulary wins (the others are its equivalents).
+    """
+    from dcmotor_id.identification.discovery.judging import TIE_SHARE
+
+    gap = fold_gap(loop, current)
+    before = cross_validated_cost(loop, current, gap)
+    scored = [(cross_validated_cost(loop, candidate.fitted, gap), candidate)
+              for candidate in admissible if float(candidate.bic_delta or 0.0) < 0.0]
+    if not scored or not np.isfinite(before):
+        return None, []
+    drop = before - min(value for value, _ in scored)
+    if not drop > 0:
+        return None, []
+    ties = [candidate for value, candidate in scored if before - value >= TIE_SHARE * drop]
+    winner = min(ties, key=lambda candidate: order[candidate.name])
+    return winner, [candidate for candidate in ties if candidate is not winner]
 
 
 def unearned_cross_validated(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:

@@ -31,9 +31,9 @@ tests, and the loop does not stop on a white held-out residual before judging
 (:func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`; round 11); rule
 ``whole-record-white`` (the default since round 11): those tests, and the loop stops on a white
 held-out residual only when the whole records' residual is white too.  Rules ``blocked-cv``
-and ``blocked-cv-white`` (round 12, measured): the candidates ranked by their training cost
-(:func:`ranking_cost`), the winner judged by blocked cross-validation over the whole records
-(:mod:`.crossval`), with the stop of ``judged-always`` or of ``whole-record-white``.  Rule
+and ``blocked-cv-white`` (round 12, measured): the candidates ranked and the winner judged
+by blocked cross-validation over the whole records (:mod:`.crossval`), with the stop of
+``judged-always`` or of ``whole-record-white``.  Rule
 ``all-data-lr`` (measured,
 not the default: it adds effects to real records): the training parts' likelihood ratio on
 effective samples, the held-out part a guard (:mod:`.likelihood`).  The former rules
@@ -80,18 +80,6 @@ SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null',
 #: Rules without the loop's least gain: their test is the criterion (round 10).
 GAIN_FREE = ('input-noise-null-any-gain', 'all-data-lr', 'judged-always',
              'whole-record-white', 'blocked-cv', 'blocked-cv-white')
-
-
-def ranking_cost(loop: LoopState, fit: Fit) -> float:
-    """
-    Return the cost a round's candidates are ranked by: the held-out cost, or the training one.
-
-    Under the rules of :data:`~dcmotor_id.identification.discovery.state.CROSS_VALIDATED` the
-    held-out end does not decide (an effect excited early does not show there): the
-    candidates are ranked by their training cost and the winner is judged by blocked
-    cross-validation (:mod:`~dcmotor_id.identification.discovery.crossval`).
-    """
-    return fit.train_cost if loop.acceptance in CROSS_VALIDATED else fit.heldout_cost
 
 
 def least_gain(loop: LoopState) -> float:
@@ -224,23 +212,26 @@ def choose(loop: LoopState, current: Fit, admissible: list[Candidate],
     Return the best admissible candidate when it gains enough (and its ties), else None.
 
     Rule ``all-data-lr``: the strongest evidence on the training parts
-    (:func:`~dcmotor_id.identification.discovery.likelihood.choose_by_ratio`).
+    (:func:`~dcmotor_id.identification.discovery.likelihood.choose_by_ratio`); rules
+    ``blocked-cv`` and ``blocked-cv-white``: the lowest cross-validated cost
+    (:func:`~dcmotor_id.identification.discovery.crossval.choose_cross_validated`).
     """
     if loop.acceptance == 'all-data-lr':
         from dcmotor_id.identification.discovery.likelihood import choose_by_ratio
 
         return choose_by_ratio(loop, current, admissible, order)
-    before = ranking_cost(loop, current)
-    drop = before - ranking_cost(loop, admissible[0].fitted) if admissible else 0.0
+    if loop.acceptance in CROSS_VALIDATED:
+        from dcmotor_id.identification.discovery.crossval import choose_cross_validated
+
+        return choose_cross_validated(loop, current, admissible, order)
+    drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
     if not drop > 0:
         return None, []
     ties = [candidate for candidate in admissible
-            if before - ranking_cost(loop, candidate.fitted) >= TIE_SHARE * drop]
+            if current.heldout_cost - candidate.fitted.heldout_cost >= TIE_SHARE * drop]
     winner = min(ties, key=lambda candidate: order[candidate.name])
     # Refitted candidates are scored: gain, bic_delta and gain_noise are set.
     gain, bic_delta = cast(float, winner.gain), cast(float, winner.bic_delta)
-    if loop.acceptance in CROSS_VALIDATED:
-        gain = cast(float, winner.insample_gain)  # the cross-validated test judges it
     noise = None if loop.acceptance in SPREAD_FREE else winner.gain_noise
     if gain >= least_gain(loop) and bic_delta < 0 and (noise is None or gain > noise):
         return winner, [candidate for candidate in ties if candidate is not winner]

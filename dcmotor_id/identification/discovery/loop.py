@@ -21,8 +21,7 @@ from dcmotor_id.core.model import parameter_names
 from dcmotor_id.core.progress import TimeBudgetExceeded
 from dcmotor_id.identification.discovery.analysis import (analyse, material, misfit, negligible,
                                                           stops_before_judging)
-from dcmotor_id.identification.discovery.judging import (decide, never_worse, ranking_cost,
-                                                         round_report, score)
+from dcmotor_id.identification.discovery.judging import decide, never_worse, round_report, score
 from dcmotor_id.identification.discovery.refitting import (anchor_fit, base_unsound, fit_structure,
                                                            judging_reference, refit_all,
                                                            refit_candidate,
@@ -273,7 +272,7 @@ def one_round(loop: LoopState, current: Fit, analysis: dict,
                              reference, steps)
     order = {cls.name: position for position, cls in enumerate(loop.candidates)}
     refitted = sorted((candidate for candidate in scored if candidate.fit is not None),
-                      key=lambda candidate: ranking_cost(loop, candidate.fitted))
+                      key=lambda candidate: candidate.fitted.heldout_cost)
     screened_out = sorted((candidate for candidate in scored if candidate.fit is None),
                           key=lambda candidate: -candidate.screen_explained)
     chosen, equivalent, refitted = decide(loop, reference, refitted, order)

@@ -69,8 +69,8 @@ ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level', 'innovation-t-al
                     'innovation-arma', 'input-noise-null', 'input-noise-null-any-gain',
                     'all-data-lr', 'judged-always', 'whole-record-white', 'blocked-cv',
                     'blocked-cv-white')
-#: Rules judged by blocked cross-validation: candidates ranked by their training cost, the
-#: winner's cross-validated t the test
+#: Rules judged by blocked cross-validation: candidates ranked by their cross-validated
+#: cost, the winner's cross-validated t the test
 #: (:func:`~dcmotor_id.identification.discovery.crossval.unearned_cross_validated`).
 CROSS_VALIDATED = ('blocked-cv', 'blocked-cv-white')
 #: The rule of every identification.
