@@ -323,12 +323,15 @@ def choose_cross_validated(loop: LoopState, current: Fit, admissible: Sequence[C
     """
     from dcmotor_id.identification.discovery.judging import TIE_SHARE
 
+    lowering = [candidate for candidate in admissible if float(candidate.bic_delta or 0.0) < 0.0]
+    if not lowering:
+        return None, []  # no refit of the folds
     gap = fold_gap(loop, current)
     before = cross_validated_cost(loop, current, gap)
-    scored = [(cross_validated_cost(loop, candidate.fitted, gap), candidate)
-              for candidate in admissible if float(candidate.bic_delta or 0.0) < 0.0]
-    if not scored or not np.isfinite(before):
+    if not np.isfinite(before):
         return None, []
+    scored = [(cross_validated_cost(loop, candidate.fitted, gap), candidate)
+              for candidate in lowering]
     drop = before - min(value for value, _ in scored)
     if not drop > 0:
         return None, []
