@@ -209,14 +209,28 @@ def fold_outputs(loop: LoopState, fit: Fit, gap: int) -> list[dict[str, np.ndarr
 
 
 def _innovations(residual: np.ndarray) -> tuple[np.ndarray, float]:
-    """Return the AR(1) innovations of a residual (of samples 1 to n - 1) and their variance."""
+    """
+    Return the AR(1) innovations of a cross-validated residual and their variance.
+
+    Innovation ``k`` is of sample ``k + 1``.  The residual's blocks come from different
+    refits: the innovation of each block's first sample (its step from the block before) is
+    NaN, and no lag-1 product crosses a block's edge (a drifting position residual jumps
+    there, which would swamp its increments).
+    """
     from dcmotor_id.identification.error_model.criterion import MAX_POSITION_AR
 
+    residual = np.asarray(residual, dtype=float)
+    edges = [first for first, _ in fold_edges(residual.shape[0])[1:]]
     finite = np.where(np.isfinite(residual), residual, 0.0)
-    lagged = float(finite[:-1] @ finite[:-1])
-    rho = float(np.clip(finite[1:] @ finite[:-1] / lagged, 0.0, MAX_POSITION_AR)) \
+    finite_pairs = finite[1:] * finite[:-1]
+    finite_pairs[[edge - 1 for edge in edges]] = 0.0
+    previous = finite[:-1] ** 2
+    previous[[edge - 1 for edge in edges]] = 0.0
+    lagged = float(np.sum(previous))
+    rho = float(np.clip(np.sum(finite_pairs) / lagged, 0.0, MAX_POSITION_AR)) \
         if lagged > 0 else 0.0
     innovations = residual[1:] - rho * residual[:-1]
+    innovations[[edge - 1 for edge in edges]] = np.nan
     finite_innovations = innovations[np.isfinite(innovations)]
     variance = float(np.mean(finite_innovations ** 2)) if finite_innovations.shape[0] else 0.0
     return innovations, max(variance, 1e-300)
