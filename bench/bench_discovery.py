@@ -361,7 +361,13 @@ def main(argv=None):
         'of 5 %; whole-record-white = those tests, the loop stopping on a white held-out '
         'residual only when the residual over the whole records is white too (Ljung-Box at '
         'the same size); judged-always = those tests, the loop never stopping on a white '
-        "residual; all-data-lr = the training parts' likelihood ratio on effective samples "
+        'residual; blocked-cv = blocked cross-validation (5 contiguous blocks of every record '
+        'held out in turn, both structures refitted on the rest from their fits, a gap of the '
+        "residual's correlation time): the candidates that lower the training BIC ranked by "
+        "their cross-validated cost, the winner's cross-validated innovations' t at the same "
+        "size and the input noise's null, the loop never stopping on a white residual; "
+        'blocked-cv-white = the same, the loop stopping as whole-record-white does; '
+        "all-data-lr = the training parts' likelihood ratio on effective samples "
         "(chi-square at the held-out test's size, the effect's coefficients as degrees of "
         "freedom), the held-out innovations' drop not significantly negative (one-sided 5 %), "
         "the input noise's null of the default; noise-level = the former rules "

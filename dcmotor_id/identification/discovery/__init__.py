@@ -55,6 +55,9 @@ One module per seam of the loop; each imports only the modules before it in this
   ``input-noise-null-any-gain`` and the default ``whole-record-white``);
 - :mod:`~dcmotor_id.identification.discovery.likelihood`: the training parts' likelihood ratio
   on effective samples, the held-out part a guard (the rule ``all-data-lr``, measured);
+- :mod:`~dcmotor_id.identification.discovery.crossval`: blocked cross-validation over the
+  whole records, each of its blocks held out in turn (the rules ``blocked-cv`` and
+  ``blocked-cv-white``, measured);
 - :mod:`~dcmotor_id.identification.discovery.judging`: the held-out gain, its noise, the
   choice and the round's report (step 4);
 - :mod:`~dcmotor_id.identification.discovery.result`: :class:`DiscoveryResult`;

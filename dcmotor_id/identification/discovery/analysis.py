@@ -147,10 +147,10 @@ def explained(loop: LoopState, analysis: dict) -> bool:
 
 #: Rules under which the loop judges every round: a white held-out residual does not stop it
 #: (the held-out t test is the stop; ``bench/discovery_results.md``, round 11).
-JUDGED_ALWAYS = ('judged-always',)
+JUDGED_ALWAYS = ('judged-always', 'blocked-cv')
 #: Rules under which the loop stops only when the residual is white on the held-out part and
 #: on the whole records (:func:`white_on_whole_records`; round 11).
-WHOLE_RECORD_WHITENESS = ('whole-record-white',)
+WHOLE_RECORD_WHITENESS = ('whole-record-white', 'blocked-cv-white')
 
 
 def white_on_whole_records(loop: LoopState, fitted: Fit) -> bool:

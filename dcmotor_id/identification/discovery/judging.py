@@ -30,7 +30,10 @@ whose t passed (``bench/discovery_results.md``, round 10).  Rule ``judged-always
 tests, and the loop does not stop on a white held-out residual before judging
 (:func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`; round 11); rule
 ``whole-record-white`` (the default since round 11): those tests, and the loop stops on a white
-held-out residual only when the whole records' residual is white too.  Rule
+held-out residual only when the whole records' residual is white too.  Rules ``blocked-cv``
+and ``blocked-cv-white`` (round 12, measured): the candidates ranked and the winner judged
+by blocked cross-validation over the whole records (:mod:`.crossval`), with the stop of
+``judged-always`` or of ``whole-record-white``.  Rule
 ``all-data-lr`` (measured,
 not the default: it adds effects to real records): the training parts' likelihood ratio on
 effective samples, the held-out part a guard (:mod:`.likelihood`).  The former rules
@@ -46,7 +49,7 @@ from typing import Any, Callable, cast, Sequence
 
 import numpy as np
 
-from dcmotor_id.identification.discovery.state import LoopState
+from dcmotor_id.identification.discovery.state import CROSS_VALIDATED, LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit
 from dcmotor_id.identification.error_model.residuals import simulate_records
 from dcmotor_id.identification.estimators.refined import OutputErrorModel
@@ -73,10 +76,10 @@ HELDOUT_ALPHA = 0.00135
 #: Rules that do not ask the gain to be spread over the held-out part.
 SPREAD_FREE = ('innovation-t-alone', 'innovation-arma', 'input-noise-null',
                'input-noise-null-any-gain', 'all-data-lr', 'judged-always',
-               'whole-record-white')
+               'whole-record-white', 'blocked-cv', 'blocked-cv-white')
 #: Rules without the loop's least gain: their test is the criterion (round 10).
 GAIN_FREE = ('input-noise-null-any-gain', 'all-data-lr', 'judged-always',
-             'whole-record-white')
+             'whole-record-white', 'blocked-cv', 'blocked-cv-white')
 
 
 def least_gain(loop: LoopState) -> float:
@@ -209,12 +212,18 @@ def choose(loop: LoopState, current: Fit, admissible: list[Candidate],
     Return the best admissible candidate when it gains enough (and its ties), else None.
 
     Rule ``all-data-lr``: the strongest evidence on the training parts
-    (:func:`~dcmotor_id.identification.discovery.likelihood.choose_by_ratio`).
+    (:func:`~dcmotor_id.identification.discovery.likelihood.choose_by_ratio`); rules
+    ``blocked-cv`` and ``blocked-cv-white``: the lowest cross-validated cost
+    (:func:`~dcmotor_id.identification.discovery.crossval.choose_cross_validated`).
     """
     if loop.acceptance == 'all-data-lr':
         from dcmotor_id.identification.discovery.likelihood import choose_by_ratio
 
         return choose_by_ratio(loop, current, admissible, order)
+    if loop.acceptance in CROSS_VALIDATED:
+        from dcmotor_id.identification.discovery.crossval import choose_cross_validated
+
+        return choose_cross_validated(loop, current, admissible, order)
     drop = current.heldout_cost - admissible[0].fitted.heldout_cost if admissible else 0.0
     if not drop > 0:
         return None, []
@@ -265,6 +274,8 @@ def round_report(loop: LoopState, current: Fit, analysis: dict, results: list[Ca
         'added': None,
     }
     if chosen is not None:
+        if 'cross_validation' in chosen.fitted.info:
+            report['cross_validation'] = chosen.fitted.info['cross_validation']
         report['added'] = chosen.describe()
         report['error_after'] = chosen.fitted.errors(loop.error_channels)
         report['gain_pct'] = cast(float, chosen.gain) * 100.0  # a chosen candidate is scored
@@ -505,6 +516,9 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
     (:func:`least_gain`); ``judged-always`` and ``whole-record-white`` (default): the same
     tests, the loop judging more rounds
     (:func:`~dcmotor_id.identification.discovery.analysis.stops_before_judging`);
+    ``blocked-cv`` and ``blocked-cv-white``: blocked cross-validation over the whole records
+    and the input noise's null
+    (:func:`~dcmotor_id.identification.discovery.crossval.unearned_cross_validated`);
     ``all-data-lr``: the held-out guard and the input noise's null of
     :func:`~dcmotor_id.identification.discovery.likelihood.unearned_ratio` (the training
     parts' likelihood ratio chose it); ``noise-level`` (the former rules, kept to measure
@@ -522,6 +536,10 @@ def unearned(loop: LoopState, current: Fit, candidate: Candidate) -> str | None:
         from dcmotor_id.identification.discovery.likelihood import unearned_ratio
 
         return unearned_ratio(loop, current, candidate)
+    if loop.acceptance in CROSS_VALIDATED:
+        from dcmotor_id.identification.discovery.crossval import unearned_cross_validated
+
+        return unearned_cross_validated(loop, current, candidate)
     if loop.acceptance in ('input-noise-null', 'input-noise-null-any-gain', 'judged-always',
                            'whole-record-white'):
         from dcmotor_id.identification.discovery.input_null import input_noise_doubt

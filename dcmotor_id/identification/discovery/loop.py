@@ -30,7 +30,7 @@ from dcmotor_id.identification.discovery.result import DiscoveryResult
 from dcmotor_id.identification.discovery.screening import (OUTPUT_ERROR_SCREEN, Screen,
                                                            screen_absent, SCREEN_SHARE, SCREEN_TOP,
                                                            SCREEN_TOP_MISFIT)
-from dcmotor_id.identification.discovery.state import LoopState
+from dcmotor_id.identification.discovery.state import CROSS_VALIDATED, LoopState
 from dcmotor_id.identification.discovery.structure import Candidate, Fit, Round, Structure
 
 if TYPE_CHECKING:
@@ -124,7 +124,11 @@ def run_loop(settings: LoopState, estimate: Estimate | None = None,
     loop, base = base_fit(settings, estimate, structure or Structure())
     analysis_before = analyse(loop, base)
     search = search_rounds(loop, base, analysis_before)
-    current, reason = never_worse(base, search.current, search.reason, judging_reference(base))
+    current, reason = search.current, search.reason
+    if loop.acceptance not in CROSS_VALIDATED:
+        # Under blocked cross-validation every effect passed its test against the structure
+        # before it on every sample held out; the held-out end alone does not undo it.
+        current, reason = never_worse(base, current, reason, judging_reference(base))
     records, terms, estimate, base_estimate, out_of_time = refit_all_data(
         loop, base, current, estimate, search.out_of_time)
     analysis = search.analysis

@@ -58,12 +58,21 @@ MAX_EFFECTS = 4
 #: ``bench/discovery_results.md``, round 11);
 #: ``whole-record-white`` (the default since round 11), those tests, the loop stopping on a
 #: white held-out residual only when the residual over the whole records is white too
-#: (:func:`~dcmotor_id.identification.discovery.analysis.white_on_whole_records`).
+#: (:func:`~dcmotor_id.identification.discovery.analysis.white_on_whole_records`);
+#: ``blocked-cv`` and ``blocked-cv-white`` (:data:`CROSS_VALIDATED`, measured in round 12),
+#: the winner judged by blocked cross-validation over the whole records
+#: (:mod:`~dcmotor_id.identification.discovery.crossval`), the loop judging every round or
+#: stopping as ``whole-record-white`` does.
 #: The least gain: the screen's share and the rules that ask it
 #: (:func:`~dcmotor_id.identification.discovery.judging.least_gain`).
 ACCEPTANCE_RULES = ('heldout-t', 'innovation-t', 'noise-level', 'innovation-t-alone',
                     'innovation-arma', 'input-noise-null', 'input-noise-null-any-gain',
-                    'all-data-lr', 'judged-always', 'whole-record-white')
+                    'all-data-lr', 'judged-always', 'whole-record-white', 'blocked-cv',
+                    'blocked-cv-white')
+#: Rules judged by blocked cross-validation: candidates ranked by their cross-validated
+#: cost, the winner's cross-validated t the test
+#: (:func:`~dcmotor_id.identification.discovery.crossval.unearned_cross_validated`).
+CROSS_VALIDATED = ('blocked-cv', 'blocked-cv-white')
 #: The rule of every identification.
 DEFAULT_ACCEPTANCE = 'whole-record-white'
 

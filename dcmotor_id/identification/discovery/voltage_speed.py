@@ -40,7 +40,8 @@ from dcmotor_id.identification.discovery.parts import excited_stop
 from dcmotor_id.identification.discovery.refitting import cost
 from dcmotor_id.identification.discovery.screening import (Screen, Sensitivities,
                                                            sensitivity_matrix, stack)
-from dcmotor_id.identification.discovery.state import LoopState
+from dcmotor_id.identification.discovery.state import (CROSS_VALIDATED, DEFAULT_ACCEPTANCE,
+                                                       LoopState)
 from dcmotor_id.identification.discovery.structure import Candidate, Fit, Structure
 from dcmotor_id.identification.effects import VOCABULARY
 from dcmotor_id.identification.estimators.base import Estimate
@@ -285,6 +286,9 @@ def discover_voltage_speed(records: Sequence[Record], fit: VoltageSpeedFit,
                                      summary={'reason': ONE_LEVEL})
     loop = LoopState(list(records), torque_constant=1.0, vocabulary=VOLTAGE_SPEED_VOCABULARY,
                      progress=progress)
+    if loop.acceptance in CROSS_VALIDATED:
+        # No fold refits of this model: its candidates are judged by the default rule.
+        loop = replace(loop, acceptance=DEFAULT_ACCEPTANCE)
     try:
         if progress is not None:
             progress.set_stage('discovery (voltage-speed): base model on the training parts')
