@@ -37,10 +37,10 @@ on answers within their goals and on the recordings of its class.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from statistics import NormalDist
 from typing import Mapping, Sequence
 
 import numpy as np
-from scipy.stats import norm
 
 from dcmotor_id.identification.checks.start import correlation_time
 
@@ -111,13 +111,14 @@ def undecided(fit: tuple[Mapping[str, float], Mapping[str, float]],
     floor_values, floor_stderr = floor
     out = {name: float(value) for name, value in stderr.items()}
     tests = {channel: heldout_z(*pair) for channel, pair in residuals.items()}
-    bound = float(norm.isf(HELDOUT_SIZE / (2.0 * max(len(tests), 1))))
+    # the standard library's normal quantile: identify's path does not import scipy
+    bound = NormalDist().inv_cdf(1.0 - HELDOUT_SIZE / (2.0 * max(len(tests), 1)))
     if not tests or not all(abs(z) <= bound for z in tests.values()):
         return Undecided(None, out, tests)  # not equal, or nothing held out: the data decide
     compared = [name for name in names if _finite(stderr.get(name), values.get(name))
                 and _finite(floor_stderr.get(name), floor_values.get(name))
                 and np.isfinite(replayed.get(name, np.nan))]
-    gap_bound = float(norm.isf(GAP_SIZE / (2.0 * max(len(compared), 1))))
+    gap_bound = NormalDist().inv_cdf(1.0 - GAP_SIZE / (2.0 * max(len(compared), 1)))
     gaps = {name: abs(floor_values[name] - replayed[name]) / float(np.sqrt(
         stderr[name] ** 2 + 2.0 * floor_stderr[name] ** 2)) for name in compared}
     far = [name for name in compared if gaps[name] > gap_bound]
