@@ -166,6 +166,7 @@ def test_the_committed_speed_loop_verdict_is_the_study_s(study):
                       r'significant \(t >= (\S+) needed\)', first['rejected'])
     assert found, first['rejected']
     gain, t, effective, needed = found.groups()
-    row = (f'| speed | innovation-t-alone | {first["name"]} | {float(gain):.1f} | {t} | '
+    from dcmotor_id.identification.discovery.state import DEFAULT_ACCEPTANCE
+    row = (f'| speed | {DEFAULT_ACCEPTANCE} | {first["name"]} | {float(gain):.1f} | {t} | '
            f'{effective} | {needed} | not added |')
     assert row in _committed_results(), (row, 'run python bench/bench_emps_study.py')
